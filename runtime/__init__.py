@@ -1,0 +1,1 @@
+"""abyssal.runtime: NumPy/SciPy numerics on top of the compiled generated code."""

@@ -1,0 +1,113 @@
+"""Fossen's marine-vehicle building blocks as CasADi SX expressions.
+
+Conventions (Fossen, *Handbook of Marine Craft Hydrodynamics and Motion Control*, 2011):
+NED earth frame, body frame x forward / y starboard / z down; generalised velocity
+nu = [u v w p q r], pose eta = [x y z phi theta psi]; equations of motion
+``M nu_dot + C(nu) nu + D(nu) nu + g(eta) = tau``, with M = M_RB + M_A symmetric positive
+definite, C(nu) skew-symmetric and derived from M (never typed in), D(nu) positive definite.
+Hydrodynamic derivatives keep Fossen's signs: added-mass and damping derivatives are
+negative numbers (X_udot < 0, X_u < 0), so M_A = -diag(X_udot, ...) and D = -diag(X_u, ...).
+"""
+from __future__ import annotations
+
+import casadi as ca
+
+
+def skew(a) -> ca.SX:
+    """S(a) with S(a) b = a x b (Fossen eq. 2.10)."""
+    return ca.vertcat(
+        ca.horzcat(0, -a[2], a[1]),
+        ca.horzcat(a[2], 0, -a[0]),
+        ca.horzcat(-a[1], a[0], 0),
+    )
+
+
+def rotation_z(psi) -> ca.SX:
+    """Rotation about z by yaw psi, body -> earth (3x3)."""
+    c, s = ca.cos(psi), ca.sin(psi)
+    return ca.vertcat(ca.horzcat(c, -s, 0), ca.horzcat(s, c, 0), ca.horzcat(0, 0, 1))
+
+
+def rotation_zyx(phi, theta, psi) -> ca.SX:
+    """R_b^n(Theta) for zyx Euler angles, body -> earth (Fossen eq. 2.18)."""
+    cphi, sphi = ca.cos(phi), ca.sin(phi)
+    cth, sth = ca.cos(theta), ca.sin(theta)
+    cpsi, spsi = ca.cos(psi), ca.sin(psi)
+    return ca.vertcat(
+        ca.horzcat(cpsi * cth, -spsi * cphi + cpsi * sth * sphi, spsi * sphi + cpsi * cphi * sth),
+        ca.horzcat(spsi * cth, cpsi * cphi + sphi * sth * spsi, -cpsi * sphi + sth * spsi * cphi),
+        ca.horzcat(-sth, cth * sphi, cth * cphi),
+    )
+
+
+def euler_rate_transform(phi, theta) -> ca.SX:
+    """T(Theta): Euler-angle rates from body angular velocity (Fossen eq. 2.29); singular at theta = +-90 deg."""
+    cphi, sphi = ca.cos(phi), ca.sin(phi)
+    cth, tth = ca.cos(theta), ca.tan(theta)
+    return ca.vertcat(
+        ca.horzcat(1, sphi * tth, cphi * tth),
+        ca.horzcat(0, cphi, -sphi),
+        ca.horzcat(0, sphi / cth, cphi / cth),
+    )
+
+
+def kinematics_6dof(eta, nu) -> ca.SX:
+    """eta_dot = J(eta) nu with J = blockdiag(R_b^n, T) (Fossen eq. 2.40)."""
+    phi, theta, psi = eta[3], eta[4], eta[5]
+    return ca.vertcat(
+        ca.mtimes(rotation_zyx(phi, theta, psi), nu[0:3]),
+        ca.mtimes(euler_rate_transform(phi, theta), nu[3:6]),
+    )
+
+
+def coriolis_from_mass(M, nu) -> ca.SX:
+    """Coriolis-centripetal matrix of a 6x6 mass matrix M (Fossen eq. 3.46 / 6.43).
+
+    C(nu) = [[0, -S(M11 nu1 + M12 nu2)], [-S(M11 nu1 + M12 nu2), -S(M21 nu1 + M22 nu2)]],
+    skew-symmetric for symmetric M, so it does no work. Used for both C_RB and C_A.
+    """
+    nu1, nu2 = nu[0:3], nu[3:6]
+    a = ca.mtimes(M[0:3, 0:3], nu1) + ca.mtimes(M[0:3, 3:6], nu2)
+    b = ca.mtimes(M[3:6, 0:3], nu1) + ca.mtimes(M[3:6, 3:6], nu2)
+    zero = ca.SX.zeros(3, 3)
+    return ca.vertcat(ca.horzcat(zero, -skew(a)), ca.horzcat(-skew(a), -skew(b)))
+
+
+def rigid_body_mass(m, r_g, inertia) -> ca.SX:
+    """M_RB for mass m, centre of gravity r_g (3,) in body axes and 3x3 inertia about CO (Fossen eq. 3.44)."""
+    S = skew(r_g)
+    return ca.vertcat(
+        ca.horzcat(m * ca.SX.eye(3), -m * S),
+        ca.horzcat(m * S, inertia),
+    )
+
+
+def linear_plus_quadratic_damping(nu, linear, quadratic) -> ca.SX:
+    """D(nu) nu with D(nu) = diag(linear) + diag(quadratic * |nu|); coefficients positive.
+
+    The damping *force* opposes motion: -D(nu) nu. Positive coefficients keep D positive definite.
+    """
+    return linear * nu + quadratic * ca.fabs(nu) * nu
+
+
+def restoring_forces(W, B, r_g, r_b, phi, theta) -> ca.SX:
+    """g(eta) for weight W, buoyancy B, centres r_g and r_b (Fossen eq. 4.6)."""
+    sth, cth, sphi, cphi = ca.sin(theta), ca.cos(theta), ca.sin(phi), ca.cos(phi)
+    xg, yg, zg = r_g[0], r_g[1], r_g[2]
+    xb, yb, zb = r_b[0], r_b[1], r_b[2]
+    return ca.vertcat(
+        (W - B) * sth,
+        -(W - B) * cth * sphi,
+        -(W - B) * cth * cphi,
+        -(yg * W - yb * B) * cth * cphi + (zg * W - zb * B) * cth * sphi,
+        (zg * W - zb * B) * sth + (xg * W - xb * B) * cth * cphi,
+        -(xg * W - xb * B) * cth * sphi - (yg * W - yb * B) * sth,
+    )
+
+
+def solve_mass(M, rhs) -> ca.SX:
+    """M^{-1} rhs; a structurally diagonal M (the usual decoupled model) becomes a product with
+    1/diag(M), which common-subexpression elimination then shares between Runge-Kutta stages."""
+    if M.sparsity().is_diag():
+        return rhs * (1 / ca.diag(M))
+    return ca.solve(M, rhs)

@@ -1,0 +1,145 @@
+"""4-DOF anchor-chain cleaning ROV of seed paper 000 (Wang et al., Appl. Sci. 2023, 13, 5885).
+
+State (eq. 13): x = [x y z psi u v w r b_x b_y b_z b_psi]; input tau = [X Y Z N] (eq. 5);
+measurement [x y z psi] (H of eq. 16). Surge, sway, heave and yaw only: roll and pitch are
+held by the chain (section 2.2), so J(eta) reduces to R(psi) (eq. 12).
+
+Equations, as implemented:
+    eta_dot = R(psi) nu                                                  (eq. 12)
+    M nu_dot = tau - C(nu) nu - D(nu) nu - g(eta) + R(psi)^T b + w_nu    (eqs. 5, 15)
+    b_dot    = -b / T_b + w_b                                             (eq. 11, F_b = -1/T_b)
+
+Departures from the printed formulas (DESIGN.md lists them as known typos):
+- M_A (eq. 6/47) and D_L, D_NL (eqs. 8-9/48-49) are printed with negative entries; as in
+  Fossen, the printed numbers are the hydrodynamic derivatives (X_udot = -24.56 ...), so
+  M_A = -diag(X_udot, Y_vdot, Z_wdot, N_rdot) and D = -diag(X_u, ...) - diag(X_|u|u |u|, ...)
+  are positive definite.
+- C_RB and C_A (eq. 7) are not typed in: they are derived from M_RB and M_A by Fossen's
+  formula (fossen.coriolis_from_mass) on the 6-DOF embedding with p = q = 0. This removes the
+  printed `m` on the heave diagonal of C_RB and the `-N_rdot` entry of C_A (neither is a
+  Coriolis term: both would make C(nu) not skew-symmetric).
+- The bias b is an earth-frame disturbance force (eq. 15 writes R^T(psi) b in the body
+  equations). Eq. 11 leaves F_b unspecified; we use a first-order Gauss-Markov process with
+  time constant T_b (a runtime parameter, default 100 s), which reduces to a random walk as
+  T_b -> infinity.
+- W = B (section 5.1: neutrally buoyant), so g(eta) = [0 0 -(W-B) 0] vanishes by default;
+  W and B stay parameters.
+"""
+from __future__ import annotations
+
+import casadi as ca
+
+from .. import fossen
+from ..model import Model, Parameter, Quantity, symbols
+
+DOF = [0, 1, 2, 5]  # surge, sway, heave, yaw inside Fossen's 6-DOF ordering
+
+STATES = (
+    Quantity("x", "m", "north position"),
+    Quantity("y", "m", "east position"),
+    Quantity("z", "m", "depth"),
+    Quantity("psi", "rad", "yaw"),
+    Quantity("u", "m/s", "surge velocity"),
+    Quantity("v", "m/s", "sway velocity"),
+    Quantity("w", "m/s", "heave velocity"),
+    Quantity("r", "rad/s", "yaw rate"),
+    Quantity("b_x", "N", "earth-frame disturbance force, x"),
+    Quantity("b_y", "N", "earth-frame disturbance force, y"),
+    Quantity("b_z", "N", "earth-frame disturbance force, z"),
+    Quantity("b_psi", "N m", "disturbance moment, yaw"),
+)
+INPUTS = (
+    Quantity("tau_X", "N", "surge thrust"),
+    Quantity("tau_Y", "N", "sway thrust"),
+    Quantity("tau_Z", "N", "heave thrust"),
+    Quantity("tau_N", "N m", "yaw moment"),
+)
+PARAMETERS = (  # section 5.1, eqs. 46-49; derivatives with Fossen's signs
+    Parameter("m", "kg", 26.0, "mass"),
+    Parameter("I_z", "kg m^2", 1.04, "yaw inertia"),
+    Parameter("X_udot", "kg", -24.56, "added mass, surge"),
+    Parameter("Y_vdot", "kg", -34.27, "added mass, sway"),
+    Parameter("Z_wdot", "kg", -39.19, "added mass, heave"),
+    Parameter("N_rdot", "kg m^2", -2.01, "added inertia, yaw"),
+    Parameter("X_u", "N s/m", -30.57, "linear damping, surge"),
+    Parameter("Y_v", "N s/m", -42.21, "linear damping, sway"),
+    Parameter("Z_w", "N s/m", -89.10, "linear damping, heave"),
+    Parameter("N_r", "N m s", -0.028, "linear damping, yaw"),
+    Parameter("X_uu", "N s^2/m^2", -97.43, "quadratic damping, surge"),
+    Parameter("Y_vv", "N s^2/m^2", -79.39, "quadratic damping, sway"),
+    Parameter("Z_ww", "N s^2/m^2", -117.40, "quadratic damping, heave"),
+    Parameter("N_rr", "N m s^2", -1.25, "quadratic damping, yaw"),
+    Parameter("W", "N", 26.0 * 9.81, "weight"),
+    Parameter("B", "N", 26.0 * 9.81, "buoyancy"),
+    Parameter("T_b", "s", 100.0, "time constant of the disturbance bias"),
+)
+NOISES = (
+    Quantity("w_X", "N", "surge force noise"),
+    Quantity("w_Y", "N", "sway force noise"),
+    Quantity("w_Z", "N", "heave force noise"),
+    Quantity("w_N", "N m", "yaw moment noise"),
+    Quantity("w_bx", "N/s", "bias rate noise, x"),
+    Quantity("w_by", "N/s", "bias rate noise, y"),
+    Quantity("w_bz", "N/s", "bias rate noise, z"),
+    Quantity("w_bpsi", "N m/s", "bias rate noise, yaw"),
+)
+OUTPUTS = (
+    Quantity("x", "m", "position fix, x"),
+    Quantity("y", "m", "position fix, y"),
+    Quantity("z", "m", "depth gauge"),
+    Quantity("psi", "rad", "compass"),
+)
+
+
+def rov4dof() -> Model:
+    x, u, p, w = symbols("x", STATES), symbols("u", INPUTS), symbols("p", PARAMETERS), symbols("w", NOISES)
+    prm = {q.name: p[i] for i, q in enumerate(PARAMETERS)}
+    psi = x[3]
+    nu = x[4:8]
+    bias = x[8:12]
+
+    # Eq. 6: M = M_RB + M_A, embedded in 6-DOF to derive C(nu) by Fossen's formula.
+    zero = ca.SX(0)
+    m6 = ca.diag(ca.vertcat(prm["m"], prm["m"], prm["m"], zero, zero, prm["I_z"]))
+    added6 = -ca.diag(ca.vertcat(prm["X_udot"], prm["Y_vdot"], prm["Z_wdot"], zero, zero, prm["N_rdot"]))
+    nu6 = ca.vertcat(nu[0], nu[1], nu[2], zero, zero, nu[3])
+    coriolis6 = fossen.coriolis_from_mass(m6, nu6) + fossen.coriolis_from_mass(added6, nu6)  # eq. 7
+    M = (m6 + added6)[DOF, DOF]
+    C = coriolis6[DOF, DOF]
+
+    # Eqs. 8-9: D(nu) nu with positive coefficients.
+    linear = -ca.vertcat(prm["X_u"], prm["Y_v"], prm["Z_w"], prm["N_r"])
+    quadratic = -ca.vertcat(prm["X_uu"], prm["Y_vv"], prm["Z_ww"], prm["N_rr"])
+    damping = fossen.linear_plus_quadratic_damping(nu, linear, quadratic)
+
+    # Eq. 10: restoring forces (phi = theta = 0).
+    restoring = fossen.restoring_forces(prm["W"], prm["B"], ca.SX.zeros(3), ca.SX.zeros(3), 0, 0)[DOF]
+
+    # Eq. 12/15: R(psi) for the 4-DOF pose; the earth-frame bias enters the body equations as R^T b.
+    R4 = ca.diagcat(fossen.rotation_z(psi), ca.SX(1))
+    eta_dot = ca.mtimes(R4, nu)
+    nu_dot = fossen.solve_mass(M, u - ca.mtimes(C, nu) - damping - restoring + ca.mtimes(R4.T, bias) + w[0:4])
+    bias_dot = -bias / prm["T_b"] + w[4:8]
+
+    return Model(
+        name="rov4dof",
+        states=STATES,
+        inputs=INPUTS,
+        parameters=PARAMETERS,
+        noises=NOISES,
+        outputs=OUTPUTS,
+        x=x,
+        u=u,
+        p=p,
+        w=w,
+        xdot=ca.vertcat(eta_dot, nu_dot, bias_dot),
+        y=x[0:4],  # eq. 16: H = [I_4 0_{4x8}]
+        discretisation="rk4",
+        substeps=1,
+        angle_outputs=(3,),
+        notes=(
+            "M_A, D_L, D_NL printed negative: read as Fossen's derivatives, M and D positive definite",
+            "C_RB, C_A derived from M (printed heave `m` and `-N_rdot` entries dropped)",
+            "bias: first-order Gauss-Markov, b_dot = -b/T_b + w_b, T_b = 100 s by default",
+        ),
+    )
