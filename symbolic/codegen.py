@@ -14,11 +14,16 @@ Filter families (abyssal.symbolic.filters) add their whole steps as further unit
 unit becomes one C file; next to CasADi's code every function gets a ``<name>_batch``
 entry point that evaluates it over N column-major slices (see BATCH_TEMPLATE), so N is
 chosen at run time instead of being fixed by ``Function.map``.
+
+For particle work, ``<m>_f`` and ``<m>_h`` also get a structure-of-arrays kernel
+``<name>_soa`` in ``<m>_soa.c`` (see soa_kernel): the SX algorithm written out as one loop
+over particles that the C compiler vectorises, with glibc's vector sin/cos (libmvec).
 """
 from __future__ import annotations
 
 import hashlib
 import json
+import math
 from dataclasses import dataclass
 
 import casadi as ca
@@ -60,6 +65,89 @@ CASADI_SYMBOL_EXPORT int {name}_batch(casadi_int N, const casadi_real** arg, con
   return 0;
 }}
 """
+
+
+#: function suffix -> names of the inputs that vary per particle in its SoA kernel.
+SOA_KERNELS = {"f": ("x", "u"), "h": ("x",)}
+
+# C expression of each SX operation, matching CasADi's own code generator operation by operation.
+_C_OPERATIONS = {
+    ca.OP_ASSIGN: "{0}", ca.OP_ADD: "{0}+{1}", ca.OP_SUB: "{0}-{1}", ca.OP_MUL: "{0}*{1}",
+    ca.OP_DIV: "{0}/{1}", ca.OP_NEG: "(-{0})", ca.OP_EXP: "exp({0})", ca.OP_LOG: "log({0})",
+    ca.OP_POW: "pow({0},{1})", ca.OP_CONSTPOW: "pow({0},{1})", ca.OP_SQRT: "sqrt({0})",
+    ca.OP_SQ: "{0}*{0}", ca.OP_TWICE: "2.*{0}", ca.OP_SIN: "sin({0})", ca.OP_COS: "cos({0})",
+    ca.OP_TAN: "tan({0})", ca.OP_ASIN: "asin({0})", ca.OP_ACOS: "acos({0})", ca.OP_ATAN: "atan({0})",
+    ca.OP_LT: "({0}<{1})", ca.OP_LE: "({0}<={1})", ca.OP_EQ: "({0}=={1})", ca.OP_NE: "({0}!={1})",
+    ca.OP_NOT: "(!{0})", ca.OP_AND: "({0}&&{1})", ca.OP_OR: "({0}||{1})", ca.OP_FLOOR: "floor({0})",
+    ca.OP_CEIL: "ceil({0})", ca.OP_FMOD: "fmod({0},{1})", ca.OP_FABS: "fabs({0})",
+    ca.OP_SIGN: "({0}<0 ? -1. : ({0}>0 ? 1. : {0}))", ca.OP_COPYSIGN: "copysign({0},{1})",
+    ca.OP_IF_ELSE_ZERO: "({0} ? {1} : 0)", ca.OP_ERF: "erf({0})", ca.OP_FMIN: "fmin({0},{1})",
+    ca.OP_FMAX: "fmax({0},{1})", ca.OP_INV: "1./{0}", ca.OP_SINH: "sinh({0})", ca.OP_COSH: "cosh({0})",
+    ca.OP_TANH: "tanh({0})", ca.OP_ATAN2: "atan2({0},{1})",
+}
+
+SOA_PREAMBLE = """
+#include <math.h>
+#ifndef casadi_real
+#define casadi_real double
+#endif
+#ifndef casadi_int
+#define casadi_int long long int
+#endif
+#ifndef CASADI_SYMBOL_EXPORT
+#define CASADI_SYMBOL_EXPORT __attribute__((visibility("default")))
+#endif
+/* glibc's libmvec has vector variants of sin and cos; declaring them lets the loops below vectorise. */
+#if defined(__x86_64__) && defined(__GLIBC__) && !defined(ABYSSAL_NO_LIBMVEC)
+#pragma omp declare simd notinbranch
+extern double sin(double);
+#pragma omp declare simd notinbranch
+extern double cos(double);
+#endif
+"""
+
+
+def _c_constant(value: float) -> str:
+    if math.isnan(value):
+        return "NAN"
+    if math.isinf(value):
+        return "INFINITY" if value > 0 else "(-INFINITY)"
+    return repr(value)
+
+
+def soa_kernel(fn: ca.Function, batched: tuple[bool, ...]) -> str:
+    """C of ``<name>_soa(N, ld, arg, res)``: fn for j < N, structure-of-arrays layout.
+
+    Element i of a batched input k (and of every output) for particle j is at
+    ``arg[k][i*ld + j]``, i.e. an (rows, ld) C-ordered array; shared inputs are plain vectors.
+    """
+    body = []
+    for k in range(fn.n_instructions()):
+        op, ins, outs = fn.instruction_id(k), fn.instruction_input(k), fn.instruction_output(k)
+        if op == ca.OP_INPUT:
+            source = f"a{ins[0]}[{ins[1]}*ld+j]" if batched[ins[0]] else f"a{ins[0]}[{ins[1]}]"
+            body.append(f"w{outs[0]}={source};")
+        elif op == ca.OP_OUTPUT:
+            body.append(f"r{outs[0]}[{outs[1]}*ld+j]=w{ins[0]};")
+        elif op == ca.OP_CONST:
+            body.append(f"w{outs[0]}={_c_constant(fn.instruction_constant(k))};")
+        elif op in _C_OPERATIONS:
+            body.append(f"w{outs[0]}=" + _C_OPERATIONS[op].format(*[f"w{a}" for a in ins]) + ";")
+        else:
+            raise NotImplementedError(f"{fn.name()}: SX operation {op} has no SoA translation")
+    work = ", ".join(f"w{m}" for m in range(max(1, fn.sz_w())))
+    pointers = [f"  const casadi_real* a{k} = arg[{k}];" for k in range(fn.n_in())]
+    pointers += [f"  casadi_real* r{k} = res[{k}];" for k in range(fn.n_out())]
+    roles = ", ".join(f"{fn.name_in(k)}{'[]' if batched[k] else ''}" for k in range(fn.n_in()))
+    return (
+        f"\n/* {fn.name()}_soa({roles}): inputs marked [] vary per particle. */\n"
+        f"CASADI_SYMBOL_EXPORT int {fn.name()}_soa(casadi_int N, casadi_int ld, const casadi_real** arg, casadi_real** res) {{\n"
+        + "\n".join(pointers)
+        + "\n  casadi_int j;\n#pragma omp simd\n  for (j = 0; j < N; ++j) {\n"
+        + f"    casadi_real {work};\n    "
+        + "\n    ".join(body)
+        + "\n  }\n  return 0;\n}\n"
+    )
 
 
 @dataclass(frozen=True)
@@ -143,8 +231,25 @@ def unit_source(model: Model, unit: Unit, source: str) -> str:
     return banner + cg.dump() + batches
 
 
+def soa_source(model: Model, functions: list[ca.Function], source: str) -> tuple[str, dict]:
+    """C text of the SoA kernels of a model's unit 'model' and their manifest entries."""
+    kernels, entries = [], {}
+    for fn in functions:
+        suffix = fn.name()[len(model.name) + 1:]
+        if suffix not in SOA_KERNELS:
+            continue
+        batched = tuple(fn.name_in(k) in SOA_KERNELS[suffix] for k in range(fn.n_in()))
+        kernels.append(soa_kernel(fn, batched))
+        entries[fn.name()] = [fn.name_in(k) for k in range(fn.n_in()) if batched[k]]
+    listing = "\n".join(f" *   {name}_soa" for name in entries)
+    banner = BANNER.format(source=source, model=model.name, eq_hash=model.equations_hash(), casadi=ca.__version__,
+                           listing=listing).replace("CasADi SX instructions after common-subexpression elimination",
+                                                    "structure-of-arrays kernels, one SX instruction per line")
+    return banner + SOA_PREAMBLE + "".join(kernels), entries
+
+
 def generate_model(model: Model, units: list[Unit], source: str) -> dict[str, str]:
-    """File name -> text for one model folder: one C file per unit and manifest.json."""
+    """File name -> text for one model folder: one C file per unit, the SoA kernels and manifest.json."""
     files: dict[str, str] = {}
     functions: dict[str, dict] = {}
     for unit in units:
@@ -153,6 +258,11 @@ def generate_model(model: Model, units: list[Unit], source: str) -> dict[str, st
         files[fname] = text
         for fn in unit.functions:
             functions[fn.name()] = describe_function(fn, fname)
+    soa_text, soa_entries = soa_source(model, [fn for u in units if u.name == "model" for fn in u.functions], source)
+    if soa_entries:
+        files[f"{model.name}_soa.c"] = soa_text
+        for name, batched in soa_entries.items():
+            functions[name]["soa_batched_inputs"] = batched
     manifest = {
         "model": model.name,
         "source": source,
