@@ -1,0 +1,193 @@
+"""The loader (generated/bundle.py): shapes, defaults, argument errors, the fast path and batches."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import abyssal.generated
+from abyssal.runtime.reference_models import REFERENCES
+
+
+@pytest.fixture
+def rng():
+    return np.random.default_rng(3)
+
+
+@pytest.fixture
+def rov_point(rng):
+    ref = REFERENCES["rov4dof"]
+    return ref.sample_state(rng), ref.sample_input(rng)
+
+
+def test_shapes_and_names(rov, cn):
+    assert (rov.n_x, rov.n_u, rov.n_p, rov.n_w, rov.n_y) == (12, 4, 17, 8, 4)
+    assert rov.state_names[:4] == ("x", "y", "z", "psi") and rov.angle_outputs == (3,)
+    x, u = np.zeros(12), np.array([20.0, 0.0, 5.0, 0.0])
+    assert rov.f(x, u, None, 0.1).shape == (12,)
+    assert rov.F(x, u, None, 0.1).shape == (12, 12)
+    assert rov.G(x, u, None, 0.1).shape == (12, 8)
+    assert rov.h(x).shape == (4,)
+    assert rov.H(x).shape == (4, 12)
+    assert rov.xdot(x, u).shape == (12,)
+    assert cn.h(np.array([3.0, 4.0])).shape == (1,)  # scalar output is still a vector
+    assert cn.H(np.array([3.0, 4.0])).shape == (1, 2)
+
+
+def test_p_none_means_defaults(rov, rov_point):
+    x, u = rov_point
+    np.testing.assert_array_equal(rov.f(x, u, None, 0.1), rov.f(x, u, rov.p_default, 0.1))
+    assert not rov.p_default.flags.writeable
+    p = rov.params()
+    p[0] = 30.0  # a copy: the defaults stay put
+    assert rov.p_default[0] == 26.0
+    assert not np.array_equal(rov.f(x, u, p, 0.1), rov.f(x, u, None, 0.1))  # parameters are honoured
+
+
+def test_matrix_outputs_are_column_major_correct(cn):
+    """H of the range is the unit vector from the leader: catches a transposed/reshaped output."""
+    H = cn.H(np.array([3.0, 4.0]), np.array([0.0, 0.0]))
+    np.testing.assert_allclose(H, [[0.6, 0.8]], rtol=1e-15)
+    F = cn.F(np.array([1.0, 2.0]), np.array([1.0, 0.0, 0.3]), None, 0.5)
+    np.testing.assert_array_equal(F, np.eye(2))
+
+
+@pytest.mark.parametrize("call, error, message", [
+    (lambda b, x, u: b.f(x[:5], u, None, 0.1), ValueError, r"'x' must have shape \(12,\)"),
+    (lambda b, x, u: b.f(x, u[:3], None, 0.1), ValueError, r"'u' must have shape \(4,\)"),
+    (lambda b, x, u: b.f(x, u, np.ones(3), 0.1), ValueError, r"p must have shape \(17,\)"),
+    (lambda b, x, u: b.f(np.where(np.arange(12) == 2, np.nan, x), u, None, 0.1), ValueError, "'x' has non-finite"),
+    (lambda b, x, u: b.f(x, u, np.full(17, np.inf), 0.1), ValueError, "p has non-finite"),
+    (lambda b, x, u: b.f(x, u), TypeError, "dt .* is required"),
+    (lambda b, x, u: b.f(x, u, None, -0.1), ValueError, "dt must be a positive finite"),
+    (lambda b, x, u: b.f(x, u, None, float("nan")), ValueError, "dt must be a positive finite"),
+    (lambda b, x, u: b.functions["f"](x, u), TypeError, r"takes 4 arguments \(x, u, p, dt\)"),
+    (lambda b, x, u: b.function("no_such"), KeyError, "has no generated function 'no_such'"),
+    (lambda b, x, u: b.f_batch(x, u, None, 0.1), ValueError, r"X must have shape \(12, N\)"),
+    (lambda b, x, u: b.f_batch(np.zeros((12, 5)), np.zeros((4, 4)), None, 0.1), ValueError, "U must have shape"),
+])
+def test_bad_arguments_give_clear_errors(rov, rov_point, call, error, message):
+    x, u = rov_point
+    with pytest.raises(error, match=message):
+        call(rov, x, u)
+
+
+def test_unknown_model_name():
+    with pytest.raises(KeyError, match="no generated model 'no_such_vehicle'.*available"):
+        abyssal.generated.load("no_such_vehicle")
+
+
+def fast_buffers(bundle, x, u, dt=0.1):
+    return [np.array(x, dtype=float), np.array(u, dtype=float), bundle.params(), np.array([dt])]
+
+
+@pytest.mark.parametrize("bad, message", [
+    (lambda ins: [ins[0].astype(np.float32), *ins[1:]], "float64"),
+    (lambda ins: [ins[0].tolist(), *ins[1:]], "float64 numpy array"),
+    (lambda ins: [ins[0][:11].copy(), *ins[1:]], "expected 12 elements"),
+    (lambda ins: [np.zeros(24)[::2], *ins[1:]], "contiguous"),
+])
+def test_bind_rejects_bad_input_buffers(rov, rov_point, bad, message):
+    ins = fast_buffers(rov, *rov_point)
+    with pytest.raises((TypeError, ValueError), match=message):
+        rov.functions["f"].bind(bad(ins), [np.zeros(12)])
+
+
+def test_bind_rejects_c_ordered_matrix_output(rov, rov_point):
+    ins = fast_buffers(rov, *rov_point)
+    with pytest.raises(ValueError, match="Fortran-ordered array of shape \\(12, 12\\)"):
+        rov.functions["F"].bind(ins, [np.zeros((12, 12))])
+    with pytest.raises(ValueError, match="expected 1 outputs|expected 4 inputs"):
+        rov.functions["F"].bind(ins[:3], [np.zeros((12, 12), order="F")])
+
+
+def test_fast_path_equals_convenience_path(rov, rov_point):
+    x, u = rov_point
+    ins = fast_buffers(rov, x, u)
+    for name, expected in (("f", rov.f(x, u, None, 0.1)), ("F", rov.F(x, u, None, 0.1)),
+                           ("G", rov.G(x, u, None, 0.1))):
+        out = np.zeros(expected.shape, order="F")
+        binding = rov.functions[name].bind(ins, [out])
+        binding()
+        np.testing.assert_array_equal(out, expected)
+    out = np.zeros((4, 12), order="F")
+    binding = rov.functions["H"].bind([ins[0], ins[2]], [out])
+    binding.eval()
+    np.testing.assert_array_equal(out, rov.H(x))
+
+
+def test_fast_path_reads_buffers_in_place(rov, rov_point):
+    """Changing a bound input buffer changes the next evaluation: no copies are taken."""
+    x, u = rov_point
+    ins, out = fast_buffers(rov, x, u), np.zeros(12)
+    binding = rov.functions["f"].bind(ins, [out])
+    binding()
+    first = out.copy()
+    ins[0][:] = rov.f(x, u, None, 0.1)
+    binding()
+    np.testing.assert_array_equal(first, ins[0])
+    np.testing.assert_array_equal(out, rov.f(first, u, None, 0.1))
+
+
+@pytest.mark.parametrize("per_column_u", [False, True], ids=["u shared", "u per column"])
+def test_batches_equal_single_calls(rov, rng, per_column_u):
+    ref, n = REFERENCES["rov4dof"], 37
+    X = ref.sample_state(rng, n)
+    U = ref.sample_input(rng, n) if per_column_u else ref.sample_input(rng)
+    single = np.column_stack([rov.f(X[:, j], U[:, j] if per_column_u else U, None, 0.1) for j in range(n)])
+    # _batch entry point: the same scalar C per column, bitwise equal
+    Y = np.zeros((12, n), order="F")
+    rov.functions["f"].bind_batch([np.asfortranarray(X), np.asfortranarray(U), rov.params(), np.array([0.1])], [Y],
+                                  capacity=n)(n)
+    np.testing.assert_array_equal(Y, single)
+    # SIMD kernel: libmvec sin/cos may differ in the last bit
+    np.testing.assert_allclose(rov.f_batch(X, U, None, 0.1), single, rtol=0, atol=1e-13)
+    np.testing.assert_allclose(rov.functions["f"].batch(n, X, U, rov.params(), 0.1), single, rtol=0, atol=0)
+    np.testing.assert_allclose(rov.h_batch(X), X[:4], rtol=0, atol=0)
+
+
+def test_bind_batch_rejects_bad_layouts_and_sizes(rov, rng):
+    n = 8
+    X = np.asfortranarray(REFERENCES["rov4dof"].sample_state(rng, n))
+    args = [X, np.zeros(4), rov.params(), np.array([0.1])]
+    with pytest.raises(ValueError, match="Fortran-ordered"):
+        rov.functions["f"].bind_batch([np.ascontiguousarray(X), *args[1:]], [np.zeros((12, n), order="F")], capacity=n)
+    with pytest.raises(ValueError, match="last axis >= 8"):
+        rov.functions["f"].bind_batch([X[:, :4].copy(order="F"), *args[1:]], [np.zeros((12, n), order="F")], capacity=n)
+    with pytest.raises(ValueError, match="one slice per column"):
+        rov.functions["f"].bind_batch(args, [np.zeros(12)], capacity=n)
+    binding = rov.functions["f"].bind_batch(args, [np.zeros((12, n), order="F")], capacity=n)
+    with pytest.raises(ValueError, match="outside 0..8"):
+        binding(n + 1)
+
+
+def test_bind_soa_rejects_fortran_batches(rov, rng):
+    X = np.asfortranarray(REFERENCES["rov4dof"].sample_state(rng, 8))
+    with pytest.raises(ValueError, match="C-ordered"):
+        rov.functions["f"].bind_soa([X, np.zeros((4, 8)), rov.params(), np.array([0.1])], [np.zeros((12, 8))])
+    with pytest.raises(ValueError, match="no structure-of-arrays kernel"):
+        rov.functions["F"].bind_soa([], [])
+
+
+def test_eval_outlives_its_binding():
+    """`fn.bind(...).eval` kept alone must stay valid (it once pointed at a freed buffer: a segfault).
+    Run in a child process so a crash is a test failure, not the end of the session."""
+    import subprocess
+    import sys
+    import textwrap
+
+    script = textwrap.dedent("""
+        import gc
+        import numpy as np
+        import abyssal.generated
+        cn = abyssal.generated.load("cn2d")
+        x, u, out = np.array([1.0, 2.0]), np.array([1.0, 0.0, 0.0]), np.zeros(2)
+        step = cn.functions["f"].bind([x, u, cn.params(), np.array([0.5])], [out]).eval
+        gc.collect()
+        for _ in range(1000):
+            np.zeros(64)  # churn the allocator
+        step()
+        assert np.array_equal(out, [1.5, 2.0]), out
+        print("ok")
+    """)
+    res = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+    assert res.returncode == 0 and res.stdout.strip() == "ok", res.stderr[-2000:]
