@@ -1,0 +1,220 @@
+"""`abyssal verify` section: the generated filter steps (through the runtime classes) against
+reference numerics they were not produced by.
+
+Checks per model (errors are max |difference| / max(1, max |reference|) over a short
+simulated run of STEPS predict+update steps):
+
+* CKF   == filterpy UnscentedKalmanFilter with MerweScaledSigmaPoints(alpha=1, beta=0, kappa=0)
+           (the cubature rule plus a centre point of weight zero);
+* UKF   == filterpy UnscentedKalmanFilter with MerweScaledSigmaPoints(alpha, beta, kappa), for
+           two parameter sets;
+* EKF   == filterpy ExtendedKalmanFilter (its predict_x replaced by the model's f, F from the
+           bundle; filterpy's update is the Joseph form too);
+* masked update == the filterpy CKF update on the measurement with the masked entries removed;
+* linear_cv only: EKF, UKF and CKF == the exact Kalman filter (NumPy, written here);
+* MCUKF with sigma = inf and HuberUKF with gamma = inf == UKF (the robust updates' limits);
+* the fused steps <m>_ckf_step, <m>_ekf_step (what step() calls) == predict then update.
+
+Our sigma-point updates redraw the points from the predicted mean and covariance, while
+filterpy reuses the propagated points; the oracle is configured the same way by setting
+``sigmas_f`` from the predicted (x, P) before each filterpy update. Angle outputs use the
+same residual (wrapped to (-pi, pi]) on both sides. filterpy is a test-only dependency,
+imported here lazily; if it is missing, the checks that need it are reported as failures.
+"""
+from __future__ import annotations
+
+import importlib.util
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .kalman import CKF, EKF, MCUKF, UKF, HuberUKF
+from .verify import Check
+
+STEPS = 15
+TOLERANCE = 1e-12
+UKF_PARAMETERS = ((1.0, 2.0, 0.0), (0.5, 2.0, 1.0))
+
+
+def wrap(d):
+    """d wrapped to (-pi, pi], the formula of the generated C."""
+    return d - 2 * np.pi * np.ceil((d - np.pi) / (2 * np.pi))
+
+
+def measurement_residual(angle_outputs):
+    def residual(a, b):
+        d = np.asarray(a, dtype=float) - np.asarray(b, dtype=float)
+        for i in angle_outputs:
+            d[..., i] = wrap(d[..., i])
+        return d
+    return residual
+
+
+@dataclass
+class Scenario:
+    """A short simulated run: inputs, parameters, measurements and noise matrices."""
+
+    x0: np.ndarray
+    P0: np.ndarray
+    Q: np.ndarray
+    R: np.ndarray
+    p: np.ndarray
+    dt: float
+    U: np.ndarray
+    Z: np.ndarray
+
+
+def scenario(bundle, steps: int = STEPS, seed: int = 7) -> Scenario:
+    rng = np.random.default_rng(seed)
+    n, m = bundle.n_x, bundle.n_y
+    p = bundle.params()
+    if bundle.name == "cn2d":
+        p = np.array([40.0, -25.0])  # leader away from the follower: the range is smooth
+    x0 = rng.uniform(0.5, 2.0, n)
+    A = rng.normal(size=(n, n)) * 0.05
+    P0 = 0.2 * np.eye(n) + A @ A.T
+    Q = 1e-3 * np.eye(n)
+    R = 0.02 * np.eye(m)
+    dt = 0.1
+    U = rng.normal(size=(steps, bundle.n_u))
+    x = x0 + np.linalg.cholesky(P0) @ rng.normal(size=n)
+    Z = np.empty((steps, m))
+    for k in range(steps):
+        x = bundle.f(x, U[k], p, dt) + np.linalg.cholesky(Q) @ rng.normal(size=n)
+        Z[k] = bundle.h(x, p) + np.sqrt(0.02) * rng.normal(size=m)
+    return Scenario(x0, P0, Q, R, p, dt, U, Z)
+
+
+def relative_error(ours, reference) -> float:
+    ours, reference = np.asarray(ours), np.asarray(reference)
+    return float(np.max(np.abs(ours - reference)) / max(1.0, float(np.max(np.abs(reference)))))
+
+
+def run_ours(flt, sc: Scenario, mask_entries=None):
+    """(x, P) after every step of a runtime filter."""
+    out = []
+    for k in range(len(sc.U)):
+        flt.predict(sc.U[k], sc.dt, sc.p)
+        z = sc.Z[k].copy()
+        if mask_entries is not None:
+            z[mask_entries] = np.nan
+        flt.update(z, sc.p)
+        out.append((flt.x, flt.P))
+    return out
+
+
+def run_ours_fused(flt, sc: Scenario):
+    """(x, P) after every step(), which uses the generated fused predict + update when there is one."""
+    out = []
+    for k in range(len(sc.U)):
+        flt.step(sc.U[k], sc.dt, sc.Z[k], sc.p)
+        out.append((flt.x, flt.P))
+    return out
+
+
+def filterpy_sigma_point_run(bundle, sc: Scenario, alpha, beta, kappa, kept=None):
+    """(x, P) after every step of filterpy's UKF, points redrawn before each update."""
+    from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
+
+    kept = list(range(bundle.n_y)) if kept is None else list(kept)
+    angles = [kept.index(i) for i in bundle.angle_outputs if i in kept]
+    points = MerweScaledSigmaPoints(bundle.n_x, alpha=alpha, beta=beta, kappa=kappa)
+    ukf = UnscentedKalmanFilter(bundle.n_x, len(kept), sc.dt, hx=lambda s: bundle.h(s, sc.p)[kept],
+                                fx=None, points=points, residual_z=measurement_residual(angles))
+    ukf.x, ukf.P, ukf.Q, ukf.R = sc.x0.copy(), sc.P0.copy(), sc.Q.copy(), sc.R[np.ix_(kept, kept)].copy()
+    out = []
+    for k in range(len(sc.U)):
+        ukf.predict(dt=sc.dt, fx=lambda s, dt, u=sc.U[k]: bundle.f(s, u, sc.p, dt))
+        ukf.sigmas_f = points.sigma_points(ukf.x, ukf.P)  # redraw from the prediction, as our update does
+        ukf.update(sc.Z[k][kept])
+        out.append((ukf.x.copy(), ukf.P.copy()))
+    return out
+
+
+def filterpy_ekf_run(bundle, sc: Scenario):
+    from filterpy.kalman import ExtendedKalmanFilter
+
+    class ModelEKF(ExtendedKalmanFilter):
+        def predict_x(self, u=0):
+            self.x = bundle.f(self.x, u, sc.p, sc.dt)
+
+    ekf = ModelEKF(bundle.n_x, bundle.n_y)
+    ekf.x, ekf.P, ekf.Q, ekf.R = sc.x0.copy(), sc.P0.copy(), sc.Q.copy(), sc.R.copy()
+    residual = measurement_residual(bundle.angle_outputs)
+    out = []
+    for k in range(len(sc.U)):
+        ekf.F = bundle.F(ekf.x, sc.U[k], sc.p, sc.dt)
+        ekf.predict(sc.U[k])
+        ekf.update(sc.Z[k], HJacobian=lambda s: bundle.H(s, sc.p), Hx=lambda s: bundle.h(s, sc.p), residual=residual)
+        out.append((ekf.x.copy(), ekf.P.copy()))
+    return out
+
+
+def exact_kalman_run(bundle, sc: Scenario):
+    """The Kalman filter of a linear model x' = A x + B u, z = C x + d (A, C from the bundle's Jacobians)."""
+    n = bundle.n_x
+    x, P = sc.x0.copy(), sc.P0.copy()
+    out = []
+    for k in range(len(sc.U)):
+        A = bundle.F(x, sc.U[k], sc.p, sc.dt)
+        x = bundle.f(x, sc.U[k], sc.p, sc.dt)  # = A x + B u exactly for a linear model
+        P = A @ P @ A.T + sc.Q
+        C = bundle.H(x, sc.p)
+        S = C @ P @ C.T + sc.R
+        K = np.linalg.solve(S, C @ P).T
+        x = x + K @ (sc.Z[k] - bundle.h(x, sc.p))
+        IKC = np.eye(n) - K @ C
+        P = IKC @ P @ IKC.T + K @ sc.R @ K.T
+        out.append((x, P))
+    return out
+
+
+def compare(model: str, name: str, reference: str, ours, theirs, tolerance: float = TOLERANCE) -> Check:
+    error = max(max(relative_error(a[0], b[0]), relative_error(a[1], b[1])) for a, b in zip(ours, theirs))
+    return Check(model, name, reference, error, tolerance, detail=f"max relative error of x and P over {len(ours)} steps")
+
+
+def _missing_filterpy(model: str) -> Check:
+    return Check(model, "filters vs filterpy", "filterpy", math.inf, TOLERANCE,
+                 detail="filterpy is not installed: pip install 'abyssal[test]' (it is a test-only dependency)")
+
+
+def checks(bundle) -> list[Check]:
+    needed = ("ekf_update", "ukf_update", "ckf_update", "mcukf_update", "huber_ukf_update")
+    if any(name not in bundle.functions for name in needed):
+        return []
+    model = bundle.name
+    sc = scenario(bundle)
+    args = (bundle, sc.x0, sc.P0, sc.Q, sc.R)
+    ckf = run_ours(CKF(*args), sc)
+    result = []
+    if importlib.util.find_spec("filterpy") is None:
+        result.append(_missing_filterpy(model))
+    else:
+        result.append(compare(model, "ckf step", "filterpy UKF, Merwe(1, 0, 0)", ckf,
+                              filterpy_sigma_point_run(bundle, sc, 1.0, 0.0, 0.0)))
+        for a, b, k in UKF_PARAMETERS:
+            result.append(compare(model, f"ukf step ({a:g}, {b:g}, {k:g})", f"filterpy UKF, Merwe({a:g}, {b:g}, {k:g})",
+                                  run_ours(UKF(*args, alpha=a, beta=b, kappa=k), sc),
+                                  filterpy_sigma_point_run(bundle, sc, a, b, k)))
+        result.append(compare(model, "ekf step (Joseph)", "filterpy ExtendedKalmanFilter",
+                              run_ours(EKF(*args), sc), filterpy_ekf_run(bundle, sc)))
+        if bundle.n_y > 1:
+            masked = [bundle.n_y - 1]
+            kept = [i for i in range(bundle.n_y) if i not in masked]
+            result.append(compare(model, "ckf masked update", "filterpy UKF on the kept entries",
+                                  run_ours(CKF(*args), sc, mask_entries=masked),
+                                  filterpy_sigma_point_run(bundle, sc, 1.0, 0.0, 0.0, kept=kept)))
+    if model == "linear_cv":
+        exact = exact_kalman_run(bundle, sc)
+        result.append(compare(model, "ekf on a linear model", "exact Kalman filter", run_ours(EKF(*args), sc), exact))
+        result.append(compare(model, "ukf on a linear model", "exact Kalman filter", run_ours(UKF(*args), sc), exact))
+        result.append(compare(model, "ckf on a linear model", "exact Kalman filter", ckf, exact))
+    result.append(compare(model, "ckf fused step", "ckf predict then update", run_ours_fused(CKF(*args), sc), ckf))
+    result.append(compare(model, "ekf fused step", "ekf predict then update", run_ours_fused(EKF(*args), sc),
+                          run_ours(EKF(*args), sc)))
+    ukf = run_ours(UKF(*args), sc)
+    result.append(compare(model, "mcukf, sigma = inf", "ukf step", run_ours(MCUKF(*args, sigma=math.inf), sc), ukf))
+    result.append(compare(model, "huber ukf, gamma = inf", "ukf step", run_ours(HuberUKF(*args, gamma=math.inf), sc), ukf))
+    return result
