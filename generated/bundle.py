@@ -57,15 +57,21 @@ def _as_buffer(arr: np.ndarray, sig: Signature, what: str) -> np.ndarray:
 
 
 def _batch_buffer(arr: np.ndarray, sig: Signature, n: int, what: str) -> tuple[np.ndarray, int]:
-    """(buffer, step) of a batch argument: shared (step 0) or one slice per column of the last axis."""
+    """(buffer, step) of a batch argument.
+
+    A batch has one more axis than the argument: (rows, N) for a vector, (rows, cols, N) for a
+    matrix, Fortran-ordered. Anything else of the argument's own size is shared (step 0).
+    """
     if not isinstance(arr, np.ndarray) or arr.dtype != np.float64:
         raise TypeError(f"{what} {sig.name!r}: expected a float64 numpy array")
-    if arr.size == sig.size:
+    batch_ndim = 2 if sig.shape[1] == 1 else 3
+    if arr.ndim < batch_ndim and arr.size == sig.size:
         return _as_buffer(np.ascontiguousarray(arr) if arr.ndim <= 1 else arr, sig, what), 0
-    if arr.shape[-1] < n or arr.size != sig.size * arr.shape[-1]:
+    want = (sig.shape[0],) if sig.shape[1] == 1 else sig.shape
+    if arr.ndim != batch_ndim or arr.shape[:-1] != want or arr.shape[-1] < n:
         raise ValueError(
-            f"{what} {sig.name!r}: expected shape {sig.shape} (shared) or a batch with last axis >= {n} "
-            f"of slices {sig.shape}, got {arr.shape}"
+            f"{what} {sig.name!r}: expected shape {sig.shape} (shared) or a batch of shape "
+            f"{(*want, 'N')} with N >= {n}, got {arr.shape}"
         )
     if not arr.flags.f_contiguous:
         raise ValueError(f"{what} {sig.name!r}: batch buffer must be Fortran-ordered (each slice contiguous)")

@@ -151,7 +151,7 @@ def test_bind_batch_rejects_bad_layouts_and_sizes(rov, rng):
     args = [X, np.zeros(4), rov.params(), np.array([0.1])]
     with pytest.raises(ValueError, match="Fortran-ordered"):
         rov.functions["f"].bind_batch([np.ascontiguousarray(X), *args[1:]], [np.zeros((12, n), order="F")], capacity=n)
-    with pytest.raises(ValueError, match="last axis >= 8"):
+    with pytest.raises(ValueError, match="N >= 8"):
         rov.functions["f"].bind_batch([X[:, :4].copy(order="F"), *args[1:]], [np.zeros((12, n), order="F")], capacity=n)
     with pytest.raises(ValueError, match="one slice per column"):
         rov.functions["f"].bind_batch(args, [np.zeros(12)], capacity=n)
