@@ -28,7 +28,11 @@ def paper_rov_rmse() -> dict[str, dict[str, dict[str, float]]]:
 
 
 def _progress(message: str) -> None:
-    print(f"\r\033[K[rov] {message}", end="", file=sys.stderr, flush=True)
+    """One updating line on a terminal; plain lines in a log."""
+    if sys.stderr.isatty():
+        print(f"\r\033[K[rov] {message}", end="", file=sys.stderr, flush=True)
+    else:
+        print(f"[rov] {message}", file=sys.stderr, flush=True)
 
 
 def rov_table(results: dict, runs: int, n_particles: int) -> str:
@@ -89,7 +93,8 @@ def run_rov(args, scenario=None) -> int:
         raise ValueError("reproduce rov needs --runs >= 1 and --particles >= 10")
     results = rov_sea_state.run_experiment(runs, args.seed, n_particles, progress=_progress,
                                            scenario=scenario or rov_sea_state.RovScenario())
-    print("\r\033[K", end="", file=sys.stderr)
+    if sys.stderr.isatty():
+        print("\r\033[K", end="", file=sys.stderr)
     figures = rov_figures(results, Path(args.out)) if args.out else []
     if args.json:
         print(json.dumps({"experiment": "rov", "runs": runs, "seed": args.seed, "particles": n_particles,
