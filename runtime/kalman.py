@@ -53,6 +53,7 @@ __all__ = [
 ]
 
 SYMMETRY_TOLERANCE = 1e-9  # relative: |A - A^T| <= tol * max|A|
+_INF = math.inf  # hot path: one global lookup instead of a global and an attribute lookup
 
 
 def repair_covariance(P: np.ndarray, floor: float = 1e-10) -> np.ndarray:
@@ -156,6 +157,7 @@ class KalmanFilter:
         self._S = [np.eye(m, order="F"), np.eye(m, order="F")]
         self._last_update = -1  # which innovation/S buffer holds the last accepted update, -1: none
         self._last_dof = 0
+        self._n_y = m
         predict_fn = model.function(self.predict_function)
         update_fn = model.function(self.update_function)
         pe, ue = self._predict_extra(), self._update_extra()
@@ -181,8 +183,10 @@ class KalmanFilter:
                 for k in (0, 1)
             ]
             self._step = [b.eval for b in self._bindings[4:]]
-        # memoryviews: the cheapest way to move a few floats in and out on the hot path; assigning
-        # memoryview(u) to one also checks that u is exactly a float64 vector of the right length
+        # memoryviews: the cheapest way to move a few floats in and out on the hot path. The slice
+        # assignment view[:] = u takes u's buffer directly (no memoryview(u) object to build: about
+        # half the cost) and checks that u is exactly a float64 vector of the right length: another
+        # format or shape raises ValueError, an object without a buffer (list, scalar) TypeError.
         self._u_view, self._z_view = memoryview(self._u), memoryview(self._z)
         self._dt_view, self._ok_view = memoryview(self._dt), memoryview(self._ok)
 
@@ -265,10 +269,10 @@ class KalmanFilter:
         if p is not None or not self._p_is_default:
             self._set_p(p)
         try:  # memoryview assignment: an exact (n_u,) float64 match, else the checked slow path
-            self._u_view[:] = memoryview(u)
+            self._u_view[:] = u
         except (TypeError, ValueError):
             self._u[...] = _vector(u, self.model.n_u, "u")
-        if not 0.0 < dt < math.inf:
+        if not 0.0 < dt < _INF:
             raise ValueError(f"dt must be a positive finite number of seconds, got {dt!r}")
         self._dt_view[0] = dt
         cur = self._cur
@@ -287,7 +291,7 @@ class KalmanFilter:
         if p is not None or not self._p_is_default:
             self._set_p(p)
         try:
-            self._z_view[:] = memoryview(z)
+            self._z_view[:] = z
         except (TypeError, ValueError):
             self._z[...] = _vector(z, self.model.n_y, "z")
         cur = self._cur
@@ -295,7 +299,7 @@ class KalmanFilter:
         if self._ok_view[0] != 1.0:
             return self._update_slow_path(cur)
         self._cur = self._last_update = 1 - cur
-        self._last_dof = self._z.size
+        self._last_dof = self._n_y
         return True
 
     def _update_slow_path(self, cur: int) -> bool:
@@ -328,29 +332,30 @@ class KalmanFilter:
         other case (missing entries, a repair, an error) runs predict and update, and a rejected
         update also undoes the predict.
         """
+        fused = self._step  # hot path: every attribute is read once (each read costs ~15-20 ns)
         if z is None:
             self.predict(u, dt, p)
             return False
-        if self._step is None:
+        if fused is None:
             return self._predict_then_update(u, dt, z, p)
         if p is not None or not self._p_is_default:
             self._set_p(p)
-        try:
-            self._u_view[:] = memoryview(u)
-            self._z_view[:] = memoryview(z)
+        try:  # exact float64 vectors of the right length only (see __init__), else predict then update
+            self._u_view[:] = u
+            self._z_view[:] = z
         except (TypeError, ValueError):
             return self._predict_then_update(u, dt, z, p)
-        if not 0.0 < dt < math.inf:
+        if not 0.0 < dt < _INF:
             raise ValueError(f"dt must be a positive finite number of seconds, got {dt!r}")
         self._dt_view[0] = dt
         cur = self._cur
-        self._step[cur]()
+        fused[cur]()
         if self._ok_view[0] != 1.0:
             if self._last_update == 1 - cur:
                 self._last_update = -1  # its buffers were just overwritten by the rejected evaluation
             return self._predict_then_update(u, dt, z, p)
         self._cur = self._last_update = 1 - cur
-        self._last_dof = self._z.size
+        self._last_dof = self._n_y
         return True
 
     def _predict_then_update(self, u, dt, z, p) -> bool:

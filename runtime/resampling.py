@@ -21,6 +21,7 @@ resample: every step, or when the ESS falls below ``threshold * N``.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Callable
 
@@ -82,14 +83,16 @@ def normalise_log_weights(log_weights: np.ndarray) -> tuple[np.ndarray, float]:
     particle) the weights fall back to uniform and the log-mean is -inf: the caller keeps the
     particles, which is the only unbiased choice without information.
     """
+    log_weights = np.asarray(log_weights)
     n = log_weights.shape[0]
-    peak = float(np.max(log_weights))
-    if not np.isfinite(peak):
+    peak = float(log_weights.max())
+    if not math.isfinite(peak):
         return np.full(n, 1.0 / n), -np.inf
-    weights = np.exp(log_weights - peak)
+    weights = log_weights - peak
+    np.exp(weights, out=weights)
     total = float(weights.sum())
     weights /= total
-    return weights, peak + float(np.log(total / n))
+    return weights, peak + math.log(total / n)
 
 
 def effective_sample_size(weights: np.ndarray) -> float:

@@ -6,9 +6,15 @@
 
 Predict: x_pred = f(x, u, p, dt), P_pred = F P F^T + Q with F = df/dx at x.
 Update: nu = z - h(x) (angles wrapped), S = H P H^T + R, K = P H^T S^-1 (guarded Cholesky of S),
-x_post = x + K nu and the Joseph form P_post = (I - K H) P (I - K H)^T + K R K^T, which stays
-symmetric positive semi-definite under roundoff. Unused measurement entries (mask 0) have their
-row of H and their row/column of R removed exactly (see measurement.py).
+x_post = x + K nu and the Joseph form P_post = (I - K H) P (I - K H)^T + K R K^T, valid for any
+gain K (see joseph_covariance for how it is evaluated). Unused measurement entries (mask 0) have
+their row of H and their row/column of R removed exactly (see measurement.py and ekf_update).
+
+Cost notes (rov4dof, SX instructions of <m>_ekf_step in generated/<m>/manifest.json): F comes
+from the variational equation of the step (common.transition_with_jacobian), F P F^T and H P H^T
+are computed on one triangle with the sparser factor row (linalg.congruence), symmetric inputs
+are symmetrised only where they are not symmetric by construction (linalg.symmetrise), and
+the Joseph form is expanded so that no n x n product with I - K H is formed.
 """
 from __future__ import annotations
 
@@ -16,31 +22,57 @@ import casadi as ca
 
 from ..codegen import FUNCTION_OPTIONS
 from ..model import Model
-from .common import filter_symbols, measurement, transition
-from .linalg import all_finite, congruence, symmetrise
-from .measurement import gain_update, masked_covariance, masked_innovation, used
+from .common import filter_symbols, measurement, transition_with_jacobian
+from .linalg import all_finite, congruence, symmetric_from_upper, symmetrise
+from .measurement import gain_update, masked_columns, masked_covariance, masked_innovation
 from .unscented import PREDICT_OUT, STEP_IN, UPDATE_OUT
 
 
-def ekf_predict(model: Model, x, P, u, p, dt, Q):
-    x_pred = transition(model)(x, u, p, dt)
-    F = ca.jacobian(x_pred, x)
-    P_pred = congruence(F, symmetrise(P)) + symmetrise(Q)
-    return x_pred, P_pred, all_finite(x_pred, P_pred)
+def ekf_predict(model: Model, x, P, u, p, dt, Q, check_finite: bool = True):
+    """(x_pred, P_pred, ok). check_finite=False leaves the finiteness test to the caller (ok = 1)."""
+    x_pred, F = transition_with_jacobian(model)(x, u, p, dt)
+    P_pred = congruence(F, symmetrise(P)) + symmetrise(Q)  # both mirrored: P_pred is symmetric by construction
+    return x_pred, P_pred, all_finite(x_pred, P_pred) if check_finite else ca.SX(1)
+
+
+def joseph_covariance(P: ca.SX, K: ca.SX, PHt: ca.SX, S: ca.SX) -> ca.SX:
+    """The Joseph form (I - K H) P (I - K H)^T + K R K^T, for symmetric P and S = H P H^T + R.
+
+    Expanded, it is P - K (P H^T)^T - (P H^T) K^T + K S K^T for every K (the optimality of K is
+    not used, so it keeps the Joseph form's validity for the gain actually computed); with
+    V = K S - P H^T (n x m):
+
+        P_post[i, j] = P[i, j] - K[i, :] . PHt[j, :] + V[i, :] . K[j, :]
+
+    on and above the diagonal, mirrored. That is 2 m products per entry plus n m^2 for V,
+    instead of the n x n (sparse) products of (I - K H) P (I - K H)^T plus those of K R K^T
+    (rov4dof: P_post costs 816 multiplications and 1896 SX instructions instead of 1200 and 2578).
+    """
+    n, m = K.shape
+    V = ca.mtimes(K, S) - PHt
+    entries = {(i, j): P[i, j] - ca.dot(K[i, :], PHt[j, :]) + ca.dot(V[i, :], K[j, :])
+               for i in range(n) for j in range(i, n)}
+    return symmetric_from_upper(entries, n)
 
 
 def ekf_update(model: Model, x, P, z, p, R, mask):
+    """(x_post, P_post, innovation, S, ok).
+
+    The mask is applied to P H^T (columns) and to S (rows/columns, identity on unused entries)
+    and never to H itself: the columns of K of unused entries are then exactly zero (S has an
+    identity row and column there, P H^T a zero column), so K H = K H_masked and every use of H
+    below equals the masked one. H keeps its structural sparsity and constant entries (rov4dof:
+    H = [I 0], so P H^T and H P H^T are just entries of P).
+    """
     z_pred = measurement(model)(x, p)
     H = ca.Function("H", [model.x, model.p], [ca.jacobian(model.y, model.x)])(x, p)  # x may be an expression
-    H = ca.vertcat(*[u * H[i, :] for i, u in enumerate(used(mask))])
     P = symmetrise(P)
-    R_used = masked_covariance(symmetrise(R), mask)
-    innovation = masked_innovation(z, z_pred, mask, model.angle_outputs)
     PHt = ca.mtimes(P, H.T)
-    S = symmetrise(ca.mtimes(H, PHt)) + R_used
+    S = masked_covariance(congruence(H, P, PHt) + symmetrise(R), mask)
+    PHt = masked_columns(PHt, mask)
+    innovation = masked_innovation(z, z_pred, mask, model.angle_outputs)
     x_post, _, K, ok = gain_update(x, P, PHt, S, innovation)
-    A = ca.SX.eye(model.n_x) - ca.mtimes(K, H)
-    P_post = congruence(A, P) + congruence(K, R_used)  # Joseph form
+    P_post = joseph_covariance(P, K, PHt, S)
     return x_post, P_post, innovation, S, ok * all_finite(x_post, P_post, innovation, S)
 
 
@@ -59,10 +91,17 @@ def ekf_functions(model: Model) -> tuple[ca.Function, ...]:
 
 
 def ekf_step_function(model: Model) -> ca.Function:
-    """<m>_ekf_step: predict then update in one function (what the runtime's step() calls)."""
+    """<m>_ekf_step: predict then update in one function (what the runtime's step() calls).
+
+    Its ok is the predict's times the update's, except that the predict's finiteness test is
+    left out: it is implied by the update's. x_post = x_pred + K nu and every entry of P_post
+    is P_pred[i, j] plus further terms (joseph_covariance, P_pred mirrored), and an IEEE sum
+    with a NaN or infinite term is never finite, so a non-finite x_pred or P_pred always makes
+    the update's all_finite 0: the flag is the same, 156 additions cheaper.
+    """
     s = filter_symbols(model)
     m = model.name
-    x_pred, P_pred, ok_pred = ekf_predict(model, s.x, s.P, s.u, s.p, s.dt, s.Q)
+    x_pred, P_pred, ok_pred = ekf_predict(model, s.x, s.P, s.u, s.p, s.dt, s.Q, check_finite=False)
     x_post, P_post, innovation, S, ok_update = ekf_update(model, x_pred, P_pred, s.z, s.p, s.R, s.mask)
     step = ca.Function(
         f"{m}_ekf_step", [s.x, s.P, s.u, s.p, s.dt, s.Q, s.z, s.R, s.mask],

@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import casadi as ca
 
-from .linalg import backward_substitute_transposed, forward_substitute, guarded_cholesky, wrap_angle
+from .linalg import (
+    backward_substitute_transposed, forward_substitute, guarded_cholesky, is_mirrored, symmetric_from_upper, wrap_angle,
+)
 
 
 def used(mask: ca.SX) -> list:
@@ -33,13 +35,19 @@ def masked_innovation(z: ca.SX, z_pred: ca.SX, mask: ca.SX, angle_outputs) -> ca
 
 
 def masked_covariance(C: ca.SX, mask: ca.SX, fill_identity: bool = True) -> ca.SX:
-    """C on the used rows/columns; identity (or zero) on the others."""
+    """C on the used rows/columns; identity (or zero) on the others (symmetric C stays mirrored)."""
     u = used(mask)
     n = C.size1()
+
+    def entry(i, j):
+        return u[i] * u[j] * C[i, j] + ((1 - u[i]) if i == j and fill_identity else 0)
+
+    if is_mirrored(C):  # one expression per pair, mirrored: half the products, and S stays mirrored
+        return symmetric_from_upper({(i, j): entry(i, j) for i in range(n) for j in range(i, n)}, n)
     out = ca.SX.zeros(n, n)
     for i in range(n):
         for j in range(n):
-            out[i, j] = u[i] * u[j] * C[i, j] + ((1 - u[i]) if i == j and fill_identity else 0)
+            out[i, j] = entry(i, j)
     return out
 
 

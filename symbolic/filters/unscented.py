@@ -24,7 +24,7 @@ import casadi as ca
 from ..codegen import FUNCTION_OPTIONS
 from ..model import Model
 from .common import filter_symbols, measurement, transition
-from .linalg import all_finite, guarded_cholesky, symmetrise, weighted_outer
+from .linalg import all_finite, guarded_cholesky, symmetrise, weighted_outer, weighted_sum
 from .measurement import gain_update, masked_columns, masked_covariance, masked_innovation, residual
 from .sigma_points import SigmaPointRule, cubature_rule, scaled_unscented_rule
 
@@ -34,18 +34,22 @@ UPDATE_OUT = ["x_post", "P_post", "innovation", "S", "ok"]
 STEP_IN = ["x", "P", "u", "p", "dt", "Q", "z", "R", "mask"]
 
 
-def sigma_point_predict(model: Model, rule_of, x, P, u, p, dt, Q):
-    """(x_pred, P_pred, ok) of a sigma-point rule; rule_of(n) builds the rule."""
+def sigma_point_predict(model: Model, rule_of, x, P, u, p, dt, Q, check_finite: bool = True):
+    """(x_pred, P_pred, ok) of a sigma-point rule; rule_of(n) builds the rule.
+
+    check_finite=False leaves the finiteness test of x_pred and P_pred to the caller (ok is then
+    the Cholesky guard alone).
+    """
     f = transition(model)
     P = symmetrise(P)
     L, ok = guarded_cholesky(P)
     rule: SigmaPointRule = rule_of(model.n_x)
     X = rule.points(x, L)
     Y = ca.horzcat(*[f(X[:, k], u, p, dt) for k in range(rule.n_points)])
-    x_pred = ca.mtimes(Y, ca.vertcat(*rule.wm))
+    x_pred = weighted_sum(Y, rule.wm)
     D = Y - ca.repmat(x_pred, 1, rule.n_points)
     P_pred = weighted_outer(D, rule.wc) + symmetrise(Q)
-    return x_pred, P_pred, ok * all_finite(x_pred, P_pred)
+    return x_pred, P_pred, (ok * all_finite(x_pred, P_pred)) if check_finite else ok
 
 
 def sigma_point_moments(model: Model, rule_of, x, P, p, mask):
@@ -57,7 +61,7 @@ def sigma_point_moments(model: Model, rule_of, x, P, p, mask):
     DX = rule.offsets(L)
     X = ca.repmat(x, 1, rule.n_points) + DX
     Z = ca.horzcat(*[h(X[:, k], p) for k in range(rule.n_points)])
-    z_pred = ca.mtimes(Z, ca.vertcat(*rule.wm))
+    z_pred = weighted_sum(Z, rule.wm)
     DZ = ca.horzcat(*[residual(Z[:, k], z_pred, model.angle_outputs) for k in range(rule.n_points)])
     Pzz = masked_covariance(weighted_outer(DZ, rule.wc), mask, fill_identity=False)  # identity comes with R
     Pxz = masked_columns(weighted_outer(DX, rule.wc, DZ), mask)
@@ -88,10 +92,17 @@ def ckf_functions(model: Model) -> tuple[ca.Function, ...]:
 
 
 def ckf_step_function(model: Model) -> ca.Function:
-    """<m>_ckf_step: predict then update in one function (what the runtime's step() calls)."""
+    """<m>_ckf_step: predict then update in one function (what the runtime's step() calls).
+
+    Its ok is the predict's times the update's, except that the predict's finiteness test is
+    left out: it is implied by the update's. x_post = x_pred + K nu and P_post = P_pred - W^T W
+    entry by entry (gain_update; P_pred is symmetric by construction, so the update's symmetrise
+    returns it as it is), and an IEEE sum with a NaN or infinite term is never finite.
+    """
     s = filter_symbols(model)
     m = model.name
-    x_pred, P_pred, ok_pred = sigma_point_predict(model, cubature_rule, s.x, s.P, s.u, s.p, s.dt, s.Q)
+    x_pred, P_pred, ok_pred = sigma_point_predict(model, cubature_rule, s.x, s.P, s.u, s.p, s.dt, s.Q,
+                                                  check_finite=False)
     x_post, P_post, innovation, S, ok_update = sigma_point_update(model, cubature_rule, x_pred, P_pred, s.z, s.p, s.R, s.mask)
     step = ca.Function(
         f"{m}_ckf_step", [s.x, s.P, s.u, s.p, s.dt, s.Q, s.z, s.R, s.mask],
