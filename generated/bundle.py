@@ -79,11 +79,12 @@ def _batch_buffer(arr: np.ndarray, sig: Signature, n: int, what: str) -> tuple[n
 
 
 class Binding:
-    """A compiled function bound to fixed buffers; calling it evaluates in place."""
+    """A compiled function bound to fixed buffers; calling it evaluates in place.
 
-    def __init__(self, buffer, eval_fn, keep):
-        self._buffer = buffer
-        self._keep = keep  # the numpy buffers must outlive every evaluation
+    ``eval`` is the bare zero-argument evaluation for hot loops; it pins its own buffers.
+    """
+
+    def __init__(self, eval_fn):
         self.eval = eval_fn
 
     def __call__(self) -> None:
@@ -162,11 +163,10 @@ class CompiledFunction:
             buffer.set_arg(i, memoryview(a))
         for i, a in enumerate(outs):
             buffer.set_res(i, memoryview(a))
-        keep = (ins, outs, list(inputs), list(outputs))
         # eval_fn (a functools.partial) only holds a raw pointer to `buffer`: pin the buffer and arrays
-        # on it too, so `fn.bind(...).eval` stays valid after the Binding itself is dropped.
-        eval_fn.keep_alive = (buffer, keep)
-        return Binding(buffer, eval_fn, keep)
+        # on it, so `fn.bind(...).eval` stays valid after the Binding itself is dropped.
+        eval_fn.keep_alive = (buffer, ins, outs, list(inputs), list(outputs))
+        return Binding(eval_fn)
 
     def bind_batch(self, inputs, outputs, capacity: int) -> BatchBinding:
         """Bind buffers for up to `capacity` slices; an input of its plain shape is shared by all slices."""
@@ -258,16 +258,10 @@ class CompiledFunction:
             raise TypeError(f"{self.name} takes {len(self.inputs)} arguments ({', '.join(s.name for s in self.inputs)})")
         ins = []
         for a, s in zip(args, self.inputs):
-            arr = np.asarray(a, dtype=np.float64)
-            if not np.all(np.isfinite(arr)):
+            arr = np.asfortranarray(a, dtype=np.float64)  # shapes are checked by bind_batch
+            if not np.isfinite(arr).all():
                 raise ValueError(f"{self.name}: argument {s.name!r} has non-finite entries")
-            if arr.size == s.size:
-                ins.append(np.ascontiguousarray(arr.reshape(s.shape, order="F").reshape(-1, order="F")))
-            else:
-                want = (s.shape[0], n) if s.shape[1] == 1 else (*s.shape, n)
-                if arr.shape != want:
-                    raise ValueError(f"{self.name}: batched argument {s.name!r} must have shape {want}, got {arr.shape}")
-                ins.append(np.asfortranarray(arr))
+            ins.append(arr)
         outs = [np.zeros((s.shape[0], n) if s.shape[1] == 1 else (*s.shape, n), order="F") for s in self.outputs]
         self.bind_batch(ins, outs, n)(n)
         return outs[0] if len(outs) == 1 else tuple(outs)
@@ -352,18 +346,24 @@ class ModelBundle:
         w = np.zeros(self.n_w) if w is None else w
         return self.functions["xdot"](x, u, self.params(p), w)
 
-    def f_batch(self, X, U, p=None, dt=None) -> np.ndarray:
-        """One step for each column of X (n_x, N); U is (n_u, N) or (n_u,) shared. Returns (n_x, N)."""
-        X = np.asarray(X, dtype=np.float64)
+    def _state_batch(self, X) -> np.ndarray:
+        """X as a checked, finite, C-ordered (n_x, N) batch (the SIMD kernels' layout)."""
+        X = np.ascontiguousarray(X, dtype=np.float64)
         if X.ndim != 2 or X.shape[0] != self.n_x:
             raise ValueError(f"{self.name}: X must have shape ({self.n_x}, N), got {X.shape}")
+        if not np.isfinite(X).all():
+            raise ValueError(f"{self.name}: X must be finite")
+        return X
+
+    def f_batch(self, X, U, p=None, dt=None) -> np.ndarray:
+        """One step for each column of X (n_x, N); U is (n_u, N) or (n_u,) shared. Returns (n_x, N)."""
+        X = self._state_batch(X)
         U = np.asarray(U, dtype=np.float64)
         if U.shape not in ((self.n_u,), (self.n_u, X.shape[1])):
             raise ValueError(f"{self.name}: U must have shape ({self.n_u}, {X.shape[1]}) or ({self.n_u},), got {U.shape}")
-        if not np.all(np.isfinite(X)) or not np.all(np.isfinite(U)):
-            raise ValueError(f"{self.name}: X and U must be finite")
+        if not np.isfinite(U).all():
+            raise ValueError(f"{self.name}: U must be finite")
         n = X.shape[1]
-        X = np.ascontiguousarray(X)
         U = np.ascontiguousarray(np.broadcast_to(U.reshape(self.n_u, -1), (self.n_u, n)))
         out = np.empty((self.n_x, n))
         self.functions["f"].bind_soa([X, U, self.params(p), np.array([self._dt(dt)])], [out])(n)
@@ -371,11 +371,7 @@ class ModelBundle:
 
     def h_batch(self, X, p=None) -> np.ndarray:
         """Measurement of each column of X (n_x, N). Returns (n_y, N)."""
-        X = np.asarray(X, dtype=np.float64)
-        if X.ndim != 2 or X.shape[0] != self.n_x:
-            raise ValueError(f"{self.name}: X must have shape ({self.n_x}, N), got {X.shape}")
-        if not np.all(np.isfinite(X)):
-            raise ValueError(f"{self.name}: X must be finite")
+        X = self._state_batch(X)
         out = np.empty((self.n_y, X.shape[1]))
-        self.functions["h"].bind_soa([np.ascontiguousarray(X), self.params(p)], [out])(X.shape[1])
+        self.functions["h"].bind_soa([X, self.params(p)], [out])(X.shape[1])
         return out

@@ -46,13 +46,6 @@ def cholesky_precision(covariances: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     return inv_L, log_det
 
 
-def gaussian_log_density(points: np.ndarray, mean: np.ndarray, covariance: np.ndarray) -> np.ndarray:
-    """log N(x; mean, covariance) of each column of points (d, N)."""
-    inv_L, log_det = cholesky_precision(covariance)
-    y = inv_L @ (points - mean[:, None])
-    return -0.5 * (np.einsum("ij,ij->j", y, y) + log_det + points.shape[0] * LOG_2PI)
-
-
 @dataclass(frozen=True, eq=False)
 class GaussianMixture:
     """sum_k weights[k] N(means[k], covariances[k]); weights are renormalised on construction."""
@@ -63,6 +56,7 @@ class GaussianMixture:
     _inv_chol: np.ndarray = field(init=False, repr=False)
     _log_norm: np.ndarray = field(init=False, repr=False)
     _log_weights: np.ndarray = field(init=False, repr=False)
+    _neg_half_precision: np.ndarray | None = field(init=False, repr=False)
 
     def __post_init__(self):
         w = np.asarray(self.weights, dtype=np.float64).reshape(-1)
@@ -80,6 +74,11 @@ class GaussianMixture:
         inv_L, log_det = cholesky_precision(cov)
         object.__setattr__(self, "_inv_chol", inv_L)
         object.__setattr__(self, "_log_norm", -0.5 * (log_det + mu.shape[1] * LOG_2PI))
+        # Zero-mean mixtures with diagonal covariances (the usual noise models): the quadratic forms of
+        # all components are one (K, d) @ (d, N) product of the squared points.
+        variances = np.diagonal(cov, axis1=1, axis2=2)
+        diagonal = not mu.any() and np.array_equal(cov, variances[:, :, None] * np.eye(mu.shape[1])) and np.all(variances > 0)
+        object.__setattr__(self, "_neg_half_precision", -0.5 / variances if diagonal else None)
 
     @classmethod
     def gaussian(cls, mean, covariance) -> "GaussianMixture":
@@ -96,9 +95,20 @@ class GaussianMixture:
 
     def component_log_densities(self, points: np.ndarray) -> np.ndarray:
         """log N(x; mean_k, cov_k) for each component k and column x of points (d, N): (K, N)."""
-        y = self._inv_chol @ (points[None, :, :] - self.means[:, :, None])
-        y *= y
-        return self._log_norm[:, None] - 0.5 * y.sum(axis=1)
+        if self._neg_half_precision is not None:
+            out = self._neg_half_precision @ (points * points)
+        else:
+            y = self._inv_chol @ (points[None, :, :] - self.means[:, :, None])
+            y *= y
+            out = -0.5 * y.sum(axis=1)
+        out += self._log_norm[:, None]
+        return out
+
+    def weighted_component_log_densities(self, points: np.ndarray) -> np.ndarray:
+        """log weight_k + log N(x; mean_k, cov_k) per component and column of points: (K, N)."""
+        out = self.component_log_densities(points)
+        out += self._log_weights[:, None]
+        return out
 
     def log_density(self, points: np.ndarray) -> np.ndarray:
         """log of the mixture density at each column of points (d, N): (N,)."""
@@ -125,60 +135,6 @@ class GaussianMixture:
         """Covariance of the whole mixture (seed 000 eq. 45)."""
         centred = self.means - self.mean()
         return np.einsum("k,kij->ij", self.weights, self.covariances) + np.einsum("k,ki,kj->ij", self.weights, centred, centred)
-
-
-class MixtureLogDensity:
-    """The log-density of one fixed mixture, evaluated at many batches of points (d, N).
-
-    Built once per filter (not per step). Zero-mean mixtures with diagonal covariances (the
-    usual noise models) take a fast path: sum_d x_d^2 / var_kd for all components at once is
-    one (K, d) @ (d, N) product of the squared points, and the constants (log-normaliser and log
-    weight of each component) are added afterwards. Any other mixture falls back to
-    ``GaussianMixture.log_density`` / ``component_log_densities`` (same values up to rounding).
-    """
-
-    def __init__(self, mixture: GaussianMixture):
-        self.mixture = mixture
-        cov = mixture.covariances
-        d = mixture.dim
-        variances = np.diagonal(cov, axis1=1, axis2=2)
-        self.fast = bool(not mixture.means.any() and np.array_equal(cov, variances[:, :, None] * np.eye(d))
-                         and np.all(variances > 0))
-        self.n_components = mixture.n_components
-        if self.fast:
-            self._neg_half_precision = -0.5 / variances  # (K, d)
-            self._log_norm = mixture._log_norm[:, None]  # (K, 1)
-            self._log_weighted_norm = (mixture._log_norm + mixture._log_weights)[:, None]  # (K, 1)
-            self._log_norm0 = float(mixture._log_norm[0])
-
-    def quadratic(self, points: np.ndarray) -> np.ndarray:
-        """-0.5 x^T cov_k^-1 x for each component k and column x (fast path only): (K, N)."""
-        return self._neg_half_precision @ (points * points)
-
-    def component_log_densities(self, points: np.ndarray, with_weights: bool = False) -> np.ndarray:
-        """log N(x; mean_k, cov_k) (+ log weight_k when with_weights) per component and column: (K, N)."""
-        if not self.fast:
-            out = self.mixture.component_log_densities(points)
-            if with_weights:
-                out += self.mixture._log_weights[:, None]
-            return out
-        out = self.quadratic(points)
-        out += self._log_weighted_norm if with_weights else self._log_norm
-        return out
-
-    def __call__(self, points: np.ndarray) -> np.ndarray:
-        """log of the mixture density at each column of points (d, N): (N,)."""
-        if not self.fast:
-            return self.mixture.log_density(points)
-        if self.n_components == 1:
-            out = self._neg_half_precision[0] @ (points * points)
-            out += self._log_norm0
-            return out
-        per_component = self.quadratic(points)
-        per_component += self._log_weighted_norm
-        if self.n_components == 2:
-            return np.logaddexp(per_component[0], per_component[1])
-        return logsumexp(per_component, axis=0)
 
 
 def weighted_moments(points: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

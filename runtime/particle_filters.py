@@ -59,11 +59,10 @@ from __future__ import annotations
 import functools
 import os
 import threading
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from .mixtures import LOG_2PI, GaussianMixture, MixtureLogDensity, logsumexp, weighted_em, weighted_moments
+from .mixtures import LOG_2PI, GaussianMixture, logsumexp, weighted_em, weighted_moments
 from .resampling import ResamplingPolicy, normalise_log_weights, systematic_resample
 
 # ---------------------------------------------------------------------------------------------
@@ -74,21 +73,8 @@ def _f_zeros(*shape) -> np.ndarray:
     return np.zeros(shape, order="F")
 
 
-def _batch_views(arrays, capacity: int) -> list[np.ndarray]:
-    """bind_batch reads an array of a slice's size as shared: with capacity 1, pass the slice itself."""
-    return [a[..., 0] if capacity == 1 and a.ndim >= 2 and a.shape[-1] == 1 else a for a in arrays]
-
-
-_POOL: ThreadPoolExecutor | None = None
 #: batches of at least this many slices are split over the cores (ctypes releases the GIL)
 PARALLEL_MIN_SLICES = 64
-
-
-def _pool() -> ThreadPoolExecutor:
-    global _POOL
-    if _POOL is None:
-        _POOL = ThreadPoolExecutor(max_workers=max(1, (os.cpu_count() or 1) - 1), thread_name_prefix="abyssal-batch")
-    return _POOL
 
 
 class _Worker:
@@ -130,7 +116,7 @@ class _Worker:
 
 
 _WORKERS: list[_Worker] | None = None
-#: held while the workers run a batch; a second thread evaluating at the same time uses the pool
+#: held while the workers run a batch; a second thread evaluating at the same time runs its chunks itself
 _WORKERS_BUSY = threading.Lock()
 
 
@@ -142,8 +128,8 @@ def _workers() -> list[_Worker]:
 
 
 def _forget_threads_after_fork() -> None:
-    global _WORKERS, _POOL, _WORKERS_BUSY
-    _WORKERS, _POOL, _WORKERS_BUSY = None, None, threading.Lock()
+    global _WORKERS, _WORKERS_BUSY
+    _WORKERS, _WORKERS_BUSY = None, threading.Lock()
 
 
 if hasattr(os, "register_at_fork"):
@@ -155,8 +141,8 @@ class ParallelBatch:
 
     `batched` flags which inputs carry one slice per column of their last axis (the others are
     shared). Each chunk is its own ``bind_batch`` on views of the same buffers, so results land in
-    place; the calling thread evaluates the first chunk while persistent worker threads (``_Worker``,
-    or the thread pool when another thread holds them) evaluate the others. Every slice is the
+    place; the calling thread evaluates the first chunk while persistent worker threads (``_Worker``)
+    evaluate the others (when another thread holds the workers, the caller runs every chunk itself). Every slice is the
     same scalar C call whatever the split, so results do not depend on it.
     """
 
@@ -168,7 +154,7 @@ class ParallelBatch:
         for lo, hi in zip(bounds[:-1], bounds[1:]):
             ins = [a[..., lo:hi] if b else a for a, b in zip(inputs, batched)]
             outs = [a[..., lo:hi] for a in outputs]
-            self._chunks.append((lo, hi, fn.bind_batch(_batch_views(ins, hi - lo), _batch_views(outs, hi - lo), hi - lo)))
+            self._chunks.append((lo, hi, fn.bind_batch(ins, outs, hi - lo)))
 
     def __call__(self, count: int, then=None) -> None:
         """Evaluate slices 0..count-1. `then(lo, hi)`, if given, runs right after each chunk's
@@ -203,10 +189,9 @@ class ParallelBatch:
             finally:
                 _WORKERS_BUSY.release()
             return
-        jobs = [_pool().submit(_run_chunk, binding, lo_, hi_, then) for binding, lo_, hi_ in rest]
         _run_chunk(first, lo, min(count, hi), then)
-        for job in jobs:
-            job.result()
+        for binding, lo_, hi_ in rest:
+            _run_chunk(binding, lo_, hi_, then)
 
 
 def _run_chunk(binding, lo: int, hi: int, then) -> None:
@@ -223,6 +208,14 @@ def nearest_positive_definite(covariances: np.ndarray, relative_floor: float = 1
     floor = relative_floor * np.maximum(np.abs(vals).max(axis=-1, keepdims=True), 1e-300)
     vals = np.maximum(vals, floor)
     return np.moveaxis((vecs * vals[:, None, :]) @ np.swapaxes(vecs, -1, -2), 0, -1)
+
+
+def _repair_failed_slices(ok: np.ndarray, cov: np.ndarray, evaluate, count: int) -> None:
+    """Slices whose Cholesky guard failed (ok = 0): repair their input covariance, evaluate again."""
+    if count and ok[0, :count].min() == 0:  # ok is 0 or 1
+        failed = np.flatnonzero(ok[0, :count] == 0)
+        cov[:, :, failed] = nearest_positive_definite(cov[:, :, failed])
+        evaluate(count)
 
 
 class CubaturePredictBatch:
@@ -243,10 +236,7 @@ class CubaturePredictBatch:
 
     def __call__(self, count: int) -> None:
         self._eval(count)
-        if count and self.ok[0, :count].min() == 0:  # ok is 0 or 1
-            failed = np.flatnonzero(self.ok[0, :count] == 0)
-            self.cov[:, :, failed] = nearest_positive_definite(self.cov[:, :, failed])
-            self._eval(count)
+        _repair_failed_slices(self.ok, self.cov, self._eval, count)
 
 
 class CubatureUpdateBatch:
@@ -284,10 +274,7 @@ class CubatureUpdateBatch:
             self.mask.fill(1.0)
             self.gated = 0
         self._eval(count)
-        if count and self.ok[0, :count].min() == 0:  # ok is 0 or 1
-            failed = np.flatnonzero(self.ok[0, :count] == 0)
-            self.cov[:, :, failed] = nearest_positive_definite(self.cov[:, :, failed])
-            self._eval(count)
+        _repair_failed_slices(self.ok, self.cov, self._eval, count)
         outliers = self.outliers(count)
         if outliers.any():
             if self.gate_jointly:
@@ -537,9 +524,6 @@ class ParticleFilter:
         self._q_diagonal_std = np.sqrt(np.diag(q_cov)) if gaussian_q and np.count_nonzero(q_cov - np.diag(np.diag(q_cov))) == 0 else None
         self._q_diagonal_std_col = None if self._q_diagonal_std is None else self._q_diagonal_std[:, None].copy()
         self._q_mean_col = process_noise.means[0][:, None].copy() if process_noise.means[0].any() else None
-        # log-densities of the noises with their constants (Cholesky / inverse) computed once
-        self._process_log_density = MixtureLogDensity(process_noise)
-        self._measurement_log_density = MixtureLogDensity(measurement_noise)
         self._noise = np.empty((bundle.n_x, n_particles))
         self._uniform_log_weight = -np.log(n_particles)
         self._log_n = float(np.log(n_particles))
@@ -560,7 +544,7 @@ class ParticleFilter:
     def _log_likelihoods(self, z: np.ndarray) -> np.ndarray:
         """informative(log p(z | x)) of every particle (h evaluated on self.particles)."""
         residuals = measurement_residuals(z, self.model.measure(), self.angle_outputs)
-        return informative(self._measurement_log_density(residuals))
+        return informative(self.measurement_noise.log_density(residuals))
 
     def step(self, u, z, dt) -> None:
         x_next = self.model.propagate(np.asarray(u, dtype=np.float64), dt)
@@ -667,7 +651,7 @@ class CubatureParticleFilter(ParticleFilter):
         log_w *= 0.5
         log_w += self._log_det
         # eq. 32: p(z|x) p(x|x_prev) / q
-        log_w += self._process_log_density(self.particles - f_prev)
+        log_w += self.process_noise.log_density(self.particles - f_prev)
         log_w += self._log_likelihoods(z)
         log_w += self.log_weights
         log_w += 0.5 * self._n_log_2pi
@@ -731,7 +715,6 @@ class _SampledMixtureFilter(_MixtureFilterBase):
         self.model = ModelBatch(bundle, n_particles, bundle.params(p))
         self.particles = self.model.x
         self.ess = float(n_particles)
-        self._measurement_log_density = MixtureLogDensity(measurement_noise)
 
     def _draw(self, proposal: GaussianMixture, labels: np.ndarray) -> np.ndarray:
         """Fill self.particles with draws from the proposal components named by labels; returns xi."""
@@ -743,7 +726,7 @@ class _SampledMixtureFilter(_MixtureFilterBase):
     def _log_likelihoods_by_component(self, z: np.ndarray) -> np.ndarray:
         """log gamma_m p_m(z | x) of every particle, (M, N)."""
         residuals = measurement_residuals(z, self.model.measure(), self.angle_outputs)
-        return informative(self._measurement_log_density.component_log_densities(residuals, with_weights=True))
+        return informative(self.measurement_noise.weighted_component_log_densities(residuals))
 
 
 class MixtureCubatureParticleFilter(_SampledMixtureFilter):

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import casadi as ca
 
-from .discretise import discrete_step
+from .discretise import discrete_step, step_and_jacobian
 from .model import Model
 
 FUNCTION_OPTIONS = {"cse": True}
@@ -168,10 +168,10 @@ def model_functions(model: Model) -> tuple[ca.Function, ...]:
     def at_zero_noise(expr):
         return ca.substitute(expr, w, ca.DM.zeros(w.shape)) if model.n_w else expr
 
-    f = at_zero_noise(x_next)
+    f, F = step_and_jacobian(model, x, u, p, dt)
     functions = [
         ca.Function(f"{m}_f", [x, u, p, dt], [f], ["x", "u", "p", "dt"], ["x_next"], FUNCTION_OPTIONS),
-        ca.Function(f"{m}_F", [x, u, p, dt], [ca.densify(ca.jacobian(f, x))], ["x", "u", "p", "dt"], ["dfdx"], FUNCTION_OPTIONS),
+        ca.Function(f"{m}_F", [x, u, p, dt], [ca.densify(F)], ["x", "u", "p", "dt"], ["dfdx"], FUNCTION_OPTIONS),
     ]
     if model.n_w:
         G = at_zero_noise(ca.jacobian(x_next, w))

@@ -5,7 +5,7 @@ from dataclasses import dataclass
 
 import casadi as ca
 
-from ..discretise import SCHEMES, discrete_step
+from ..discretise import discrete_step, step_and_jacobian
 from ..model import Model
 
 
@@ -43,29 +43,9 @@ def transition(model: Model) -> ca.Function:
 
 
 def transition_with_jacobian(model: Model) -> ca.Function:
-    """f(x, u, p, dt) -> (x_next, F = d x_next / d x), F by the discrete variational equation.
-
-    The explicit scheme of the model (Euler or RK4, with its substeps) is applied to the
-    augmented state (x, J) with J(0) = I and dJ/dt = A(x) J, A = d xdot / dx: differentiating an
-    explicit Runge-Kutta step is the same scheme applied to the variational equation, so J after
-    the step is exactly the Jacobian of x_next (up to rounding: the products are associated
-    differently). Working with the small sparse A at each stage (30 nonzeros on rov4dof) instead
-    of differentiating the whole unrolled step (``ca.jacobian`` of f) takes rov4dof's (f, F) from
-    2358 to 1664 SX instructions. x_next is the same expression as in ``transition`` (bitwise).
-    F keeps its structural sparsity (rov4dof: 53 of 144 entries).
-    """
-    n = model.n_x
+    """f(x, u, p, dt) -> (x_next, F): the step and its state Jacobian (discretise.step_and_jacobian)."""
     x, u, p, dt = model.x, model.u, model.p, ca.SX.sym("dt")
-    w0 = ca.DM.zeros(model.w.shape)  # zero noise input, as in transition()
-    rhs = ca.Function("rhs_and_jacobian", [model.x, model.u, model.p, model.w],
-                      [model.xdot, ca.jacobian(model.xdot, model.x)])
-
-    def variational(s):  # s = (x, vec J)
-        xdot, A = rhs(s[:n], u, p, w0)
-        return ca.vertcat(xdot, ca.vec(ca.mtimes(A, ca.reshape(s[n:], n, n))))
-
-    s = SCHEMES[model.discretisation](variational, ca.vertcat(x, ca.vec(ca.SX.eye(n))), dt, model.substeps)
-    return ca.Function("f_and_F", [x, u, p, dt], [s[:n], ca.reshape(s[n:], n, n)])
+    return ca.Function("f_and_F", [x, u, p, dt], list(step_and_jacobian(model, x, u, p, dt)))
 
 
 def measurement(model: Model) -> ca.Function:
