@@ -6,7 +6,7 @@ a thin wrapper of abyssal.runtime.bench_filters.
 import argparse
 import json
 
-from abyssal.runtime import bench_filters
+from abyssal.runtime.checks import bench_filters
 
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__)

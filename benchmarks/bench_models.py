@@ -5,7 +5,7 @@
 import argparse
 import json
 
-from abyssal.runtime import bench_models
+from abyssal.runtime.checks import bench_models
 
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__)

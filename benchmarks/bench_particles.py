@@ -2,7 +2,7 @@
 import json
 import sys
 
-from abyssal.runtime import bench_particles
+from abyssal.runtime.checks import bench_particles
 
 if __name__ == "__main__":
     report = bench_particles.run(quick="--quick" in sys.argv, verbose=True)

@@ -1,5 +1,5 @@
 """abyssal.runtime: NumPy/SciPy numerics on top of the compiled generated code."""
-from .kalman import CKF, EKF, MCUKF, UKF, FilterResult, HuberUKF, KalmanFilter, process_noise, repair_covariance
+from .filters.kalman import CKF, EKF, MCUKF, UKF, FilterResult, HuberUKF, KalmanFilter, process_noise, repair_covariance
 
 __all__ = [
     "CKF", "EKF", "FilterResult", "HuberUKF", "KalmanFilter", "MCUKF", "UKF", "process_noise", "repair_covariance",

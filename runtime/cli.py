@@ -27,7 +27,7 @@ def _regenerate(args) -> int:
 
 
 def _verify(args) -> int:
-    from abyssal.runtime import verify
+    from abyssal.runtime.checks import verify
 
     report = verify.run_all(models=args.models or None)
     if args.json:
@@ -38,13 +38,13 @@ def _verify(args) -> int:
 
 
 def _bench(args) -> int:
-    from abyssal.runtime import bench
+    from abyssal.runtime.checks import bench
 
     return bench.main(json_output=args.json, out=args.out, quick=args.quick)
 
 
 def _reproduce(args) -> int:
-    from abyssal.runtime import reproduce
+    from abyssal.runtime.experiments import reproduce
 
     return reproduce.main(args)
 

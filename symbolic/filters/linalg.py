@@ -3,7 +3,7 @@
 CasADi's SX ``chol`` has no pivoting and returns NaN on a matrix that is not positive
 definite. ``guarded_cholesky`` instead clamps every pivot and returns a flag ``ok`` (1 when all
 pivots passed, else 0): the C stays finite and the runtime decides (eigenvalue repair, see
-abyssal.runtime.kalman). Everything here works on dense SX matrices of known size.
+abyssal.runtime.filters.kalman). Everything here works on dense SX matrices of known size.
 """
 from __future__ import annotations
 

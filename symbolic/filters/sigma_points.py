@@ -11,7 +11,7 @@ wm_k (mean) and wc_k (covariance):
   wc_0 = wm_0 + 1 - alpha^2 + beta, wm_i = wc_i = 1/(2c). alpha, beta, kappa may be SX
   symbols, so one generated function serves every choice:
   Merwe's choice alpha = 1e-3, beta = 2, kappa = 0 (Gaussian prior) and Julier's
-  alpha = 1, beta = 0, kappa = 3 - n are presets of the runtime (abyssal.runtime.kalman).
+  alpha = 1, beta = 0, kappa = 3 - n are presets of the runtime (abyssal.runtime.filters.kalman).
   alpha = 1, beta = 0, kappa = 0 is the cubature rule plus a centre point of weight zero.
 """
 from __future__ import annotations

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 from scipy.stats import multivariate_normal
 
-from abyssal.runtime.mixtures import GaussianMixture, logsumexp, weighted_em, weighted_moments
+from abyssal.runtime.noise.mixtures import GaussianMixture, logsumexp, weighted_em, weighted_moments
 
 TRUTH = GaussianMixture(np.array([0.3, 0.7]), np.array([[-2.0, 0.0], [2.0, 1.0]]),
                         np.array([[[0.5, 0.2], [0.2, 0.4]], [[0.8, -0.3], [-0.3, 0.6]]]))

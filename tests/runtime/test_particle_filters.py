@@ -3,10 +3,10 @@ import numpy as np
 import pytest
 
 import abyssal.generated
-from abyssal.runtime import particle_filters as pf
-from abyssal.runtime.mixtures import GaussianMixture
+from abyssal.runtime.filters import mixture as mix, particle as pf
+from abyssal.runtime.noise.mixtures import GaussianMixture
 from abyssal.runtime.resampling import ResamplingPolicy
-from abyssal.runtime.scenarios.rov_sea_state import SEA_STATES, RovScenario, make_filter, run_filter, simulate
+from abyssal.runtime.experiments.rov.scenario import SEA_STATES, RovScenario, make_filter, run_filter, simulate
 
 DT = 0.5
 
@@ -74,16 +74,16 @@ def test_cubature_and_mixture_filters_match_kalman_filter_on_a_linear_model(line
     noise_q, noise_r = GaussianMixture.gaussian(np.zeros(4), Q), GaussianMixture.gaussian(np.zeros(2), R)
     ckf = _run(pf.CubatureKalmanFilter(linear, x0, P0, noise_q, noise_r), us, zs)
     assert np.allclose(ckf[0], x_kf, atol=1e-9) and np.allclose(ckf[1], P_kf, atol=1e-9)
-    gs = _run(pf.GaussianSumCKF(linear, x0, P0, noise_q, noise_r, n_components=1), us, zs)
+    gs = _run(mix.GaussianSumCKF(linear, x0, P0, noise_q, noise_r, n_components=1), us, zs)
     assert np.allclose(gs[0], x_kf, atol=1e-9) and np.allclose(gs[1], P_kf, atol=1e-9)
     L = np.linalg.cholesky(P_kf)
     # CPF's per-particle proposal N(x^i_k|k, P^i_k|k) is much wider than p(x_k|x_k-1) here, so its weights
     # degenerate (ESS ~ 1 per step): it stays consistent but needs a looser bound at this N.
     cpf = _run(pf.CubatureParticleFilter(linear, x0, P0, noise_q, noise_r, 2000, np.random.default_rng(2)), us, zs)
     assert np.linalg.norm(np.linalg.solve(L, cpf[0] - x_kf)) < 2.0
-    for filt in (pf.EMMixtureCubatureParticleFilter(linear, x0, P0, noise_q, noise_r, 2000, np.random.default_rng(3),
+    for filt in (mix.EMMixtureCubatureParticleFilter(linear, x0, P0, noise_q, noise_r, 2000, np.random.default_rng(3),
                                                     n_components=1),
-                 pf.MixtureCubatureParticleFilter(linear, x0, P0, noise_q, noise_r, 2000, np.random.default_rng(4),
+                 mix.MixtureCubatureParticleFilter(linear, x0, P0, noise_q, noise_r, 2000, np.random.default_rng(4),
                                                   n_components=1)):
         x, _ = _run(filt, us, zs)
         assert np.linalg.norm(np.linalg.solve(L, x - x_kf)) < 0.5, filt.name

@@ -8,8 +8,8 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from abyssal.runtime import reference_models, verify_models
-from abyssal.runtime.reference_models import REFERENCES
+from abyssal.runtime.checks import reference_models, verify_models
+from abyssal.runtime.checks.reference_models import REFERENCES
 
 
 @pytest.fixture(scope="module")

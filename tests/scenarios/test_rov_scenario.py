@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 import abyssal.generated
-from abyssal.runtime import reproduce
-from abyssal.runtime.scenarios.rov_sea_state import SEA_STATES, RovScenario, mass_diagonal, run_experiment, simulate
+from abyssal.runtime.experiments import reproduce
+from abyssal.runtime.experiments.rov.scenario import SEA_STATES, RovScenario, mass_diagonal, run_experiment, simulate
 
 
 @pytest.fixture(scope="module")

@@ -1,7 +1,7 @@
 """Filter section of `abyssal bench`: per-step (predict + update) cost on rov4dof beside peers
 measured in the same run.
 
-Ours:   EKF, UKF, CKF runtime classes (abyssal.runtime.kalman), ``step(u, dt, z)`` through a
+Ours:   EKF, UKF, CKF runtime classes (abyssal.runtime.filters.kalman), ``step(u, dt, z)`` through a
         simulated trajectory (EKF and CKF: one fused generated call per step; UKF: predict and
         update calls), the CKF with separate predict() and update() calls, and the bare bound C
         evaluations of the CKF (no Python checks) to show the runtime's own overhead.
@@ -18,7 +18,7 @@ import numpy as np
 from abyssal import generated
 
 from .bench import median_time, target
-from .kalman import CKF, EKF, UKF
+from ..filters.kalman import CKF, EKF, UKF
 
 MODEL = "rov4dof"
 DT = 0.1

@@ -21,7 +21,7 @@ FILTERS = ("PF", "CPF", "MOGCPF", "EM-MOGCPF", "GS-CKF", "CKF")
 def run(quick: bool = False, verbose: bool = True) -> dict:
     from abyssal.generated import load
 
-    from .scenarios.rov_sea_state import SEA_STATES, RovScenario, make_filter, simulate
+    from ..experiments.rov.scenario import SEA_STATES, RovScenario, make_filter, simulate
 
     bundle = load("rov4dof")
     scenario = RovScenario()

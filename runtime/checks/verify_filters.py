@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .kalman import CKF, EKF, MCUKF, UKF, HuberUKF
+from ..filters.kalman import CKF, EKF, MCUKF, UKF, HuberUKF
 from .verify import Check
 
 STEPS = 15

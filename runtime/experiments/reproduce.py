@@ -61,7 +61,7 @@ def rov_table(results: dict, runs: int, n_particles: int) -> str:
 
 
 def rov_figures(results: dict, out: Path) -> list[Path]:
-    from . import plots
+    from .. import plots
 
     out.mkdir(parents=True, exist_ok=True)
     paper = paper_rov_rmse()
@@ -85,7 +85,7 @@ def rov_figures(results: dict, out: Path) -> list[Path]:
 
 def run_rov(args, scenario=None) -> int:
     """Run the experiment; `scenario` (a RovScenario) overrides the paper's set-up (tests use a short one)."""
-    from .scenarios import rov_sea_state
+    from .rov import scenario as rov_sea_state
 
     runs = 3 if args.runs is None else args.runs
     n_particles = 300 if args.particles is None else args.particles

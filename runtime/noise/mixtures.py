@@ -191,3 +191,32 @@ def weighted_em(points: np.ndarray, weights: np.ndarray, initial: GaussianMixtur
         if change < tol:
             return EMResult(mixture, iteration, True)
     return EMResult(mixture, max_iter, False)
+
+
+def merge_components(weights: np.ndarray, means: np.ndarray, covariances: np.ndarray):
+    """Moment-matched single Gaussian (weight, mean, covariance) of weighted components."""
+    total = weights.sum()
+    mixture = GaussianMixture(weights, means, covariances)
+    return total, mixture.mean(), mixture.covariance()
+
+
+def reduce_mixture(mixture: GaussianMixture, n_components: int) -> GaussianMixture:
+    """Keep the n_components - 1 heaviest components; merge the others into one (moment matching)."""
+    if mixture.n_components <= n_components:
+        return mixture
+    order = np.argsort(-mixture.weights)
+    keep, rest = order[: n_components - 1], order[n_components - 1:]
+    w_rest, m_rest, c_rest = merge_components(mixture.weights[rest], mixture.means[rest], mixture.covariances[rest])
+    return GaussianMixture(np.append(mixture.weights[keep], w_rest), np.vstack([mixture.means[keep], m_rest]),
+                           np.concatenate([mixture.covariances[keep], c_rest[None]]))
+
+
+def initial_mixture(x0: np.ndarray, P0: np.ndarray, n_components: int, rng: np.random.Generator) -> GaussianMixture:
+    """G components whose mixture is about N(x0, P0): means from N(x0, P0/2), covariances P0/2."""
+    if n_components == 1:
+        return GaussianMixture.gaussian(x0, P0)
+    L = np.linalg.cholesky(P0 / 2)
+    means = x0[None, :] + (L @ rng.standard_normal((x0.shape[0], n_components))).T
+    return GaussianMixture(np.full(n_components, 1.0 / n_components), means, np.repeat((P0 / 2)[None], n_components, 0))
+
+

@@ -12,7 +12,7 @@ import platform
 import time
 from pathlib import Path
 
-SECTIONS = ("abyssal.runtime.bench_models", "abyssal.runtime.bench_filters", "abyssal.runtime.bench_particles")
+SECTIONS = ("abyssal.runtime.checks.bench_models", "abyssal.runtime.checks.bench_filters", "abyssal.runtime.checks.bench_particles")
 
 
 def median_time(fn, repeat: int = 7, min_time: float = 0.05) -> float:

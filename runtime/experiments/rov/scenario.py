@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..mixtures import GaussianMixture
+from ...noise.mixtures import GaussianMixture
 
 
 @dataclass(frozen=True)
@@ -183,7 +183,7 @@ POSE_AXES = ("x", "y", "z", "psi")
 
 def make_filter(name: str, bundle, scenario: RovScenario, sea: SeaState, n_particles: int, rng: np.random.Generator):
     """A fresh filter of the given name on this scenario (x0_hat, P0, Q_k, the sea state's noise)."""
-    from .. import particle_filters as pf
+    from ...filters import mixture as mix, particle as pf
 
     x0, P0 = np.asarray(scenario.x0_hat, dtype=np.float64), scenario.P0
     Q, R = scenario.process_noise(bundle), sea.measurement_noise()
@@ -191,9 +191,9 @@ def make_filter(name: str, bundle, scenario: RovScenario, sea: SeaState, n_parti
         "PF": lambda: pf.ParticleFilter(bundle, x0, P0, Q, R, n_particles, rng),
         "CKF": lambda: pf.CubatureKalmanFilter(bundle, x0, P0, Q, R),
         "CPF": lambda: pf.CubatureParticleFilter(bundle, x0, P0, Q, R, n_particles, rng),
-        "MOGCPF": lambda: pf.MixtureCubatureParticleFilter(bundle, x0, P0, Q, R, n_particles, rng),
-        "EM-MOGCPF": lambda: pf.EMMixtureCubatureParticleFilter(bundle, x0, P0, Q, R, n_particles, rng),
-        "GS-CKF": lambda: pf.GaussianSumCKF(bundle, x0, P0, Q, R, rng=rng),
+        "MOGCPF": lambda: mix.MixtureCubatureParticleFilter(bundle, x0, P0, Q, R, n_particles, rng),
+        "EM-MOGCPF": lambda: mix.EMMixtureCubatureParticleFilter(bundle, x0, P0, Q, R, n_particles, rng),
+        "GS-CKF": lambda: mix.GaussianSumCKF(bundle, x0, P0, Q, R, rng=rng),
     }
     try:
         return builders[name]()

@@ -6,7 +6,7 @@ For a bundle, ``checks(bundle)`` returns, per generated model function (f, F, G,
     compiled C vs CasADi        the committed C, compiled, against CasADi's own evaluation of the
                                 same symbolic Function (catches codegen, compiler and loader faults)
     vs NumPy model              xdot, h and f against the independent NumPy model
-                                (runtime/reference_models.py; catches equation errors)
+                                (runtime/checks/reference_models.py; catches equation errors)
     vs central differences      F, G, H against central differences of the NumPy step/measurement
     vs solve_ivp (DOP853)       one f step against a tight adaptive integration of the NumPy RHS,
                                 and the order of the scheme from the error ratio when halving dt
@@ -237,7 +237,7 @@ def checks(bundle, reference=None, symbolic=None) -> list[Check]:
     out = _c_vs_casadi(bundle, symbolic, points)
     if ref is None:
         out.append(Check(bundle.name, "independent NumPy model", "reference_models", float("nan"), 0.0,
-                         f"no NumPy model of {bundle.name!r} in runtime/reference_models.py: add one"))
+                         f"no NumPy model of {bundle.name!r} in runtime/checks/reference_models.py: add one"))
     else:
         if tuple(ref.parameter_names) != tuple(bundle.parameter_names):
             out.append(Check(bundle.name, "parameter order vs NumPy model", "reference_models", float("inf"), 0.0,

@@ -4,9 +4,9 @@ A check is a named comparison with a measured error and a tolerance. Sections re
 checks per model; `run_all` runs them and returns a Report (printed as a table or JSON).
 
 Sections (modules exposing ``checks(bundle) -> Iterable[Check]``):
-    abyssal.runtime.verify_models   compiled C vs CasADi, Jacobians vs an independent NumPy model,
+    abyssal.runtime.checks.verify_models   compiled C vs CasADi, Jacobians vs an independent NumPy model,
                                     RK4 vs scipy solve_ivp (order), f_batch vs f
-    abyssal.runtime.verify_filters  generated filter steps vs filterpy and the exact Kalman filter
+    abyssal.runtime.checks.verify_filters  generated filter steps vs filterpy and the exact Kalman filter
 """
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ import math
 import traceback
 from dataclasses import asdict, dataclass, field
 
-SECTIONS = ("abyssal.runtime.verify_models", "abyssal.runtime.verify_filters")
+SECTIONS = ("abyssal.runtime.checks.verify_models", "abyssal.runtime.checks.verify_filters")
 
 
 @dataclass

@@ -1,0 +1,1 @@
+"""`abyssal verify` and `abyssal bench`: sections imported explicitly, reference models, peers."""

@@ -1,0 +1,1 @@
+"""State estimators on generated C: kalman/ (one engine, thin families), particle/ (SIR), mixture/ (Gaussian sums)."""

@@ -1,0 +1,5 @@
+"""Kalman-family filters running whole generated filter steps (see engine.py for the contract)."""
+from .engine import CKF, EKF, MCUKF, UKF, FilterResult, HuberUKF, KalmanFilter, process_noise, repair_covariance
+
+__all__ = ["CKF", "EKF", "FilterResult", "HuberUKF", "KalmanFilter", "MCUKF", "UKF", "process_noise",
+           "repair_covariance"]
