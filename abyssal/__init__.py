@@ -5,9 +5,46 @@ The public surface in one import; the layers stay where the design card puts the
     abyssal.symbolic    CasADi only: Model, Fossen blocks, discretisations, filter algebra, codegen
     abyssal.generated   committed C, compile cache, loader
     abyssal.runtime     filters, particles, noise models, experiments, checks, CLI
+
+Your own vehicle, from equations to a verified filter:
+
+    import abyssal
+    folder = abyssal.generate(myvessel, "gen")          # gen/myvessel/: C, SoA kernels, manifest
+    vessel = abyssal.load(folder)                        # compiled through the shared cache
+    assert abyssal.verify(folder).ok                     # compiled C vs CasADi, Jacobians, steps, filters
+    ckf = abyssal.CKF(vessel, x0, P0, Q, R)
 """
 from abyssal.generated import load
+from abyssal.generated.regenerate import check_folder as check_generated
+from abyssal.generated.regenerate import generate
 from abyssal.runtime import CKF, EKF, MCUKF, UKF, FilterResult, HuberUKF
-from abyssal.symbolic import Model, Parameter, Quantity, fossen
+from abyssal.runtime.filters.particle import CubatureParticleFilter, ParticleFilter
+from abyssal.runtime.noise import GaussianMixture
+from abyssal.symbolic import Model, Parameter, Quantity, discretise, fossen, symbols
 
-__all__ = ["CKF", "EKF", "FilterResult", "HuberUKF", "MCUKF", "Model", "Parameter", "Quantity", "UKF", "fossen", "load"]
+
+def verify(target, *, strict: bool = False):
+    """The `abyssal verify` report of a built-in name, a generated model folder, or a Model function.
+
+    A Model or a function returning one is generated into a temporary folder first. ``report.ok``
+    says whether everything that ran passed (``strict=True``: and nothing was skipped);
+    ``print(report.table())`` shows each check.
+    """
+    import os
+    import tempfile
+
+    from abyssal.runtime.checks import verify as checks
+
+    if isinstance(target, (str, os.PathLike)):
+        folders = [target] if (isinstance(target, os.PathLike) or "/" in target or os.sep in target) else []
+        return checks.run_all(models=None if folders else [target], folders=folders, strict=strict)
+    folder = generate(target, tempfile.mkdtemp(prefix="abyssal-verify-"))
+    model = target if isinstance(target, Model) else target()
+    return checks.verify_targets([checks.model_target(model, folder)], strict=strict)
+
+
+__all__ = [
+    "CKF", "CubatureParticleFilter", "EKF", "FilterResult", "GaussianMixture", "HuberUKF", "MCUKF", "Model",
+    "Parameter", "ParticleFilter", "Quantity", "UKF", "check_generated", "discretise", "fossen", "generate", "load",
+    "symbols", "verify",
+]

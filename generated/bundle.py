@@ -3,7 +3,10 @@
 Two paths:
 
 * Convenience calls (``bundle.f(x, u, p, dt)``, ``fn(*args)``) check every argument (shape,
-  dtype, finiteness), evaluate on private buffers and return new NumPy arrays (~15-25 us, mostly the checks).
+  dtype, finiteness; complex is a TypeError), evaluate on private buffers and return new NumPy
+  arrays (~15-25 us, mostly the checks); a non-finite output is a FloatingPointError. The batch
+  convenience calls (``f_batch``, ``h_batch``, ``fn.batch``) check the same and name the
+  offending columns; the finiteness check is one reduction over the outputs.
 * The fast path: ``fn.bind(inputs, outputs)`` fixes preallocated float64 buffers once and
   returns a zero-argument callable that evaluates the C function in place through
   ``casadi.external`` + ``Function.buffer()`` (measured ~0.2 us per call; ctypes was ~0.6 us).
@@ -11,7 +14,9 @@ Two paths:
   chosen per call (any function; one scalar C call per slice, bitwise equal to ``fn``).
   ``fn.bind_soa(...)`` binds the SIMD structure-of-arrays kernel of ``f`` and ``h`` (4x faster
   on rov4dof; equal to ``fn`` up to the last bits of libmvec's sin/cos). Bindings keep their
-  arrays alive; filters hold them for their lifetime.
+  arrays alive; filters hold them for their lifetime. Bindings never copy a buffer (a
+  non-contiguous one is refused, also when shared by a batch), refuse read-only outputs, and do
+  not check finiteness: their callers do, once per step.
 
 Layout: CasADi stores matrices column-major. A matrix buffer is a Fortran-ordered array of
 the declared shape. For ``bind_batch`` a batch of N vectors of size n is an (n, N)
@@ -23,6 +28,7 @@ from __future__ import annotations
 
 import ctypes
 import threading
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -40,11 +46,63 @@ class Signature:
         return self.shape[0] * self.shape[1]
 
 
-def _as_buffer(arr: np.ndarray, sig: Signature, what: str) -> np.ndarray:
+def _real(value, what: str) -> np.ndarray:
+    """value as a float64 array; complex or non-numeric values are a TypeError naming `what`.
+
+    (NumPy would drop the imaginary part with only a warning.)
+    """
+    arr = np.asarray(value)
+    if arr.dtype.kind == "c":
+        raise TypeError(f"{what} is complex ({arr.dtype}): abyssal computes in real float64; pass the real part "
+                        "explicitly if that is what you mean")
+    if arr.dtype.kind == "O":
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("error", np.exceptions.ComplexWarning)
+                return np.array(arr, dtype=np.float64)  # complex entries raise TypeError or ComplexWarning
+        except (TypeError, ValueError, np.exceptions.ComplexWarning):
+            pass
+    if arr.dtype.kind not in "iuf":
+        raise TypeError(f"{what} must hold real numbers, got {type(value).__name__} of {arr.dtype}")
+    return arr.astype(np.float64, copy=False)
+
+
+def _writable(arr: np.ndarray, sig: Signature, what: str) -> None:
+    if not arr.flags.writeable:
+        raise ValueError(f"{what} {sig.name!r}: buffer is read-only (the function writes its result there); "
+                         "pass a writable float64 array")
+
+
+def _all_finite(arr: np.ndarray) -> bool:
+    """Whether every entry is finite. For large arrays a finite sum proves it (one pass, no
+    temporary; only a non-finite or overflowing sum pays for the exact check)."""
+    if arr.size < 1 << 16:
+        return bool(np.isfinite(arr).all())
+    with np.errstate(over="ignore", invalid="ignore"):
+        if np.isfinite(np.add.reduce(arr, axis=None)):
+            return True
+    return bool(np.isfinite(arr).all())
+
+
+def _finite_columns(name: str, outs, sigs, n: int) -> None:
+    """FloatingPointError naming the output and its columns (last axis) with a non-finite entry."""
+    for out, sig in zip(outs, sigs):
+        if _all_finite(out):
+            continue
+        bad = np.flatnonzero(~np.isfinite(out).all(axis=tuple(range(out.ndim - 1))))
+        if bad.size:
+            shown = ", ".join(map(str, bad[:10])) + (f", ... ({bad.size} columns)" if bad.size > 10 else "")
+            raise FloatingPointError(f"{name}: output {sig.name!r} is not finite in column(s) {shown} of {n} "
+                                     "(at those columns' arguments)")
+
+
+def _as_buffer(arr: np.ndarray, sig: Signature, what: str, output: bool = False) -> np.ndarray:
     """1-D float64 view of a preallocated buffer, in CasADi's column-major order."""
     if not isinstance(arr, np.ndarray) or arr.dtype != np.float64:
         raise TypeError(f"{what} {sig.name!r}: expected a float64 numpy array, got {type(arr).__name__}"
                         + (f" of {arr.dtype}" if isinstance(arr, np.ndarray) else ""))
+    if output:
+        _writable(arr, sig, what)
     if arr.size != sig.size:
         raise ValueError(f"{what} {sig.name!r}: expected {sig.size} elements (shape {sig.shape}), got shape {arr.shape}")
     if arr.ndim <= 1 or (arr.ndim == 2 and 1 in sig.shape):
@@ -56,17 +114,20 @@ def _as_buffer(arr: np.ndarray, sig: Signature, what: str) -> np.ndarray:
     return arr.reshape(-1, order="F")
 
 
-def _batch_buffer(arr: np.ndarray, sig: Signature, n: int, what: str) -> tuple[np.ndarray, int]:
-    """(buffer, step) of a batch argument.
+def _batch_buffer(arr: np.ndarray, sig: Signature, n: int, what: str, output: bool = False) -> tuple[np.ndarray, int]:
+    """(buffer, step) of a batch argument, bound in place (never a private copy).
 
     A batch has one more axis than the argument: (rows, N) for a vector, (rows, cols, N) for a
-    matrix, Fortran-ordered. Anything else of the argument's own size is shared (step 0).
+    matrix, Fortran-ordered. Anything else of the argument's own size is shared (step 0), and
+    must be contiguous like a ``bind`` buffer: later writes to it are seen by the next call.
     """
     if not isinstance(arr, np.ndarray) or arr.dtype != np.float64:
         raise TypeError(f"{what} {sig.name!r}: expected a float64 numpy array")
+    if output:
+        _writable(arr, sig, what)
     batch_ndim = 2 if sig.shape[1] == 1 else 3
-    if arr.ndim < batch_ndim and arr.size == sig.size:
-        return _as_buffer(np.ascontiguousarray(arr) if arr.ndim <= 1 else arr, sig, what), 0
+    if (arr.ndim < batch_ndim and arr.size == sig.size) or (arr.shape == sig.shape and not (output and n > 1)):
+        return _as_buffer(arr, sig, what), 0  # (rows, 1) is the declared shape: shared, not a batch of one
     want = (sig.shape[0],) if sig.shape[1] == 1 else sig.shape
     if arr.ndim != batch_ndim or arr.shape[:-1] != want or arr.shape[-1] < n:
         raise ValueError(
@@ -157,7 +218,7 @@ class CompiledFunction:
         if len(inputs) != len(self.inputs) or len(outputs) != len(self.outputs):
             raise ValueError(f"{self.name}: expected {len(self.inputs)} inputs and {len(self.outputs)} outputs")
         ins = [_as_buffer(a, s, f"{self.name} input") for a, s in zip(inputs, self.inputs)]
-        outs = [_as_buffer(a, s, f"{self.name} output") for a, s in zip(outputs, self.outputs)]
+        outs = [_as_buffer(a, s, f"{self.name} output", output=True) for a, s in zip(outputs, self.outputs)]
         buffer, eval_fn = self.external.buffer()
         for i, a in enumerate(ins):
             buffer.set_arg(i, memoryview(a))
@@ -171,7 +232,8 @@ class CompiledFunction:
     def bind_batch(self, inputs, outputs, capacity: int) -> BatchBinding:
         """Bind buffers for up to `capacity` slices; an input of its plain shape is shared by all slices."""
         ins = [_batch_buffer(a, s, capacity, f"{self.name} input") for a, s in zip(inputs, self.inputs, strict=True)]
-        outs = [_batch_buffer(a, s, capacity, f"{self.name} output") for a, s in zip(outputs, self.outputs, strict=True)]
+        outs = [_batch_buffer(a, s, capacity, f"{self.name} output", output=True)
+                for a, s in zip(outputs, self.outputs, strict=True)]
         for (_, step), s in zip(outs, self.outputs):
             if step == 0 and capacity > 1:
                 raise ValueError(f"{self.name} output {s.name!r}: a batch output needs one slice per column")
@@ -201,6 +263,8 @@ class CompiledFunction:
             if (not isinstance(arr, np.ndarray) or arr.dtype != np.float64 or arr.ndim != 2
                     or arr.shape[0] != sig.size or not arr.flags.c_contiguous):
                 raise ValueError(f"{self.name} {sig.name!r}: expected a C-ordered float64 array of shape ({sig.size}, N)")
+            if any(arr is o for o in outputs):
+                _writable(arr, sig, f"{self.name} output")
             lds.add(arr.shape[1])
         if len(lds) != 1:
             raise ValueError(f"{self.name}: batched buffers must share one number of columns, got {sorted(lds)}")
@@ -211,7 +275,7 @@ class CompiledFunction:
     # ---------------------------------------------------------- convenience path
     def _checked(self, value, sig: Signature) -> np.ndarray:
         """value as a flat column-major float64 array, after shape and finiteness checks."""
-        arr = np.asarray(value, dtype=np.float64)
+        arr = _real(value, f"{self.name}: argument {sig.name!r}")
         if arr.shape not in (sig.shape, (sig.size,)) and not (sig.size == 1 and arr.ndim == 0):
             want = f"({sig.shape[0]},)" if sig.shape[1] == 1 else str(sig.shape)
             raise ValueError(f"{self.name}: argument {sig.name!r} must have shape {want}, got {arr.shape}")
@@ -258,12 +322,13 @@ class CompiledFunction:
             raise TypeError(f"{self.name} takes {len(self.inputs)} arguments ({', '.join(s.name for s in self.inputs)})")
         ins = []
         for a, s in zip(args, self.inputs):
-            arr = np.asfortranarray(a, dtype=np.float64)  # shapes are checked by bind_batch
-            if not np.isfinite(arr).all():
+            arr = np.asfortranarray(_real(a, f"{self.name}: argument {s.name!r}"))  # shapes are checked by bind_batch
+            if not _all_finite(arr):
                 raise ValueError(f"{self.name}: argument {s.name!r} has non-finite entries")
             ins.append(arr)
         outs = [np.zeros((s.shape[0], n) if s.shape[1] == 1 else (*s.shape, n), order="F") for s in self.outputs]
         self.bind_batch(ins, outs, n)(n)
+        _finite_columns(f"{self.name} batch", outs, self.outputs, n)
         return outs[0] if len(outs) == 1 else tuple(outs)
 
 
@@ -280,6 +345,14 @@ class ModelBundle:
         self.noise_names = tuple(q["name"] for q in manifest["noises"])
         self.output_names = tuple(q["name"] for q in manifest["outputs"])
         self.angle_outputs = tuple(manifest["angle_outputs"])
+        #: indices of states that are angles (the runtime wraps them to (-pi, pi])
+        self.angle_states = tuple(manifest.get("angle_states", ()))
+        #: "rk4" / "euler" (a discretised continuous model) or "discrete" (x_next given directly)
+        self.discretisation = manifest["discretisation"]
+        #: the filter families generated for this model (None: recorded before families were a choice)
+        self.filter_families = manifest.get("filter_families")
+        #: the folder the sources were read from (set by abyssal.generated.load)
+        self.folder: Path | None = None
         self.n_x, self.n_u, self.n_p = len(self.state_names), len(self.input_names), len(self.parameter_names)
         self.n_w, self.n_y = len(self.noise_names), len(self.output_names)
         self.p_default = np.array([q["default"] for q in manifest["parameters"]], dtype=np.float64)
@@ -301,11 +374,40 @@ class ModelBundle:
         except KeyError:
             raise KeyError(f"model {self.name!r} has no generated function {name!r}; it has {sorted(self.functions)}") from None
 
-    def params(self, p=None) -> np.ndarray:
-        """The runtime parameter vector: defaults when p is None, else p checked for shape and finiteness."""
+    @property
+    def is_discrete(self) -> bool:
+        return self.discretisation == "discrete"
+
+    @property
+    def defaults(self) -> dict[str, float]:
+        """Parameter name -> default value, in vector order."""
+        return dict(zip(self.parameter_names, self.p_default.tolist()))
+
+    def parameter_table(self) -> str:
+        """The parameters as a printable table: index, name, default, unit, description."""
+        from abyssal.symbolic.model import parameter_table
+
+        return parameter_table([(q["name"], q["default"], q["unit"], q["description"]) for q in self.manifest["parameters"]])
+
+    def params(self, p=None, **by_name) -> np.ndarray:
+        """The runtime parameter vector: defaults when p is None, else p checked for shape and finiteness.
+
+        Entries can be set by name, on the defaults or on p: ``bundle.params(m=30.0)``; an unknown
+        name is a KeyError listing the parameters.
+        """
+        if by_name:
+            unknown = sorted(set(by_name) - set(self.parameter_names))
+            if unknown:
+                raise KeyError(f"model {self.name!r} has no parameter(s) {unknown}; its parameters: {list(self.parameter_names)}")
+            base = self.params(p)
+            for name, value in by_name.items():
+                base[self.parameter_names.index(name)] = value
+            if not np.all(np.isfinite(base)):
+                raise ValueError(f"{self.name}: parameters {sorted(by_name)} must be finite")
+            return base
         if p is None:
             return np.array(self.p_default)
-        arr = np.asarray(p, dtype=np.float64)
+        arr = _real(p, f"{self.name}: p")
         if arr.shape != (self.n_p,):
             raise ValueError(f"{self.name}: p must have shape ({self.n_p},) [{', '.join(self.parameter_names)}], got {arr.shape}")
         if not np.all(np.isfinite(arr)):
@@ -316,6 +418,10 @@ class ModelBundle:
     def _dt(dt) -> float:
         if dt is None:
             raise TypeError("dt (the step length in seconds) is required")
+        real = (int, float, np.integer, np.floating)
+        if (isinstance(dt, (bool, np.bool_)) or not isinstance(dt, (*real, np.ndarray))
+                or (isinstance(dt, np.ndarray) and (dt.ndim or dt.dtype.kind not in "iuf"))):
+            raise TypeError(f"dt must be a real number of seconds, got {type(dt).__name__} {dt!r}")
         dt = float(dt)
         if not (np.isfinite(dt) and dt > 0):
             raise ValueError(f"dt must be a positive finite number of seconds, got {dt}")
@@ -343,22 +449,31 @@ class ModelBundle:
 
     def xdot(self, x, u, p=None, w=None) -> np.ndarray:
         """Continuous dynamics, shape (n_x,); w=None means zero noise input."""
+        if self.is_discrete:
+            raise TypeError(f"model {self.name!r} is discrete (x_next given directly): it has no xdot; use x_next or f")
         w = np.zeros(self.n_w) if w is None else w
         return self.functions["xdot"](x, u, self.params(p), w)
 
+    def x_next(self, x, u, p=None, w=None, dt=None) -> np.ndarray:
+        """The given step of a discrete model with its noise input, shape (n_x,); w=None means zero."""
+        if not self.is_discrete:
+            raise TypeError(f"model {self.name!r} is continuous ({self.discretisation}): use f (the step) or xdot")
+        w = np.zeros(self.n_w) if w is None else w
+        return self.functions["x_next"](x, u, self.params(p), w, self._dt(dt))
+
     def _state_batch(self, X) -> np.ndarray:
         """X as a checked, finite, C-ordered (n_x, N) batch (the SIMD kernels' layout)."""
-        X = np.ascontiguousarray(X, dtype=np.float64)
+        X = np.ascontiguousarray(_real(X, f"{self.name}: X"))
         if X.ndim != 2 or X.shape[0] != self.n_x:
             raise ValueError(f"{self.name}: X must have shape ({self.n_x}, N), got {X.shape}")
-        if not np.isfinite(X).all():
+        if not _all_finite(X):
             raise ValueError(f"{self.name}: X must be finite")
         return X
 
     def f_batch(self, X, U, p=None, dt=None) -> np.ndarray:
         """One step for each column of X (n_x, N); U is (n_u, N) or (n_u,) shared. Returns (n_x, N)."""
         X = self._state_batch(X)
-        U = np.asarray(U, dtype=np.float64)
+        U = _real(U, f"{self.name}: U")
         if U.shape not in ((self.n_u,), (self.n_u, X.shape[1])):
             raise ValueError(f"{self.name}: U must have shape ({self.n_u}, {X.shape[1]}) or ({self.n_u},), got {U.shape}")
         if not np.isfinite(U).all():
@@ -367,6 +482,7 @@ class ModelBundle:
         U = np.ascontiguousarray(np.broadcast_to(U.reshape(self.n_u, -1), (self.n_u, n)))
         out = np.empty((self.n_x, n))
         self.functions["f"].bind_soa([X, U, self.params(p), np.array([self._dt(dt)])], [out])(n)
+        _finite_columns(f"{self.name} f_batch", [out], self.functions["f"].outputs, n)
         return out
 
     def h_batch(self, X, p=None) -> np.ndarray:
@@ -374,4 +490,5 @@ class ModelBundle:
         X = self._state_batch(X)
         out = np.empty((self.n_y, X.shape[1]))
         self.functions["h"].bind_soa([X, self.params(p)], [out])(X.shape[1])
+        _finite_columns(f"{self.name} h_batch", [out], self.functions["h"].outputs, X.shape[1])
         return out

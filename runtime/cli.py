@@ -1,4 +1,4 @@
-"""The `abyssal` command: regenerate, verify, reproduce, bench."""
+"""The `abyssal` command: regenerate, verify, reproduce, bench, cache."""
 from __future__ import annotations
 
 import argparse
@@ -9,6 +9,10 @@ import sys
 def _regenerate(args) -> int:
     from abyssal.generated import regenerate
 
+    if args.model:
+        return _regenerate_user(args, regenerate)
+    if args.out:
+        raise ValueError("--out needs --model: built-in models are written into the source checkout's generated/")
     if args.check:
         problems = regenerate.check(args.models or None)
         if problems:
@@ -26,10 +30,38 @@ def _regenerate(args) -> int:
     return 0
 
 
+def _regenerate_user(args, regenerate) -> int:
+    """`abyssal regenerate --model FILE.py:FUNCTION --out DIR [--check]`."""
+    if args.models:
+        raise ValueError("give either built-in model names or --model, not both")
+    if not args.out:
+        raise ValueError("--model needs --out DIR (the folder of your project that receives <DIR>/<model name>/)")
+    model, where = regenerate.load_model_spec(args.model)
+    origin = regenerate.cli_origin(args.model, args.out, model.name, where)
+    filters = tuple(args.filters.split(",")) if args.filters else regenerate.DEFAULT_FILTERS
+    if args.check:
+        problems = regenerate.check_folder(model, args.out, filters, origin=origin)
+        if problems:
+            print(f"{args.out}/{model.name} differs from the equations (run `{origin.command}`):", file=sys.stderr)
+            for problem in problems:
+                print(problem, file=sys.stderr)
+            return 1
+        print(f"{args.out}/{model.name} matches the equations")
+        return 0
+    folder = regenerate.generate(model, args.out, filters, origin=origin)
+    print(f"wrote {folder} (load it with abyssal.load({str(folder)!r}); check it with `abyssal verify {folder}`)")
+    return 0
+
+
 def _verify(args) -> int:
     from abyssal.runtime.checks import verify
 
-    report = verify.run_all(models=args.models or None)
+    names = [m for m in args.models if not _is_path(m)]
+    folders = [m for m in args.models if _is_path(m)]
+    if args.model:
+        report = _verify_model_spec(args, verify)
+    else:
+        report = verify.run_all(models=names or None, folders=folders, strict=args.strict)
     if args.json:
         print(json.dumps(report.as_dict(), indent=1))
     else:
@@ -37,7 +69,40 @@ def _verify(args) -> int:
     return 0 if report.ok else 1
 
 
+def _is_path(name: str) -> bool:
+    from pathlib import Path
+
+    return "/" in name or name.startswith(".") or (Path(name).is_dir() and not _is_builtin(name))
+
+
+def _is_builtin(name: str) -> bool:
+    from abyssal import generated
+
+    return name in generated.available()
+
+
+def _verify_model_spec(args, verify):
+    """`abyssal verify --model SPEC [--out DIR]`: generate (into DIR, or a temporary folder), then verify."""
+    import tempfile
+
+    from abyssal.generated import regenerate
+
+    model, where = regenerate.load_model_spec(args.model)
+    out = args.out or tempfile.mkdtemp(prefix="abyssal-verify-")
+    origin = regenerate.cli_origin(args.model, out, model.name, where)
+    if args.out:
+        problems = regenerate.check_folder(model, out, origin=origin)
+        if problems:
+            raise ValueError(f"{out}/{model.name} is not up to date with {args.model}: run `{origin.command}` first")
+    folder = regenerate.generate(model, out, origin=origin) if not args.out else regenerate._user_folder(out, model.name)
+    return verify.verify_targets([verify.model_target(model, folder)], strict=args.strict)
+
+
 def _bench(args) -> int:
+    if args.folders:
+        from abyssal.runtime.checks import bench_folder
+
+        return bench_folder.main(args.folders, json_output=args.json, quick=args.quick)
     from abyssal.runtime.checks import bench
 
     return bench.main(json_output=args.json, out=args.out, quick=args.quick)
@@ -49,34 +114,91 @@ def _reproduce(args) -> int:
     return reproduce.main(args)
 
 
+def _size_text(n: int) -> str:
+    for unit, scale in (("GiB", 1 << 30), ("MiB", 1 << 20), ("KiB", 1 << 10)):
+        if n >= scale:
+            return f"{n / scale:.1f} {unit}"
+    return f"{n} B"
+
+
+def _cache(args) -> int:
+    """`abyssal cache info [--json]` and `abyssal cache clear` (the compile cache, generated/build.py)."""
+    import importlib
+
+    build = importlib.import_module("abyssal.generated.build")  # the module (the package exports a function `build`)
+    if args.action == "clear":
+        removed, kept = build.clear()
+        note = f"; kept {kept} in use by running processes" if kept else ""
+        print(f"removed {removed} entr{'y' if removed == 1 else 'ies'} from {build.cache_dir()}{note}")
+        return 0
+    info = build.info()
+    if args.json:
+        print(json.dumps(info, indent=1))
+        return 0
+    n = len(info["entries"])
+    print(f"cache folder: {info['folder']} (ABYSSAL_CACHE_DIR chooses it)")
+    print(f"{n} entr{'y' if n == 1 else 'ies'}, {_size_text(info['total_bytes'])} of {_size_text(info['max_bytes'])} "
+          f"(ABYSSAL_CACHE_MAX_BYTES; least recently used evicted first); build timeout {info['build_timeout_s']:g} s "
+          "(ABYSSAL_BUILD_TIMEOUT)")
+    for e in reversed(info["entries"]):
+        status = e["compiler"] if e["valid"] else "not valid: rebuilt on next use"
+        print(f"  {e['last_used']}  {_size_text(e['bytes']):>10}  {e['name']}  ({status})")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="abyssal", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
 
-    p = sub.add_parser("regenerate", help="write generated C from the equations")
+    p = sub.add_parser("regenerate", help="write generated C from the equations",
+                       description="Built-ins: `abyssal regenerate [NAME...]` writes into the source checkout. "
+                                   "Your own model: `abyssal regenerate --model FILE.py:FUNCTION --out DIR` writes "
+                                   "DIR/<model name>/.")
     p.add_argument("--check", action="store_true", help="regenerate in memory; exit 1 naming files that differ")
-    p.add_argument("models", nargs="*", help="models to regenerate (default: all registered)")
+    p.add_argument("--model", metavar="FILE.py:FUNCTION", help="your model: a file path or MODULE:FUNCTION returning a Model")
+    p.add_argument("--out", metavar="DIR", help="with --model: the folder receiving DIR/<model name>/")
+    p.add_argument("--filters", metavar="F1,F2", help="with --model: filter families (default: ekf,ukf,ckf,robust)")
+    p.add_argument("models", nargs="*", help="built-in models to regenerate (default: all registered)")
     p.set_defaults(run=_regenerate)
 
-    p = sub.add_parser("verify", help="check every generated function against reference numerics")
+    p = sub.add_parser("verify", help="check every generated function against reference numerics",
+                       description="Verify built-in models by name, model folders written by abyssal.generate (DIR), "
+                                   "or a model function (--model FILE.py:FUNCTION [--out DIR]).")
     p.add_argument("--json", action="store_true", help="print the report as JSON")
-    p.add_argument("models", nargs="*", help="models to verify (default: all)")
+    p.add_argument("--model", metavar="FILE.py:FUNCTION", help="verify this model (generated into --out, or a temporary folder)")
+    p.add_argument("--out", metavar="DIR", help="with --model: the folder it was generated into")
+    p.add_argument("--strict", action="store_true", help="a skipped check fails the verification")
+    p.add_argument("models", nargs="*", help="built-in model names or model folders (default: all built-ins)")
     p.set_defaults(run=_verify)
 
     p = sub.add_parser("bench", help="per-call and per-step timings, with ratios against peers")
     p.add_argument("--json", action="store_true", help="print the results as JSON")
     p.add_argument("--out", default="benchmarks/results", help="folder for the JSON results (default: %(default)s)")
     p.add_argument("--quick", action="store_true", help="fewer repetitions (smoke run)")
+    p.add_argument("folders", nargs="*", metavar="DIR", help="model folders to time (default: the built-in benchmarks)")
     p.set_defaults(run=_bench)
 
     p = sub.add_parser("reproduce", help="rerun the experiments of the four papers")
     p.add_argument("experiment", choices=["rov", "cn", "tan", "remus", "all"])
-    p.add_argument("--runs", type=int, default=None, help="Monte-Carlo runs")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--runs", type=int, default=None, help="Monte-Carlo runs (default: 10)")
+    p.add_argument("--seed", type=int, default=0, help="campaign seed: run i uses SeedSequence(seed).spawn(runs)[i]")
     p.add_argument("--particles", type=int, default=None)
-    p.add_argument("--out", default="out", help="folder for figures (default: %(default)s)")
+    p.add_argument("--workers", type=int, default=None,
+                   help="local Dask worker processes, one thread each (default: the cores; 0 = in this process)")
+    p.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT",
+                   help="run on an existing Dask scheduler instead of a local cluster")
+    p.add_argument("--resume", action="store_true", help="keep the runs already in <out>/<experiment>.csv; run the rest")
+    p.add_argument("--quick", action="store_true", help="a short smoke version of the experiment (remus: 300 s, 3 runs; rov: 20 s of the 200 s path)")
+    p.add_argument("--out", default="out", help="folder for the tidy CSV, JSON and figures (default: %(default)s)")
     p.add_argument("--json", action="store_true")
     p.set_defaults(run=_reproduce)
+
+    p = sub.add_parser("cache", help="the compile cache: where it is, what it holds; clear it",
+                       description="info: folder, entries (most recently used first), total size and cap. "
+                                   "clear: remove every entry not in use by a running process.")
+    p.add_argument("action", choices=["info", "clear"])
+    p.add_argument("--json", action="store_true", help="with info: print JSON")
+    p.set_defaults(run=_cache)
     return parser
 
 
@@ -84,7 +206,7 @@ def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return args.run(args)
-    except (KeyError, ValueError, RuntimeError) as exc:
+    except (KeyError, ValueError, RuntimeError, OSError) as exc:
         print(f"abyssal {args.command}: {exc}", file=sys.stderr)
         return 2
 

@@ -1,4 +1,9 @@
-"""Discretisations of continuous dynamics, with the step dt a symbolic (runtime) input."""
+"""Discretisations of continuous dynamics, with the step dt a symbolic (runtime) input.
+
+``discrete_step`` and ``step_and_jacobian`` are the only way the rest of abyssal (codegen, every
+filter family) reaches a model's step, so a discrete model (x_next given directly) and a
+discretised continuous one are interchangeable from here on.
+"""
 from __future__ import annotations
 
 from typing import Callable
@@ -31,8 +36,15 @@ def rk4_step(rhs: Rhs, x: ca.SX, dt, substeps: int = 1) -> ca.SX:
 SCHEMES = {"euler": euler_step, "rk4": rk4_step}
 
 
+def given_step(model) -> ca.Function:
+    """The step of a discrete model as a Function of (x, u, p, w, dt)."""
+    return ca.Function("x_next", [model.x, model.u, model.p, model.w, model.dt], [model.x_next])
+
+
 def discrete_step(model, x, u, p, w, dt) -> ca.SX:
     """x_{k+1} of `model` with u, p and the noise input w held constant over dt."""
+    if model.is_discrete:
+        return given_step(model)(x, u, p, w, dt)
     rhs_fn = ca.Function("rhs", [model.x, model.u, model.p, model.w], [model.xdot])
     return SCHEMES[model.discretisation](lambda s: rhs_fn(s, u, p, w), x, dt, model.substeps)
 
@@ -51,6 +63,10 @@ def step_and_jacobian(model, x, u, p, dt) -> tuple[ca.SX, ca.SX]:
     """
     n = model.n_x
     w0 = ca.DM.zeros(model.w.shape)
+    if model.is_discrete:  # the given step: F is its Jacobian, by AD of a (usually small) expression
+        jac = ca.Function("x_next_and_jacobian", [model.x, model.u, model.p, model.w, model.dt],
+                          [model.x_next, ca.jacobian(model.x_next, model.x)])
+        return jac(x, u, p, w0, dt)
     rhs = ca.Function("rhs_and_jacobian", [model.x, model.u, model.p, model.w],
                       [model.xdot, ca.jacobian(model.xdot, model.x)])
 

@@ -111,3 +111,92 @@ def solve_mass(M, rhs) -> ca.SX:
     if M.sparsity().is_diag():
         return rhs * (1 / ca.diag(M))
     return ca.solve(M, rhs)
+
+
+# --------------------------------------------------------------------------- DOF subsets
+# A vehicle rarely uses all six degrees of freedom. A subset is named by its indices in Fossen's
+# 6-DOF ordering [surge sway heave roll pitch yaw]; the blocks below take and return matrices and
+# vectors of the subset's size, doing the embedding into 6-DOF (where Fossen's formulas live)
+# themselves, so a model file never pads matrices by hand.
+SIX_DOF = (0, 1, 2, 3, 4, 5)
+HORIZONTAL = (0, 1, 5)          # surge, sway, yaw: surface vessels, planar AUV models (Fossen ch. 6.5 / 7)
+FOUR_DOF = (0, 1, 2, 5)         # surge, sway, heave, yaw: ROVs whose roll and pitch are passively stable
+
+
+def embed(value, dofs) -> ca.SX:
+    """A (k,) vector or (k, k) matrix on `dofs` as its 6-DOF version (zeros elsewhere)."""
+    value = ca.SX(value)
+    k = len(dofs)
+    if value.shape == (k, k):
+        out = ca.SX.zeros(6, 6)
+        for a, i in enumerate(dofs):
+            for b, j in enumerate(dofs):
+                out[i, j] = value[a, b]
+        return out
+    if value.numel() == k:
+        out = ca.SX.zeros(6, 1)
+        for a, i in enumerate(dofs):
+            out[i] = value[a]
+        return out
+    raise ValueError(f"expected a ({k},) vector or ({k}, {k}) matrix for DOFs {tuple(dofs)}, got shape {value.shape}")
+
+
+def restrict(value, dofs) -> ca.SX:
+    """The rows (and columns, for a matrix) of a 6-DOF quantity on `dofs`."""
+    value = ca.SX(value)
+    dofs = list(dofs)
+    return value[dofs, dofs] if value.shape == (6, 6) else value[dofs]
+
+
+def coriolis(M, nu, dofs=SIX_DOF) -> ca.SX:
+    """C(nu) of a symmetric mass matrix M on a DOF subset (k x k), derived from M (Fossen eq. 3.46).
+
+    For the horizontal subset and M = [[m11, 0, 0], [0, m22, m23], [0, m23, m33]] this is Fossen's
+    eq. 6.99: C = [[0, 0, -m22 v - m23 r], [0, 0, m11 u], [m22 v + m23 r, -m11 u, 0]].
+    Skew-symmetric, so it does no work (nu^T C nu = 0).
+    """
+    return restrict(coriolis_from_mass(embed(M, dofs), embed(nu, dofs)), dofs)
+
+
+def rigid_body_mass_horizontal(m, x_g, I_z) -> ca.SX:
+    """M_RB of a vessel in surge, sway, yaw with its centre of gravity x_g ahead of CO (Fossen eq. 6.90)."""
+    return restrict(rigid_body_mass(m, ca.vertcat(x_g, 0, 0), ca.diag(ca.vertcat(0, 0, I_z))), HORIZONTAL)
+
+
+def added_mass_horizontal(X_udot, Y_vdot, Y_rdot, N_vdot, N_rdot) -> ca.SX:
+    """M_A in surge, sway, yaw from the hydrodynamic derivatives (Fossen's signs: all usually < 0).
+
+    Symmetrised (Y_rdot and N_vdot averaged), as Fossen does for the Coriolis matrix of a vessel
+    at rest (eq. 6.99 uses (m23 + m32) / 2): M_A = -[[X_udot, 0, 0], [0, Y_vdot, s], [0, s, N_rdot]]
+    with s = (Y_rdot + N_vdot) / 2.
+    """
+    s = (Y_rdot + N_vdot) / 2
+    return -ca.vertcat(ca.horzcat(X_udot, 0, 0), ca.horzcat(0, Y_vdot, s), ca.horzcat(0, s, N_rdot))
+
+
+def linear_damping_horizontal(X_u, Y_v, Y_r, N_v, N_r) -> ca.SX:
+    """D in surge, sway, yaw from the linear damping derivatives (Fossen eq. 6.104, signs < 0 usually)."""
+    return -ca.vertcat(ca.horzcat(X_u, 0, 0), ca.horzcat(0, Y_v, Y_r), ca.horzcat(0, N_v, N_r))
+
+
+def kinematics_horizontal(psi, nu) -> ca.SX:
+    """[x_dot, y_dot, psi_dot] = R(psi) [u, v, r] (Fossen eq. 2.80, 3-DOF)."""
+    return ca.mtimes(rotation_z(psi), nu)
+
+
+def kinematics(eta, nu, dofs=SIX_DOF) -> ca.SX:
+    """eta_dot = J(eta) nu on a DOF subset; roll and pitch not in the subset are held at zero.
+
+    eta and nu are (k,) on `dofs`, in the same order (e.g. [x y psi] and [u v r] for HORIZONTAL).
+    """
+    eta6, nu6 = embed(eta, dofs), embed(nu, dofs)
+    return restrict(kinematics_6dof(eta6, nu6), dofs)
+
+
+def rigid_body_equations(M, nu, tau, damping, restoring=0, dofs=SIX_DOF) -> ca.SX:
+    """nu_dot = M^-1 (tau - C(nu) nu - D(nu) nu - g(eta)) on a DOF subset (Fossen eq. 7.1/3.1).
+
+    M: the total mass matrix M_RB + M_A (k x k, symmetric); damping: the vector D(nu) nu (k,);
+    restoring: g(eta) (k,) or 0. C(nu) is derived from M on the subset (``coriolis``).
+    """
+    return solve_mass(M, tau - ca.mtimes(coriolis(M, nu, dofs), nu) - damping - restoring)

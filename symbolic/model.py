@@ -1,19 +1,35 @@
 """The explicit description of a vehicle model: what abyssal generates C from.
 
 A model is a plain function returning a :class:`Model`: named states, inputs, runtime
-parameters (with units and defaults), process-noise inputs, continuous dynamics
-``xdot = f(x, u, p, w)`` and a measurement ``y = h(x, p)``, all as CasADi SX expressions.
+parameters (with units and defaults), process-noise inputs, the dynamics and a measurement
+``y = h(x, p)``, all as CasADi SX expressions. The dynamics come in one of two kinds:
+
+* continuous: ``xdot = f(x, u, p, w)``, discretised by abyssal (``discretisation="rk4"`` or
+  ``"euler"``, ``substeps`` per step), with the step length dt a runtime input;
+* discrete: ``x_next = f_d(x, u, p, w, dt)`` given directly (``x_next=`` and the symbol ``dt=``
+  it uses); ``discretisation`` is then ``"discrete"``.
 
 Parameters are a runtime input of every generated function, so a user can change a
 vehicle's mass or a leader vehicle's position without regenerating C; their defaults
-are recorded in the manifest and used when the runtime is given ``p=None``.
+are recorded in the manifest and used when the runtime is given ``p=None``
+(``bundle.params(m=30.0)`` overrides them by name).
 """
 from __future__ import annotations
 
 import hashlib
+import keyword
+import re
 from dataclasses import dataclass, field
 
 import casadi as ca
+
+C_IDENTIFIER = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
+C_KEYWORDS = frozenset(
+    "auto break case char const continue default do double else enum extern float for goto if inline int long "
+    "register restrict return short signed sizeof static struct switch typedef union unsigned void volatile while "
+    "_Bool _Complex _Imaginary".split()
+)
+KINDS = {"rk4": "continuous", "euler": "continuous", "discrete": "discrete"}
 
 
 @dataclass(frozen=True)
@@ -35,20 +51,38 @@ class Parameter:
     description: str = ""
 
 
+def c_identifier_problem(name) -> str | None:
+    """Why `name` cannot name a generated C symbol, or None when it can."""
+    if not isinstance(name, str) or not C_IDENTIFIER.match(name):
+        return f"{name!r} is not a valid C identifier (letters, digits and _, not starting with a digit)"
+    if name in C_KEYWORDS or keyword.iskeyword(name):
+        return f"{name!r} is a reserved word"
+    return None
+
+
 @dataclass(frozen=True)
 class Model:
     """Symbolic model of a vehicle.
 
     Fields
     ------
-    name: identifier used for the generated folder and C symbol prefix.
-    states, inputs, parameters, noises, outputs: descriptions, in vector order.
+    name: identifier used for the generated folder and C symbol prefix (a C identifier).
+    states, inputs, parameters, noises, outputs: descriptions, in vector order; names are C
+        identifiers, unique within each group.
     x, u, p, w: the CasADi SX column symbols of those vectors (w may have 0 rows).
-    xdot: continuous dynamics f(x, u, p, w), shape (n_x, 1).
+    xdot: continuous dynamics f(x, u, p, w), shape (n_x, 1); None for a discrete model.
     y: measurement h(x, p), shape (n_y, 1).
-    discretisation: "rk4" or "euler"; substeps: steps of dt/substeps inside one call.
+    discretisation: "rk4" or "euler" for a continuous model (default "rk4"), "discrete" for a
+        discrete one (the default when x_next is given); substeps: steps of dt/substeps in one call.
     angle_outputs: indices of outputs that are angles (innovations wrap to (-pi, pi]).
+    angle_states: indices of states that are angles (the runtime wraps them; recorded in the manifest).
     notes: departures from the source paper, printed in the manifest.
+    x_next: discrete dynamics f_d(x, u, p, w, dt), shape (n_x, 1), instead of xdot.
+    dt: the SX scalar symbol of the step length used in x_next.
+
+    Validation happens here, when the Model is built, so a mistake is reported next to the line
+    that made it rather than as a compiler error or a silently wrong filter: SX (not MX)
+    expressions, shapes, free symbols, C identifiers, duplicate names and index ranges.
     """
 
     name: str
@@ -61,14 +95,82 @@ class Model:
     u: ca.SX
     p: ca.SX
     w: ca.SX
-    xdot: ca.SX
+    xdot: ca.SX | None
     y: ca.SX
-    discretisation: str = "rk4"
+    discretisation: str | None = None
     substeps: int = 1
     angle_outputs: tuple[int, ...] = ()
     notes: tuple[str, ...] = field(default_factory=tuple)
+    x_next: ca.SX | None = None
+    dt: ca.SX | None = None
+    angle_states: tuple[int, ...] = ()
 
     def __post_init__(self):
+        problem = c_identifier_problem(self.name)
+        if problem:
+            raise ValueError(f"model name {problem}: it names the generated folder and prefixes every C symbol")
+        self._check_expressions()
+        self._check_names()
+        self._check_shapes()
+        self._check_symbols()
+        self._check_indices()
+
+    # ----------------------------------------------------------------- validation
+    def _fail(self, message: str):
+        raise ValueError(f"model {self.name!r}: {message}")
+
+    def _check_expressions(self):
+        """Every expression is SX (MX refused, numbers converted); the kind is resolved."""
+        discrete = self.x_next is not None
+        if discrete and self.xdot is not None:
+            self._fail("give either xdot (continuous) or x_next (discrete), not both")
+        if not discrete and self.xdot is None:
+            self._fail("give xdot (continuous dynamics) or x_next and dt (a discrete step)")
+        if discrete and self.dt is None:
+            self._fail("a discrete model needs dt=, the SX symbol of the step length x_next uses")
+        if not discrete and self.dt is not None:
+            self._fail("dt= is only for a discrete model (x_next); a continuous model gets dt from its discretisation")
+        for label in ("x", "u", "p", "w", "xdot", "y", "x_next", "dt"):
+            value = getattr(self, label)
+            if value is None:
+                continue
+            if isinstance(value, ca.MX):
+                self._fail(f"{label} is a casadi.MX expression; abyssal generates C from SX: build the model with "
+                           "casadi.SX (ca.SX.sym, or abyssal.symbolic.model.symbols), not MX")
+            if not isinstance(value, ca.SX):
+                try:
+                    value = ca.SX(value)
+                except (NotImplementedError, TypeError, RuntimeError) as exc:
+                    self._fail(f"{label} must be a casadi.SX expression, got {type(value).__name__} ({exc})")
+                object.__setattr__(self, label, value)
+        if self.discretisation is None:
+            object.__setattr__(self, "discretisation", "discrete" if discrete else "rk4")
+        if discrete and self.discretisation != "discrete":
+            self._fail(f"a model given by x_next is discrete: discretisation must be 'discrete', got {self.discretisation!r}")
+        if not discrete and self.discretisation not in ("rk4", "euler"):
+            self._fail(f"discretisation must be 'rk4' or 'euler' for continuous dynamics, got {self.discretisation!r}")
+        if not isinstance(self.substeps, int) or self.substeps < 1:
+            self._fail(f"substeps must be an integer >= 1, got {self.substeps!r}")
+        if discrete and self.substeps != 1:
+            self._fail("substeps only applies to a discretised continuous model (x_next is one whole step)")
+
+    def _check_names(self):
+        groups = {"states": self.states, "inputs": self.inputs, "parameters": self.parameters,
+                  "noises": self.noises, "outputs": self.outputs}
+        for group, quantities in groups.items():
+            seen = set()
+            for q in quantities:
+                problem = c_identifier_problem(q.name)
+                if problem:
+                    self._fail(f"{group}: name {problem}")
+                if q.name in seen:
+                    self._fail(f"{group}: duplicate name {q.name!r}")
+                seen.add(q.name)
+        for prm in self.parameters:
+            if not isinstance(prm.default, (int, float)) or prm.default != prm.default or abs(prm.default) == float("inf"):
+                self._fail(f"parameter {prm.name!r}: default must be a finite number, got {prm.default!r}")
+
+    def _check_shapes(self):
         sizes = {
             "x/states": (self.x, self.states),
             "u/inputs": (self.u, self.inputs),
@@ -78,18 +180,62 @@ class Model:
         }
         for label, (sym, described) in sizes.items():
             if sym.shape != (len(described), 1) and not (len(described) == 0 and sym.numel() == 0):
-                raise ValueError(
-                    f"model {self.name!r}: {label} has shape {sym.shape}, expected ({len(described)}, 1)"
-                )
-        if self.xdot.shape != self.x.shape:
-            raise ValueError(f"model {self.name!r}: xdot has shape {self.xdot.shape}, expected {self.x.shape}")
-        if self.discretisation not in ("rk4", "euler"):
-            raise ValueError(f"model {self.name!r}: discretisation must be 'rk4' or 'euler'")
-        if self.substeps < 1:
-            raise ValueError(f"model {self.name!r}: substeps must be >= 1")
-        free_h = set(ca.symvar(self.y)) - set(ca.symvar(ca.vertcat(self.x, self.p)))
+                self._fail(f"{label} has shape {sym.shape}, expected ({len(described)}, 1)")
+        dynamics, label = (self.x_next, "x_next") if self.is_discrete else (self.xdot, "xdot")
+        if dynamics.shape != self.x.shape:
+            self._fail(f"{label} has shape {dynamics.shape}, expected {self.x.shape}")
+        if self.is_discrete and self.dt.shape != (1, 1):
+            self._fail(f"dt must be one SX symbol, got shape {self.dt.shape}")
+
+    def _check_symbols(self):
+        """x, u, p, w (and dt) are distinct plain symbols; the expressions use no other symbol."""
+        declared = {"x": self.x, "u": self.u, "p": self.p, "w": self.w}
+        if self.is_discrete:
+            declared["dt"] = self.dt
+        total = 0
+        for label, sym in declared.items():
+            if sym.numel() and not sym.is_valid_input():
+                self._fail(f"{label} must be a vector of plain symbols (ca.SX.sym), not expressions")
+            total += sym.numel()
+        if len(ca.symvar(ca.vertcat(*[ca.vec(s) for s in declared.values()]))) != total:
+            self._fail("x, u, p, w" + (", dt" if self.is_discrete else "") + " must not share symbols")
+
+        def names(expr, allowed) -> list[str]:
+            allowed_ids = {s.__hash__() for s in ca.symvar(ca.vertcat(*[ca.vec(a) for a in allowed]))}
+            return sorted(s.name() for s in ca.symvar(expr) if s.__hash__() not in allowed_ids)
+
+        if self.is_discrete:
+            free = names(self.x_next, [self.x, self.u, self.p, self.w, self.dt])
+            where = "x_next uses symbols {} that are not states, inputs, parameters, noises or dt"
+        else:
+            free = names(self.xdot, [self.x, self.u, self.p, self.w])
+            where = "xdot uses symbols {} that are not states, inputs, parameters or noises (x, u, p, w)"
+        if free:
+            self._fail(where.format(free) + ": declare each as a Parameter (a runtime input) or substitute a number")
+        free_h = names(self.y, [self.x, self.p])
         if free_h:
-            raise ValueError(f"model {self.name!r}: h may depend on x and p only, found {free_h}")
+            self._fail(f"h may depend on x and p only, found {free_h} in y (an input in the measurement: make it a parameter)")
+
+    def _check_indices(self):
+        for label, indices, n, what in (("angle_outputs", self.angle_outputs, self.n_y, "outputs"),
+                                        ("angle_states", self.angle_states, self.n_x, "states")):
+            indices = tuple(indices)
+            object.__setattr__(self, label, indices)
+            for i in indices:
+                if not isinstance(i, int) or isinstance(i, bool) or not 0 <= i < n:
+                    self._fail(f"{label} index {i!r} is out of range: the model has {n} {what} (0..{n - 1})")
+            if len(set(indices)) != len(indices):
+                self._fail(f"{label} {indices} repeats an index")
+
+    # ----------------------------------------------------------------- sizes and names
+    @property
+    def is_discrete(self) -> bool:
+        """True when the model gives its step x_next directly (no xdot, no discretisation)."""
+        return self.x_next is not None
+
+    @property
+    def kind(self) -> str:
+        return KINDS[self.discretisation]
 
     @property
     def n_x(self) -> int:
@@ -115,21 +261,46 @@ class Model:
     def parameter_defaults(self) -> list[float]:
         return [prm.default for prm in self.parameters]
 
+    @property
+    def defaults(self) -> dict[str, float]:
+        """Parameter name -> default value, in vector order."""
+        return {prm.name: float(prm.default) for prm in self.parameters}
+
+    def parameter_vector(self, **values: float) -> list[float]:
+        """The parameter vector with the named entries changed: ``model.parameter_vector(m=30.0)``."""
+        return parameter_vector(self.name, self.defaults, values)
+
+    def parameter_table(self) -> str:
+        """The parameters as a printable table: index, name, default, unit, description."""
+        return parameter_table([(q.name, q.default, q.unit, q.description) for q in self.parameters])
+
     def equations_hash(self) -> str:
         """sha256 of the printed equations and discretisation: changes whenever the maths does."""
-        text = "\n".join(
-            [
-                self.name,
-                self.discretisation,
-                str(self.substeps),
-                str(self.angle_outputs),
-                " ".join(q.name for q in self.states + self.inputs + self.noises + self.outputs),
-                " ".join(f"{q.name}={q.default!r}" for q in self.parameters),
-                str(self.xdot),
-                str(self.y),
-            ]
-        )
+        names = " ".join(q.name for q in self.states + self.inputs + self.noises + self.outputs)
+        defaults = " ".join(f"{q.name}={q.default!r}" for q in self.parameters)
+        if self.is_discrete:
+            dynamics = [f"dt={self.dt}", str(self.x_next)]
+        else:
+            dynamics = [str(self.xdot)]
+        text = "\n".join([self.name, self.discretisation, str(self.substeps), str(self.angle_outputs), names, defaults,
+                          *dynamics, str(self.y)])
         return hashlib.sha256(text.encode()).hexdigest()
+
+
+def parameter_vector(model: str, defaults: dict[str, float], values: dict[str, float]) -> list[float]:
+    """defaults with `values` replacing entries by name; an unknown name is an error listing the known ones."""
+    unknown = sorted(set(values) - set(defaults))
+    if unknown:
+        raise KeyError(f"model {model!r} has no parameter(s) {unknown}; its parameters: {list(defaults)}")
+    return [float(values.get(name, default)) for name, default in defaults.items()]
+
+
+def parameter_table(rows) -> str:
+    """Rows (name, default, unit, description) as an aligned text table."""
+    cells = [("#", "name", "default", "unit", "description")]
+    cells += [(str(i), n, f"{d:.6g}", u, desc) for i, (n, d, u, desc) in enumerate(rows)]
+    widths = [max(len(r[k]) for r in cells) for k in range(5)]
+    return "\n".join("  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in cells)
 
 
 def symbols(prefix: str, quantities) -> ca.SX:

@@ -37,7 +37,7 @@ def run(quick: bool = False, verbose: bool = True) -> dict:
 
             def step():
                 k = next(steps)
-                filt.step(truth.inputs[k], truth.measurements[k], scenario.dt)
+                filt.step(truth.inputs[k], scenario.dt, truth.measurements[k])
 
             for _ in range(20):  # leave the initial transient
                 step()

@@ -164,6 +164,110 @@ def linear_cv_input(rng: np.random.Generator, n: int | None = None) -> np.ndarra
     return _stack([rng.normal(0, 0.5, shape), rng.normal(0, 0.5, shape)])
 
 
+# --------------------------------------------------------------------------- remus100
+# Seed 004 (Ariza Ramirez et al. 2019): REMUS 100 of ../shared/REMUS100-SPEC.md sections 1-4 and 8,
+# written from the spec's tables and Fossen's rigid-body formulas (M_RB about the CB + M_A), with the
+# defaults D1 (rpm input), D2 (no propeller torque), D3 (B = W), D4 (Z_w|w| = -131).
+REMUS100_PARAMETERS = (
+    "g", "W", "B", "xg", "yg", "zg", "xb", "yb", "zb", "Ixx", "Iyy", "Izz",
+    "Xudot", "Yvdot", "Zwdot", "Yrdot", "Zqdot", "Mwdot", "Nvdot", "Kpdot", "Mqdot", "Nrdot",
+    "Xuu", "Xwq", "Xqq", "Xvr", "Xrr", "Yvv", "Yrr", "Yuv", "Ywp", "Yur", "Ypq",
+    "Zww", "Zqq", "Zuw", "Zuq", "Zvp", "Zrp", "Kpp", "Mww", "Mqq", "Muw", "Muq", "Mvp", "Mrp",
+    "Nvv", "Nrr", "Nuv", "Nur", "Nwp", "Npq", "kT", "kQ", "prop_torque",
+)
+
+
+def _remus100_mass(c) -> np.ndarray:
+    """M = M_RB + M_A: rigid body with the CG at r_G from the CB, plus Prestero's added mass."""
+    m = c["W"] / c["g"]
+    rg = np.array([c["xg"], c["yg"], c["zg"]])
+    S = np.array([[0.0, -rg[2], rg[1]], [rg[2], 0.0, -rg[0]], [-rg[1], rg[0], 0.0]])
+    M_rb = np.block([[m * np.eye(3), -m * S], [m * S, np.diag([c["Ixx"], c["Iyy"], c["Izz"]])]])
+    M_a = np.zeros((6, 6))
+    for (i, j), name in {(0, 0): "Xudot", (1, 1): "Yvdot", (2, 2): "Zwdot", (3, 3): "Kpdot", (4, 4): "Mqdot",
+                         (5, 5): "Nrdot", (1, 5): "Yrdot", (5, 1): "Nvdot", (2, 4): "Zqdot", (4, 2): "Mwdot"}.items():
+        M_a[i, j] = -c[name]
+    return M_rb + M_a
+
+
+def remus100_xdot(x, u, p, w=None):
+    """[nu_dot; eta_dot] of the REMUS 100 (spec 3-4): M nu_dot = tau_HS + tau_hydro + tau_prop + tau_ctrl + w."""
+    c = dict(zip(REMUS100_PARAMETERS, p))
+    w = _noise(w, 6)
+    m = c["W"] / c["g"]
+    xg, yg, zg, xb, yb, zb = c["xg"], c["yg"], c["zg"], c["xb"], c["yb"], c["zb"]
+    W, B = c["W"], c["B"]
+    U, V, Wv, P, Q, R = x[0], x[1], x[2], x[3], x[4], x[5]
+    phi, th, psi = x[9], x[10], x[11]
+    cf, sf, ct, st, cp, sp = np.cos(phi), np.sin(phi), np.cos(th), np.sin(th), np.cos(psi), np.sin(psi)
+
+    omega = 2.0 * np.pi * u[0] / 60.0                       # rpm -> rad/s (D1)
+    thrust = c["kT"] * omega * np.abs(omega)
+    torque = c["prop_torque"] * c["kQ"] * omega * np.abs(omega)   # D2: off by default
+
+    dW = W - B
+    gx, gy, gz = zg * W - zb * B, yg * W - yb * B, xg * W - xb * B  # first moments of weight - buoyancy
+    F = [
+        -dW * st + c["Xuu"] * U * np.abs(U) + (c["Xwq"] - m) * Wv * Q + (c["Xqq"] + m * xg) * Q * Q
+        + (c["Xvr"] + m) * V * R + (c["Xrr"] + m * xg) * R * R - m * yg * P * Q - m * zg * P * R + thrust,
+        dW * ct * sf + c["Yvv"] * V * np.abs(V) + c["Yrr"] * R * np.abs(R) + c["Yuv"] * U * V
+        + (c["Ywp"] + m) * Wv * P + (c["Yur"] - m) * U * R + (c["Ypq"] - m * xg) * P * Q - m * zg * Q * R
+        + m * yg * (P * P + R * R),
+        dW * ct * cf + c["Zww"] * Wv * np.abs(Wv) + c["Zqq"] * Q * np.abs(Q) + c["Zuw"] * U * Wv
+        + (c["Zuq"] + m) * U * Q + (c["Zvp"] - m) * V * P + (c["Zrp"] - m * xg) * R * P + m * zg * (P * P + Q * Q)
+        - m * yg * R * Q,
+        gy * ct * cf - gx * ct * sf + c["Kpp"] * P * np.abs(P) - (c["Izz"] - c["Iyy"]) * Q * R
+        + m * yg * (U * Q - V * P) - m * zg * (Wv * P - U * R) + torque,
+        -gx * st - gz * ct * cf + c["Mww"] * Wv * np.abs(Wv) + c["Mqq"] * Q * np.abs(Q) + c["Muw"] * U * Wv
+        + (c["Muq"] - m * xg) * U * Q + (c["Mvp"] + m * xg) * V * P + (c["Mrp"] - (c["Ixx"] - c["Izz"])) * R * P
+        + m * zg * (V * R - Wv * Q) + u[1],
+        gz * ct * sf + gy * st + c["Nvv"] * V * np.abs(V) + c["Nrr"] * R * np.abs(R) + c["Nuv"] * U * V
+        + (c["Nur"] - m * xg) * U * R + (c["Nwp"] + m * xg) * Wv * P + (c["Npq"] - (c["Iyy"] - c["Ixx"])) * P * Q
+        - m * yg * (V * R - Wv * Q) + u[2],
+    ]
+    F = _stack(F, like=x[0])
+    F = F + (w.reshape(6, 1) if F.ndim == 2 else w)
+    nu_dot = np.linalg.solve(_remus100_mass(c), F)
+
+    # Kinematics (spec 4): position rates by R_z(psi) R_y(theta) R_x(phi), Euler-angle rates.
+    north = cp * ct * U + (cp * st * sf - sp * cf) * V + (cp * st * cf + sp * sf) * Wv
+    east = sp * ct * U + (sp * st * sf + cp * cf) * V + (sp * st * cf - cp * sf) * Wv
+    down = -st * U + ct * sf * V + ct * cf * Wv
+    return _stack([
+        nu_dot[0], nu_dot[1], nu_dot[2], nu_dot[3], nu_dot[4], nu_dot[5],
+        north, east, down,
+        P + (Q * sf + R * cf) * np.tan(th),
+        Q * cf - R * sf,
+        (Q * sf + R * cf) / ct,
+    ], like=x[0])
+
+
+def remus100_h(x, p):
+    """DVL u v w, gyro p q r, depth, roll, pitch, compass (spec 8, [S] order)."""
+    return _stack([x[0], x[1], x[2], x[3], x[4], x[5], x[8], x[9], x[10], x[11]])
+
+
+def remus100_state(rng: np.random.Generator, n: int | None = None) -> np.ndarray:
+    """A state of the helix manoeuvre: ~1.4 m/s surge, small rates, within the 60 m circle, |theta| < 0.3."""
+    shape = (n,) if n else ()
+    return _stack([
+        rng.uniform(0.3, 2.0, shape), rng.normal(0, 0.05, shape), rng.normal(0, 0.05, shape),
+        rng.normal(0, 0.05, shape), rng.normal(0, 0.05, shape), rng.normal(0, 0.05, shape),
+        rng.uniform(-60, 60, shape), rng.uniform(-60, 60, shape), rng.uniform(0, 10, shape),
+        rng.normal(0, 0.1, shape), rng.normal(0, 0.1, shape), rng.uniform(-np.pi, np.pi, shape),
+    ])
+
+
+def remus100_input(rng: np.random.Generator, n: int | None = None) -> np.ndarray:
+    shape = (n,) if n else ()
+    return _stack([rng.uniform(1000, 2400, shape), rng.normal(0, 1, shape), rng.normal(0, 5, shape)])
+
+
+#: Turning at 1.4 m/s with every velocity and rate of one sign over the 2 s of the order check.
+REMUS100_CRUISE = (np.array([1.4, 0.05, 0.03, 0.02, 0.02, 0.1, 60.0, 3.0, 5.0, 0.02, 0.05, 2.0]),
+                   np.array([1500.0, 0.3, 1.0]))
+
+
 # --------------------------------------------------------------------------- registry
 @dataclass(frozen=True)
 class ReferenceModel:
@@ -196,6 +300,9 @@ REFERENCES: dict[str, ReferenceModel] = {
     # quadratic in time: RK4 is exact for a held input.
     "linear_cv": ReferenceModel("linear_cv", ("s_x", "s_y"), linear_cv_xdot, linear_cv_h, linear_cv_state,
                                 linear_cv_input, exact_flow=True),
+    # REMUS 100 (seed 004), a block of its own above
+    "remus100": ReferenceModel("remus100", REMUS100_PARAMETERS, remus100_xdot, remus100_h, remus100_state,
+                               remus100_input, cruise=REMUS100_CRUISE),
 }
 
 

@@ -11,7 +11,13 @@ simulated run of STEPS predict+update steps):
 * EKF   == filterpy ExtendedKalmanFilter (its predict_x replaced by the model's f, F from the
            bundle; filterpy's update is the Joseph form too);
 * masked update == the filterpy CKF update on the measurement with the masked entries removed;
-* linear_cv only: EKF, UKF and CKF == the exact Kalman filter (NumPy, written here);
+* a linear model (F and H constant, found numerically, e.g. linear_cv): EKF, UKF and CKF == the
+  exact Kalman filter (NumPy, written here); any other model: EKF == the exact Kalman filter of
+  the model linearised at each estimate (F, H from the bundle, already checked against central
+  differences), an oracle that needs no filterpy;
+* a user's model (no NumPy twin): a linearised copy of the Model (affine at the scenario's start)
+  is generated with the same filter families and compiled (cached); on it every generated step
+  (EKF, UKF, CKF, fused steps, MCUKF and Huber at their UKF limits) == the exact Kalman filter;
 * MCUKF with sigma = inf and HuberUKF with gamma = inf == UKF (the robust updates' limits);
 * the fused steps <m>_ckf_step, <m>_ekf_step (what step() calls) == predict then update.
 
@@ -19,7 +25,8 @@ Our sigma-point updates redraw the points from the predicted mean and covariance
 filterpy reuses the propagated points; the oracle is configured the same way by setting
 ``sigmas_f`` from the predicted (x, P) before each filterpy update. Angle outputs use the
 same residual (wrapped to (-pi, pi]) on both sides. filterpy is a test-only dependency,
-imported here lazily; if it is missing, the checks that need it are reported as failures.
+imported here lazily; if it is missing, the checks that need it are reported as skipped. A model
+generated without some filter family gets a skipped check naming each missing family.
 """
 from __future__ import annotations
 
@@ -78,6 +85,10 @@ def scenario(bundle, steps: int = STEPS, seed: int = 7) -> Scenario:
     R = 0.02 * np.eye(m)
     dt = 0.1
     U = rng.normal(size=(steps, bundle.n_u))
+    if bundle.name == "remus100":  # Euler angles: keep the points far from theta = +-90 deg; cruise at ~1500 rpm
+        x0 = np.array([1.4, 0.05, 0.02, 0.01, 0.01, 0.05, 60.0, 3.0, 5.0, 0.02, 0.05, 2.0]) + 0.01 * rng.normal(size=n)
+        P0 = 0.01 * np.eye(n) + 0.01 * A @ A.T
+        U = np.column_stack([1500 + 100 * rng.normal(size=steps), rng.normal(size=steps), rng.normal(size=steps)])
     x = x0 + np.linalg.cholesky(P0) @ rng.normal(size=n)
     Z = np.empty((steps, m))
     for k in range(steps):
@@ -175,46 +186,132 @@ def compare(model: str, name: str, reference: str, ours, theirs, tolerance: floa
     return Check(model, name, reference, error, tolerance, detail=f"max relative error of x and P over {len(ours)} steps")
 
 
-def _missing_filterpy(model: str) -> Check:
-    return Check(model, "filters vs filterpy", "filterpy", math.inf, TOLERANCE,
-                 detail="filterpy is not installed: pip install 'abyssal[test]' (it is a test-only dependency)")
+FAMILY_FUNCTIONS = {"ekf": ("ekf_predict", "ekf_update"), "ukf": ("ukf_predict", "ukf_update"),
+                    "ckf": ("ckf_predict", "ckf_update"), "robust": ("mcukf_update", "huber_ukf_update")}
 
 
-def checks(bundle) -> list[Check]:
-    needed = ("ekf_update", "ukf_update", "ckf_update", "mcukf_update", "huber_ukf_update")
-    if any(name not in bundle.functions for name in needed):
+def _is_linear(bundle, sc: Scenario) -> bool:
+    """F and H the same at two distant points: the model is linear (affine), so the Kalman filter is exact."""
+    rng = np.random.default_rng(11)
+    a, b = rng.normal(size=bundle.n_x), 3 * rng.normal(size=bundle.n_x)
+    same = lambda s, t: np.allclose(s, t, rtol=1e-12, atol=1e-12)  # noqa: E731
+    return same(bundle.F(a, sc.U[0], sc.p, sc.dt), bundle.F(b, sc.U[1], sc.p, sc.dt)) and same(
+        bundle.H(a, sc.p), bundle.H(b, sc.p))
+
+
+def linearised_copy(model, x_star, u_star, p_star, dt: float):
+    """The Model linearised at (x*, u*, p*, w = 0): affine dynamics and measurement, same sizes and names.
+
+    Continuous: xdot = xdot(x*) + A (x - x*) + B (u - u*) + E w, which RK4/Euler step affinely in x;
+    discrete: x_next = f_d(x*) + A (x - x*) + B (u - u*) + E w at the step length dt. y = h(x*) + C (x - x*).
+    Every Gaussian filter is exact on it, so each generated step must equal the Kalman filter.
+    """
+    import casadi as ca
+
+    from abyssal.symbolic.model import Model
+
+    dyn = model.x_next if model.is_discrete else model.xdot
+    ins = [model.x, model.u, model.p, model.w] + ([model.dt] if model.is_discrete else [])
+    point = [x_star, u_star, p_star, np.zeros(model.n_w)] + ([dt] if model.is_discrete else [])
+    value = lambda expr: ca.DM(ca.Function("v", ins, [ca.densify(expr)])(*point))  # noqa: E731
+    rate = value(dyn) + ca.mtimes(value(ca.jacobian(dyn, model.x)), model.x - x_star)
+    rate += ca.mtimes(value(ca.jacobian(dyn, model.u)), model.u - u_star) if model.n_u else 0
+    rate += ca.mtimes(value(ca.jacobian(dyn, model.w)), model.w) if model.n_w else 0
+    y = value(model.y) + ca.mtimes(value(ca.jacobian(model.y, model.x)), model.x - x_star)
+    kind = dict(x_next=rate, dt=model.dt, xdot=None) if model.is_discrete else dict(
+        xdot=rate, discretisation=model.discretisation, substeps=model.substeps)
+    return Model(name=f"{model.name}_lin", states=model.states, inputs=model.inputs, parameters=model.parameters,
+                 noises=model.noises, outputs=model.outputs, x=model.x, u=model.u, p=model.p, w=model.w, y=y,
+                 angle_outputs=model.angle_outputs, angle_states=model.angle_states,
+                 notes=(f"{model.name} linearised for `abyssal verify`",), **kind)
+
+
+def linearised_checks(bundle, model) -> list[Check]:
+    """Every generated filter family on the linearised copy of `model` vs the exact Kalman filter."""
+    import tempfile
+
+    from abyssal import generated
+    from abyssal.generated import regenerate
+    from abyssal.symbolic.codegen import Origin
+
+    families = tuple(bundle.filter_families or ())
+    if not families:
         return []
+    sc0 = scenario(bundle)
+    copy = linearised_copy(model, sc0.x0, np.zeros(bundle.n_u), sc0.p, sc0.dt)
+    origin = Origin(command="abyssal verify", check="abyssal verify",
+                    source=f"{model.name} linearised at the verify scenario's initial state")
+    with tempfile.TemporaryDirectory(prefix="abyssal-linearised-") as out:
+        lin = generated.load(regenerate.generate(copy, out, families, origin=origin))
+    sc = scenario(lin)
+    exact = exact_kalman_run(lin, sc)
+    args = (lin, sc.x0, sc.P0, sc.Q, sc.R)
+    runs = {"ekf": lambda: run_ours(EKF(*args), sc), "ukf": lambda: run_ours(UKF(*args), sc),
+            "ckf": lambda: run_ours(CKF(*args), sc), "ekf fused": lambda: run_ours_fused(EKF(*args), sc),
+            "ckf fused": lambda: run_ours_fused(CKF(*args), sc),
+            "mcukf (sigma = inf)": lambda: run_ours(MCUKF(*args, sigma=math.inf), sc),
+            "huber ukf (gamma = inf)": lambda: run_ours(HuberUKF(*args, gamma=math.inf), sc)}
+    needs = {"ekf": "ekf", "ukf": "ukf", "ckf": "ckf", "ekf fused": "ekf", "ckf fused": "ckf",
+             "mcukf (sigma = inf)": "robust", "huber ukf (gamma = inf)": "robust"}
+    return [compare(bundle.name, f"{name} step on the linearised copy", "exact Kalman filter (NumPy)", run(), exact)
+            for name, run in runs.items() if needs[name] in families]
+
+
+def checks(bundle, target=None) -> list[Check]:
+    """The filter checks of every generated family; a family the model lacks is reported as skipped."""
     model = bundle.name
+    present = {family: all(f in bundle.functions for f in functions) for family, functions in FAMILY_FUNCTIONS.items()}
+    result = [Check.skip(model, f"{family} filter steps", "filterpy / exact Kalman filter",
+                         f"the model was generated without the {family!r} filter family "
+                         f"(its families: {bundle.filter_families})")
+              for family, there in present.items() if not there]
     sc = scenario(bundle)
     args = (bundle, sc.x0, sc.P0, sc.Q, sc.R)
-    ckf = run_ours(CKF(*args), sc)
-    result = []
+    ekf = run_ours(EKF(*args), sc) if present["ekf"] else None
+    ukf = run_ours(UKF(*args), sc) if present["ukf"] else None
+    ckf = run_ours(CKF(*args), sc) if present["ckf"] else None
     if importlib.util.find_spec("filterpy") is None:
-        result.append(_missing_filterpy(model))
+        result.append(Check.skip(model, "filters vs filterpy", "filterpy",
+                                 "filterpy is not installed: pip install 'abyssal[test]' (a test-only dependency)"))
     else:
-        result.append(compare(model, "ckf step", "filterpy UKF, Merwe(1, 0, 0)", ckf,
-                              filterpy_sigma_point_run(bundle, sc, 1.0, 0.0, 0.0)))
-        for a, b, k in UKF_PARAMETERS:
-            result.append(compare(model, f"ukf step ({a:g}, {b:g}, {k:g})", f"filterpy UKF, Merwe({a:g}, {b:g}, {k:g})",
-                                  run_ours(UKF(*args, alpha=a, beta=b, kappa=k), sc),
-                                  filterpy_sigma_point_run(bundle, sc, a, b, k)))
-        result.append(compare(model, "ekf step (Joseph)", "filterpy ExtendedKalmanFilter",
-                              run_ours(EKF(*args), sc), filterpy_ekf_run(bundle, sc)))
-        if bundle.n_y > 1:
+        if ckf is not None:
+            result.append(compare(model, "ckf step", "filterpy UKF, Merwe(1, 0, 0)", ckf,
+                                  filterpy_sigma_point_run(bundle, sc, 1.0, 0.0, 0.0)))
+        if ukf is not None:
+            for a, b, k in UKF_PARAMETERS:
+                result.append(compare(model, f"ukf step ({a:g}, {b:g}, {k:g})", f"filterpy UKF, Merwe({a:g}, {b:g}, {k:g})",
+                                      run_ours(UKF(*args, alpha=a, beta=b, kappa=k), sc),
+                                      filterpy_sigma_point_run(bundle, sc, a, b, k)))
+        if ekf is not None:
+            result.append(compare(model, "ekf step (Joseph)", "filterpy ExtendedKalmanFilter", ekf,
+                                  filterpy_ekf_run(bundle, sc)))
+        if ckf is not None and bundle.n_y > 1:
             masked = [bundle.n_y - 1]
             kept = [i for i in range(bundle.n_y) if i not in masked]
             result.append(compare(model, "ckf masked update", "filterpy UKF on the kept entries",
                                   run_ours(CKF(*args), sc, mask_entries=masked),
                                   filterpy_sigma_point_run(bundle, sc, 1.0, 0.0, 0.0, kept=kept)))
-    if model == "linear_cv":
-        exact = exact_kalman_run(bundle, sc)
-        result.append(compare(model, "ekf on a linear model", "exact Kalman filter", run_ours(EKF(*args), sc), exact))
-        result.append(compare(model, "ukf on a linear model", "exact Kalman filter", run_ours(UKF(*args), sc), exact))
-        result.append(compare(model, "ckf on a linear model", "exact Kalman filter", ckf, exact))
-    result.append(compare(model, "ckf fused step", "ckf predict then update", run_ours_fused(CKF(*args), sc), ckf))
-    result.append(compare(model, "ekf fused step", "ekf predict then update", run_ours_fused(EKF(*args), sc),
-                          run_ours(EKF(*args), sc)))
-    ukf = run_ours(UKF(*args), sc)
-    result.append(compare(model, "mcukf, sigma = inf", "ukf step", run_ours(MCUKF(*args, sigma=math.inf), sc), ukf))
-    result.append(compare(model, "huber ukf, gamma = inf", "ukf step", run_ours(HuberUKF(*args, gamma=math.inf), sc), ukf))
+    exact = exact_kalman_run(bundle, sc)
+    if _is_linear(bundle, sc):
+        for family, ours in (("ekf", ekf), ("ukf", ukf), ("ckf", ckf)):
+            if ours is not None:
+                result.append(compare(model, f"{family} on a linear model", "exact Kalman filter", ours, exact))
+    else:
+        if ekf is not None:
+            result.append(compare(model, "ekf step vs Kalman filter of the linearised model", "exact Kalman filter "
+                                  "(NumPy) on F, H at each estimate", ekf, exact))
+        if target is not None and target.reference is None:  # a user's model: filterpy-free oracle for every family
+            if target.model is None:
+                result.append(Check.skip(model, "filter steps on the linearised copy", "exact Kalman filter",
+                                         f"there is no Model to linearise: {target.model_missing}"))
+            else:
+                result += linearised_checks(bundle, target.model)
+    if ckf is not None:
+        result.append(compare(model, "ckf fused step", "ckf predict then update", run_ours_fused(CKF(*args), sc), ckf))
+    if ekf is not None:
+        result.append(compare(model, "ekf fused step", "ekf predict then update", run_ours_fused(EKF(*args), sc), ekf))
+    if present["robust"] and ukf is not None:
+        result.append(compare(model, "mcukf, sigma = inf", "ukf step", run_ours(MCUKF(*args, sigma=math.inf), sc), ukf))
+        result.append(compare(model, "huber ukf, gamma = inf", "ukf step", run_ours(HuberUKF(*args, gamma=math.inf), sc),
+                              ukf))
     return result

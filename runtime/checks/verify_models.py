@@ -1,7 +1,8 @@
 """Model checks of `abyssal verify`: each generated model function against numerics it was not
 produced by.
 
-For a bundle, ``checks(bundle)`` returns, per generated model function (f, F, G, h, H, xdot):
+For a bundle, ``checks(bundle)`` returns, per generated model function (f, F, G, h, H, and xdot or
+x_next):
 
     compiled C vs CasADi        the committed C, compiled, against CasADi's own evaluation of the
                                 same symbolic Function (catches codegen, compiler and loader faults)
@@ -15,10 +16,25 @@ For a bundle, ``checks(bundle)`` returns, per generated model function (f, F, G,
     batch vs one-at-a-time      f_batch / h_batch (SIMD kernels) and the `_batch` entry point
                                 against single calls of f and h, with shared and per-column inputs
 
+A model without a NumPy twin (a user's model) gets the same families against its own compiled
+functions, by computations other than the AD that produced them:
+
+    vs central differences      F of the compiled f; G of the Euler/RK4 step of the compiled xdot
+                                (or of the compiled x_next) in w; H of the compiled h
+    vs {rk4,euler} of xdot      f against the scheme applied to the compiled xdot (continuous only)
+    vs solve_ivp (DOP853)       one step and the order by halving dt, on the compiled xdot; a model
+                                whose flow the scheme integrates exactly shows exactness instead
+
+A discrete model (x_next given directly) has nothing to integrate: its solve_ivp checks are
+reported as skipped, with that reason. Anything else that cannot run (no Model to evaluate
+in CasADi, say) is reported as skipped with its reason.
+
 Errors are relative in the max-norm: max|a - b| / max|b|, worst case over the sampled points.
 Filter functions are verified by verify_filters; names this module does not know are skipped.
 """
 from __future__ import annotations
+
+import dataclasses
 
 import numpy as np
 from scipy.integrate import solve_ivp
@@ -26,7 +42,7 @@ from scipy.integrate import solve_ivp
 from . import reference_models
 from .verify import Check
 
-MODEL_FUNCTIONS = ("f", "F", "G", "h", "H", "xdot")
+MODEL_FUNCTIONS = ("f", "F", "G", "h", "H", "xdot", "x_next")
 N_POINTS = 24           # random points per comparison
 N_BATCH = 257           # columns of the batch checks (odd: exercises SIMD remainders)
 SEED = 20240611
@@ -37,6 +53,7 @@ TOL_JACOBIAN = 1e-6         # central differences: truncation ~h^2, rounding ~ep
 TOL_ONE_STEP = 1e-6         # local error of one RK4 step is O(dt^5): ~3e-8 relative for rov4dof at dt = 0.1 s
 TOL_EXACT_FLOW = 1e-11      # discretisation that must be exact, vs DOP853 at rtol = atol = 1e-13
 TOL_BATCH_SIMD = 1e-15      # libmvec's vector sin/cos may differ from scalar libm in the last bit
+TOL_SAME_SCHEME = 1e-12     # f vs the same scheme applied to the compiled xdot: only rounding differs
 ORDER_DT = 0.1              # realistic filter step [s]
 ORDER_HORIZON = 2.0         # global error over this horizon scales as dt^order
 SCHEME_ORDER = {"euler": 1, "rk4": 4}  # halving dt divides the global error by 2^order (16 for RK4)
@@ -51,14 +68,21 @@ def relative_error(a, b) -> float:
     return float(diff / scale) if scale > 0 else float(diff)
 
 
-def symbolic_functions(name: str) -> dict:
-    """Suffix -> the CasADi Function the C was generated from, e.g. {"f": rov4dof_f, ...}."""
+def symbolic_functions(name_or_model) -> dict:
+    """Suffix -> the CasADi Function the C was generated from, e.g. {"f": rov4dof_f, ...}.
+
+    Takes a built-in model name (empty when it is not registered) or a Model.
+    """
     from abyssal.symbolic import codegen
     from abyssal.symbolic.models import REGISTRY
 
-    if name not in REGISTRY:
-        return {}
-    return {fn.name()[len(name) + 1:]: fn for fn in codegen.model_functions(REGISTRY[name]())}
+    if isinstance(name_or_model, str):
+        if name_or_model not in REGISTRY:
+            return {}
+        model = REGISTRY[name_or_model]()
+    else:
+        model = name_or_model
+    return {fn.name()[len(model.name) + 1:]: fn for fn in codegen.model_functions(model)}
 
 
 class _Points:
@@ -135,21 +159,27 @@ def central_difference(fun, z: np.ndarray, rel_step: float = 1e-5) -> np.ndarray
 
 
 def _jacobians(bundle, ref, points: _Points) -> list[Check]:
+    """F, G, H against central differences of the NumPy twin's step and measurement."""
     disc, substeps = bundle.manifest["discretisation"], bundle.manifest["substeps"]
+    step = lambda x, u, p, dt, w=None: reference_models.step(ref, x, u, p, dt, disc, substeps, w=w)  # noqa: E731
+    what = {"F": "NumPy step in x", "G": "NumPy step in w", "H": "NumPy measurement"}
+    return _central_differences(bundle, points, step, step, ref.h, what, "central differences of reference_models")
+
+
+def _central_differences(bundle, points: _Points, step_x, step_w, measure, what: dict, reference: str) -> list[Check]:
+    """F = d step_x / dx, G = d step_w / dw at w = 0, H = d measure / dx, by central differences."""
     worst = {"F": 0.0, "G": 0.0, "H": 0.0}
     for _ in range(N_POINTS):
         x, u, p = points.state(), points.inputs(), points.params()
         dt = points.rng.uniform(0.01, 0.5)
-        F_num = central_difference(lambda z: reference_models.step(ref, z, u, p, dt, disc, substeps), x)
+        F_num = central_difference(lambda z: step_x(z, u, p, dt), x)
         worst["F"] = max(worst["F"], relative_error(bundle.F(x, u, p, dt), F_num))
         if "G" in bundle.functions and bundle.n_w:
-            G_num = central_difference(
-                lambda z: reference_models.step(ref, x, u, p, dt, disc, substeps, w=z), np.zeros(bundle.n_w))
+            G_num = central_difference(lambda z: step_w(x, u, p, dt, w=z), np.zeros(bundle.n_w))
             worst["G"] = max(worst["G"], relative_error(bundle.G(x, u, p, dt), G_num))
-        H_num = central_difference(lambda z: ref.h(z, p), x)
+        H_num = central_difference(lambda z: measure(z, p), x)
         worst["H"] = max(worst["H"], relative_error(bundle.H(x, p), H_num))
-    what = {"F": "NumPy step in x", "G": "NumPy step in w", "H": "NumPy measurement"}
-    return [Check(bundle.name, f"{k} vs central differences ({what[k]})", "central differences of reference_models",
+    return [Check(bundle.name, f"{k} vs central differences ({what[k]})", reference,
                   v, TOL_JACOBIAN, f"{N_POINTS} random points, step 1e-5 relative")
             for k, v in worst.items() if k in bundle.functions]
 
@@ -229,15 +259,96 @@ def _batches(bundle, ref, points: _Points) -> list[Check]:
     return out
 
 
-def checks(bundle, reference=None, symbolic=None) -> list[Check]:
-    """All model checks of one bundle. `reference` and `symbolic` override the oracles (for tests)."""
-    ref = reference if reference is not None else reference_models.REFERENCES.get(bundle.name)
-    symbolic = symbolic if symbolic is not None else symbolic_functions(bundle.name)
+def compiled_twin(bundle) -> reference_models.ReferenceModel:
+    """The bundle's own compiled xdot and h as a reference model (for a model without a NumPy twin)."""
+    def xdot(x, u, p, w=None):
+        return bundle.xdot(x, u, p, w)
+
+    def sample(n_rows):
+        return lambda rng, n=None: rng.normal(size=(n_rows, n) if n else n_rows)
+
+    return reference_models.ReferenceModel(bundle.name, tuple(bundle.parameter_names), xdot, bundle.h,
+                                           sample(bundle.n_x), sample(bundle.n_u))
+
+
+def _compiled_checks(bundle, points: _Points) -> list[Check]:
+    """The checks of a model without a NumPy twin, against its own compiled functions."""
+    name = bundle.name
+    if bundle.is_discrete:
+        def x_next(x, u, p, dt, w=None):
+            return bundle.x_next(x, u, p, w, dt)
+
+        worst = 0.0
+        for _ in range(N_POINTS):
+            x, u, p, dt = points.state(), points.inputs(), points.params(), points.rng.uniform(0.01, 0.5)
+            worst = max(worst, relative_error(bundle.f(x, u, p, dt), x_next(x, u, p, dt)))
+        out = [Check(name, "f vs compiled x_next at w = 0", "compiled x_next", worst, TOL_SAME_SCHEME,
+                     f"{N_POINTS} random points; two generated functions of the same step")]
+        what = {"F": "compiled f in x", "G": "compiled x_next in w", "H": "compiled h"}
+        out += _central_differences(bundle, points, lambda x, u, p, dt: bundle.f(x, u, p, dt), x_next, bundle.h,
+                                    what, "central differences of the compiled functions")
+        because = "the model is discrete (x_next given directly): there is no xdot to integrate"
+        out += [Check.skip(name, "f one step vs solve_ivp", "scipy solve_ivp", because),
+                Check.skip(name, "f order by halving dt", "scipy solve_ivp", because)]
+        return out
+    twin = compiled_twin(bundle)
+    disc, substeps = bundle.manifest["discretisation"], bundle.manifest["substeps"]
+    worst = 0.0
+    for _ in range(N_POINTS):
+        x, u, p, dt = points.state(), points.inputs(), points.params(), points.rng.uniform(0.01, 0.5)
+        worst = max(worst, relative_error(bundle.f(x, u, p, dt), reference_models.step(twin, x, u, p, dt, disc, substeps)))
+    out = [Check(name, f"f vs {disc} of compiled xdot", "NumPy scheme on the compiled xdot", worst, TOL_SAME_SCHEME,
+                 f"{N_POINTS} random points")]
+    step = lambda x, u, p, dt, w=None: reference_models.step(twin, x, u, p, dt, disc, substeps, w=w)  # noqa: E731
+    what = {"F": "compiled f in x", "G": f"{disc} of compiled xdot in w", "H": "compiled h"}
+    out += _central_differences(bundle, points, lambda x, u, p, dt: bundle.f(x, u, p, dt), step, bundle.h, what,
+                                "central differences of the compiled functions")
+    # Start the order check at rest with a random input: |v| v damping is then smooth along the
+    # whole short horizon (velocities leave zero and keep their signs).
+    start = (np.zeros(bundle.n_x), points.rng.normal(size=bundle.n_u))
+    exact = _integrate(twin, *start, bundle.params(), ORDER_HORIZON)
+    coarse = relative_error(_repeated_steps(bundle, *start, bundle.params(), ORDER_DT, ORDER_HORIZON), exact)
+    twin = dataclasses.replace(twin, cruise=start, exact_flow=coarse <= TOL_EXACT_FLOW)
+    return out + _discretisation(bundle, twin, points)
+
+
+def _builtin_bundle(bundle) -> bool:
+    from abyssal.generated import GENERATED_DIR
+
+    folder = getattr(bundle, "folder", None)
+    return folder is None or folder == GENERATED_DIR / bundle.name
+
+
+def checks(bundle, reference=None, symbolic=None, target=None) -> list[Check]:
+    """All model checks of one bundle. `reference` and `symbolic` override the oracles (for tests);
+    `target` (verify.Target) says which oracles exist for it (default: the built-in's, by name)."""
+    builtin = target.builtin if target is not None else _builtin_bundle(bundle)
+    if reference is None:
+        reference = target.reference if target is not None else (
+            reference_models.REFERENCES.get(bundle.name) if builtin else None)
+    ref = reference
+    missing = ""
+    if symbolic is None:
+        if target is not None:
+            symbolic = symbolic_functions(target.model) if target.model is not None else {}
+            missing = target.model_missing
+        else:
+            symbolic = symbolic_functions(bundle.name) if builtin else {}
+            missing = "" if symbolic else f"no registered Model named {bundle.name!r}"
     points = _Points(bundle, ref, np.random.default_rng(SEED))
-    out = _c_vs_casadi(bundle, symbolic, points)
-    if ref is None:
-        out.append(Check(bundle.name, "independent NumPy model", "reference_models", float("nan"), 0.0,
-                         f"no NumPy model of {bundle.name!r} in runtime/checks/reference_models.py: add one"))
+    if symbolic:
+        out = _c_vs_casadi(bundle, symbolic, points)
+    else:
+        out = [Check.skip(bundle.name, "compiled C vs CasADi", "CasADi SX evaluation",
+                          f"there is no Model to evaluate in CasADi: {missing}")]
+    if ref is None:  # its own compiled functions stand in for the twin (a user's model has none)
+        # every continuous built-in has a hand-written twin; ReferenceModel has no x_next yet, so a discrete
+        # built-in (tan3dof) is checked like a user's model here, and against an independent arc formula in
+        # verify_tan
+        if builtin and not bundle.is_discrete:
+            out.append(Check(bundle.name, "independent NumPy model", "reference_models", float("nan"), 0.0,
+                             f"no NumPy model of {bundle.name!r} in runtime/checks/reference_models.py: add one"))
+        out += _compiled_checks(bundle, points)
     else:
         if tuple(ref.parameter_names) != tuple(bundle.parameter_names):
             out.append(Check(bundle.name, "parameter order vs NumPy model", "reference_models", float("inf"), 0.0,

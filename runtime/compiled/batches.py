@@ -7,13 +7,13 @@ generated cubature steps over (n, cap) means and (n, n, cap) covariances through
 """
 from __future__ import annotations
 
-import functools
 import os
-import threading
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
 from ..noise.mixtures import LOG_2PI
+from ..numerics import repair_covariance
 
 # ---------------------------------------------------------------------------------------------
 # batched generated C
@@ -27,63 +27,24 @@ def _f_zeros(*shape) -> np.ndarray:
 PARALLEL_MIN_SLICES = 64
 
 
-class _Worker:
-    """A persistent thread that runs one job at a time, handed over through two locks.
-
-    Cheaper than ``ThreadPoolExecutor.submit`` + ``Future.result`` (no future, queue or condition
-    variable; measured ~70-100 us less per parallel batch on the 2-core machine), which matters
-    when a whole batch takes ~1 ms.
-    """
-
-    def __init__(self, index: int):
-        self._go, self._done = threading.Lock(), threading.Lock()
-        self._go.acquire()
-        self._done.acquire()
-        self._job = None
-        self._error: BaseException | None = None
-        threading.Thread(target=self._loop, daemon=True, name=f"abyssal-batch-{index}").start()
-
-    def _loop(self) -> None:
-        while True:
-            self._go.acquire()
-            job, self._job = self._job, None
-            try:
-                job()
-            except BaseException as error:  # handed to the caller in wait()
-                self._error = error
-            finally:
-                self._done.release()
-
-    def start(self, job) -> None:
-        self._job = job
-        self._go.release()
-
-    def wait(self) -> None:
-        self._done.acquire()
-        error, self._error = self._error, None
-        if error is not None:
-            raise error
+_POOL: ThreadPoolExecutor | None = None
 
 
-_WORKERS: list[_Worker] | None = None
-#: held while the workers run a batch; a second thread evaluating at the same time runs its chunks itself
-_WORKERS_BUSY = threading.Lock()
+def _pool() -> ThreadPoolExecutor:
+    """One process-wide pool of cpu_count - 1 threads (the calling thread runs the first chunk)."""
+    global _POOL
+    if _POOL is None:
+        _POOL = ThreadPoolExecutor(max_workers=max(1, (os.cpu_count() or 1) - 1), thread_name_prefix="abyssal-batch")
+    return _POOL
 
 
-def _workers() -> list[_Worker]:
-    global _WORKERS
-    if _WORKERS is None:
-        _WORKERS = [_Worker(i) for i in range(max(1, (os.cpu_count() or 1) - 1))]
-    return _WORKERS
-
-
-def _forget_threads_after_fork() -> None:
-    global _WORKERS, _WORKERS_BUSY
-    _WORKERS, _WORKERS_BUSY = None, threading.Lock()
+def _forget_pool_after_fork() -> None:
+    global _POOL
+    _POOL = None  # the parent's threads do not exist in the child
 
 
 if hasattr(os, "register_at_fork"):
-    os.register_at_fork(after_in_child=_forget_threads_after_fork)
+    os.register_at_fork(after_in_child=_forget_pool_after_fork)
 
 
 class ParallelBatch:
@@ -91,9 +52,11 @@ class ParallelBatch:
 
     `batched` flags which inputs carry one slice per column of their last axis (the others are
     shared). Each chunk is its own ``bind_batch`` on views of the same buffers, so results land in
-    place; the calling thread evaluates the first chunk while persistent worker threads (``_Worker``)
-    evaluate the others (when another thread holds the workers, the caller runs every chunk itself). Every slice is the
-    same scalar C call whatever the split, so results do not depend on it.
+    place; the calling thread evaluates the first chunk while a process-wide
+    ``concurrent.futures.ThreadPoolExecutor`` evaluates the others (ctypes releases the GIL).
+    Every slice is the same scalar C call whatever the split, so results do not depend on it.
+    (The hand-made persistent worker threads this replaced saved tens of microseconds per batch;
+    benchmarks/README.md has the measurement.)
     """
 
     def __init__(self, fn, inputs, batched, outputs, capacity: int):
@@ -118,30 +81,14 @@ class ParallelBatch:
             return
         lo, hi, first = self._chunks[0]
         rest = [(binding, lo_, min(count, hi_)) for lo_, hi_, binding in self._chunks[1:] if count > lo_]
-        if len(rest) <= len(_workers()) and _WORKERS_BUSY.acquire(blocking=False):
-            try:
-                workers = _workers()
-                started = []
-                try:
-                    for worker, (binding, lo_, hi_) in zip(workers, rest):
-                        worker.start(functools.partial(_run_chunk, binding, lo_, hi_, then))
-                        started.append(worker)
-                    _run_chunk(first, lo, min(count, hi), then)
-                finally:
-                    errors = []
-                    for worker in started:  # every started chunk must finish before the buffers are reused
-                        try:
-                            worker.wait()
-                        except BaseException as error:
-                            errors.append(error)
-                if errors:
-                    raise errors[0]
-            finally:
-                _WORKERS_BUSY.release()
-            return
-        _run_chunk(first, lo, min(count, hi), then)
-        for binding, lo_, hi_ in rest:
-            _run_chunk(binding, lo_, hi_, then)
+        futures = [_pool().submit(_run_chunk, binding, lo_, hi_, then) for binding, lo_, hi_ in rest]
+        try:
+            _run_chunk(first, lo, min(count, hi), then)
+        finally:
+            errors = [f.exception() for f in futures]  # every chunk must finish before the buffers are reused
+        for error in errors:
+            if error is not None:
+                raise error
 
 
 def _run_chunk(binding, lo: int, hi: int, then) -> None:
@@ -150,14 +97,9 @@ def _run_chunk(binding, lo: int, hi: int, then) -> None:
         then(lo, hi)
 
 
-def nearest_positive_definite(covariances: np.ndarray, relative_floor: float = 1e-9) -> np.ndarray:
-    """Symmetrised copies of (n, n, k) covariances with eigenvalues clipped at relative_floor * max."""
-    A = np.moveaxis(covariances, -1, 0)
-    A = 0.5 * (A + np.swapaxes(A, -1, -2))
-    vals, vecs = np.linalg.eigh(A)
-    floor = relative_floor * np.maximum(np.abs(vals).max(axis=-1, keepdims=True), 1e-300)
-    vals = np.maximum(vals, floor)
-    return np.moveaxis((vecs * vals[:, None, :]) @ np.swapaxes(vecs, -1, -2), 0, -1)
+def nearest_positive_definite(covariances: np.ndarray) -> np.ndarray:
+    """``numerics.repair_covariance`` of each (n, n) slice of an (n, n, k) stack."""
+    return np.moveaxis(repair_covariance(np.moveaxis(covariances, -1, 0)), 0, -1)
 
 
 def _repair_failed_slices(ok: np.ndarray, cov: np.ndarray, evaluate, count: int) -> None:
@@ -179,7 +121,7 @@ class CubaturePredictBatch:
         n = bundle.n_x
         self.capacity = capacity
         self.mean, self.cov, self.Q = _f_zeros(n, capacity), _f_zeros(n, n, capacity), _f_zeros(n, n, capacity)
-        self.u, self.p, self.dt = np.zeros(bundle.n_u), np.array(p, dtype=np.float64), np.zeros(1)
+        self.u, self.p, self.dt = np.zeros(bundle.n_u), _parameter_buffer(p), np.zeros(1)
         self.mean_pred, self.cov_pred, self.ok = _f_zeros(n, capacity), _f_zeros(n, n, capacity), _f_zeros(1, capacity)
         self._eval = ParallelBatch(bundle.function("ckf_predict"), [self.mean, self.cov, self.u, self.p, self.dt, self.Q],
                                    [True, True, False, False, False, True], [self.mean_pred, self.cov_pred, self.ok], capacity)
@@ -194,6 +136,9 @@ class CubatureUpdateBatch:
 
     Inputs: mean (n, cap), cov (n, n, cap) -- pass the predict batch's outputs to chain without
     copying -- z (n_y, cap), R (n_y, n_y, cap); outputs mean_post, cov_post, innovation, S, ok.
+
+    Missing entries: ``present`` (n_y,) is the caller's mask of this measurement (0: left out of
+    every slice, with z there set to anything finite); the gate below only masks further.
 
     Outlier gate: a measurement entry whose innovation exceeds ``gate_sigma`` standard deviations
     of S is masked out of that slice's update (all slices when ``gate_jointly``, so mixture
@@ -210,7 +155,9 @@ class CubatureUpdateBatch:
         self.mean = _f_zeros(n, capacity) if mean is None else mean
         self.cov = _f_zeros(n, n, capacity) if cov is None else cov
         self.z, self.R, self.mask = _f_zeros(m, capacity), _f_zeros(m, m, capacity), np.ones((m, capacity), order="F")
-        self.p = np.array(p, dtype=np.float64)
+        self.p = _parameter_buffer(p)
+        #: (n_y,) entries present in this measurement (0: left out of every slice), set by the caller
+        self.present = np.ones(m)
         self.gate_sigma, self.gate_jointly = gate_sigma, gate_jointly
         self.gated = 0  # number of measurement entries masked by the gate in the last call
         self.mean_post, self.cov_post = _f_zeros(n, capacity), _f_zeros(n, n, capacity)
@@ -220,9 +167,8 @@ class CubatureUpdateBatch:
                                    [self.mean_post, self.cov_post, self.innovation, self.S, self.ok], capacity)
 
     def __call__(self, count: int) -> None:
-        if self.gated:
-            self.mask.fill(1.0)
-            self.gated = 0
+        self.mask[...] = self.present[:, None]
+        self.gated = 0
         self._eval(count)
         _repair_failed_slices(self.ok, self.cov, self._eval, count)
         outliers = self.outliers(count)
@@ -236,7 +182,7 @@ class CubatureUpdateBatch:
     def outliers(self, count: int) -> np.ndarray:
         """(n_y, count) flags of the innovations beyond gate_sigma standard deviations of S."""
         variances = np.einsum("iik->ik", self.S[:, :, :count])
-        return np.abs(self.innovation[:, :count]) > self.gate_sigma * np.sqrt(variances)
+        return (np.abs(self.innovation[:, :count]) > self.gate_sigma * np.sqrt(variances)) & (self.present[:, None] > 0)
 
     def log_evidence(self, count: int) -> np.ndarray:
         """log N(innovation; 0, S) of the first `count` slices."""
@@ -278,11 +224,36 @@ class CubatureStepBatch:
         sees the fused results). Returns False when the step was redone by the two-stage path (the
         results `then` saw are stale)."""
         self._eval(count, then)
+        if count and not self.update.present.all():
+            self.predict(count)  # missing entries: the two-stage path owns the mask
+            self.update(count)
+            return False
         if count == 0 or (self.update.ok[0, :count].min() != 0 and not self.update.outliers(count).any()):
             return True  # every slice passed its guards (ok is 0 or 1) and nothing was gated
         self.predict(count)
         self.update(count)
         return False
+
+
+def _parameter_buffer(p) -> np.ndarray:
+    """p itself when it is a contiguous float64 vector (so several batches share one parameter buffer
+    that the filter rewrites each step), else a float64 copy."""
+    if isinstance(p, np.ndarray) and p.dtype == np.float64 and p.ndim == 1 and p.flags.c_contiguous and p.flags.writeable:
+        return p
+    return np.array(p, dtype=np.float64)
+
+
+class MeasureBatch:
+    """h over a caller's (n, capacity) C-ordered state buffer (SIMD kernel): ``y = batch(count)``."""
+
+    def __init__(self, bundle, x: np.ndarray, p: np.ndarray):
+        self.x, self.p = x, _parameter_buffer(p)
+        self.y = np.zeros((bundle.n_y, x.shape[1]))
+        self._h = bundle.function("h").bind_soa([self.x, self.p], [self.y])
+
+    def __call__(self, count: int) -> np.ndarray:
+        self._h(count)
+        return self.y
 
 
 class ModelBatch:
@@ -293,7 +264,7 @@ class ModelBatch:
         self.capacity = capacity
         self.x = np.zeros((n, capacity))
         self.u = np.zeros((bundle.n_u, capacity))
-        self.p, self.dt = np.array(p, dtype=np.float64), np.zeros(1)
+        self.p, self.dt = _parameter_buffer(p), np.zeros(1)
         self.x_next = np.zeros((n, capacity))
         self.y = np.zeros((bundle.n_y, capacity))
         self._f = bundle.function("f").bind_soa([self.x, self.u, self.p, self.dt], [self.x_next])

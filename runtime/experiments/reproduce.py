@@ -1,12 +1,16 @@
 """`abyssal reproduce {rov,cn,tan,remus,all}`: rerun the papers' experiments.
 
-Only `rov` (seed 000) exists so far; `cn`, `tan` and `remus` exit with status 2 and say so;
-`all` runs what exists. Tables put the paper's printed numbers (constants below, labelled as
-the paper's) beside ours, which come only from the runs made here.
+rov (seed 000), cn (seed 002), tan (seed 003) and remus (seed 004) each live in
+experiments/<name>/; `all` runs the four in turn into one --out folder. Tables put the paper's printed numbers (constants below, labelled as
+the paper's) beside ours, which come only from the runs made here. Every experiment runs on the
+campaign harness (campaign.py): `--runs M --workers W` (local Dask cluster, W worker processes;
+0 = in this process), `--scheduler tcp://HOST:PORT` (an existing cluster), `--resume` (reuse the
+runs already in <out>/<experiment>.csv). Exit status 1 when a run failed twice (named with its seed).
 """
 from __future__ import annotations
 
 import json
+import math
 import sys
 from pathlib import Path
 
@@ -20,97 +24,184 @@ PAPER_ROV_TABLE3 = {
           "CPF": (1.2855, 1.6607, 3.3708, 6.7736), "EM-MOGCPF": (0.5956, 0.3094, 0.6318, 2.1357)},
 }
 AXES = ("x", "y", "z", "psi")
-NOT_YET = ("cn", "tan", "remus")
 
 
 def paper_rov_rmse() -> dict[str, dict[str, dict[str, float]]]:
     return {sea: {f: dict(zip(AXES, v)) for f, v in row.items()} for sea, row in PAPER_ROV_TABLE3.items()}
 
 
-def _progress(message: str) -> None:
-    """One updating line on a terminal; plain lines in a log."""
-    if sys.stderr.isatty():
-        print(f"\r\033[K[rov] {message}", end="", file=sys.stderr, flush=True)
-    else:
-        print(f"[rov] {message}", file=sys.stderr, flush=True)
+def _strict_json(value):
+    """NaN and inf (no ESS for a Kalman filter, a diverged filter) as null: strict JSON."""
+    if isinstance(value, dict):
+        return {k: _strict_json(v) for k, v in value.items()}
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
 
 
-def rov_table(results: dict, runs: int, n_particles: int) -> str:
-    """Table 3 layout: per sea state and axis, ours vs THEIRS for each filter; then step time and ANEES."""
-    paper = paper_rov_rmse()
-    filters = list(next(iter(results.values()))["metrics"])
-    lines = [f"ROV sea-state experiment (seed 000): RMSE over {runs} Monte-Carlo run(s), N = {n_particles} particles",
-             "OURS = this run; THEIRS = the paper's Table 3 (quoted; '-' where the paper has no such filter)", ""]
-    header = f"{'sea state':<10}{'axis':<6}" + "".join(f"{name:>20}" for name in filters)
-    sub = f"{'':<16}" + "".join(f"{'ours':>11}{'theirs':>9}" for _ in filters)
-    lines += [header, sub, "-" * len(header)]
-    for sea, block in results.items():
-        for i, axis in enumerate(AXES):
-            cells = []
-            for name in filters:
-                ours = block["metrics"][name]["rmse"][axis]
-                theirs = paper.get(sea, {}).get(name, {}).get(axis)
-                cells.append(f"{ours:>11.4f}{(f'{theirs:.4f}' if theirs is not None else '-'):>9}")
-            lines.append(f"{(sea if i == 0 else ''):<10}{axis:<6}" + "".join(cells))
-        lines.append(f"{'':<10}{'ms':<6}" + "".join(f"{block['metrics'][n]['step_ms']:>11.3f}{'':>9}" for n in filters))
-        lines.append(f"{'':<10}{'ANEES':<6}" + "".join(f"{block['metrics'][n]['anees']:>11.3g}{'':>9}" for n in filters))
-        lines.append("")
-    lines.append("ms: mean wall time of one filter step (predict + update) in this run; ANEES: mean of "
-                 "e^T P^-1 e / 12 over steps and runs (1 = consistent).")
-    return "\n".join(lines)
+def run_rov(args, config=None) -> int:
+    """`abyssal reproduce rov` on the campaign harness; `config` (a RovConfig) overrides the paper's set-up
+    (tests use a short one). Rows go to <out>/rov.csv, the summary to <out>/rov.json, figures beside them."""
+    from dataclasses import replace
 
+    from . import campaign
+    from .rov import experiment
 
-def rov_figures(results: dict, out: Path) -> list[Path]:
-    from .. import plots
-
-    out.mkdir(parents=True, exist_ok=True)
-    paper = paper_rov_rmse()
-    written = []
-    for sea, block in results.items():
-        slug = sea.replace("-", "_")
-        if block.get("first_run"):
-            truth, runs = block["first_run"]
-            errors = {name: r.errors(truth) for name, r in runs.items()}
-            written.append(plots.error_vs_time(
-                truth.times, {n: e[:, 0:4] for n, e in errors.items()}, ("x error (m)", "y error (m)", "z error (m)", "yaw error (rad)"),
-                f"Position and yaw error, sea state {sea} (run 1; cf. the paper's Figs. 5, 7, 9)", out / f"rov_pose_error_sea_{slug}.png",
-                wrapped_panels=(3,)))
-            written.append(plots.error_vs_time(
-                truth.times, {n: e[:, 4:8] for n, e in errors.items()}, ("u error (m/s)", "v error (m/s)", "w error (m/s)", "r error (rad/s)"),
-                f"Velocity error, sea state {sea} (run 1; cf. the paper's Figs. 6, 8, 10)", out / f"rov_velocity_error_sea_{slug}.png"))
-        written.append(plots.rmse_bars(block["metrics"], paper.get(sea), f"RMSE, sea state {sea} (cf. the paper's Figs. 11-12)",
-                                       out / f"rov_rmse_sea_{slug}.png"))
-    return written
-
-
-def run_rov(args, scenario=None) -> int:
-    """Run the experiment; `scenario` (a RovScenario) overrides the paper's set-up (tests use a short one)."""
-    from .rov import scenario as rov_sea_state
-
-    runs = 3 if args.runs is None else args.runs
-    n_particles = 300 if args.particles is None else args.particles
-    if runs < 1 or n_particles < 10:
-        raise ValueError("reproduce rov needs --runs >= 1 and --particles >= 10")
-    results = rov_sea_state.run_experiment(runs, args.seed, n_particles, progress=_progress,
-                                           scenario=scenario or rov_sea_state.RovScenario())
-    if sys.stderr.isatty():
-        print("\r\033[K", end="", file=sys.stderr)
-    figures = rov_figures(results, Path(args.out)) if args.out else []
+    runs = 10 if args.runs is None else args.runs
+    if config is None:
+        config = experiment.quick_config() if getattr(args, "quick", False) else experiment.RovConfig()
+    if getattr(args, "particles", None) is not None:
+        if args.particles < 10:
+            raise ValueError("reproduce rov needs --particles >= 10")
+        config = replace(config, n_particles=args.particles)
+    if runs < 1:
+        raise ValueError("reproduce rov needs --runs >= 1")
+    out = Path(args.out) if args.out else None
+    result = campaign.run_campaign(
+        experiment.run_one, config, runs, args.seed, workers=getattr(args, "workers", None),
+        scheduler=getattr(args, "scheduler", None), csv_path=out / "rov.csv" if out else None,
+        resume=getattr(args, "resume", False), experiment="rov", extra_columns=experiment.EXTRA_COLUMNS)
+    rows = result.rows
+    print(f"[rov] {result.runs_done} run(s) done, {result.runs_reused} reused from the table, "
+          f"{len(result.failures)} failed; {result.wall_seconds:.1f} s on {result.where}", file=sys.stderr)
+    figures = experiment.figures(rows, out) if out and rows else []
+    summary = {f"{reading}|{sea}|{label}": _strict_json(stats) for (reading, sea, label), stats in experiment.summary(rows).items()}
+    document = {"experiment": "rov", "runs": runs, "runs_in_table": len(result.runs), "seed": args.seed,
+                "particles": config.n_particles, "config": repr(config), "summary": summary,
+                "failures": [f.describe() for f in result.failures], "wall_seconds": result.wall_seconds,
+                "where": result.where, "rows_csv": str(out / "rov.csv") if out else None}
+    if out:
+        (out / "rov.json").write_text(json.dumps(document, indent=1))
     if args.json:
-        print(json.dumps({"experiment": "rov", "runs": runs, "seed": args.seed, "particles": n_particles,
-                          "sea_states": {sea: block["metrics"] for sea, block in results.items()}}, indent=1))
+        print(json.dumps(document, indent=1))
     else:
-        print(rov_table(results, runs, n_particles))
+        print(experiment.report(rows))
+        print()
+        print(experiment.timing_table(rows))
         for path in figures:
             print(f"wrote {path}")
+        if out:
+            print(f"wrote {out / 'rov.csv'} (one row per run x sea state x filter x metric) and {out / 'rov.json'}")
+    if result.failures:
+        print(campaign.summarise_failures(result), file=sys.stderr)
+        return 1
     return 0
 
 
+def run_tan(args, config=None) -> int:
+    """`abyssal reproduce tan [--quick]` (seed 003) on the campaign harness; `config` (a TanConfig) overrides
+    the set-up (tests use a short one). Rows go to <out>/tan.csv, the summary to <out>/tan.json, figures beside."""
+    from dataclasses import replace
+
+    from . import campaign
+    from .tan import experiment, scenario
+
+    quick = getattr(args, "quick", False)
+    config = config or scenario.TanConfig()
+    if quick:
+        config = config.quick()
+    if getattr(args, "particles", None) is not None:
+        if args.particles < 10:
+            raise ValueError("reproduce tan needs --particles >= 10")
+        config = replace(config, n_particles=args.particles)
+    runs = (1 if quick else 2) if args.runs is None else args.runs
+    if runs < 1:
+        raise ValueError("reproduce tan needs --runs >= 1")
+    out = Path(args.out) if args.out else None
+    result = campaign.run_campaign(
+        scenario.run_one, config, runs, args.seed, workers=getattr(args, "workers", None),
+        scheduler=getattr(args, "scheduler", None), csv_path=out / "tan.csv" if out else None,
+        resume=getattr(args, "resume", False), experiment="tan", extra_columns=experiment.EXTRA_COLUMNS)
+    rows = result.rows
+    print(f"[tan] {result.runs_done} run(s) done, {result.runs_reused} reused from the table, "
+          f"{len(result.failures)} failed; {result.wall_seconds:.1f} s on {result.where}", file=sys.stderr)
+    figures = experiment.figures(rows, out, config, args.seed) if out and rows else []
+    document = {"experiment": "tan", "runs": runs, "runs_in_table": len(result.runs), "seed": args.seed,
+                "config": repr(config), "cases": experiment.json_document(rows),
+                "failures": [f.describe() for f in result.failures], "wall_seconds": result.wall_seconds,
+                "where": result.where, "rows_csv": str(out / "tan.csv") if out else None}
+    if out:
+        (out / "tan.json").write_text(json.dumps(document, indent=1))
+    if args.json:
+        print(json.dumps(document, indent=1))
+    else:
+        print(experiment.report(rows, config))
+        for path in figures:
+            print(f"wrote {path}")
+        if out:
+            print(f"wrote {out / 'tan.csv'} (one row per run x case x filter x metric) and {out / 'tan.json'}")
+    if result.failures:
+        print(campaign.summarise_failures(result), file=sys.stderr)
+        return 1
+    return 0
+
+
+def run_cn(args, config=None) -> int:
+    """`abyssal reproduce cn [--runs M] [--quick]` (seed 002, simulated lake trial) on the campaign harness;
+    `config` (a CnConfig) overrides the set-up. Rows go to <out>/cn.csv, the summary to <out>/cn.json."""
+    from dataclasses import replace
+
+    from . import campaign
+    from .cn import experiment
+
+    config = config or experiment.CnConfig()
+    if getattr(args, "quick", False):
+        config = config.quick()
+    if getattr(args, "particles", None) is not None:
+        if args.particles < 10:
+            raise ValueError("reproduce cn needs --particles >= 10")
+        config = replace(config, n_particles=args.particles)
+    runs = 10 if args.runs is None else args.runs
+    if runs < 1:
+        raise ValueError("reproduce cn needs --runs >= 1")
+    out = Path(args.out) if args.out else None
+    if out:
+        out.mkdir(parents=True, exist_ok=True)
+    result = campaign.run_campaign(
+        experiment.run_one, config, runs, args.seed, workers=getattr(args, "workers", None),
+        scheduler=getattr(args, "scheduler", None), csv_path=out / "cn.csv" if out else None,
+        resume=getattr(args, "resume", False), experiment="cn", extra_columns=experiment.EXTRA_COLUMNS)
+    rows = result.rows
+    print(f"[cn] {result.runs_done} run(s) done, {result.runs_reused} reused from the table, "
+          f"{len(result.failures)} failed; {result.wall_seconds:.1f} s on {result.where}", file=sys.stderr)
+    figures = experiment.figures(config, args.seed, out) if out and rows else []
+    document = {"experiment": "cn", "data": "simulated lake trial (the paper's data is not public)", "runs": runs,
+                "runs_in_table": len(result.runs), "seed": args.seed, "config": repr(config),
+                "cases": _strict_json(experiment.json_document(rows)),
+                "failures": [f.describe() for f in result.failures], "wall_seconds": result.wall_seconds,
+                "where": result.where, "rows_csv": str(out / "cn.csv") if out else None}
+    if out:
+        (out / "cn.json").write_text(json.dumps(document, indent=1))
+    if args.json:
+        print(json.dumps(document, indent=1))
+    else:
+        print(experiment.report(rows, config))
+        for path in figures:
+            print(f"wrote {path}")
+        if out:
+            print(f"wrote {out / 'cn.csv'} (one row per run x case x filter x metric) and {out / 'cn.json'}")
+    if result.failures:
+        print(campaign.summarise_failures(result), file=sys.stderr)
+        return 1
+    return 0
+
+
+def _run_remus(args) -> int:
+    from .remus.experiment import reproduce
+
+    return reproduce(args)
+
+
+#: experiment name -> runner; `all` runs them in this order into the same --out folder.
+EXPERIMENTS = {"rov": lambda args: run_rov(args), "cn": lambda args: run_cn(args), "tan": lambda args: run_tan(args),
+               "remus": _run_remus}
+
+
 def main(args) -> int:
-    if args.experiment in NOT_YET:
-        print(f"abyssal reproduce {args.experiment}: not implemented yet (only `rov` exists so far)", file=sys.stderr)
-        return 2
-    if args.experiment == "all":
-        for name in NOT_YET:
-            print(f"abyssal reproduce all: skipping {name} (not implemented yet)", file=sys.stderr)
-    return run_rov(args)
+    if args.experiment != "all":
+        return EXPERIMENTS[args.experiment](args)
+    status = 0
+    for name, run in EXPERIMENTS.items():
+        print(f"== abyssal reproduce {name}", file=sys.stderr, flush=True)
+        status = max(status, run(args))
+    return status

@@ -46,9 +46,31 @@ def cholesky_precision(covariances: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     return inv_L, log_det
 
 
+#: relative symmetry tolerance of a covariance: max |C - C^T| <= tol * max |C| (as the Kalman filters)
+SYMMETRY_TOLERANCE = 1e-9
+
+
+def _real_array(value, name: str) -> np.ndarray:
+    arr = np.asarray(value)
+    if arr.dtype.kind not in "fiub":
+        raise TypeError(f"mixture {name} must be an array of real numbers, got dtype {arr.dtype}")
+    return np.asarray(arr, dtype=np.float64)
+
+
 @dataclass(frozen=True, eq=False)
 class GaussianMixture:
-    """sum_k weights[k] N(means[k], covariances[k]); weights are renormalised on construction."""
+    """sum_k weights[k] N(means[k], covariances[k]).
+
+    Construction checks its arguments and raises ValueError (TypeError for complex or
+    non-numeric arrays) naming the one at fault: ``weights`` (K,) finite, non-negative, with a
+    positive sum; ``means`` (K, d) finite; ``covariances`` (K, d, d) finite, symmetric (within
+    ``SYMMETRY_TOLERANCE`` relative to each matrix's largest entry; the Cholesky factor reads its
+    lower triangle) and positive definite (Cholesky succeeds, and the log-normaliser is finite).
+    Weights are renormalised to sum to one: unnormalised weights are a documented input (the
+    printed sea-state weights, EM masses), not an error. Weights whose sum overflows are scaled by
+    their maximum first. The checks cost a few microseconds (one finiteness reduction, one
+    symmetry reduction); their diagnosis only runs on failure.
+    """
 
     weights: np.ndarray
     means: np.ndarray
@@ -59,26 +81,78 @@ class GaussianMixture:
     _neg_half_precision: np.ndarray | None = field(init=False, repr=False)
 
     def __post_init__(self):
-        w = np.asarray(self.weights, dtype=np.float64).reshape(-1)
-        mu = np.asarray(self.means, dtype=np.float64)
-        cov = np.asarray(self.covariances, dtype=np.float64)
-        if mu.ndim != 2 or cov.shape != (mu.shape[0], mu.shape[1], mu.shape[1]) or w.shape != (mu.shape[0],):
-            raise ValueError(f"mixture shapes disagree: weights {w.shape}, means {mu.shape}, covariances {cov.shape}")
-        if np.any(w < 0) or not w.sum() > 0:
-            raise ValueError("mixture weights must be non-negative with a positive sum")
-        object.__setattr__(self, "weights", w / w.sum())
+        w = _real_array(self.weights, "weights").reshape(-1)
+        mu = _real_array(self.means, "means")
+        cov = _real_array(self.covariances, "covariances")
+        if mu.ndim != 2 or mu.shape[0] == 0 or mu.shape[1] == 0:
+            raise ValueError(f"mixture means must have shape (K, d) with K, d >= 1, got {mu.shape}")
+        if w.shape != (mu.shape[0],):
+            raise ValueError(f"mixture weights must have shape ({mu.shape[0]},) (one per mean), got {w.shape}")
+        if cov.shape != (mu.shape[0], mu.shape[1], mu.shape[1]):
+            raise ValueError(f"mixture covariances must have shape {(mu.shape[0], mu.shape[1], mu.shape[1])}, got {cov.shape}")
+        with np.errstate(over="ignore", invalid="ignore"):  # huge finite entries may overflow the sums
+            total = float(w.sum())
+            all_finite = np.isfinite(total + mu.sum() + cov.sum())
+        if not (all_finite and total > 0 and w.min() >= 0):
+            w, total = self._diagnose(w, mu, cov)
+        w = w / total
+        variances = np.diagonal(cov, axis1=1, axis2=2)
+        # symmetric within the tolerance of each matrix's scale (its largest diagonal entry, which is its
+        # largest entry when it is positive semi-definite; a matrix that is not fails the Cholesky below)
+        asymmetry = np.abs(cov - cov.transpose(0, 2, 1)).max(axis=(1, 2))
+        asymmetric = asymmetry > SYMMETRY_TOLERANCE * np.abs(variances).max(axis=1)
+        if asymmetric.any():
+            k = int(np.argmax(asymmetric))
+            raise ValueError(f"mixture covariances[{k}] is not symmetric (max |C - C^T| = {asymmetry[k]:.3g})")
+        object.__setattr__(self, "weights", w)
         with np.errstate(divide="ignore"):
             object.__setattr__(self, "_log_weights", np.log(self.weights))
         object.__setattr__(self, "means", mu)
         object.__setattr__(self, "covariances", cov)
-        inv_L, log_det = cholesky_precision(cov)
+        try:
+            inv_L, log_det = cholesky_precision(cov)
+        except np.linalg.LinAlgError:
+            inv_L = log_det = None
+        log_norm = None if log_det is None else -0.5 * (log_det + mu.shape[1] * LOG_2PI)
+        # log_det is finite exactly when every pivot is positive and finite (NaN pivots give NaN)
+        if log_norm is None or not np.isfinite(log_norm.sum()):
+            raise ValueError(f"mixture covariances[{self._first_not_positive_definite(cov)}] is not (numerically) "
+                             "positive definite")
         object.__setattr__(self, "_inv_chol", inv_L)
-        object.__setattr__(self, "_log_norm", -0.5 * (log_det + mu.shape[1] * LOG_2PI))
+        object.__setattr__(self, "_log_norm", log_norm)
         # Zero-mean mixtures with diagonal covariances (the usual noise models): the quadratic forms of
         # all components are one (K, d) @ (d, N) product of the squared points.
-        variances = np.diagonal(cov, axis1=1, axis2=2)
         diagonal = not mu.any() and np.array_equal(cov, variances[:, :, None] * np.eye(mu.shape[1])) and np.all(variances > 0)
         object.__setattr__(self, "_neg_half_precision", -0.5 / variances if diagonal else None)
+
+    @staticmethod
+    def _diagnose(w: np.ndarray, mu: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, float]:
+        """The slow path of the checks: raise naming the argument, or return (weights, a finite positive sum)."""
+        for name, arr in (("weights", w), ("means", mu), ("covariances", cov)):
+            if not np.all(np.isfinite(arr)):
+                bad = np.argwhere(~np.isfinite(arr))[0]
+                raise ValueError(f"mixture {name} must be finite; {name}[{', '.join(map(str, bad))}] = {arr[tuple(bad)]}")
+        if w.min() < 0:
+            raise ValueError(f"mixture weights must be non-negative, got {w}")
+        if not w.max() > 0:
+            raise ValueError("mixture weights must have a positive sum (they are all zero)")
+        with np.errstate(over="ignore"):
+            total = float(w.sum())
+        if not np.isfinite(total):  # finite weights whose sum overflows (never scaled in place: w may be the caller's)
+            w = w / w.max()
+            total = float(w.sum())
+        return w, total  # (finite means or covariances whose sums overflow are fine)
+
+    @staticmethod
+    def _first_not_positive_definite(cov: np.ndarray) -> int:
+        for k in range(cov.shape[0]):
+            try:
+                inv_L, log_det = cholesky_precision(cov[k:k + 1])
+            except np.linalg.LinAlgError:
+                return k
+            if not np.all(np.isfinite(log_det)):
+                return k
+        return 0
 
     @classmethod
     def gaussian(cls, mean, covariance) -> "GaussianMixture":
@@ -94,13 +168,17 @@ class GaussianMixture:
         return self.means.shape[1]
 
     def component_log_densities(self, points: np.ndarray) -> np.ndarray:
-        """log N(x; mean_k, cov_k) for each component k and column x of points (d, N): (K, N)."""
-        if self._neg_half_precision is not None:
-            out = self._neg_half_precision @ (points * points)
-        else:
-            y = self._inv_chol @ (points[None, :, :] - self.means[:, :, None])
-            y *= y
-            out = -0.5 * y.sum(axis=1)
+        """log N(x; mean_k, cov_k) for each component k and column x of points (d, N): (K, N).
+
+        A point so far out that its squared distance overflows gets -inf (density 0), silently.
+        """
+        with np.errstate(over="ignore"):
+            if self._neg_half_precision is not None:
+                out = self._neg_half_precision @ (points * points)
+            else:
+                y = self._inv_chol @ (points[None, :, :] - self.means[:, :, None])
+                y *= y
+                out = -0.5 * y.sum(axis=1)
         out += self._log_norm[:, None]
         return out
 
@@ -158,9 +236,20 @@ def weighted_em(points: np.ndarray, weights: np.ndarray, initial: GaussianMixtur
     points (d, N); weights (N,) non-negative, normalised here. See the module docstring for the
     stopping rule and the regularisation.
     """
-    if tol <= 0 or max_iter < 1 or reg_covar <= 0:
+    if not (tol > 0 and max_iter >= 1 and reg_covar > 0):
         raise ValueError("weighted_em needs tol > 0, max_iter >= 1 and reg_covar > 0")
-    w = np.asarray(weights, dtype=np.float64)
+    if not isinstance(initial, GaussianMixture):
+        raise TypeError(f"initial must be a GaussianMixture, got {type(initial).__name__}")
+    points = _real_array(points, "points")
+    if points.ndim != 2 or points.shape[0] != initial.dim or points.shape[1] == 0:
+        raise ValueError(f"points must have shape ({initial.dim}, N) with N >= 1, got {points.shape}")
+    if not np.all(np.isfinite(points)):
+        raise ValueError("points must be finite")
+    w = _real_array(weights, "weights")
+    if w.shape != (points.shape[1],):
+        raise ValueError(f"weights must have shape ({points.shape[1]},) (one per point), got {w.shape}")
+    if not (np.all(np.isfinite(w)) and w.min() >= 0 and w.sum() > 0):
+        raise ValueError("weights must be finite and non-negative with a positive sum")
     w = w / w.sum()
     d = points.shape[0]
     ridge = reg_covar * np.eye(d)
@@ -202,6 +291,8 @@ def merge_components(weights: np.ndarray, means: np.ndarray, covariances: np.nda
 
 def reduce_mixture(mixture: GaussianMixture, n_components: int) -> GaussianMixture:
     """Keep the n_components - 1 heaviest components; merge the others into one (moment matching)."""
+    if isinstance(n_components, (bool, np.bool_)) or not isinstance(n_components, (int, np.integer)) or n_components < 1:
+        raise ValueError(f"n_components must be an integer >= 1, got {n_components!r}")
     if mixture.n_components <= n_components:
         return mixture
     order = np.argsort(-mixture.weights)

@@ -191,3 +191,105 @@ def test_eval_outlives_its_binding():
     """)
     res = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
     assert res.returncode == 0 and res.stdout.strip() == "ok", res.stderr[-2000:]
+
+
+# ------------------------------------------------------------------ issue 9: batch outputs, complex, buffers
+def overflowing_batch(rov, rng, n=6, bad=(1, 4)):
+    """States whose step overflows at the columns `bad` (a surge speed of 1e200: quadratic damping)."""
+    X = REFERENCES["rov4dof"].sample_state(rng, n)
+    X[4, list(bad)] = 1e200
+    return X
+
+
+def test_batch_outputs_are_checked_like_single_calls(rov, rng):
+    X, u = overflowing_batch(rov, rng), np.array([20.0, 0.0, 5.0, 0.0])
+    with pytest.raises(FloatingPointError, match="output 'x_next' is not finite"):
+        rov.f(X[:, 1], u, None, 0.1)
+    with pytest.raises(FloatingPointError, match=r"f_batch: output 'x_next' is not finite in column\(s\) 1, 4 of 6"):
+        rov.f_batch(X, u, None, 0.1)
+    with pytest.raises(FloatingPointError, match=r"rov4dof_f batch: output 'x_next' is not finite in column\(s\) 1, 4 of 6"):
+        rov.functions["f"].batch(6, X, u, rov.params(), 0.1)
+    with pytest.raises(FloatingPointError, match=r"rov4dof_F batch: output .* column\(s\) 1, 4 of 6"):
+        rov.functions["F"].batch(6, X, u, rov.params(), 0.1)  # a matrix output: (12, 12, N)
+    good = np.delete(X, [1, 4], axis=1)
+    np.testing.assert_array_equal(rov.f_batch(good, u, None, 0.1)[:, 0], rov.f_batch(X[:, [0]], u, None, 0.1)[:, 0])
+
+
+def test_h_batch_output_check_names_columns(cn):
+    """cn2d's range Jacobian divides by the range: the leader's own position gives NaN in H."""
+    leader = np.array([3.0, 4.0])
+    X = np.array([[0.0, 3.0, 1.0], [0.0, 4.0, 1.0]])
+    with pytest.raises(FloatingPointError, match=r"output .* not finite in column\(s\) 1 of 3"):
+        cn.functions["H"].batch(3, X, leader)
+    with pytest.raises(FloatingPointError, match="not finite at the given arguments"):
+        cn.H(X[:, 1], leader)
+    np.testing.assert_allclose(cn.h_batch(X, leader), [[5.0, 0.0, np.hypot(2.0, 3.0)]])  # h itself is finite there
+
+
+def test_an_overflowing_sum_of_finite_outputs_is_not_an_error(rov):
+    """The check's fast path sums the outputs; a sum that overflows must fall back to the exact check."""
+    from abyssal.generated.bundle import _finite_columns
+
+    n = 1 << 15  # large enough for the summing fast path
+    huge = np.full((4, n), 1e308)
+    _finite_columns("test", [huge], rov.functions["h"].outputs, n)  # no error
+    huge[2, 3] = np.inf
+    huge[0, 7] = -np.inf  # inf - inf: the sum is NaN
+    with pytest.raises(FloatingPointError, match=rf"column\(s\) 3, 7 of {n}"):
+        _finite_columns("test", [huge], rov.functions["h"].outputs, n)
+
+
+@pytest.mark.parametrize("call", [
+    lambda b, x, u: b.f(x.astype(complex), u, None, 0.1),
+    lambda b, x, u: b.f(x, list(u + 0j), None, 0.1),
+    lambda b, x, u: b.f(x, u, b.params() + 0j, 0.1),
+    lambda b, x, u: b.f(x, u, None, np.complex128(0.1)),
+    lambda b, x, u: b.h(np.array(list(x + 1j), dtype=object)),
+    lambda b, x, u: b.xdot(x, u, None, np.zeros(b.n_w, dtype=complex)),
+    lambda b, x, u: b.f_batch(np.tile(x, (3, 1)).T.astype(complex), u, None, 0.1),
+    lambda b, x, u: b.f_batch(np.tile(x, (3, 1)).T, u.astype(np.complex64), None, 0.1),
+    lambda b, x, u: b.h_batch(np.tile(x, (3, 1)).T + 0j),
+    lambda b, x, u: b.functions["f"].batch(3, np.tile(x, (3, 1)).T + 0j, u, b.params(), 0.1),
+    lambda b, x, u: b.functions["h"](x.astype(np.complex64), b.params()),
+], ids=["f x", "f u list", "f p", "f dt", "h object", "xdot w", "f_batch X", "f_batch U", "h_batch", "fn.batch", "fn()"])
+def test_complex_arrays_are_refused(rov, rov_point, call):
+    import warnings
+
+    x, u = rov_point
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no ComplexWarning: refused before any cast
+        with pytest.raises(TypeError, match="complex|real"):
+            call(rov, x, u)
+
+
+def test_bind_batch_refuses_a_non_contiguous_shared_input(rov, rng):
+    """A private copy would never see later writes to the caller's array: refuse it like bind does."""
+    n = 4
+    X = np.asfortranarray(REFERENCES["rov4dof"].sample_state(rng, n))
+    strided_u = np.zeros(8)[::2]
+    with pytest.raises(ValueError, match="'u': buffer must be contiguous"):
+        rov.functions["f"].bind_batch([X, strided_u, rov.params(), np.array([0.1])], [np.zeros((12, n), order="F")],
+                                      capacity=n)
+    # a contiguous shared input is bound in place: writes are seen by the next evaluation
+    u, Y = np.zeros(4), np.zeros((12, n), order="F")
+    binding = rov.functions["f"].bind_batch([X, u, rov.params(), np.array([0.1])], [Y], capacity=n)
+    u[:] = [20.0, 0.0, 5.0, 0.0]
+    binding(n)
+    np.testing.assert_array_equal(Y[:, 0], rov.f(X[:, 0], u, None, 0.1))
+
+
+def test_read_only_outputs_are_refused_naming_the_output(rov):
+    f = rov.functions["f"]
+    ins = [np.zeros(12), np.zeros(4), rov.params(), np.array([0.1])]
+
+    def read_only(shape, order="C"):
+        arr = np.zeros(shape, order=order)
+        arr.setflags(write=False)
+        return arr
+
+    for bind in (lambda: f.bind(ins, [read_only(12)]),
+                 lambda: f.bind_batch([np.zeros((12, 3), order="F"), *ins[1:]], [read_only((12, 3), "F")], capacity=3),
+                 lambda: f.bind_soa([np.zeros((12, 3)), np.zeros((4, 3)), *ins[2:]], [read_only((12, 3))])):
+        with pytest.raises(ValueError, match="output 'x_next': buffer is read-only"):
+            bind()
+    f.bind(ins[:2] + [rov.p_default, ins[3]], [np.zeros(12)])()  # read-only inputs are fine

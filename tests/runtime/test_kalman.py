@@ -91,7 +91,7 @@ def test_measurements_slower_than_predictions(linear):
     Z = np.full_like(sc.Z, np.nan)
     Z[4::5] = sc.Z[4::5]  # one measurement every fifth prediction
     flt = CKF(linear, sc.x0, sc.P0, sc.Q, sc.R)
-    result = flt.run(sc.U, Z, sc.dt, P=sc.p)
+    result = flt.run(sc.U, Z, sc.dt, params=sc.p)
     assert np.all(np.isnan(result.nis[np.isnan(Z[:, 0])]))
     assert np.all(np.isfinite(result.nis[4::5])) and np.all(result.nis_dof[4::5] == 2)
     # between measurements the covariance only grows
@@ -233,7 +233,8 @@ def test_a_diverging_filter_raises_and_keeps_its_state(rov):
 
 @pytest.mark.parametrize("cls, option", [(MCUKF, {"sigma": 2.0}), (HuberUKF, {"gamma": 1.345})])
 def test_robust_updates_down_weight_an_outlier(rov, cls, option):
-    plain, robust = rov_filter(rov, UKF), rov_filter(rov, cls, **option)
+    # gate off: this compares the robust update with the plain one on the same outlier
+    plain, robust = rov_filter(rov, UKF, gate_probability=0), rov_filter(rov, cls, gate_probability=0, **option)
     for f in (plain, robust):
         f.predict(TAU, 0.1)
     z = rov.h(plain.x)
@@ -246,7 +247,8 @@ def test_robust_updates_down_weight_an_outlier(rov, cls, option):
 
 @pytest.mark.parametrize("cls, option", [(MCUKF, {"sigma": 1e9}), (HuberUKF, {"gamma": 1e9})])
 def test_robust_updates_tend_to_the_plain_update(rov, cls, option):
-    plain, robust = rov_filter(rov, UKF), rov_filter(rov, cls, **option)
+    # gate off: this compares the robust update with the plain one on the same outlier
+    plain, robust = rov_filter(rov, UKF, gate_probability=0), rov_filter(rov, cls, gate_probability=0, **option)
     z = np.array([0.7, 0.3, 0.6, 0.4])
     for f in (plain, robust):
         f.step(TAU, 0.1, z)
@@ -258,3 +260,91 @@ def test_example_script_runs():
     out = subprocess.run([sys.executable, str(ROOT / "examples" / "ckf_rov4dof.py")], capture_output=True, text=True,
                          timeout=120, check=True)
     assert "RMSE" in out.stdout
+
+
+# ------------------------------------------------------------------ reliability (issue 9)
+
+
+def _rov_track(rov, steps, seed=0, Q=1e-3, R=(0.1, 0.1, 0.05, 0.01)):
+    """A consistent simulated track: truth with additive N(0, Q I) process noise, z with N(0, R)."""
+    from abyssal.runtime.numerics import simulate_truth
+
+    U = np.tile(TAU, (steps, 1)) * np.sin(np.arange(steps) / 50.0)[:, None]
+    X, Z = simulate_truth(rov, np.full(rov.n_x, 0.5), U, 0.1, Q * np.eye(rov.n_x), np.diag(R), seed)
+    return U, X, Z
+
+
+@pytest.mark.parametrize("cls", [EKF, CKF, UKF])
+@pytest.mark.parametrize("size", [1e4, 1e6])
+def test_a_gross_outlier_is_gated_and_never_poisons(rov, cls, size):
+    U, X, Z = _rov_track(rov, 300)
+    Z[150, :3] += size
+    flt = cls(rov, np.full(rov.n_x, 0.5), 0.2 * np.eye(rov.n_x), 1e-3 * np.eye(rov.n_x), np.diag([0.1, 0.1, 0.05, 0.01]))
+    result = flt.run(U, Z, 0.1, truth=X)
+    assert flt.gated == 3 and result.nis_dof[150] == 1  # the three outlying entries out, psi kept
+    assert np.all(np.isfinite(result.x))
+    assert np.abs(result.x[-1, :3] - X[-1, :3]).max() < 1.0
+
+
+def test_the_gate_never_fires_on_consistent_measurements(linear):
+    # 2 x 10^4 consistent steps: at the default tail probability 1e-10 a false gate has probability 2e-6 here
+    sc = verify_filters.scenario(linear, steps=20_000, seed=5)
+    flt = EKF(linear, sc.x0, sc.P0, sc.Q, sc.R)
+    result = flt.run(sc.U, sc.Z, sc.dt, params=sc.p)
+    assert flt.gated == 0 and np.all(result.nis_dof == linear.n_y)
+    assert 0.9 < np.mean(result.nis) / linear.n_y < 1.1  # and the filter is consistent
+
+
+def test_repeated_gating_inflates_the_covariance_until_the_filter_follows(rov):
+    U, X, Z = _rov_track(rov, 200)
+    Z[100:, 0] += 25.0  # the position fix jumps for good (a filter that cannot follow, not one outlier)
+    flt = CKF(rov, np.full(rov.n_x, 0.5), 0.2 * np.eye(rov.n_x), 1e-3 * np.eye(rov.n_x), np.diag([0.1, 0.1, 0.05, 0.01]))
+    result = flt.run(U, Z, 0.1)
+    assert flt.inflations >= 1
+    assert abs(result.x[-1, 0] - (X[-1, 0] + 25.0)) < 1.0  # re-acquired the jumped fix
+    assert flt.gated < 100
+
+
+def test_a_refused_update_leaves_its_reports(rov):
+    flt = rov_filter(rov)
+    flt.step(TAU, 0.1, np.array([0.5, 0.5, 0.5, 0.5]))
+    flt.predict(TAU, 0.1)  # the next update writes into the buffers of the reported innovation
+    innovation, S, nis, counters = flt.innovation, flt.S, flt.nis, (flt.gated, flt.repairs)
+    with pytest.raises(ValueError, match="use NaN"):
+        flt.update(np.array([np.inf, 0.0, 0.0, 0.0]))
+    np.testing.assert_array_equal(flt.innovation, innovation)
+    np.testing.assert_array_equal(flt.S, S)
+    assert flt.nis == nis and (flt.gated, flt.repairs) == counters
+
+
+@pytest.mark.parametrize("cls", [CKF, UKF])
+def test_dt_beyond_the_stable_range_is_subdivided(rov, cls):
+    flt = rov_filter(rov, cls)
+    flt.step(TAU, 0.1, np.array([0.5, 0.5, 0.5, 0.5]))
+    flt.step(TAU, 5.0, np.array([0.5, 0.5, 0.5, 0.5]))  # one RK4 step of 5 s blows up at this covariance
+    assert flt.substeps == 1 and np.all(np.isfinite(flt.P)) and np.abs(flt.P).max() < 1e3
+    for _ in range(20):
+        flt.step(TAU, 0.1, np.array([0.5, 0.5, 0.5, 0.5]))
+    assert np.all(np.isfinite(flt.x))
+
+
+def test_a_filter_used_from_two_threads_at_once_raises(rov):
+    flt = rov_filter(rov)
+    x, P = flt.x, flt.P
+    flt._lock.acquire()  # another thread is inside a call
+    try:
+        with pytest.raises(RuntimeError, match="two threads"):
+            flt.step(TAU, 0.1, np.array([0.5, 0.5, 0.5, 0.5]))
+    finally:
+        flt._lock.release()
+    np.testing.assert_array_equal(flt.x, x)
+    np.testing.assert_array_equal(flt.P, P)
+
+
+def test_huge_finite_covariances_are_validated_without_overflow(rov):
+    n = rov.n_x
+    CKF(rov, np.zeros(n), 1e307 * np.eye(n), 1e307 * np.eye(n), 1e307 * np.eye(4))
+    with pytest.raises(ValueError, match="P0 must be positive semi-definite"):
+        CKF(rov, np.zeros(n), -1e308 * np.eye(n), np.eye(n), np.eye(4))
+    with pytest.raises(TypeError, match="P0"):
+        CKF(rov, np.zeros(n), np.eye(n) + 0j, np.eye(n), np.eye(4))

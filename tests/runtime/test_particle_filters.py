@@ -48,8 +48,8 @@ def _kalman(A, B, Q, R, x0, P0, us, zs):
 
 def _run(filt, us, zs):
     for u, z in zip(us, zs):
-        filt.step(u, z, DT)
-    return filt.estimate, filt.covariance
+        filt.step(u, DT, z)
+    return filt.x, filt.P
 
 
 def test_pf_converges_to_kalman_filter_as_n_grows(linear):
@@ -72,15 +72,17 @@ def test_cubature_and_mixture_filters_match_kalman_filter_on_a_linear_model(line
     A, B, Q, R, x0, P0, us, zs = _linear_problem(np.random.default_rng(1))
     x_kf, P_kf = _kalman(A, B, Q, R, x0, P0, us, zs)
     noise_q, noise_r = GaussianMixture.gaussian(np.zeros(4), Q), GaussianMixture.gaussian(np.zeros(2), R)
-    ckf = _run(pf.CubatureKalmanFilter(linear, x0, P0, noise_q, noise_r), us, zs)
-    assert np.allclose(ckf[0], x_kf, atol=1e-9) and np.allclose(ckf[1], P_kf, atol=1e-9)
     gs = _run(mix.GaussianSumCKF(linear, x0, P0, noise_q, noise_r, n_components=1), us, zs)
     assert np.allclose(gs[0], x_kf, atol=1e-9) and np.allclose(gs[1], P_kf, atol=1e-9)
     L = np.linalg.cholesky(P_kf)
-    # CPF's per-particle proposal N(x^i_k|k, P^i_k|k) is much wider than p(x_k|x_k-1) here, so its weights
+    # CPF's carried proposal N(x^i_k|k, P^i_k|k) is much wider than p(x_k|x_k-1) here, so its weights
     # degenerate (ESS ~ 1 per step): it stays consistent but needs a looser bound at this N.
     cpf = _run(pf.CubatureParticleFilter(linear, x0, P0, noise_q, noise_r, 2000, np.random.default_rng(2)), us, zs)
     assert np.linalg.norm(np.linalg.solve(L, cpf[0] - x_kf)) < 2.0
+    # the locally optimal proposal is exact for this linear model: the weights are the predictive likelihoods
+    opt = _run(pf.CubatureParticleFilter(linear, x0, P0, noise_q, noise_r, 2000, np.random.default_rng(2),
+                                         proposal="optimal"), us, zs)
+    assert np.linalg.norm(np.linalg.solve(L, opt[0] - x_kf)) < 0.5
     for filt in (mix.EMMixtureCubatureParticleFilter(linear, x0, P0, noise_q, noise_r, 2000, np.random.default_rng(3),
                                                     n_components=1),
                  mix.MixtureCubatureParticleFilter(linear, x0, P0, noise_q, noise_r, 2000, np.random.default_rng(4),
@@ -100,14 +102,14 @@ def test_every_filter_stays_finite_over_ten_thousand_steps(rov):
     sea = SEA_STATES["3"]
     truth = simulate(rov, scenario, sea, np.random.default_rng(5))
     assert truth.states.shape[0] == 10_000
-    for i, name in enumerate(("PF", "CKF", "CPF", "MOGCPF", "EM-MOGCPF", "GS-CKF")):
+    for i, name in enumerate(("PF", "CKF", "CPF", "CPF-optimal", "MOGCPF", "EM-MOGCPF", "GS-CKF")):
         filt = make_filter(name, rov, scenario, sea, 24, np.random.default_rng(i))
         result = run_filter(filt, truth, scenario.dt)
         assert np.all(np.isfinite(result.estimates)), name
         assert np.all(np.isfinite(result.covariances)), name
 
 
-@pytest.mark.parametrize("name", ["PF", "CPF", "MOGCPF", "EM-MOGCPF", "GS-CKF", "CKF"])
+@pytest.mark.parametrize("name", ["PF", "CPF", "CPF-optimal", "MOGCPF", "EM-MOGCPF", "GS-CKF", "CKF"])
 def test_outlier_beyond_every_particle_recovers_without_nan(rov, name):
     scenario = RovScenario(duration=30.0)
     sea = SEA_STATES["0"]
@@ -119,13 +121,13 @@ def test_outlier_beyond_every_particle_recovers_without_nan(rov, name):
             z = truth.measurements[k]
             if outlier and k == 100:
                 z = z + np.array([1e6, -1e6, 1e6, 0.0])  # every likelihood underflows to zero
-            filt.step(truth.inputs[k], z, scenario.dt)
-            assert np.all(np.isfinite(filt.estimate)) and np.all(np.isfinite(filt.covariance)), (name, k)
-        final_errors.append(np.sqrt(np.mean((filt.estimate[:3] - truth.states[-1, :3]) ** 2)))
+            filt.step(truth.inputs[k], scenario.dt, z)
+            assert np.all(np.isfinite(filt.x)) and np.all(np.isfinite(filt.P)), (name, k)
+        final_errors.append(np.sqrt(np.mean((filt.x[:3] - truth.states[-1, :3]) ** 2)))
     assert final_errors[1] < 2 * final_errors[0] + 1.0, (name, final_errors)
 
 
-@pytest.mark.parametrize("name", ["PF", "CPF", "MOGCPF", "EM-MOGCPF"])
+@pytest.mark.parametrize("name", ["PF", "CPF", "CPF-optimal", "MOGCPF", "EM-MOGCPF"])
 def test_run_is_reproducible_from_its_seed(rov, name):
     scenario = RovScenario(duration=5.0)
     sea = SEA_STATES["1-2"]
@@ -141,9 +143,57 @@ def test_resampling_every_step_keeps_uniform_weights(rov):
     scenario = RovScenario(duration=2.0)
     sea = SEA_STATES["0"]
     truth = simulate(rov, scenario, sea, np.random.default_rng(1))
-    Q, R = scenario.process_noise(rov), sea.measurement_noise()
+    Q, R = scenario.process_covariance(rov), sea.measurement_noise()
     filt = pf.ParticleFilter(rov, np.zeros(12), scenario.P0, Q, R, 50, np.random.default_rng(2),
                              policy=ResamplingPolicy("residual", threshold=1.0))
     for k in range(truth.states.shape[0]):
-        filt.step(truth.inputs[k], truth.measurements[k], scenario.dt)
+        filt.step(truth.inputs[k], scenario.dt, truth.measurements[k])
         assert np.allclose(filt.log_weights, -np.log(50))
+
+
+@pytest.mark.parametrize("sea_name", list(SEA_STATES))
+def test_locally_optimal_cpf_keeps_its_particles_in_every_sea_state(rov, sea_name):
+    # issue 10: the carried-P^i CPF collapses (ESS ~ 1); the locally optimal proposal must keep ESS > N/10
+    scenario = RovScenario(duration=20.0)  # the default (plain) reading: Q singular on the pose
+    sea = SEA_STATES[sea_name]
+    truth = simulate(rov, scenario, sea, np.random.default_rng(3))
+    result = run_filter(make_filter("CPF-optimal", rov, scenario, sea, 100, np.random.default_rng(4)), truth, scenario.dt)
+    assert np.mean(result.ess) > 100 / 10
+    assert np.all(np.isfinite(result.estimates))
+
+
+def test_singular_process_noise_moves_particles_only_on_its_subspace(linear):
+    # Q zero on the positions: p(x_k | x_k-1) is degenerate there, and the position of every particle must be
+    # exactly f(x_k-1) (no floor, no leak), for the bootstrap and both cubature proposals
+    Q = np.diag([0.0, 0.0, 0.05, 0.05])
+    noise_r = GaussianMixture.gaussian(np.zeros(2), np.diag([0.5, 0.8]))
+    never = ResamplingPolicy(threshold=0.0)
+    for make in (lambda: pf.ParticleFilter(linear, np.zeros(4), np.eye(4), Q, noise_r, 50, 1, policy=never),
+                 lambda: pf.CubatureParticleFilter(linear, np.zeros(4), np.eye(4), Q, noise_r, 50, 1, policy=never),
+                 lambda: pf.CubatureParticleFilter(linear, np.zeros(4), np.eye(4), Q, noise_r, 50, 1, policy=never,
+                                                   proposal="optimal")):
+        filt = make()
+        before = filt.particles.copy()
+        expected = linear.f_batch(before, np.array([0.1, 0.2]), None, DT)
+        filt.step(np.array([0.1, 0.2]), DT, np.array([0.3, -0.2]))
+        assert filt.resamples == 0
+        np.testing.assert_allclose(filt.particles[:2], expected[:2], rtol=0, atol=1e-12)
+        assert not np.allclose(filt.particles[2:], expected[2:])  # the velocities did get noise
+        assert np.isfinite(filt.ess) and filt.ess > 1
+
+
+def test_dt_beyond_the_stable_range_is_subdivided_or_refused(rov):
+    # one RK4 step of 5 s from these particles overflows; step doubling finds the substeps, and 50 s is refused
+    R = GaussianMixture.gaussian(np.zeros(4), np.diag([0.3, 0.2, 0.3, 0.05]))
+    Q = np.diag([0, 0, 0, 0, 3, 4, 5, 0.02, 2, 2, 2, 0.5])
+    for filt in (pf.ParticleFilter(rov, np.zeros(12), 0.3 * np.eye(12), Q, R, 100, 1),
+                 pf.CubatureParticleFilter(rov, np.zeros(12), 0.3 * np.eye(12), Q, R, 100, 1, proposal="optimal")):
+        filt.step(np.zeros(4), 5.0, np.zeros(4))
+        assert filt.pieces(np.zeros(4), 5.0) > 1 and np.abs(filt.x).max() < 100
+        x = filt.x
+        with pytest.raises(ValueError, match="dt = 50.0 s is beyond"):
+            filt.step(np.zeros(4), 50.0, np.zeros(4))
+        np.testing.assert_array_equal(filt.x, x)
+    carried = pf.CubatureParticleFilter(rov, np.zeros(12), 0.3 * np.eye(12), Q, R, 100, 1)
+    with pytest.raises(ValueError, match="cannot be subdivided"):
+        carried.step(np.zeros(4), 5.0, np.zeros(4))

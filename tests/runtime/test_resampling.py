@@ -64,3 +64,75 @@ def test_policy_thresholds():
     assert ResamplingPolicy(threshold=1.0).should_resample(uniform)  # every step
     with pytest.raises(ValueError):
         ResamplingPolicy(scheme="bogus")
+
+
+# ---------------------------------------------------------------- input checks (issue 9, item 6)
+
+BAD_WEIGHTS = {
+    "all zero": np.zeros(4),  # was: every ancestor the last particle
+    "NaN": np.array([0.5, np.nan, 0.25, 0.25]),
+    "negative": np.array([0.6, -0.1, 0.25, 0.25]),
+    "inf": np.array([np.inf, 0.0, 0.0, 0.0]),
+    "unnormalised": np.array([1.0, 2.0, 3.0, 4.0]),
+    "slightly unnormalised": np.array([0.25, 0.25, 0.25, 0.25 + 1e-6]),
+    "empty": np.zeros(0),
+    "2-D": np.full((2, 2), 0.25),
+}
+
+
+@pytest.mark.parametrize("scheme", sorted(RESAMPLERS))
+@pytest.mark.parametrize("case", sorted(BAD_WEIGHTS))
+def test_resamplers_refuse_bad_weights_naming_them(scheme, case):
+    with pytest.raises(ValueError, match="weights"):
+        RESAMPLERS[scheme](BAD_WEIGHTS[case], np.random.default_rng(0))
+
+
+@pytest.mark.parametrize("scheme", sorted(RESAMPLERS))
+def test_resamplers_refuse_complex_weights_and_bad_rng_or_draws(scheme):
+    with pytest.raises(TypeError, match="weights"):
+        RESAMPLERS[scheme](np.full(4, 0.25 + 0j), np.random.default_rng(0))
+    with pytest.raises(TypeError, match="rng"):
+        RESAMPLERS[scheme](np.full(4, 0.25), 42)
+    with pytest.raises(TypeError, match="n_draws"):
+        RESAMPLERS[scheme](np.full(4, 0.25), np.random.default_rng(0), 2.5)
+    with pytest.raises(ValueError, match="n_draws"):
+        RESAMPLERS[scheme](np.full(4, 0.25), np.random.default_rng(0), -1)
+    assert RESAMPLERS[scheme](np.full(4, 0.25), np.random.default_rng(0), 0).shape == (0,)
+
+
+@pytest.mark.parametrize("scheme", sorted(RESAMPLERS))
+def test_normalisation_round_off_is_absorbed_and_zero_weights_never_drawn(scheme):
+    # a sum 1e-12 short of one with a zero-weight last particle: inside the tolerance, never drawn
+    w = np.array([0.5, 0.5 - 1e-12, 0.0])
+    counts = np.zeros(3)
+    rng = np.random.default_rng(5)
+    for _ in range(200):
+        counts += np.bincount(RESAMPLERS[scheme](w, rng), minlength=3)
+    assert counts[2] == 0 and counts.sum() == 600
+
+
+def test_normalise_log_weights_refuses_nan_and_plus_inf():
+    # was: [0, nan, -50] gave uniform weights
+    for bad in ([0.0, np.nan, -50.0], [0.0, np.inf, -50.0], [np.nan, np.nan]):
+        with pytest.raises(ValueError, match="log_weights"):
+            normalise_log_weights(np.array(bad))
+    with pytest.raises(ValueError, match="log_weights"):
+        normalise_log_weights(np.zeros(0))
+    with pytest.raises(TypeError, match="log_weights"):
+        normalise_log_weights(np.zeros(3, dtype=complex))
+
+
+def test_normalise_log_weights_with_some_minus_inf():
+    w, log_mean = normalise_log_weights(np.array([0.0, -np.inf, 0.0, -np.inf]))
+    assert w.tolist() == [0.5, 0.0, 0.5, 0.0] and np.isclose(log_mean, np.log(0.5))
+
+
+def test_effective_sample_size_and_policy_check_weights():
+    with pytest.raises(ValueError, match="weights"):
+        effective_sample_size(np.array([0.5, np.nan, 0.5]))
+    with pytest.raises(ValueError, match="weights"):
+        ResamplingPolicy().should_resample(np.zeros(3))
+    with pytest.raises(ValueError, match="threshold"):
+        ResamplingPolicy(threshold=float("nan"))
+    with pytest.raises(TypeError, match="threshold"):
+        ResamplingPolicy(threshold=1j)

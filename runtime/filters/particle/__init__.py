@@ -1,4 +1,11 @@
-"""Particle filters on batched generated C (see sir.py)."""
-from .sir import CubatureKalmanFilter, CubatureParticleFilter, ParticleFilter, informative, measurement_residuals
+"""Particle filters: one SIR engine (engine.py) with pluggable proposals (proposals.py); PF, CPF (sir.py);
+UPF / HRUPF / MCUPF (unscented.py, seed 002); the terrain-aided SIR with fuzzy process noise (terrain.py, seed 003)."""
+from .engine import BootstrapProposal, Proposal, SIRFilter, informative, measurement_residuals
+from .proposals import CarriedCubatureProposal, OptimalCubatureProposal
+from .sir import CubatureParticleFilter, ParticleFilter
+from .terrain import TerrainParticleFilter
+from .unscented import UnscentedParticleFilter
 
-__all__ = ["CubatureKalmanFilter", "CubatureParticleFilter", "ParticleFilter", "informative", "measurement_residuals"]
+__all__ = ["BootstrapProposal", "CarriedCubatureProposal", "CubatureParticleFilter", "OptimalCubatureProposal",
+           "ParticleFilter", "Proposal", "SIRFilter", "TerrainParticleFilter", "UnscentedParticleFilter", "informative",
+           "measurement_residuals"]

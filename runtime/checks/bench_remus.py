@@ -1,0 +1,75 @@
+"""Bench section (seed 004): ideal UKF and GP-UKF step times on the REMUS 100 helix, GP training time,
+the GP-UKF predict's generated C size, generation and compile time, at a few training sizes N.
+
+Per N: fit the 12 GPs on run 1 (timed), generate the GP-UKF predict C (size, seconds) and compile it
+in a fresh cache folder (so the compile is really timed), then time one predict + update of each
+filter on run 2 (median of repeated loops). Targets (issue 13): generated file <= 2 MB, compile <= 60 s.
+"""
+from __future__ import annotations
+
+import os
+import tempfile
+
+import numpy as np
+
+from .bench import median_time, target
+
+TRAINING_SIZES = (50, 100, 200)
+QUICK_SIZES = (50,)
+
+
+def run(quick: bool = False, verbose: bool = True) -> dict:
+    from abyssal.generated import load
+
+    from ..experiments.remus import experiment, gp_codegen, gp_model, truth
+    from ..filters.kalman import UKF
+    from ..filters.kalman.gp_ukf import GPUKF
+
+    bundle = load("remus100")
+    duration = 300.0 if quick else 800.0
+    setup = truth.HelixSetup(duration=duration)
+    training, evaluation = truth.simulate(1, setup, bundle), truth.simulate(2, setup, bundle)
+    repeat, min_time = (3, 0.02) if quick else (7, 0.1)
+    P0 = np.diag(experiment.P0_DIAG)
+    Q = experiment.ukf_process_noise(training, bundle)
+
+    def timed_step(filt):
+        k = [1]
+
+        def step():
+            i = k[0]
+            filt.predict(evaluation.u[i - 1], 0.2)
+            filt.update(evaluation.z[i])
+            k[0] = i + 1 if i + 1 < len(evaluation.t) else 1
+        return step
+
+    ukf = UKF(bundle, evaluation.x[0], P0, Q, truth.SENSOR_R)
+    results = {"ukf_step_ms": 1e3 * median_time(timed_step(ukf), repeat=repeat, min_time=min_time), "gp": {}}
+    if verbose:
+        print(f"  ideal UKF (remus100, 2 RK4 substeps)  {results['ukf_step_ms']:8.3f} ms/step", flush=True)
+    previous_cache = os.environ.get("ABYSSAL_CACHE_DIR")
+    for n in QUICK_SIZES if quick else TRAINING_SIZES:
+        gpm = gp_model.fit(training, n_train=n)
+        with tempfile.TemporaryDirectory() as tmp:
+            os.environ["ABYSSAL_CACHE_DIR"] = os.path.join(tmp, "cache")  # a cold compile, timed
+            try:
+                compiled = gp_codegen.build_predict(gpm, tmp, name=f"remus_gpukf_bench_n{n}")
+                gpukf = GPUKF(bundle, compiled.library, compiled.name, evaluation.x[0], P0, truth.SENSOR_R, gp_dt=0.2)
+                step_ms = 1e3 * median_time(timed_step(gpukf), repeat=repeat, min_time=min_time)
+            finally:
+                if previous_cache is None:
+                    os.environ.pop("ABYSSAL_CACHE_DIR", None)
+                else:
+                    os.environ["ABYSSAL_CACHE_DIR"] = previous_cache
+        row = {"train_s": gpm.train_seconds, "c_bytes": compiled.c_bytes, "generate_s": compiled.generate_seconds,
+               "compile_s": compiled.compile_seconds, "gpukf_step_ms": step_ms}
+        results["gp"][f"N={n}"] = row
+        if verbose:
+            print(f"  GP-UKF N = {n:4d}: train {row['train_s']:6.1f} s, C {row['c_bytes'] / 1e6:5.2f} MB, "
+                  f"generate {row['generate_s']:4.1f} s, compile {row['compile_s']:5.1f} s, "
+                  f"step {step_ms:7.3f} ms ({step_ms / results['ukf_step_ms']:.0f}x the UKF)", flush=True)
+    targets = []
+    for key, row in results["gp"].items():
+        targets.append(target(f"GP-UKF predict C size, {key}", row["c_bytes"] / 1e6, 2.0, "MB"))
+        targets.append(target(f"GP-UKF predict compile, {key}", row["compile_s"], 60.0, "s"))
+    return {"results": results, "targets": targets}

@@ -1,0 +1,419 @@
+"""The one filter contract: what every filter of abyssal does, present and future.
+
+    filt.step(u, dt, z=None, p=None) -> bool   # predict, then update where z has finite entries
+    filt.predict(u, dt, p=None)
+    filt.update(z, p=None) -> bool            # False (nothing changed) when z is None or all NaN
+    filt.x, filt.P                            # (n,), (n, n) copies
+    filt.run(U, Z, dt, params=None, truth=None) -> FilterResult
+
+Shapes: u (n_u,), z (n_y,), p (n_p,) or None (the model's defaults), x0 (n_x,), P0 (n_x, n_x);
+U (T, n_u), Z (T, n_y) or None, params None / (n_p,) / (T, n_p), dt a number or (T,), truth
+(T, n_x). One shape per argument; anything else is refused.
+
+Input rules (the ``check_*`` helpers below; every filter uses them, none re-implements them):
+
+* p may change every step (a leader's position per ping): each call uses the p it is given;
+  p=None means the model's defaults.
+* NaN entries of z are left out entry by entry (a Kalman update uses the present rows; a
+  particle likelihood uses the present entries only); an all-NaN z is no measurement.
+  inf is refused: "use NaN for a missing entry".
+* dt must be a positive finite number; u, p, x0 must be finite; covariances finite, symmetric
+  and positive semi-definite (validation never overflows on huge finite entries).
+* Complex arrays are refused with TypeError (never silently truncated to real).
+* N (particles, components) is an int >= 1; ``rng`` is an int seed, a ``SeedSequence`` or a
+  ``numpy.random.Generator`` (``as_generator``), anything else is a TypeError.
+* A refusal is a ValueError/TypeError naming the argument, and leaves the filter bit-identical:
+  its state (x, P, particles, weights, random generator) and what it reports (innovation, S,
+  NIS, ESS, counters).
+
+Reporting attributes every filter has (read by ``run``): ``nis`` (float, NaN when the last
+accepted update is undefined or there was none), ``nis_dof`` (int), ``ess`` (float; NaN for
+Kalman filters) and ``n_particles`` (float; NaN for Kalman filters). ``checkpoint()`` returns an
+opaque copy of the whole state and reports; ``restore(checkpoint)`` puts it back.
+
+``run`` is all-or-nothing: when row k is refused, the filter is restored to its state before
+``run`` and the error (same type) names the row; the cause is chained (``__cause__``).
+
+Threads: a filter object is not shared between threads. Every filter detects concurrent use
+and raises RuntimeError instead of silently losing updates: each public call takes the filter's
+lock without blocking (``ConcurrencyGuard``, or the same ``Lock.acquire(False)`` inline on the
+Kalman hot path, ~0.2 us per call); the losing call did nothing. Different filters on one model
+bundle are independent.
+
+A new filter class registers itself with ``@register(kind)`` (kind: "kalman", "particle",
+"mixture", "gaussian-sum"; see ``register``) so the contract test (tests/runtime/test_contract.py)
+runs every rule against it the day it is added; ``registered_filters()`` lists them (importing
+every module under runtime/filters). A filter whose constructor fits no kind gives itself a
+``contract_example(model, seed)`` classmethod returning an instance.
+"""
+from __future__ import annotations
+
+import math
+import numbers
+import threading
+import time
+from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from .numerics import angle_indices, wrap_angles
+
+__all__ = [
+    "ConcurrencyGuard", "Filter", "FilterBase", "FilterResult", "as_generator", "check_count", "check_covariance",
+    "check_dt", "check_p", "check_state", "check_u", "check_z", "real_array", "register", "registered_filters",
+    "run_filter",
+]
+
+SYMMETRY_TOLERANCE = 1e-9  # relative: |A - A^T| <= tol * max|A|
+
+
+# ---------------------------------------------------------------------------------------------
+# the protocol
+
+
+@runtime_checkable
+class Filter(Protocol):
+    """What every filter provides (see the module docstring)."""
+
+    model: object
+    nis: float
+    nis_dof: int
+    ess: float
+    n_particles: float
+
+    @property
+    def x(self) -> np.ndarray: ...
+
+    @property
+    def P(self) -> np.ndarray: ...
+
+    def predict(self, u, dt, p=None) -> None: ...
+
+    def update(self, z, p=None) -> bool: ...
+
+    def step(self, u, dt, z=None, p=None) -> bool: ...
+
+    def run(self, U, Z, dt, params=None, truth=None) -> "FilterResult": ...
+
+    def checkpoint(self) -> object: ...
+
+    def restore(self, checkpoint) -> None: ...
+
+
+@dataclass(frozen=True)
+class FilterResult:
+    """Output of ``run`` over T steps (step k: predict with U[k], then update with Z[k])."""
+
+    x: np.ndarray                   # (T, n_x) estimates after step k
+    P: np.ndarray                   # (T, n_x, n_x) covariances after step k
+    nis: np.ndarray                 # (T,) normalised innovation squared, NaN where no update or undefined
+    nis_dof: np.ndarray             # (T,) measurement entries used (chi-square degrees of freedom), 0: none
+    nees: np.ndarray | None = None  # (T,) normalised estimation error squared, when truth is given
+    ess: np.ndarray | None = None   # (T,) effective sample size after the step (NaN for Kalman filters)
+    particles: np.ndarray | None = None  # (T,) particle count (NaN for Kalman filters)
+    step_time: np.ndarray | None = None  # (T,) wall-clock seconds of each step
+
+    def rmse(self, truth: np.ndarray, angle_states=()) -> np.ndarray:
+        """Root-mean-square error per state against truth (T, n_x); angle states wrapped."""
+        error = wrap_angles(np.asarray(truth) - self.x, angle_states)
+        return np.sqrt(np.mean(error**2, axis=0))
+
+
+# ---------------------------------------------------------------------------------------------
+# registry
+
+
+_REGISTRY: dict[type, str] = {}
+KINDS = ("kalman", "particle", "mixture", "gaussian-sum")
+
+
+def register(kind: str):
+    """Class decorator: put a filter class under the contract test. kind says how it is built:
+    "kalman" (model, x0, P0, Q, R), "particle" / "mixture" (model, x0, P0, process_noise,
+    measurement_noise, n_particles, rng) with GaussianMixture noises, "gaussian-sum" (model, x0,
+    P0, process_noise, measurement_noise, n_components=2, rng=seed)."""
+    if kind not in KINDS:
+        raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
+
+    def decorate(cls):
+        _REGISTRY[cls] = kind
+        cls.contract_kind = kind
+        return cls
+
+    return decorate
+
+
+def registered_filters() -> dict[type, str]:
+    """Every registered filter class and its kind. Imports every module under runtime/filters first,
+    so a filter module nobody imports yet is covered too (an import error there is raised here)."""
+    import importlib
+    import pkgutil
+
+    from . import filters
+
+    for module in pkgutil.walk_packages(filters.__path__, filters.__name__ + "."):
+        importlib.import_module(module.name)
+    return dict(_REGISTRY)
+
+
+# ---------------------------------------------------------------------------------------------
+# input checks (each names its argument)
+
+
+def real_array(value, name: str) -> np.ndarray:
+    """value as a float64 array; TypeError for complex, object, string or missing values."""
+    if value is None:
+        raise TypeError(f"{name} is required (got None)")
+    arr = value if isinstance(value, np.ndarray) else np.asarray(value)
+    if arr.dtype.kind not in "fiub":
+        kind = "complex" if arr.dtype.kind == "c" else str(arr.dtype)
+        raise TypeError(f"{name} must be an array of real numbers, got {kind}")
+    return arr.astype(np.float64, copy=False)
+
+
+def _vector(value, n: int, name: str) -> np.ndarray:
+    v = real_array(value, name)
+    if v.shape != (n,):
+        raise ValueError(f"{name} must have shape ({n},), got {v.shape}")
+    return v
+
+
+def _nonfinite_message(name: str, v: np.ndarray) -> str:
+    bad = np.flatnonzero(~np.isfinite(v.reshape(-1)))
+    return f"{name} has non-finite entries at {bad.tolist()[:8]} (values {v.reshape(-1)[bad[:8]].tolist()})"
+
+
+def check_state(value, n: int, name: str = "x0") -> np.ndarray:
+    """A finite (n,) float64 vector (a copy)."""
+    if type(value) is np.ndarray and value.dtype == np.float64 and value.shape == (n,) and np.isfinite(value).all():
+        return value.copy()  # the hot path
+    v = _vector(value, n, name)
+    if not np.all(np.isfinite(v)):
+        raise ValueError(_nonfinite_message(name, v))
+    return np.array(v)
+
+
+def check_u(u, n_u: int) -> np.ndarray:
+    """The input u: finite, shape (n_u,)."""
+    return check_state(u, n_u, "u")
+
+
+def check_dt(dt) -> float:
+    """dt: a positive finite real number of seconds."""
+    if type(dt) is float and 0.0 < dt < math.inf:
+        return dt
+    if isinstance(dt, np.ndarray) and dt.shape == ():
+        dt = dt.item()
+    if isinstance(dt, (bool, np.bool_)) or not isinstance(dt, numbers.Real):
+        raise TypeError(f"dt must be a real number of seconds, got {type(dt).__name__}")
+    dt = float(dt)
+    if not 0.0 < dt < math.inf:
+        raise ValueError(f"dt must be a positive finite number of seconds, got {dt!r}")
+    return dt
+
+
+def check_p(p, model) -> np.ndarray | None:
+    """p: None (the model's defaults) or a finite (n_p,) vector (a copy)."""
+    if p is None:
+        return None
+    return check_state(p, model.n_p, "p")
+
+
+def check_z(z, n_y: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """(z with missing entries set to 0, present (n_y,) bool) or None when z is None or all NaN.
+
+    inf is refused: a missing entry is NaN.
+    """
+    if z is None:
+        return None
+    if type(z) is np.ndarray and z.dtype == np.float64 and z.shape == (n_y,):
+        present = np.isfinite(z)
+        if present.all():
+            return z.copy(), present
+    v = _vector(z, n_y, "z")
+    present = np.isfinite(v)
+    if present.all():
+        return np.array(v), present
+    if np.isinf(v).any():
+        raise ValueError(f"z has infinite entries at {np.flatnonzero(np.isinf(v)).tolist()}; use NaN for a missing entry")
+    if not present.any():
+        return None
+    return np.where(present, v, 0.0), present
+
+
+def check_covariance(value, n: int, name: str, *, definite: bool = False) -> np.ndarray:
+    """A finite, symmetric, positive (semi-)definite (n, n) matrix (Fortran-ordered copy).
+
+    The checks run on the matrix scaled by its largest entry, so entries near 1e308 neither
+    overflow nor raise LinAlgError.
+    """
+    A = real_array(value, name)
+    if A.shape != (n, n):
+        raise ValueError(f"{name} must have shape ({n}, {n}), got {A.shape}")
+    if not np.all(np.isfinite(A)):
+        raise ValueError(_nonfinite_message(name, A))
+    scale = float(np.max(np.abs(A))) if A.size else 0.0
+    unit = A / scale if scale > 0 else A
+    asymmetry = float(np.max(np.abs(unit - unit.T), initial=0.0))
+    if asymmetry > SYMMETRY_TOLERANCE:
+        raise ValueError(f"{name} is not symmetric (max |{name} - {name}^T| / max |{name}| = {asymmetry:.3g})")
+    A = 0.5 * A + 0.5 * A.T  # (halves first: no overflow near 1e308)
+    # definiteness on the Jacobi-scaled matrix D^-1/2 A D^-1/2 (entries in [-1, 1] when A is positive
+    # semi-definite), so a diagonal matrix with entries 1e-10 and 1e30, or entries near 1e308, is judged exactly
+    d = np.diag(A).copy()
+    if definite and not np.all(d > 0):
+        raise ValueError(f"{name} must be positive definite; diagonal entry {int(np.argmin(d))} is {d.min():.3g}")
+    if d.size and d.min() < 0:
+        raise ValueError(f"{name} must be positive semi-definite; diagonal entry {int(np.argmin(d))} is {d.min():.3g}")
+    root = np.sqrt(np.where(d > 0, d, 1.0))
+    C = (A / root[:, None]) / root[None, :]
+    smallest = float(np.linalg.eigvalsh(C)[0]) if n else 0.0
+    if definite and not smallest > n * np.finfo(float).eps:
+        raise ValueError(f"{name} must be positive definite (its correlation matrix has eigenvalue {smallest:.3g})")
+    if not definite and smallest < -SYMMETRY_TOLERANCE:
+        raise ValueError(f"{name} must be positive semi-definite (its correlation matrix has eigenvalue {smallest:.3g})")
+    return np.asfortranarray(A)
+
+
+def check_count(value, name: str, minimum: int = 1) -> int:
+    """An integer >= minimum (particle or component count)."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+        raise TypeError(f"{name} must be an integer, got {type(value).__name__}")
+    if value < minimum:
+        raise ValueError(f"{name} must be >= {minimum}, got {value}")
+    return int(value)
+
+
+def as_generator(rng) -> np.random.Generator:
+    """A numpy Generator from an int seed, a SeedSequence or a Generator (returned as is)."""
+    if isinstance(rng, np.random.Generator):
+        return rng
+    if isinstance(rng, (int, np.integer)) and not isinstance(rng, (bool, np.bool_)):
+        if rng < 0:
+            raise ValueError(f"rng seed must be >= 0, got {rng}")
+        return np.random.default_rng(int(rng))
+    if isinstance(rng, np.random.SeedSequence):
+        return np.random.default_rng(rng)
+    raise TypeError(f"rng must be an int seed or a numpy.random.Generator, got {type(rng).__name__}")
+
+
+# ---------------------------------------------------------------------------------------------
+# threads
+
+
+class ConcurrencyGuard:
+    """Detects a second thread entering a filter while a call is under way, and raises.
+
+    ``with self._guard:`` around each public call: a non-blocking ``threading.Lock.acquire`` is
+    atomic, so two threads can never both be inside; the loser gets RuntimeError (its call did
+    nothing) instead of a silently lost update. Not a lock to wait on: share a filter between
+    threads only behind your own lock.
+    """
+
+    __slots__ = ("_lock", "_owner")
+
+    def __init__(self, owner: str):
+        self._lock = threading.Lock()
+        self._owner = owner
+
+    def __enter__(self):
+        if not self._lock.acquire(False):
+            raise RuntimeError(f"{self._owner} is being used from two threads at once; a filter is not thread-safe "
+                               "(use one filter per thread, or serialise the calls with a lock)")
+        return self
+
+    def __exit__(self, *exc):
+        self._lock.release()
+        return False
+
+
+# ---------------------------------------------------------------------------------------------
+# run: one implementation for every filter
+
+
+class FilterBase:
+    """Mixin with the shared ``run``; filters provide step, checkpoint/restore and the reports."""
+
+    nis: float = math.nan
+    nis_dof: int = 0
+    ess: float = math.nan
+    n_particles: float = math.nan
+
+    def run(self, U, Z, dt, params=None, truth=None) -> FilterResult:
+        """Filter a whole sequence (see ``run_filter``)."""
+        return run_filter(self, U, Z, dt, params, truth)
+
+
+def _rows(value, T: int, n: int, name: str, *, allow_nan: bool = False) -> np.ndarray:
+    A = real_array(value, name)
+    if A.shape != (T, n):
+        raise ValueError(f"{name} must have shape ({T}, {n}), got {A.shape}")
+    bad = np.isinf(A) if allow_nan else ~np.isfinite(A)
+    if bad.any():
+        row, col = np.argwhere(bad)[0]
+        hint = "; use NaN for a missing entry" if allow_nan else ""
+        raise ValueError(f"{name} has a non-finite entry at row {row}, column {col}: {A[row, col]}{hint}")
+    return A
+
+
+def run_filter(filt, U, Z, dt, params=None, truth=None) -> FilterResult:
+    """For k < T: filt.step(U[k], dt[k], Z[k], params[k]); all-or-nothing.
+
+    Every argument is checked before the first step. If a step is refused at row k, the filter
+    is restored to its state before the call and the error (same type) names row k.
+    """
+    model = filt.model
+    U = real_array(U, "U")
+    if U.ndim != 2 or U.shape[1] != model.n_u:
+        raise ValueError(f"U must have shape (T, {model.n_u}), got {U.shape}")
+    T = U.shape[0]
+    U = _rows(U, T, model.n_u, "U")
+    Z = None if Z is None else _rows(Z, T, model.n_y, "Z", allow_nan=True)
+    if isinstance(dt, np.ndarray) and dt.ndim == 1:
+        if dt.shape != (T,):
+            raise ValueError(f"dt must be a number or shape ({T},), got {dt.shape}")
+        dts = [check_dt(float(d)) for d in real_array(dt, "dt")]
+    else:
+        dts = [check_dt(dt)] * T
+    if params is None:
+        rows_p = [None] * T
+    else:
+        A = real_array(params, "params")
+        if A.shape == (model.n_p,):
+            rows_p = [check_state(A, model.n_p, "params")] * T
+        else:
+            rows_p = list(_rows(A, T, model.n_p, "params"))
+    if truth is not None:
+        truth = _rows(truth, T, model.n_x, "truth")
+    has_data = np.zeros(T, dtype=bool) if Z is None else np.isfinite(Z).any(axis=1)
+    n = model.n_x
+    xs, Ps = np.empty((T, n)), np.empty((T, n, n))
+    nis, dof = np.full(T, np.nan), np.zeros(T, dtype=int)
+    ess, particles, times = np.empty(T), np.empty(T), np.empty(T)
+    saved = filt.checkpoint()
+    clock = time.perf_counter
+    k = 0
+    try:
+        for k in range(T):
+            t0 = clock()
+            updated = filt.step(U[k], dts[k], Z[k] if has_data[k] else None, rows_p[k])
+            times[k] = clock() - t0
+            xs[k], Ps[k] = filt.x, filt.P
+            if updated:
+                nis[k], dof[k] = filt.nis, filt.nis_dof
+            ess[k], particles[k] = filt.ess, filt.n_particles
+    except (ValueError, TypeError, FloatingPointError, np.linalg.LinAlgError) as error:
+        filt.restore(saved)
+        raise type(error)(f"run: row {k} refused ({error}); the filter was restored to its state before run") from error
+    nees = None if truth is None else _nees(truth, xs, Ps, angle_indices(model, "states"))
+    return FilterResult(x=xs, P=Ps, nis=nis, nis_dof=dof, nees=nees, ess=ess, particles=particles, step_time=times)
+
+
+def _nees(truth: np.ndarray, xs: np.ndarray, Ps: np.ndarray, angle_states) -> np.ndarray:
+    """e^T P^+ e per step, e = truth - x with angle states wrapped; a singular P uses its pseudo-inverse."""
+    error = wrap_angles(truth - xs, angle_states)
+    try:
+        return np.einsum("ti,ti->t", error, np.linalg.solve(Ps, error[..., None])[..., 0])
+    except np.linalg.LinAlgError:
+        return np.einsum("ti,ti->t", error, (np.linalg.pinv(Ps, hermitian=True) @ error[..., None])[..., 0])

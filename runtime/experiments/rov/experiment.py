@@ -1,0 +1,393 @@
+"""Seed 000 on the campaign harness: one run = every filter on fresh truths of every case.
+
+``run_one(config, seed)`` is the experiment (``campaign.run_campaign`` maps it over the runs);
+``report(rows)`` (the tables) and ``figures(rows, out)`` are made from its tidy rows only.
+
+Rows: ``{"run", "case" (sea state), "filter" (label), "metric", "reading" (the truth's process-noise
+reading), "value"}`` with metrics ``mse_x, mse_y, mse_z, mse_psi`` (mean over the run's steps;
+RMSE over a campaign = sqrt of their mean over runs, every run having the same length), ``anees``
+(mean over steps of NEES / n_x), ``ess_mean`` (mean effective sample size per step; NaN for a
+Kalman filter), ``step_ms`` (wall time, kept out of the compared tables) and ``refused`` (1 when the
+filter refused a step of this run, its other metrics then NaN).
+
+Decisions:
+
+* Filters are labelled for what they are: "CKF (matched model)" knows the truth's Q, R and bias
+  dynamics (an oracle); "CKF (mismatched Q)" uses the other process-noise reading than the truth
+  (with the plain truth: the density reading), which is what a CKF tuned without the simulator's
+  noise does. The paper's CKF column is printed beside both.
+* "CPF" is the cubature particle filter with the locally optimal proposal (each particle's
+  cubature step from P^i = 0); "CPF (carried P^i)" is the form printed in the paper (van der
+  Merwe's UPF), kept to show its weight collapse (mean ESS ~ 1). The paper's CPF column is printed
+  beside "CPF".
+* EM-MOGCPF variants: "EM-MOGCPF (analytic cov.)" (EM weights and means, Rao-Blackwellised
+  component covariances) and the N sweep "EM-MOGCPF N=1000" / "N=3000" (N = 300 is the main row).
+* Cases: the paper's three sea states under each process-noise reading of the truth; each filter
+  spec names the readings and sea states where it runs, so the costly variants run only where
+  they answer a question: the N sweep and the analytic-covariance ablation in sea state 3 (where
+  the sample covariances were overconfident), MOGCPF, GS-CKF and the carried CPF under the
+  default reading only.
+* Seeds: the truth of case c from ``derive(seed, c, 0)`` (c: position in the full reading x sea
+  state list), the filter labelled L on it from ``derive(seed, c, 1, crc32(L))``: a filter's
+  numbers do not depend on which other filters or cases run.
+* A filter whose estimate or covariance becomes non-finite gets inf metrics (shown, not dropped).
+  A filter that refuses a step (the contract's ValueError: it left the finite range) gets NaN
+  metrics and ``refused = 1`` for that run; the other filters of the run are kept, the tables
+  average over the runs where it finished and print how many runs it refused.
+"""
+from __future__ import annotations
+
+import math
+import zlib
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from ..campaign import TIMING_METRICS, derive, run_index
+from .scenario import PROCESS_NOISE_READINGS, SEA_STATES, RovScenario, make_filter, simulate
+
+POSE_AXES = ("x", "y", "z", "psi")
+METRICS = tuple(f"mse_{a}" for a in POSE_AXES) + ("anees", "ess_mean", "step_ms")
+EXTRA_COLUMNS = ("reading",)
+
+
+@dataclass(frozen=True)
+class FilterSpec:
+    """One column of the experiment: a filter kind of ``make_filter`` under a label.
+
+    reading: the filter's own process-noise reading (None: the truth's, i.e. a matched model; "other":
+    the reading the truth does not use). n_particles None: the config's default. readings / sea_states:
+    where it runs (None: every case).
+    """
+
+    label: str
+    kind: str
+    reading: str | None = None
+    n_particles: int | None = None
+    options: tuple = ()
+    readings: tuple[str, ...] | None = None
+    sea_states: tuple[str, ...] | None = None
+
+    def runs_on(self, sea: str, reading: str) -> bool:
+        return (self.readings is None or reading in self.readings) and (self.sea_states is None or sea in self.sea_states)
+
+    def filter_reading(self, truth_reading: str) -> str:
+        if self.reading is None:
+            return truth_reading
+        if self.reading == "other":
+            return next(r for r in PROCESS_NOISE_READINGS if r != truth_reading)
+        return self.reading
+
+
+MAIN_FILTERS = (
+    FilterSpec("PF", "PF"),
+    FilterSpec("CKF (matched model)", "CKF"),
+    FilterSpec("CKF (mismatched Q)", "CKF", reading="other"),
+    FilterSpec("CPF", "CPF", options=(("proposal", "optimal"),)),
+    FilterSpec("CPF (carried P^i)", "CPF", options=(("proposal", "carried"),), readings=("plain",)),
+    FilterSpec("MOGCPF", "MOGCPF", readings=("plain",)),
+    FilterSpec("EM-MOGCPF", "EM-MOGCPF"),
+    FilterSpec("GS-CKF", "GS-CKF", readings=("plain",)),
+)
+N_SWEEP = (
+    FilterSpec("EM-MOGCPF (analytic cov.)", "EM-MOGCPF", options=(("covariances", "analytic"),), readings=("plain",),
+               sea_states=("3",)),
+    FilterSpec("EM-MOGCPF N=1000", "EM-MOGCPF", n_particles=1000, readings=("plain",), sea_states=("3",)),
+    FilterSpec("EM-MOGCPF N=3000", "EM-MOGCPF", n_particles=3000, readings=("plain",), sea_states=("3",)),
+)
+#: labels whose paper counterpart is the Table 3 column of that name
+PAPER_COLUMN = {"PF": "PF", "CKF (matched model)": "CKF", "CKF (mismatched Q)": "CKF", "CPF": "CPF", "EM-MOGCPF": "EM-MOGCPF"}
+
+
+@dataclass(frozen=True)
+class RovConfig:
+    """What one run does. The default is `abyssal reproduce rov`."""
+
+    scenario: RovScenario = field(default_factory=RovScenario)
+    n_particles: int = 300
+    sea_states: tuple[str, ...] = tuple(SEA_STATES)
+    readings: tuple[str, ...] = PROCESS_NOISE_READINGS
+    filters: tuple[FilterSpec, ...] = MAIN_FILTERS + N_SWEEP
+
+    def cases(self) -> list[tuple[int, str, str]]:
+        """(case number, sea state, truth reading); numbers fixed by the full lists, for stable seeds."""
+        out = []
+        for r_index, reading in enumerate(PROCESS_NOISE_READINGS):
+            for s_index, sea in enumerate(SEA_STATES):
+                if reading in self.readings and sea in self.sea_states:
+                    out.append((r_index * len(SEA_STATES) + s_index, sea, reading))
+        return out
+
+
+# ---------------------------------------------------------------------------------------------
+# one run
+
+
+def filter_output(filt, truth, dt: float):
+    """(estimates (T, n), covariances (T, n, n), ess (T,), seconds per step) of a filter over a truth."""
+    result = filt.run(truth.inputs, truth.measurements, dt)  # the one filter contract (runtime/contract.py)
+    return result.x, result.P, np.asarray(result.ess, dtype=np.float64), float(np.mean(result.step_time))
+
+
+def pose_errors(bundle, estimates: np.ndarray, states: np.ndarray) -> np.ndarray:
+    """estimate - truth, (T, n), the model's angle states wrapped to (-pi, pi]."""
+    from ...numerics import angle_indices, wrap_angles
+
+    return wrap_angles(estimates - states, angle_indices(bundle, "states"), axis=1)
+
+
+def nees(errors: np.ndarray, covariances: np.ndarray) -> np.ndarray:
+    """e^T P^-1 e per step (a tiny relative ridge keeps a collapsed particle covariance invertible)."""
+    n = errors.shape[1]
+    scale = np.trace(covariances, axis1=1, axis2=2)[:, None, None] / n
+    P = covariances + np.maximum(1e-12 * scale, 1e-12) * np.eye(n)
+    return np.einsum("ti,ti->t", errors, np.linalg.solve(P, errors[:, :, None])[:, :, 0])
+
+
+def run_one(config: RovConfig, seed: np.random.SeedSequence) -> list[dict]:
+    """Every filter of the config on a fresh truth of every case: tidy rows (see the module docstring)."""
+    from abyssal.generated import load
+
+    bundle = load("rov4dof")
+    run = run_index(seed)
+    rows = []
+    for case, sea_name, reading in config.cases():
+        sea = SEA_STATES[sea_name]
+        truth_scenario = config.scenario.with_reading(reading)
+        truth = simulate(bundle, truth_scenario, sea, np.random.default_rng(derive(seed, case, 0)))
+        for spec in config.filters:
+            if not spec.runs_on(sea_name, reading):
+                continue
+            rng = np.random.default_rng(derive(seed, case, 1, zlib.crc32(spec.label.encode())))
+            filter_scenario = config.scenario.with_reading(spec.filter_reading(reading))
+            filt = make_filter(spec.kind, bundle, filter_scenario, sea, spec.n_particles or config.n_particles, rng,
+                               **dict(spec.options))
+            try:
+                est, cov, ess, step_s = filter_output(filt, truth, truth_scenario.dt)
+            except (ValueError, ArithmeticError, np.linalg.LinAlgError):
+                # the filter refused a step: an outcome of this filter on this truth, not of the run
+                rows += [{"run": run, "case": sea_name, "filter": spec.label, "metric": m, "reading": reading,
+                          "value": math.nan} for m in METRICS]
+                rows.append({"run": run, "case": sea_name, "filter": spec.label, "metric": "refused",
+                             "reading": reading, "value": 1.0})
+                continue
+            errors = pose_errors(bundle, est, truth.states)
+            finite = np.all(np.isfinite(errors)) and np.all(np.isfinite(cov))
+            metrics = {f"mse_{axis}": float(np.mean(errors[:, i] ** 2)) if finite else math.inf
+                       for i, axis in enumerate(POSE_AXES)}
+            metrics["anees"] = float(np.mean(nees(errors, cov)) / bundle.n_x) if finite else math.inf
+            metrics["ess_mean"] = float(np.mean(ess))
+            metrics["step_ms"] = 1e3 * step_s
+            metrics["refused"] = 0.0
+            rows += [{"run": run, "case": sea_name, "filter": spec.label, "metric": m, "reading": reading, "value": v}
+                     for m, v in metrics.items()]
+    return rows
+
+
+# ---------------------------------------------------------------------------------------------
+# tables and figures, from the rows only
+
+
+def summary(rows: list[dict]) -> dict:
+    """{(reading, sea, filter): {"rmse": {axis: ..}, "anees", "ess_mean", "step_ms", "runs"}} (rows sorted)."""
+    groups: dict[tuple, dict[str, list[float]]] = {}
+    for row in rows:
+        groups.setdefault((row["reading"], row["case"], row["filter"]), {}).setdefault(row["metric"], []).append(row["value"])
+    out = {}
+    for key, metrics in groups.items():
+        kept = [i for i, refused in enumerate(metrics.get("refused", [0.0] * len(metrics.get("mse_x", [])))) if not refused]
+
+        def mean(m):
+            values = [metrics[m][i] for i in kept] if m in metrics else []
+            return math.fsum(values) / len(values) if values else math.nan
+        out[key] = {"rmse": {a: math.sqrt(mean(f"mse_{a}")) for a in POSE_AXES}, "anees": mean("anees"),
+                    "ess_mean": mean("ess_mean"), "step_ms": mean("step_ms"), "runs": len(kept),
+                    "refused_runs": len(metrics.get("mse_x", [])) - len(kept)}
+    return out
+
+
+def _order(items, key=lambda x: x):
+    return list(dict.fromkeys(key(i) for i in items))
+
+
+#: the order of filter labels in tables: the default config's, then any others alphabetically
+LABEL_ORDER = tuple(f.label for f in MAIN_FILTERS + N_SWEEP)
+
+
+def _labels(rows) -> list[str]:
+    present = set(_order(rows, lambda r: r["filter"]))
+    return [l for l in LABEL_ORDER if l in present] + sorted(present - set(LABEL_ORDER))
+
+
+def _fmt(value: float, width: int, spec: str = ".4f") -> str:
+    return f"{'-':>{width}}" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{value:>{width}{spec}}"
+
+
+def table3(rows: list[dict], reading: str = "plain") -> str:
+    """Our RMSE beside the paper's Table 3, for the filters the paper has (truth under `reading`)."""
+    from ..reproduce import paper_rov_rmse
+
+    paper = paper_rov_rmse()
+    stats = summary(rows)
+    seas = [s for s in SEA_STATES if any(k[:2] == (reading, s) for k in stats)]
+    labels = [f for f in _labels(rows) if f in PAPER_COLUMN and any(k == (reading, s, f) for s in seas for k in stats)]
+    runs = max((v["runs"] for v in stats.values()), default=0)
+    lines = [f"Table 3 (seed 000): RMSE over {runs} run(s), truth under the '{reading}' process-noise reading",
+             "ours | paper (the paper's numbers are quoted; its CKF is one column: compare both of ours)", ""]
+    head = f"{'sea':<5}{'axis':<6}" + "".join(f"{label[:21]:>22}" for label in labels)
+    lines += [head, f"{'':<11}" + "".join(f"{'ours':>12}{'paper':>10}" for _ in labels), "-" * len(head)]
+    for sea in seas:
+        for i, axis in enumerate(POSE_AXES):
+            cells = []
+            for label in labels:
+                ours = stats.get((reading, sea, label), {}).get("rmse", {}).get(axis)
+                theirs = paper.get(sea, {}).get(PAPER_COLUMN[label], {}).get(axis)
+                cells.append(_fmt(ours, 12) + _fmt(theirs, 10))
+            lines.append(f"{(sea if i == 0 else ''):<5}{axis:<6}" + "".join(cells))
+        for metric, spec in (("anees", ".3g"), ("ess_mean", ".1f")):
+            cells = [_fmt(stats.get((reading, sea, label), {}).get(metric), 12, spec) + f"{'':>10}" for label in labels]
+            lines.append(f"{'':<5}{('ANEES' if metric == 'anees' else 'ESS'):<6}" + "".join(cells))
+        lines.append("")
+    return "\n".join(lines)
+
+
+def variants_table(rows: list[dict], reading: str = "plain") -> str:
+    """Every filter (including the extra baselines and the EM-MOGCPF variants): RMSE, ANEES, ESS per case."""
+    stats = summary(rows)
+    labels = _labels(rows)
+    lines = [f"All filters, truth under the '{reading}' reading: RMSE x/y/z/psi, ANEES, mean ESS over the runs where the "
+             "filter ran to the end; refused: runs where it refused a step (left out of its averages)", ""]
+    head = f"{'sea':<5}{'filter':<24}{'x':>9}{'y':>9}{'z':>9}{'psi':>9}{'ANEES':>10}{'ESS':>8}{'refused':>9}"
+    lines += [head, "-" * len(head)]
+    for sea in SEA_STATES:
+        for label in labels:
+            s = stats.get((reading, sea, label))
+            if s is None:
+                continue
+            lines.append(f"{sea:<5}{label[:23]:<24}" + "".join(_fmt(s["rmse"][a], 9) for a in POSE_AXES)
+                         + _fmt(s["anees"], 10, ".3g") + _fmt(s["ess_mean"], 8, ".1f") + f"{s['refused_runs']:>9d}")
+        lines.append("")
+    return "\n".join(lines)
+
+
+def sensitivity_table(rows: list[dict]) -> str:
+    """reading x filter x sea state: x RMSE, ANEES, mean ESS (filters that ran under every reading)."""
+    stats = summary(rows)
+    readings = _order(rows, lambda r: r["reading"])
+    labels = [f for f in _labels(rows)
+              if all(any(k[0] == rd and k[2] == f for k in stats) for rd in readings)]
+    seas = [s for s in SEA_STATES if any(k[1] == s for k in stats)]
+    lines = ["Sensitivity to the process-noise reading of the truth (filters matched unless labelled):",
+             "x RMSE (m) / ANEES / mean ESS per sea state", ""]
+    head = f"{'reading':<9}{'filter':<22}" + "".join(f"{'sea ' + s:>26}" for s in seas)
+    lines += [head, "-" * len(head)]
+    for reading in readings:
+        for label in labels:
+            cells = []
+            for sea in seas:
+                s = stats.get((reading, sea, label))
+                cells.append(f"{'-':>26}" if s is None else
+                             f"{_fmt(s['rmse']['x'], 9, '.3f')} /{_fmt(s['anees'], 7, '.3g')} /{_fmt(s['ess_mean'], 6, '.0f')}")
+            lines.append(f"{reading:<9}{label[:21]:<22}" + "".join(cells))
+        lines.append("")
+    return "\n".join(lines)
+
+
+def timing_table(rows: list[dict]) -> str:
+    """Mean wall time per step (machine- and load-dependent: not part of the reproducible tables)."""
+    stats = summary(rows)
+    labels = _labels(rows)
+    parts = []
+    for label in labels:
+        values = [v["step_ms"] for k, v in stats.items() if k[2] == label and not math.isnan(v["step_ms"])]
+        if values:
+            parts.append(f"{label} {math.fsum(values) / len(values):.3f}")
+    return "Wall time per filter step, ms (varies with the machine and load; not compared across runs):\n  " + "; ".join(parts)
+
+
+def rankings(rows: list[dict], reading: str = "plain") -> str:
+    """The paper's pairwise orderings (by mean pose RMSE over x, y, z, psi per sea state), and in how many of
+    our runs each holds (a consistency measure: an ordering that holds in 5 of 10 runs is not a finding).
+    The paper's CKF is compared as both of ours: the matched-model oracle and the mismatched-Q CKF."""
+    from ..reproduce import paper_rov_rmse
+
+    paper = paper_rov_rmse()
+    per_run: dict[tuple, dict[str, float]] = {}
+    for row in rows:
+        if row["reading"] == reading and row["metric"].startswith("mse_") and row["filter"] in PAPER_COLUMN:
+            per_run.setdefault((row["case"], row["filter"], row["run"]), {})[row["metric"]] = row["value"]
+
+    def pose_rmse(metrics):
+        return np.mean([math.sqrt(metrics[f"mse_{x}"]) for x in POSE_AXES])
+
+    lines = [f"The paper's orderings (mean RMSE over x, y, z, psi; truth '{reading}'): do ours agree, and in how many runs?"]
+    for sea in SEA_STATES:
+        cols = [c for c in ("PF", "CKF", "CPF", "EM-MOGCPF") if c in paper.get(sea, {})]
+        score = {c: np.mean(list(paper[sea][c].values())) for c in cols}
+        for i, a in enumerate(cols):
+            for b in cols[i + 1:]:
+                better, worse = (a, b) if score[a] < score[b] else (b, a)
+                for la in [k for k, v in PAPER_COLUMN.items() if v == better]:
+                    for lb in [k for k, v in PAPER_COLUMN.items() if v == worse]:
+                        runs = sorted({k[2] for k in per_run if k[0] == sea and k[1] in (la, lb)})
+                        pairs = [(per_run.get((sea, la, r)), per_run.get((sea, lb, r))) for r in runs]
+                        wins = [pose_rmse(ma) < pose_rmse(mb) for ma, mb in pairs if ma and mb]
+                        if wins:
+                            verdict = "holds" if all(wins) else ("reversed" if not any(wins) else "mixed")
+                            lines.append(f"  sea {sea:<4} paper: {better} < {worse}; ours: {la} < {lb}: "
+                                         f"{verdict} ({sum(wins)}/{len(wins)} runs)")
+    return "\n".join(lines)
+
+
+def report(rows: list[dict]) -> str:
+    """Every reproducible table (no timings)."""
+    readings = _order(rows, lambda r: r["reading"])
+    if not rows:
+        return "no rows: every run failed"
+    parts = []
+    main = "plain" if "plain" in readings else readings[0]
+    parts += [table3(rows, main), variants_table(rows, main)]
+    if len(readings) > 1:
+        parts.append(sensitivity_table(rows))
+    parts.append(rankings(rows, main))
+    return "\n\n".join(parts)
+
+
+def figures(rows: list[dict], out: Path) -> list[Path]:
+    """RMSE bars per sea state (the paper's Figs. 11-12) from the rows, the paper's values as diamonds."""
+    from ... import plots
+    from ..reproduce import paper_rov_rmse
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    paper = paper_rov_rmse()
+    stats = summary(rows)
+    readings = _order(rows, lambda r: r["reading"])
+    main = "plain" if "plain" in readings else readings[0]
+    written = []
+    for sea in SEA_STATES:
+        metrics = {k[2]: v for k, v in stats.items() if k[0] == main and k[1] == sea}
+        if not metrics:
+            continue
+        theirs = {label: paper[sea][col] for label, col in PAPER_COLUMN.items() if label in metrics and col in paper.get(sea, {})}
+        written.append(plots.rmse_bars(metrics, theirs, f"RMSE, sea state {sea}, '{main}' reading (cf. the paper's Figs. 11-12)",
+                                       out / f"rov_rmse_sea_{sea.replace('-', '_')}.png"))
+    return written
+
+
+def quick_config() -> RovConfig:
+    """`abyssal reproduce rov --quick`: every filter and case of the default, on the first 20 s of the path."""
+    return RovConfig(scenario=RovScenario(duration=20.0))
+
+
+def short_config(duration: float = 3.0, n_particles: int = 20, **changes) -> RovConfig:
+    """A seconds-long configuration for tests and quick benches (same filters, fewer steps and particles)."""
+    filters = tuple(replace(f, n_particles=None if f.n_particles is None else 2 * n_particles) for f in MAIN_FILTERS + N_SWEEP)
+    base = RovConfig(scenario=RovScenario(duration=duration), n_particles=n_particles, filters=filters)
+    return replace(base, **changes)
+
+
+__all__ = ["EXTRA_COLUMNS", "FilterSpec", "RovConfig", "TIMING_METRICS", "figures", "quick_config", "report", "run_one",
+           "short_config",
+           "summary", "timing_table"]

@@ -1,0 +1,162 @@
+"""GP-UKF (Ko et al. 2007; seed 004 Table 2): a UKF whose prediction is learned Gaussian processes.
+
+    gpukf = GPUKF(bundle, predict_library, "remus_gpukf_predict", x0, P0, R, gp_dt=0.2)
+    gpukf.step(u, 0.2, z)
+
+Predict (one generated C call, abyssal.symbolic.filters.gp_ukf): sigma points of (x, P) through
+the GP means of the state increments; Q_k = diag(GP predictive variance at the prior mean),
+including each GP's learned noise; P_pred = points' covariance + Q_k. ``last_Q`` holds Q_k.
+
+Update: the observation model. Seed 004 and Ko et al. learn an observation GP too; here the
+sensors observe states directly (h is remus100's [u v w p q r z phi theta psi]), so the update
+is the generated ``remus100_ukf_update`` of the model bundle with R from the sensors (held
+noise plus quantisation, LSB^2/12). This is a choice: an observation GP would only relearn the
+identity plus the same noise.
+
+On the filter contract (abyssal.runtime.contract): checked inputs, NaN entries of z left out,
+refusals leave the filter unchanged; dt must equal the step the GPs were trained on (their
+increments are over that step), anything else is refused.
+"""
+from __future__ import annotations
+
+import functools
+import math
+
+import casadi as ca
+import numpy as np
+
+from ...contract import ConcurrencyGuard, FilterBase, register, check_covariance, check_dt, check_p, check_state, check_u, check_z
+
+__all__ = ["GPUKF"]
+
+
+@register("kalman")
+class GPUKF(FilterBase):
+    """GP-UKF on a compiled GP predict step and a model bundle's UKF update (see module docstring).
+
+    alpha, beta, kappa: the scaled unscented rule of both predict and update (default 1, 2, 0, as UKF).
+    """
+
+    @classmethod
+    def contract_example(cls, model, seed):
+        """For the contract test: GPs of `model`'s own one-step increments (a small, quickly compiled predict)."""
+        library, name, dt = _example_predict(model.name)
+        n = model.n_x
+        return cls(model, library, name, np.zeros(n), np.eye(n), 0.5 * np.eye(model.n_y), gp_dt=dt)
+
+    def __init__(self, model, predict_library, predict_name: str, x0, P0, R, *, gp_dt: float,
+                 alpha: float = 1.0, beta: float = 2.0, kappa: float = 0.0):
+        if not hasattr(model, "functions") or "ukf_update" not in model.functions:
+            raise TypeError("GPUKF needs a model bundle with a generated ukf_update (its observation model)")
+        self.model = model
+        n, m = model.n_x, model.n_y
+        self.gp_dt = check_dt(gp_dt)
+        self._x = check_state(x0, n, "x0")
+        self._P = check_covariance(P0, n, "P0")
+        self._R = check_covariance(R, m, "R", definite=True)
+        self._abk = np.array([alpha, beta, kappa], dtype=float)
+        self._guard = ConcurrencyGuard(type(self).__name__)
+        self.nis, self.nis_dof = math.nan, 0
+        self.last_Q = np.zeros((n, n))
+        # predict: casadi.external on preallocated buffers
+        self._pin = [np.zeros(n), np.zeros((n, n), order="F"), np.zeros(model.n_u), self._abk]
+        self._pout = [np.zeros(n), np.zeros((n, n), order="F"), np.zeros((n, n), order="F"), np.zeros(1)]
+        self._external = ca.external(predict_name, str(predict_library))
+        self._buffer, self._eval = self._external.buffer()
+        for i, a in enumerate(self._pin):
+            self._buffer.set_arg(i, memoryview(a.reshape(-1, order="F")))
+        for i, a in enumerate(self._pout):
+            self._buffer.set_res(i, memoryview(a.reshape(-1, order="F")))
+        self._update_fn = model.function("ukf_update")
+
+    # ------------------------------------------------------------------ state
+    @property
+    def x(self) -> np.ndarray:
+        return self._x.copy()
+
+    @property
+    def P(self) -> np.ndarray:
+        return self._P.copy()
+
+    def checkpoint(self):
+        return (self._x.copy(), self._P.copy(), self.nis, self.nis_dof, self.last_Q.copy())
+
+    def restore(self, checkpoint) -> None:
+        x, P, self.nis, self.nis_dof, Q = checkpoint
+        self._x, self._P, self.last_Q = x.copy(), P.copy(), Q.copy()
+
+    # ------------------------------------------------------------------ contract
+    def predict(self, u, dt, p=None) -> None:
+        with self._guard:
+            u = check_u(u, self.model.n_u)
+            dt = check_dt(dt)
+            check_p(p, self.model)
+            if abs(dt - self.gp_dt) > 1e-9 * self.gp_dt:
+                raise ValueError(f"dt must be the GPs' training step {self.gp_dt} s (their increments are over it), got {dt}")
+            self._pin[0][:] = self._x
+            self._pin[1][:] = self._P
+            self._pin[2][:] = u
+            self._eval()
+            if self._pout[3][0] != 1.0:
+                raise ValueError("GPUKF.predict: the generated step failed (covariance not positive definite or "
+                                 "non-finite outputs); state left unchanged")
+            self._x = self._pout[0].copy()
+            self._P = np.asfortranarray(self._pout[1])
+            self.last_Q = self._pout[2].copy()
+
+    def update(self, z, p=None) -> bool:
+        with self._guard:
+            checked = check_z(z, self.model.n_y)
+            p = check_p(p, self.model)
+            if checked is None:
+                return False
+            values, present = checked
+            mask = present.astype(float)
+            x_post, P_post, innovation, S, ok = self._update_fn(
+                self._x, self._P, values, self.model.params(p), self._R, mask, self._abk)
+            if float(np.asarray(ok).reshape(-1)[0]) != 1.0:
+                raise ValueError("GPUKF.update: the generated update failed; state left unchanged")
+            used = np.flatnonzero(present)
+            nu = np.asarray(innovation)[used]
+            S_used = np.asarray(S)[np.ix_(used, used)]
+            self.nis, self.nis_dof = float(nu @ np.linalg.solve(S_used, nu)), int(used.size)
+            self._x, self._P = np.asarray(x_post, dtype=float), np.asfortranarray(P_post)
+            return True
+
+    def step(self, u, dt, z=None, p=None) -> bool:
+        saved = self.checkpoint()
+        try:
+            self.predict(u, dt, p)
+            return self.update(z, p)
+        except (ValueError, TypeError):
+            self.restore(saved)
+            raise
+
+
+@functools.lru_cache(maxsize=None)
+def _example_predict(model_name: str, dt: float = 0.5, n_train: int = 12):
+    """(library, function name, dt) of a GP-UKF predict learned from `model_name`'s f: one GP
+    (ConstantKernel x RBF + White) per state increment on n_train random (x, u) points."""
+    from sklearn.gaussian_process import GaussianProcessRegressor
+    from sklearn.gaussian_process.kernels import RBF, ConstantKernel, WhiteKernel
+
+    import abyssal.generated
+    from abyssal.generated.build import build
+    from abyssal.symbolic import gp
+    from abyssal.symbolic.filters.gp_ukf import gp_ukf_predict_function
+
+    bundle = abyssal.generated.load(model_name)
+    rng = np.random.default_rng(0)
+    X = rng.normal(size=(n_train, bundle.n_x))
+    U = rng.normal(size=(n_train, bundle.n_u))
+    increments = np.array([bundle.f(x, u, None, dt) - x for x, u in zip(X, U)])
+    features = np.hstack([X, U])
+    gprs = [GaussianProcessRegressor(ConstantKernel() * RBF() + WhiteKernel(1e-3, (1e-12, 1.0)), random_state=0).fit(features, y)
+            for y in increments.T]
+    name = f"{model_name}_contract_gpukf_predict"
+    points = 2 * bundle.n_x + 1
+    fn = gp_ukf_predict_function(name, [gp.gp_mean_batch_function(g, points, f"{name}_mean{i}") for i, g in enumerate(gprs)],
+                                 [gp.gp_variance_function(g, f"{name}_var{i}") for i, g in enumerate(gprs)], bundle.n_u)
+    cg = ca.CodeGenerator(f"{name}.c", {"with_header": False, "casadi_real": "double", "casadi_int": "long long int"})
+    cg.add(fn)
+    return build(name, {f"{name}.c": cg.dump()}, symbols=(name,)), name, dt

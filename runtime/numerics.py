@@ -1,0 +1,128 @@
+"""Shared numerical helpers of the runtime: one implementation each (import them, never copy them).
+
+* ``angle_indices(model, "states" | "outputs")``, ``wrap_angles(values, indices, axis)`` and
+  ``wrap_to_pi(a)``: angle
+  wrapping to (-pi, pi], driven by the model's ``angle_states`` / ``angle_outputs`` (never a
+  hard-coded index).
+* ``repair_covariance(P)``: the one covariance repair (symmetrise, clip eigenvalues at
+  ``REPAIR_FLOOR`` times the largest |eigenvalue|); works on one (n, n) matrix or a stack
+  (K, n, n).
+* ``relative_error(a, b)``: max |a - b| / max(1, max |b|), the single definition used by checks.
+* ``kalman_filter(A, B, H, Q, R, x0, P0, U, Z)``: the exact (linear) Kalman filter, an oracle;
+  NaN entries of Z are left out entry by entry, as every runtime filter does.
+* ``simulate_truth(model, x0, U, dt, Q, R, rng, p=None)``: truth and measurements of a model
+  with additive Gaussian noise, x_{k+1} = f(x_k, u_k) + w_k, z_{k+1} = h(x_{k+1}) + v_{k+1}.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["REPAIR_FLOOR", "angle_indices", "kalman_filter", "relative_error", "repair_covariance",
+           "simulate_truth", "wrap_angles", "wrap_to_pi"]
+
+#: eigenvalue floor of ``repair_covariance``, relative to the largest |eigenvalue|. 1e-10 makes
+#: every pivot of the generated Cholesky factorisations pass their guard (1e-13).
+REPAIR_FLOOR = 1e-10
+
+
+def angle_indices(model, which: str = "states") -> tuple[int, ...]:
+    """The model's angle states or outputs (empty when the model declares none)."""
+    if which not in ("states", "outputs"):
+        raise ValueError(f"which must be 'states' or 'outputs', got {which!r}")
+    return tuple(getattr(model, f"angle_{which}", ()) or ())
+
+
+def wrap_to_pi(a):
+    """Angles wrapped to (-pi, pi] (elementwise; the one wrapping formula of the runtime)."""
+    return np.pi - np.remainder(np.pi - a, 2 * np.pi)
+
+
+def wrap_angles(values: np.ndarray, indices, axis: int = -1) -> np.ndarray:
+    """A copy of values with the entries at `indices` along `axis` wrapped to (-pi, pi]."""
+    out = np.array(values, dtype=np.float64)
+    if len(indices):
+        moved = np.moveaxis(out, axis, 0)
+        for i in indices:
+            moved[i] = wrap_to_pi(moved[i])
+    return out
+
+
+def repair_covariance(P: np.ndarray, floor: float = REPAIR_FLOOR) -> np.ndarray:
+    """Nearest-in-spectrum symmetric positive definite matrix (or stack of them, (..., n, n)).
+
+    Eigenvalues are clipped from below at floor * max|eigenvalue| of each matrix. The matrix is
+    scaled by its largest entry first, so entries near 1e308 do not overflow.
+    """
+    A = np.asarray(P, dtype=np.float64)
+    A = 0.5 * (A + np.swapaxes(A, -1, -2))
+    scale = np.max(np.abs(A), axis=(-2, -1), keepdims=True)
+    scale = np.where(scale > 0, scale, 1.0)
+    values, vectors = np.linalg.eigh(A / scale)
+    top = np.max(np.abs(values), axis=-1, keepdims=True)
+    clipped = np.maximum(values, floor * np.maximum(top, np.finfo(float).tiny))
+    B = (vectors * clipped[..., None, :]) @ np.swapaxes(vectors, -1, -2)
+    B = 0.5 * (B + np.swapaxes(B, -1, -2)) * scale
+    return np.asfortranarray(B) if B.ndim == 2 else B
+
+
+def relative_error(a, b) -> float:
+    """max |a - b| / max(1, max |b|): absolute near zero, relative for large values."""
+    a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
+    if a.shape != b.shape:
+        raise ValueError(f"relative_error: shapes differ, {a.shape} vs {b.shape}")
+    if a.size == 0:
+        return 0.0
+    return float(np.max(np.abs(a - b)) / max(1.0, float(np.max(np.abs(b)))))
+
+
+def kalman_filter(A, B, H, Q, R, x0, P0, U, Z):
+    """Exact Kalman filter of x_{k+1} = A x_k + B u_k + w, z = H x + v: (xs (T, n), Ps (T, n, n)).
+
+    Step k predicts with U[k] then updates with Z[k]; NaN entries of Z[k] are left out (the
+    update uses the rows of H and R of the present entries); an all-NaN row only predicts.
+    """
+    A, B, H, Q, R = (np.asarray(a, dtype=np.float64) for a in (A, B, H, Q, R))
+    x, P = np.array(x0, dtype=np.float64), np.array(P0, dtype=np.float64)
+    U, Z = np.asarray(U, dtype=np.float64), np.asarray(Z, dtype=np.float64)
+    xs, Ps = np.empty((len(U), x.size)), np.empty((len(U), x.size, x.size))
+    for k, (u, z) in enumerate(zip(U, Z)):
+        x, P = A @ x + B @ u, A @ P @ A.T + Q
+        present = np.isfinite(z)
+        if present.any():
+            Hk, Rk = H[present], R[np.ix_(present, present)]
+            S = Hk @ P @ Hk.T + Rk
+            K = np.linalg.solve(S, Hk @ P).T
+            x = x + K @ (z[present] - Hk @ x)
+            I_KH = np.eye(x.size) - K @ Hk
+            P = I_KH @ P @ I_KH.T + K @ Rk @ K.T  # Joseph form
+        xs[k], Ps[k] = x, P
+    return xs, Ps
+
+
+def simulate_truth(model, x0, U, dt: float, Q, R, rng, p=None):
+    """(states (T, n_x), measurements (T, n_y)) of a compiled model with additive Gaussian noise.
+
+    states[k] = f(states[k-1], U[k], p, dt) + w_k, w_k ~ N(0, Q) (Q may be singular: drawn by
+    its eigen-decomposition); measurements[k] = h(states[k], p) + v_k, v_k ~ N(0, R).
+    """
+    from .contract import as_generator
+
+    rng = as_generator(rng)
+    U = np.asarray(U, dtype=np.float64)
+    noise_q, noise_r = _square_root(Q, "Q"), _square_root(R, "R")
+    x = np.array(x0, dtype=np.float64)
+    states = np.empty((len(U), model.n_x))
+    for k, u in enumerate(U):
+        x = model.f(x, u, p, dt) + noise_q @ rng.standard_normal(model.n_x)
+        states[k] = x
+    measurements = model.h_batch(states.T, p).T + (noise_r @ rng.standard_normal((model.n_y, len(U)))).T
+    return states, measurements
+
+
+def _square_root(C, name: str) -> np.ndarray:
+    """L with L L^T = C for a symmetric positive semi-definite C (singular allowed)."""
+    C = np.asarray(C, dtype=np.float64)
+    values, vectors = np.linalg.eigh(0.5 * (C + C.T))
+    if values.size and values[0] < -1e-9 * max(abs(values[-1]), 1e-300):
+        raise ValueError(f"{name} must be positive semi-definite; smallest eigenvalue {values[0]:.3g}")
+    return vectors * np.sqrt(np.maximum(values, 0.0))

@@ -1,0 +1,138 @@
+"""Bathymetry maps (abyssal.runtime.terrain) and the TAN particle filter (filters/particle/terrain.py)."""
+import numpy as np
+import pytest
+from scipy.interpolate import RegularGridInterpolator
+
+import abyssal.generated
+from abyssal.runtime.filters.particle.terrain import TerrainParticleFilter
+from abyssal.runtime.terrain import BathymetryMap, synthetic_arctic, topobathy_window
+
+
+@pytest.fixture(scope="module")
+def tan():
+    return abyssal.generated.load("tan3dof")
+
+
+@pytest.fixture(scope="module")
+def arctic():
+    return synthetic_arctic(0)
+
+
+def small_map():
+    rng = np.random.default_rng(1)
+    return BathymetryMap(rng.uniform(100, 200, (5, 7)), origin=(-300.0, 50.0), resolution=100.0)
+
+
+def test_lookup_is_bilinear_with_its_gradient():
+    m = small_map()
+    xg, yg = m.node_coordinates()
+    rng = np.random.default_rng(2)
+    x, y = rng.uniform(xg[0], xg[-1], 500), rng.uniform(yg[0], yg[-1], 500)
+    depth, gx, gy, inside = m.lookup(x, y)
+    np.testing.assert_allclose(depth, RegularGridInterpolator((yg, xg), m.depth)(np.column_stack([y, x])), atol=1e-10)
+    assert inside.all()
+    # within a cell the blend is bilinear: its gradient is exact for central differences
+    h = 1e-4
+    np.testing.assert_allclose(gx, (m.depth_at(x + h, y) - m.depth_at(x - h, y)) / (2 * h), atol=1e-5)
+    np.testing.assert_allclose(gy, (m.depth_at(x, y + h) - m.depth_at(x, y - h)) / (2 * h), atol=1e-5)
+    # nodes and the far corner are reproduced exactly
+    assert m.depth_at(xg[-1], yg[-1]) == m.depth[-1, -1] and m.depth_at(xg[2], yg[3]) == m.depth[3, 2]
+
+
+def test_outside_and_nan_points_are_flagged_never_an_index_error():
+    m = small_map()
+    x = np.array([-1e9, 1e9, np.nan, -300.0, 300.0001])
+    y = np.array([60.0, 1e9, 100.0, np.nan, 250.0])
+    depth, gx, gy, inside = m.lookup(x, y)
+    assert not inside.any() and np.isfinite(depth).all()
+    assert (gx == 0).all() and (gy == 0).all()
+    assert depth[0] == m.depth_at(-300.0, 60.0)  # clamped onto the grid's edge
+
+
+def test_bad_maps_are_refused():
+    with pytest.raises(ValueError, match="finite"):
+        BathymetryMap(np.array([[1.0, np.nan], [1.0, 2.0]]), (0, 0), 500.0)
+    with pytest.raises(ValueError, match="resolution"):
+        BathymetryMap(np.ones((3, 3)), (0, 0), 0.0)
+    with pytest.raises(ValueError, match="2 x 2"):
+        BathymetryMap(np.ones((1, 3)), (0, 0), 1.0)
+
+
+def test_the_two_maps_have_the_papers_size_and_terrain_types(arctic):
+    real = topobathy_window()
+    for m in (arctic, real):
+        assert m.shape == (121, 281) and m.resolution == 500.0 and m.extent == (0.0, 140e3, 0.0, 60e3)
+        assert (m.depth >= 0).all()
+    slope = lambda m, x0, y0: np.median(np.hypot(*m.lookup(x0 + np.arange(0, 15e3, 100.0), np.full(150, y0))[1:3]))
+    assert slope(arctic, 20e3, 20e3) > 0.05       # rough: > 5 % median slope along the paper's first track
+    assert slope(arctic, 60e3, 10e3) < 0.001      # flat plain: < 0.1 %
+    assert synthetic_arctic(0).depth.tobytes() == arctic.depth.tobytes()  # seeded
+    assert synthetic_arctic(1).depth.tobytes() != arctic.depth.tobytes()
+
+
+def straight_track(tan, terrain, n, start=(20e3, 20e3), rng=0):
+    """Truth along +x at 0.5 m/s (no current, no body noise) and its measurements."""
+    rng = np.random.default_rng(rng)
+    x = start[0] + 0.5 * np.arange(1, n + 1)
+    y = np.full(n, start[1])
+    z = np.column_stack([terrain.depth_at(x, y) + 5.0 * rng.standard_normal(n), np.zeros(n)])
+    return np.column_stack([x, y]), z
+
+
+def test_filter_tracks_on_rough_terrain_and_fuzzy_sigma_follows_the_terrain(tan, arctic):
+    truth, Z = straight_track(tan, arctic, 400)
+    P0 = np.diag([50.0 ** 2, 50.0 ** 2, 0.0])
+    for sigma in (2.0, "fuzzy"):
+        pf = TerrainParticleFilter(tan, [20e3 + 80.0, 20e3 - 60.0, 0.0], P0, sigma, 5.0, 500, 3, terrain=arctic)
+        errors = []
+        for k in range(400):
+            assert pf.step([0.5, 0.0], 1.0, Z[k])
+            errors.append(np.hypot(*(pf.x[:2] - truth[k])))
+        assert np.mean(errors[-100:]) < 60.0, sigma
+        if sigma == "fuzzy":
+            assert 4 / 3 - 1e-9 <= pf.sigma <= 20 / 3 + 1e-9
+    flat = TerrainParticleFilter(tan, [60e3, 10e3, 0.0], P0, "fuzzy", 5.0, 200, 3, terrain=arctic)
+    for k in range(50):
+        flat.step([0.5, 0.0], 1.0, [arctic.depth_at(60e3 + 0.5 * k, 10e3), 0.0])
+    assert flat.sigma > 6.5  # flat plain: gradient and rate ~ 0 -> LL
+
+
+def test_refused_inputs_leave_the_filter_bit_identical(tan, arctic):
+    pf = TerrainParticleFilter(tan, [20e3, 20e3, 0.0], np.diag([100.0, 100.0, 0.0]), "fuzzy", 5.0, 100, 0, terrain=arctic)
+    pf.step([0.5, 0.0], 1.0, [arctic.depth_at(20e3, 20e3), 0.0])
+    before = pf.checkpoint()
+    for bad in [dict(u=[0.5, 0.0], dt=-1.0, z=None), dict(u=[0.5, np.nan], dt=1.0, z=None),
+                dict(u=[0.5, 0.0], dt=1.0, z=[np.inf, 0.0]), dict(u=[0.5], dt=1.0, z=None)]:
+        with pytest.raises(ValueError):
+            pf.step(**bad)
+        after = pf.checkpoint()
+        assert all(np.array_equal(np.asarray(a, dtype=object) if isinstance(a, (list, dict)) else a, b)
+                   if isinstance(a, np.ndarray) else a == b for a, b in zip(before, after))
+    # a missing depth (NaN) is no likelihood, but the compass heading is still used
+    assert pf.step([0.5, 0.1], 1.0, [np.nan, 0.25])
+    assert np.all(pf.particles[2] == 0.25)
+
+
+def test_same_seed_same_particles(tan, arctic):
+    runs = []
+    for _ in range(2):
+        pf = TerrainParticleFilter(tan, [20e3, 20e3, 0.0], np.diag([100.0, 100.0, 0.0]), 3.0, 5.0, 50, 7, terrain=arctic)
+        for k in range(20):
+            pf.step([0.5, 0.0], 1.0, [arctic.depth_at(20e3 + 0.5 * k, 20e3), 0.0])
+        runs.append(pf.particles.copy())
+    assert np.array_equal(*runs)
+
+
+def test_gradient_rate_is_the_change_over_the_last_map_cell_travelled(tan, arctic):
+    truth, Z = straight_track(tan, arctic, 1500)
+    pf = TerrainParticleFilter(tan, [20e3, 20e3, 0.0], np.diag([30.0 ** 2, 30.0 ** 2, 0.0]), "fuzzy", 5.0, 200, 4,
+                               terrain=arctic)
+    history = [(0.0, pf.gradient)]  # naive reference: keep every entry, search the window
+    for k in range(1500):
+        pf.step([0.5, 0.0], 1.0, Z[k])
+        travelled = 0.5 * (k + 1)
+        history.append((travelled, pf.gradient))
+        while len(history) > 2 and travelled - history[1][0] >= 500.0:
+            history.pop(0)
+        assert pf.gradient_rate == pytest.approx((pf.gradient - history[0][1]) / 0.5, rel=1e-12, abs=1e-12)
+    assert 499.0 <= travelled - history[0][0] <= 500.5
