@@ -141,7 +141,7 @@ def ivbckf_checks() -> list[Check]:
     u, dt = np.zeros(lin.n_u), 0.1
     out = []
     for label, z in (("inlier", np.array([1.2, 1.9])), ("outlier", np.array([15.0, 1.9]))):
-        f = IVBCKF(lin, x0, P0, Q, R, iterations=10)
+        f = IVBCKF(lin, x0, P0, Q, R, u=8.0, t=5.0, iterations=10)  # the reference's u, t
         f.predict(u, dt)
         x_prior, P_prior = f.x, f.P
         f.update(z)

@@ -37,16 +37,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..filters.kalman import CKF, EKF, MCUKF, UKF, HuberUKF
+from ..numerics import relative_error, wrap_to_pi as wrap
 from .verify import Check
 
 STEPS = 15
 TOLERANCE = 1e-12
 UKF_PARAMETERS = ((1.0, 2.0, 0.0), (0.5, 2.0, 1.0))
-
-
-def wrap(d):
-    """d wrapped to (-pi, pi], the formula of the generated C."""
-    return d - 2 * np.pi * np.ceil((d - np.pi) / (2 * np.pi))
 
 
 def measurement_residual(angle_outputs):
@@ -95,11 +91,6 @@ def scenario(bundle, steps: int = STEPS, seed: int = 7) -> Scenario:
         x = bundle.f(x, U[k], p, dt) + np.linalg.cholesky(Q) @ rng.normal(size=n)
         Z[k] = bundle.h(x, p) + np.sqrt(0.02) * rng.normal(size=m)
     return Scenario(x0, P0, Q, R, p, dt, U, Z)
-
-
-def relative_error(ours, reference) -> float:
-    ours, reference = np.asarray(ours), np.asarray(reference)
-    return float(np.max(np.abs(ours - reference)) / max(1.0, float(np.max(np.abs(reference)))))
 
 
 def run_ours(flt, sc: Scenario, mask_entries=None):

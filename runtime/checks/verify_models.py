@@ -40,6 +40,7 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 from . import reference_models
+from ..numerics import relative_error
 from .verify import Check
 
 MODEL_FUNCTIONS = ("f", "F", "G", "h", "H", "xdot", "x_next")
@@ -58,14 +59,6 @@ ORDER_DT = 0.1              # realistic filter step [s]
 ORDER_HORIZON = 2.0         # global error over this horizon scales as dt^order
 SCHEME_ORDER = {"euler": 1, "rk4": 4}  # halving dt divides the global error by 2^order (16 for RK4)
 ORDER_SLACK = 0.25          # accepted ratio: 2^order * [0.75, 1.25], i.e. [12, 20] for RK4
-
-
-def relative_error(a, b) -> float:
-    """max|a - b| / max|b| (max|a - b| when b is zero)."""
-    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
-    scale = np.max(np.abs(b)) if b.size else 0.0
-    diff = np.max(np.abs(a - b)) if b.size else 0.0
-    return float(diff / scale) if scale > 0 else float(diff)
 
 
 def symbolic_functions(name_or_model) -> dict:

@@ -104,19 +104,13 @@ def all_finite(*arrays) -> bool:
 # the run: delete the key below (the xfail test becomes a regression test) and its `known_bug` use.
 
 KNOWN_BUGS = {
-    "gaussian_sum_long_dt_poisons": "GS-CKF, MOGCPF and EM-MOGCPF accept the soak run's one 5 s step, then refuse "
-                                    "every later step ('the step left the finite range (mixture means must be "
-                                    "finite)'): permanent divergence (the Kalman family subdivides, PF and CPF refuse)",
-    "ivbckf_defaults": "IVBCKF is registered as kind 'kalman' but (model, x0, P0, Q, R) with its default options "
-                       "u = 8, t = 5 is refused on rov4dof (it needs u > n + 1, t > m + 1)",
 }
 
 #: registered filter classes that cannot be fuzzed until a known bug is fixed (their property tests are
 #: marked xfail(strict=True) with the bug's reason)
-CLASS_BUGS = {"IVBCKF": "ivbckf_defaults"}
+CLASS_BUGS: dict[str, str] = {}
 #: registered filter classes with a known permanent divergence in the quick soak
-SOAK_BUGS = {name: "gaussian_sum_long_dt_poisons"
-             for name in ("GaussianSumCKF", "MixtureCubatureParticleFilter", "EMMixtureCubatureParticleFilter")}
+SOAK_BUGS: dict[str, str] = {}
 
 
 

@@ -142,7 +142,7 @@ def test_load_refuses_a_manifest_without_the_model_description(isolated_cache, t
 @known("ivbckf_defaults")
 def test_every_registered_kalman_filter_builds_from_model_x0_P0_Q_R(rov):
     for cls, kind in registered_filters().items():
-        if kind == "kalman":
+        if kind == "kalman" and not hasattr(cls, "contract_example"):  # GPUKF: a learned predict, its own constructor
             cls(rov, X0, P0, Q, R)
 
 

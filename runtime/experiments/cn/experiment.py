@@ -81,7 +81,7 @@ def make_filter(name: str, model, trial, config: CnConfig, rng: np.random.Genera
     if name == "MCUKF":
         return MCUKF(model, x0, P0, Q, R, sigma=config.sigma, alpha=1.0, beta=0.0, kappa=lam, gate_probability=0.0)
     if name == "IVBCKF":
-        return IVBCKF(model, x0, P0, Q, R, iterations=config.ivb_iterations)
+        return IVBCKF(model, x0, P0, Q, R, iterations=config.ivb_iterations, gate_probability=0.0)  # as the paper's
     if name == "PF":
         noise = GaussianMixture(np.ones(1), np.zeros((1, 1)), R[None])
         return ParticleFilter(model, x0, P0, Q, noise, config.n_particles, rng,

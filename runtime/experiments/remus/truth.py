@@ -23,6 +23,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ...numerics import wrap_to_pi as wrap
+
 STATE_NAMES = ("u", "v", "w", "p", "q", "r", "x", "y", "z", "phi", "theta", "psi")
 CHANNELS = ("u", "v", "w", "p", "q", "r", "z", "phi", "theta", "psi")
 #: spec 8: sigma of the held noise samples and the quantisation step of each channel (0: none)
@@ -31,11 +33,6 @@ SENSOR_LSB = np.array([4 / 2**12, 4 / 2**12, 4 / 2**12, 0.0, 0.0, 0.0, 100 / 2**
                        2 * np.pi / 2**12, np.pi / 2**12])
 #: measurement covariance a filter should use: the held noise plus uniform quantisation error LSB^2/12
 SENSOR_R = np.diag(SENSOR_SIGMA**2 + SENSOR_LSB**2 / 12)
-
-
-def wrap(a):
-    """Angle(s) wrapped to (-pi, pi]."""
-    return a - 2 * np.pi * np.ceil((a - np.pi) / (2 * np.pi))
 
 
 @dataclass(frozen=True)

@@ -5,7 +5,8 @@ covariance are scaled by Gamma-distributed factors xi and lambda whose degrees o
 nu are themselves Gamma-distributed, with inverse-Wishart conjugate priors on the two scale
 matrices. Seed 002's prior parameters: chi = kappa = 5 (Gamma shapes of omega, nu), phi = zeta = 1
 (their rates), u = 8 and t = 5 (inverse-Wishart degrees of freedom of the prior and likelihood
-scale matrices: u = n + 1 + tau_P, t = m + 1 + tau_R, so tau_P = 5, tau_R = 3 for n = 2, m = 1).
+scale matrices: u = n + 1 + tau_P, t = m + 1 + tau_R, so tau_P = 5, tau_R = 3 for n = 2, m = 1;
+the defaults keep those tau for any n and m: u = n + 6, t = m + 4).
 
 One step: the generated cubature predict ``<m>_ckf_predict`` gives (x^-, P^-); then with
 U0 = tau_P P^-, T0 = tau_R R, E[P^-1] = P^-^-1, E[R^-1] = R^-1, E[xi] = E[lambda] = 1,
@@ -29,6 +30,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy.stats import chi2
 from scipy.special import digamma
 
 from ...contract import (ConcurrencyGuard, FilterBase, check_covariance, check_dt, check_p, check_state, check_u,
@@ -38,15 +40,30 @@ from ...numerics import REPAIR_FLOOR, repair_covariance
 __all__ = ["IVBCKF"]
 
 
+#: numerical failures of the generated calls and NumPy algebra inside a step (the state is restored)
+_NUMERIC = (FloatingPointError, np.linalg.LinAlgError, OverflowError)
+
+
+def _out_of_range(error) -> ValueError:
+    return ValueError(f"IVBCKF: the step left the finite range ({error}): u, dt, z or p drive the model out of "
+                      "range; state left unchanged")
+
+
 @register("kalman")
 class IVBCKF(FilterBase):
     """Iterated VB Student-t CKF (module docstring); Kalman constructor (model, x0, P0, Q, R, **options)."""
 
     name = "IVBCKF"
 
+    growth_limit = 1e3  # see _predict
+
     def __init__(self, model, x0, P0, Q, R, *, chi: float = 5.0, phi: float = 1.0, kappa: float = 5.0,
-                 zeta: float = 1.0, u: float = 8.0, t: float = 5.0, iterations: int = 10):
+                 zeta: float = 1.0, u: float | None = None, t: float | None = None, iterations: int = 10,
+                 gate_probability: float = 1e-10):
         n, m = model.n_x, model.n_y
+        # the paper's tau_P = 5, tau_R = 3 (u = 8, t = 5 for its n = 2, m = 1) for any model size
+        u = n + 6.0 if u is None else u
+        t = m + 4.0 if t is None else t
         self.model = model
         self._x, self._P = check_state(x0, n, "x0"), check_covariance(P0, n, "P0")
         self.Q = check_covariance(Q, n, "Q")
@@ -55,6 +72,12 @@ class IVBCKF(FilterBase):
             raise ValueError(f"IVBCKF needs u > n + 1 = {n + 1}, t > m + 1 = {m + 1} and iterations >= 1")
         self.chi, self.phi, self.kappa, self.zeta, self.u, self.t = chi, phi, kappa, zeta, u, t
         self.iterations = int(iterations)
+        if not 0.0 <= gate_probability < 1.0:
+            raise ValueError(f"gate_probability must be in [0, 1), got {gate_probability!r}")
+        #: chi-square gate on the NIS at the prior, as the Kalman engine's (0 = off; the CN experiment runs the
+        #: paper's filter without it); a gated measurement is left out whole and counted in ``gated``
+        self.gate_probability = float(gate_probability)
+        self.gated = 0
         self._predict_fn = model.function("ckf_predict")
         self._update_fn = model.function("ckf_update")
         self._h = model.function("h")
@@ -71,10 +94,10 @@ class IVBCKF(FilterBase):
         return self._P.copy()
 
     def checkpoint(self):
-        return self._x.copy(), self._P.copy(), self.nis, self.nis_dof, self.xi, self.lam
+        return self._x.copy(), self._P.copy(), self.nis, self.nis_dof, self.xi, self.lam, self.gated
 
     def restore(self, state) -> None:
-        x, P, self.nis, self.nis_dof, self.xi, self.lam = state
+        x, P, self.nis, self.nis_dof, self.xi, self.lam, self.gated = state
         self._x, self._P = x.copy(), P.copy()
 
     def _p(self, p):
@@ -83,7 +106,10 @@ class IVBCKF(FilterBase):
     def predict(self, u, dt, p=None) -> None:
         u, dt, p = check_u(u, self.model.n_u), check_dt(dt), check_p(p, self.model)
         with self._guard:
-            self._predict(u, dt, p)
+            try:
+                self._predict(u, dt, p)
+            except _NUMERIC as error:
+                raise _out_of_range(error) from error
 
     def _predict(self, u, dt, p) -> None:
         P0 = self._P
@@ -94,6 +120,12 @@ class IVBCKF(FilterBase):
             x, P, ok = self._predict_fn(self._x, P0, u, self._p(p), dt, self.Q)
         if not ok or not np.all(np.isfinite(P)):
             raise ValueError("IVBCKF predict failed (P not positive definite)")
+        # the Kalman engine's stability test (growth_limit): a dt beyond the model's stable range gives finite
+        # but absurd covariances that would poison every later step; refused (this filter does not subdivide)
+        base = float(np.max(np.diag(P0))) + float(np.max(np.diag(self.Q)))
+        if not float(np.max(np.diag(P))) <= self.growth_limit * max(base, np.finfo(float).tiny):
+            raise ValueError(f"IVBCKF: dt = {dt:g} s is beyond the model's stable range (the covariance grew more than "
+                             f"{self.growth_limit:g}x in one predict); use a shorter dt. State left unchanged")
         self._x, self._P = np.asarray(x).reshape(-1), np.asarray(P)
 
     def update(self, z, p=None) -> bool:
@@ -104,8 +136,10 @@ class IVBCKF(FilterBase):
             saved = self.checkpoint()
             try:
                 return self._update(measurement, self._p(p))
-            except BaseException:
+            except BaseException as error:
                 self.restore(saved)
+                if isinstance(error, _NUMERIC):
+                    raise _out_of_range(error) from error
                 raise
 
     def step(self, u, dt, z=None, p=None) -> bool:
@@ -116,8 +150,10 @@ class IVBCKF(FilterBase):
             try:
                 self._predict(u, dt, p)
                 return False if measurement is None else self._update(measurement, self._p(p))
-            except BaseException:
+            except BaseException as error:
                 self.restore(saved)
+                if isinstance(error, _NUMERIC):
+                    raise _out_of_range(error) from error
                 raise
 
     def _cubature_B(self, x, P, z, p, present) -> np.ndarray:
@@ -128,6 +164,18 @@ class IVBCKF(FilterBase):
         Y = np.stack([np.asarray(self._h(points[:, i], p)).reshape(-1) for i in range(2 * n)], axis=1)
         r = (z[present, None] - Y[present])
         return r @ r.T / (2 * n)
+
+    def _gated(self, innovation, S, present, m: int) -> bool:
+        """NIS of the prior prediction beyond the chi-square gate: the measurement is left out (counted)."""
+        nu = np.asarray(innovation).reshape(-1)[present]
+        S = np.atleast_2d(np.asarray(S))
+        S = S[np.ix_(present, present)] if S.shape[0] != m else S
+        with np.errstate(over="ignore", invalid="ignore"):
+            nis = float(nu @ np.linalg.solve(S, nu))
+        if nis <= chi2.isf(self.gate_probability, m):
+            return False
+        self.gated += 1
+        return True
 
     def _update(self, measurement, p) -> bool:
         z, present = measurement
@@ -143,15 +191,21 @@ class IVBCKF(FilterBase):
         E_xi = E_lam = 1.0
         E_omega, E_nu = self.chi / self.phi, self.kappa / self.zeta
         R_full = np.array(self.R)
+        first = True
         for _ in range(self.iterations):
             P_t = np.linalg.inv(E_Pinv) / E_xi
             R_t = np.linalg.inv(E_Rinv) / E_lam
             R_full[np.ix_(present, present)] = R_t
+            if not (np.all(np.isfinite(P_t)) and np.all(np.isfinite(R_t))):
+                raise FloatingPointError("the variational scale matrices overflowed (z far outside the prediction?)")
             x, P, innovation, S, ok = self._update_fn(x_prior, 0.5 * (P_t + P_t.T), np.where(present, z, 0.0), p,
                                                       R_full, mask)
             x, P = np.asarray(x).reshape(-1), np.asarray(P)
             if not ok:
                 raise ValueError("IVBCKF update failed (covariance not positive definite)")
+            if first and self.gate_probability > 0.0 and self._gated(innovation, S, present, m):
+                return False
+            first = False
             d = x - x_prior
             A = np.outer(d, d) + P
             B = self._cubature_B(x, P, z, p, present)

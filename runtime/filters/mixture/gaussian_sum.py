@@ -173,6 +173,7 @@ class _MixtureFilterBase(FilterBase):
                 self._p_is_default = False
             if u is not None:
                 predicted = self.cubature.predict(self.posterior, u, dt)
+                self._check_growth(self.posterior, predicted, dt)
             else:
                 predicted = self._pending if self._pending is not None else self.posterior
             if measurement is None:
@@ -193,6 +194,20 @@ class _MixtureFilterBase(FilterBase):
 
     def _update(self, predicted: GaussianMixture, z: np.ndarray, present: np.ndarray) -> None:
         raise NotImplementedError
+
+    #: a predict whose largest component variance grows more than this many times the prior's largest
+    #: variance plus the process noise's is refused (the same test as the Kalman engine's ``growth_limit``):
+    #: a dt beyond the model's stable range would otherwise be accepted with finite but absurd
+    #: covariances and poison every later step. These filters do not subdivide dt.
+    growth_limit = 1e3
+
+    def _check_growth(self, prior: GaussianMixture, predicted: GaussianMixture, dt: float) -> None:
+        variance = lambda covs: float(np.max(np.diagonal(covs, axis1=1, axis2=2)))  # noqa: E731
+        base = variance(prior.covariances) + variance(self.process_noise.covariances)
+        if not variance(predicted.covariances) <= self.growth_limit * max(base, np.finfo(float).tiny):
+            raise ValueError(f"{type(self).__name__}: dt = {dt:g} s is beyond the model's stable range (a component "
+                             f"covariance grew more than {self.growth_limit:g}x in one predict); use a shorter dt. "
+                             "State left unchanged")
 
 
 @register("gaussian-sum")
