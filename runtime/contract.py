@@ -340,6 +340,16 @@ class FilterBase:
     ess: float = math.nan
     n_particles: float = math.nan
 
+    @property
+    def x(self) -> np.ndarray:
+        """The state estimate (n_x,), a copy (filters keep it in ``_x``)."""
+        return self._x.copy()
+
+    @property
+    def P(self) -> np.ndarray:
+        """Its covariance (n_x, n_x), a copy (filters keep it in ``_P``)."""
+        return self._P.copy()
+
     def run(self, U, Z, dt, params=None, truth=None) -> FilterResult:
         """Filter a whole sequence (see ``run_filter``)."""
         return run_filter(self, U, Z, dt, params, truth)

@@ -188,6 +188,8 @@ def filter_groups() -> dict[str, list]:
 
     groups: dict[str, list] = {"kalman": [], "particle": []}
     for cls, kind in sorted(registered_filters().items(), key=lambda item: item[0].__name__):
+        if hasattr(cls, "contract_example"):
+            continue  # its own model or learned step (GP-UKF, UPF family, terrain SIR): not the soak's rov4dof set-up
         groups["kalman" if kind == "kalman" else "particle"].append((cls, kind))
     return groups
 

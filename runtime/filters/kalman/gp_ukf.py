@@ -70,13 +70,6 @@ class GPUKF(FilterBase):
         self._update_fn = model.function("ukf_update")
 
     # ------------------------------------------------------------------ state
-    @property
-    def x(self) -> np.ndarray:
-        return self._x.copy()
-
-    @property
-    def P(self) -> np.ndarray:
-        return self._P.copy()
 
     def checkpoint(self):
         return (self._x.copy(), self._P.copy(), self.nis, self.nis_dof, self.last_Q.copy())

@@ -85,14 +85,6 @@ class IVBCKF(FilterBase):
         self.xi, self.lam = 1.0, 1.0  # the last step's E[xi], E[lambda] (for inspection)
         self._guard = ConcurrencyGuard(type(self).__name__)
 
-    @property
-    def x(self) -> np.ndarray:
-        return self._x.copy()
-
-    @property
-    def P(self) -> np.ndarray:
-        return self._P.copy()
-
     def checkpoint(self):
         return self._x.copy(), self._P.copy(), self.nis, self.nis_dof, self.xi, self.lam, self.gated
 

@@ -108,17 +108,6 @@ class _MixtureFilterBase(FilterBase):
         self._x, self._P = x0, np.array(P0)
         self._guard = ConcurrencyGuard(type(self).__name__)
 
-    @property
-    def x(self) -> np.ndarray:
-        return self._x.copy()
-
-    @property
-    def P(self) -> np.ndarray:
-        return self._P.copy()
-
-    estimate = x  # pre-contract names
-    covariance = P
-
     def _publish(self, mixture: GaussianMixture) -> None:
         self._x, self._P = mixture.mean(), mixture.covariance()  # eq. 45
 

@@ -302,18 +302,6 @@ class SIRFilter(FilterBase):
         """The buffer a proposal writes the moved particles into (n_x, N)."""
         return self._batches[1 - self._cur].x
 
-    @property
-    def x(self) -> np.ndarray:
-        return self._x.copy()
-
-    @property
-    def P(self) -> np.ndarray:
-        return self._P.copy()
-
-    # pre-contract names, kept for the experiments' code
-    estimate = x
-    covariance = P
-
     def checkpoint(self):
         return (self.particles.copy(), self.log_weights.copy(), self.weights.copy(), self.ess, self._x.copy(),
                 self._P.copy(), self.resamples, self.uninformative, self.rng.bit_generator.state,

@@ -131,13 +131,6 @@ class TerrainParticleFilter(FilterBase):
         self._history.append((0.0, self.gradient))
 
     # ---------------------------------------------------------------- contract: state
-    @property
-    def x(self) -> np.ndarray:
-        return self._x.copy()
-
-    @property
-    def P(self) -> np.ndarray:
-        return self._P.copy()
 
     def checkpoint(self):
         return (self.particles.copy(), self.log_weights.copy(), self.weights.copy(), self.ess, self._x.copy(),

@@ -139,24 +139,16 @@ class UnscentedParticleFilter(FilterBase):
         """The covariances the particles carry, (n, n, N); a copy."""
         return self._covs[:, :, :self.N].copy()
 
-    @property
-    def x(self) -> np.ndarray:
-        return self._x.copy()
-
-    @property
-    def P(self) -> np.ndarray:
-        return self._P.copy()
-
     def checkpoint(self):
         N = self.N
         return (N, self._means[:, :N].copy(), self._covs[:, :, :N].copy(), self.log_weights.copy(), self.ess,
                 self._x.copy(), self._P.copy(), self.uninformative, self.failed_slices, self.rng.bit_generator.state,
-                self.p.copy(), self._p_is_default)
+                self.p.copy(), self._p_is_default, self.n_particles)
 
     def restore(self, state) -> None:
         (N, mean, cov, log_w, self.ess, x, P, self.uninformative, self.failed_slices, rng_state, p,
-         self._p_is_default) = state
-        self.N, self.n_particles = N, float(N)
+         self._p_is_default, self.n_particles) = state
+        self.N = N
         self._means[:, :N], self._covs[:, :, :N] = mean, cov
         self.log_weights, self._x, self._P = log_w.copy(), x.copy(), P.copy()
         self.rng.bit_generator.state = rng_state
