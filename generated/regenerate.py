@@ -20,11 +20,11 @@ from __future__ import annotations
 import difflib
 import hashlib
 import importlib
-import importlib.util
 import inspect
 import os
 import shlex
 import sys
+import types
 from pathlib import Path
 
 GENERATED_DIR = Path(__file__).resolve().parent
@@ -167,11 +167,13 @@ def load_model_spec(spec: str):
         if not path.is_file():
             raise FileNotFoundError(f"--model {spec!r}: no file {path}")
         name = "abyssal_user_model_" + hashlib.sha256(str(path).encode()).hexdigest()[:12]
-        module_spec = importlib.util.spec_from_file_location(name, path)
-        module = importlib.util.module_from_spec(module_spec)
+        module = types.ModuleType(name)
+        module.__file__ = str(path)
         sys.modules[name] = module  # as `import` does: dataclasses and pickling look the module up there
         try:
-            module_spec.loader.exec_module(module)
+            # compiled from the file's current text, never from a cached .pyc: a model file edited twice within
+            # one second with the same size (e.g. a coefficient 23.8 -> 24.0 and back) would otherwise be stale
+            exec(compile(path.read_bytes(), str(path), "exec"), module.__dict__)
         except BaseException:
             del sys.modules[name]
             raise
