@@ -120,16 +120,23 @@ def run_tan(args, config=None) -> int:
                 "config": repr(config), "cases": experiment.json_document(rows),
                 "failures": [f.describe() for f in result.failures], "wall_seconds": result.wall_seconds,
                 "where": result.where, "rows_csv": str(out / "tan.csv") if out else None}
+    return _publish("tan", args, out, result, document, experiment.report(rows, config), figures)
+
+
+def _publish(name: str, args, out, result, document: dict, report: str, figures) -> int:
+    """Write <out>/<name>.json, print the table (or the JSON) and the files written; exit 1 if a run failed twice."""
+    from . import campaign
+
     if out:
-        (out / "tan.json").write_text(json.dumps(document, indent=1))
+        (out / f"{name}.json").write_text(json.dumps(document, indent=1))
     if args.json:
         print(json.dumps(document, indent=1))
     else:
-        print(experiment.report(rows, config))
+        print(report)
         for path in figures:
             print(f"wrote {path}")
         if out:
-            print(f"wrote {out / 'tan.csv'} (one row per run x case x filter x metric) and {out / 'tan.json'}")
+            print(f"wrote {out / f'{name}.csv'} (one row per run x case x filter x metric) and {out / f'{name}.json'}")
     if result.failures:
         print(campaign.summarise_failures(result), file=sys.stderr)
         return 1
@@ -170,20 +177,7 @@ def run_cn(args, config=None) -> int:
                 "cases": _strict_json(experiment.json_document(rows)),
                 "failures": [f.describe() for f in result.failures], "wall_seconds": result.wall_seconds,
                 "where": result.where, "rows_csv": str(out / "cn.csv") if out else None}
-    if out:
-        (out / "cn.json").write_text(json.dumps(document, indent=1))
-    if args.json:
-        print(json.dumps(document, indent=1))
-    else:
-        print(experiment.report(rows, config))
-        for path in figures:
-            print(f"wrote {path}")
-        if out:
-            print(f"wrote {out / 'cn.csv'} (one row per run x case x filter x metric) and {out / 'cn.json'}")
-    if result.failures:
-        print(campaign.summarise_failures(result), file=sys.stderr)
-        return 1
-    return 0
+    return _publish("cn", args, out, result, document, experiment.report(rows, config), figures)
 
 
 def _run_remus(args) -> int:
