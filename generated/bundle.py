@@ -272,6 +272,14 @@ class CompiledFunction:
         res_ptrs = (ctypes.c_void_p * len(outputs))(*[a.ctypes.data for a in outputs])
         return SoaBinding(self._soa, self.name, arg_ptrs, res_ptrs, lds.pop(), (inputs, outputs))
 
+    @property
+    def soa_address(self) -> int:
+        """Address of the C function ``<name>_soa`` (for runtime C that calls the kernel itself); the
+        library stays loaded while this CompiledFunction lives."""
+        if self._soa is None:
+            raise ValueError(f"{self.name} has no structure-of-arrays kernel (see codegen.SOA_KERNELS)")
+        return ctypes.cast(self._soa, ctypes.c_void_p).value
+
     # ---------------------------------------------------------- convenience path
     def _checked(self, value, sig: Signature) -> np.ndarray:
         """value as a flat column-major float64 array, after shape and finiteness checks."""

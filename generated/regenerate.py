@@ -51,16 +51,23 @@ def _installed_package_folders() -> list[Path]:
 
 
 # --------------------------------------------------------------------------- one model -> files
-def model_files(model, families=DEFAULT_FILTERS, origin=None, extra_units=()) -> dict[str, str]:
-    """File name -> text of one model folder (see codegen.generate_model); `extra_units` (codegen.Unit)
-    are further generated functions of the model, one C file each (e.g. tan3dof's fuzzy logic)."""
+def model_files(model, families=DEFAULT_FILTERS, origin=None) -> dict[str, str]:
+    """File name -> text of one model folder (see codegen.generate_model); the model's own further
+    functions (``Model.functions``, e.g. tan3dof's fuzzy logic) go into ``<name>_functions.c``."""
     from abyssal.symbolic import codegen
     from abyssal.symbolic.filters import check_families, filter_units
 
     families = check_families(families)
     origin = origin or codegen.Origin(command="abyssal.generate()", check="abyssal.check_generated()",
                                       source=f"a Model object named {model.name!r}")
-    units = [codegen.Unit("model", codegen.model_functions(model)), *filter_units(model, families), *extra_units]
+    units = [codegen.Unit("model", codegen.model_functions(model)), *filter_units(model, families)]
+    generated = {fn.name() for unit in units for fn in unit.functions}
+    clashes = sorted(fn.name() for fn in model.functions if fn.name() in generated)
+    if clashes:
+        raise ValueError(f"model {model.name!r}: functions {clashes} have the names of generated model or filter "
+                         "functions; rename them")
+    if model.functions:
+        units.append(codegen.Unit("functions", model.functions))
     return codegen.generate_model(model, units, origin, families)
 
 
@@ -108,7 +115,7 @@ def expected_files(models: list[str] | None = None) -> dict[Path, str]:
     """Path (relative to generated/) -> text, for every registered model (or the named ones)."""
     from abyssal.symbolic import codegen
     from abyssal.symbolic.filters import FAMILIES
-    from abyssal.symbolic.models import EXTRA_UNITS, FILTER_FAMILIES, REGISTRY
+    from abyssal.symbolic.models import FILTER_FAMILIES, REGISTRY
 
     names = list(REGISTRY) if models is None else models
     unknown = [n for n in names if n not in REGISTRY]
@@ -119,8 +126,7 @@ def expected_files(models: list[str] | None = None) -> dict[Path, str]:
     for name in names:
         origin = codegen.Origin(source=f"symbolic/models/{name}.py")
         model = REGISTRY[name]()
-        extra = EXTRA_UNITS[name](model) if name in EXTRA_UNITS else ()
-        for fname, text in model_files(model, FILTER_FAMILIES.get(name, FAMILIES), origin, extra).items():
+        for fname, text in model_files(model, FILTER_FAMILIES.get(name, FAMILIES), origin).items():
             out[Path(name) / fname] = text
     return out
 

@@ -48,6 +48,7 @@ every module under runtime/filters). A filter whose constructor fits no kind giv
 """
 from __future__ import annotations
 
+import functools
 import math
 import numbers
 import threading
@@ -172,6 +173,20 @@ def real_array(value, name: str) -> np.ndarray:
     return arr.astype(np.float64, copy=False)
 
 
+def _finite(v: np.ndarray) -> bool:
+    """Every entry of a float64 vector finite; for the short vectors of a step, Python's isfinite over
+    tolist() takes ~0.2 us where np.isfinite(v).all() takes ~0.9 us."""
+    if v.shape[0] <= 32:
+        return all(map(math.isfinite, v.tolist()))
+    return bool(np.isfinite(v).all())
+
+
+@functools.lru_cache(maxsize=None)
+def _all_present(n: int) -> np.ndarray:
+    """An (n,) all-True mask to copy (a copy takes ~0.13 us, np.ones ~0.7 us)."""
+    return np.ones(n, dtype=bool)
+
+
 def _vector(value, n: int, name: str) -> np.ndarray:
     v = real_array(value, name)
     if v.shape != (n,):
@@ -186,7 +201,7 @@ def _nonfinite_message(name: str, v: np.ndarray) -> str:
 
 def check_state(value, n: int, name: str = "x0") -> np.ndarray:
     """A finite (n,) float64 vector (a copy)."""
-    if type(value) is np.ndarray and value.dtype == np.float64 and value.shape == (n,) and np.isfinite(value).all():
+    if type(value) is np.ndarray and value.dtype == np.float64 and value.shape == (n,) and _finite(value):
         return value.copy()  # the hot path
     v = _vector(value, n, name)
     if not np.all(np.isfinite(v)):
@@ -227,10 +242,8 @@ def check_z(z, n_y: int) -> tuple[np.ndarray, np.ndarray] | None:
     """
     if z is None:
         return None
-    if type(z) is np.ndarray and z.dtype == np.float64 and z.shape == (n_y,):
-        present = np.isfinite(z)
-        if present.all():
-            return z.copy(), present
+    if type(z) is np.ndarray and z.dtype == np.float64 and z.shape == (n_y,) and _finite(z):
+        return z.copy(), _all_present(n_y).copy()  # the hot path
     v = _vector(z, n_y, "z")
     present = np.isfinite(v)
     if present.all():

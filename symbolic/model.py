@@ -79,6 +79,9 @@ class Model:
     notes: departures from the source paper, printed in the manifest.
     x_next: discrete dynamics f_d(x, u, p, w, dt), shape (n_x, 1), instead of xdot.
     dt: the SX scalar symbol of the step length used in x_next.
+    functions: further CasADi SX Functions generated with the model into ``<name>_functions.c``
+        (e.g. a noise law: tan3dof's fuzzy_sigma), each named ``<name>_<suffix>`` and loaded as
+        ``bundle.function("<suffix>")``; ``abyssal verify`` compares their C with CasADi.
 
     Validation happens here, when the Model is built, so a mistake is reported next to the line
     that made it rather than as a compiler error or a silently wrong filter: SX (not MX)
@@ -104,6 +107,7 @@ class Model:
     x_next: ca.SX | None = None
     dt: ca.SX | None = None
     angle_states: tuple[int, ...] = ()
+    functions: tuple[ca.Function, ...] = ()
 
     def __post_init__(self):
         problem = c_identifier_problem(self.name)
@@ -114,6 +118,7 @@ class Model:
         self._check_shapes()
         self._check_symbols()
         self._check_indices()
+        self._check_functions()
 
     # ----------------------------------------------------------------- validation
     def _fail(self, message: str):
@@ -216,6 +221,23 @@ class Model:
         if free_h:
             self._fail(f"h may depend on x and p only, found {free_h} in y (an input in the measurement: make it a parameter)")
 
+    def _check_functions(self):
+        object.__setattr__(self, "functions", tuple(self.functions))
+        for fn in self.functions:
+            if not isinstance(fn, ca.Function):
+                self._fail(f"functions: expected casadi.Function objects, got {type(fn).__name__}")
+            label = f"functions: {fn.name()!r}"
+            if not fn.name().startswith(self.name + "_") or c_identifier_problem(fn.name()):
+                self._fail(f"{label} must be named {self.name}_<suffix> (a C identifier): it becomes a C symbol")
+            if not fn.is_a("SXFunction"):
+                self._fail(f"{label} is not an SX Function; abyssal generates C from SX (build it from casadi.SX)")
+            if fn.has_free():
+                self._fail(f"{label} has free symbols {fn.get_free()}: make them inputs")
+        names = [fn.name() for fn in self.functions]
+        duplicates = sorted({n for n in names if names.count(n) > 1})
+        if duplicates:
+            self._fail(f"functions: duplicate names {duplicates}")
+
     def _check_indices(self):
         for label, indices, n, what in (("angle_outputs", self.angle_outputs, self.n_y, "outputs"),
                                         ("angle_states", self.angle_states, self.n_x, "states")):
@@ -282,8 +304,9 @@ class Model:
             dynamics = [f"dt={self.dt}", str(self.x_next)]
         else:
             dynamics = [str(self.xdot)]
+        extra = [f"{fn.name()}: {fn.serialize()}" for fn in self.functions]
         text = "\n".join([self.name, self.discretisation, str(self.substeps), str(self.angle_outputs), names, defaults,
-                          *dynamics, str(self.y)])
+                          *dynamics, str(self.y), *extra])
         return hashlib.sha256(text.encode()).hexdigest()
 
 

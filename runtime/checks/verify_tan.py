@@ -65,7 +65,7 @@ def fuzzy_checks(bundle) -> list[Check]:
     points = _fuzzy_points()
     ours = np.array([float(compiled(g, r)[0]) for g, r in points])
     casadi_values = np.array([float(symbolic(g, r)) for g, r in points])
-    out = [Check(bundle.name, "fuzzy_sigma C vs CasADi", "CasADi SX evaluation",
+    out = [Check(bundle.name, "fuzzy_sigma C vs CasADi on the domain grid", "CasADi SX evaluation",
                  float(np.abs(ours - casadi_values).max()), 1e-12)]
     try:
         sim = _skfuzzy_system()

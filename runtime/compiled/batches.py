@@ -8,6 +8,7 @@ generated cubature steps over (n, cap) means and (n, n, cap) covariances through
 from __future__ import annotations
 
 import os
+import time
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -23,8 +24,11 @@ def _f_zeros(*shape) -> np.ndarray:
     return np.zeros(shape, order="F")
 
 
-#: batches of at least this many slices are split over the cores (ctypes releases the GIL)
+#: batches of at least this many slices may be split over the cores (ctypes releases the GIL) ...
 PARALLEL_MIN_SLICES = 64
+#: ... when their serial work is estimated above this many seconds: a hand-off to the thread pool costs
+#: ~20-90 us per batch (benchmarks/README.md, bench_threads), more than cheap slices save by splitting
+SPLIT_MIN_SECONDS = 200e-6
 
 
 _POOL: ThreadPoolExecutor | None = None
@@ -54,9 +58,16 @@ class ParallelBatch:
     shared). Each chunk is its own ``bind_batch`` on views of the same buffers, so results land in
     place; the calling thread evaluates the first chunk while a process-wide
     ``concurrent.futures.ThreadPoolExecutor`` evaluates the others (ctypes releases the GIL).
-    Every slice is the same scalar C call whatever the split, so results do not depend on it.
-    (The hand-made persistent worker threads this replaced saved tens of microseconds per batch;
-    benchmarks/README.md has the measurement.)
+
+    A batch is split only when it is worth the hand-off: the first calls run serially and time
+    themselves, and a batch is split when count x (the cheapest serial time per slice seen) exceeds
+    SPLIT_MIN_SECONDS. Every slice is the same scalar C call whatever the split, so results do not
+    depend on it (nor on the timing that chooses it).
+
+    OpenMP in the generated ``_batch`` instead of this pool was measured (bench_threads,
+    benchmarks/README.md): at most ~9 % faster per filter step on two idle cores, and only while
+    libgomp's idle threads spin, which makes two concurrent processes (a 2-worker campaign) 1.7x
+    slower or more; a forked child's OpenMP call hangs. So the pool stays.
     """
 
     def __init__(self, fn, inputs, batched, outputs, capacity: int):
@@ -68,6 +79,9 @@ class ParallelBatch:
             ins = [a[..., lo:hi] if b else a for a, b in zip(inputs, batched)]
             outs = [a[..., lo:hi] for a in outputs]
             self._chunks.append((lo, hi, fn.bind_batch(ins, outs, hi - lo)))
+        self._whole = fn.bind_batch(inputs, outputs, capacity) if n_chunks > 1 else self._chunks[0][2]
+        #: cheapest serial seconds per slice measured so far (None: not yet measured)
+        self.slice_seconds: float | None = None
 
     def __call__(self, count: int, then=None) -> None:
         """Evaluate slices 0..count-1. `then(lo, hi)`, if given, runs right after each chunk's
@@ -76,6 +90,14 @@ class ParallelBatch:
             raise ValueError(f"batch size {count} outside 0..{self.capacity} of the bound buffers")
         if count <= self._chunks[0][1]:
             self._chunks[0][2](count)  # fits the first chunk: no thread hand-off
+            if then is not None:
+                then(0, count)
+            return
+        if self.slice_seconds is None or count * self.slice_seconds < SPLIT_MIN_SECONDS:
+            start = time.perf_counter()
+            self._whole(count)
+            per_slice = (time.perf_counter() - start) / count
+            self.slice_seconds = per_slice if self.slice_seconds is None else min(self.slice_seconds, per_slice)
             if then is not None:
                 then(0, count)
             return

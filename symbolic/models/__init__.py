@@ -3,7 +3,7 @@ from .cn2d import cn2d
 from .linear_cv import linear_cv
 from .remus100 import remus100
 from .rov4dof import rov4dof
-from .tan3dof import tan3dof, tan3dof_units
+from .tan3dof import tan3dof
 
 #: name -> model function; `abyssal regenerate` generates C for each of these.
 REGISTRY = {"rov4dof": rov4dof, "cn2d": cn2d, "linear_cv": linear_cv, "remus100": remus100, "tan3dof": tan3dof}
@@ -18,8 +18,4 @@ FILTER_FAMILIES: dict[str, tuple[str, ...]] = {
     "tan3dof": (),
 }
 
-#: name -> function(model) -> [codegen.Unit]: further generated functions of a built-in model, one C
-#: file per unit, loaded with the rest of its bundle (``bundle.function("fuzzy_sigma")``).
-EXTRA_UNITS = {"tan3dof": tan3dof_units}
-
-__all__ = ["EXTRA_UNITS", "FILTER_FAMILIES", "REGISTRY", "cn2d", "linear_cv", "remus100", "rov4dof", "tan3dof"]
+__all__ = ["FILTER_FAMILIES", "REGISTRY", "cn2d", "linear_cv", "remus100", "rov4dof", "tan3dof"]

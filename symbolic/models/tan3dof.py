@@ -14,10 +14,12 @@ with v and omega the noisy body velocities of eq. 2 (v + n_v, omega + n_omega).
   w dt)); the arc gives -cos(theta + w dt) in the y row (a misprint), and both rows are 0/0 at
   w = 0. The chord form above is the same arc (2 sin(a) cos(b) identities) and is exact and
   smooth through omega = 0.
-* sinc(a) = sin(a)/a is written branch-free: a select (``if_else`` without short-circuit, a
-  vectorisable conditional move) between sin(a)/a and its Taylor series to a^6 for |a| < 1e-2,
-  where the series' truncation error is below a^8/9! < 3e-22 and sin(a)/a's derivative would
-  lose digits to cancellation.
+* sinc(a) = sin(a)/a is written branch-free, as a blend with a 0/1 flag: small (|a| < 1e-2) picks
+  the Taylor series to a^6 (truncation error below a^8/9! < 3e-22; sin(a)/a's derivative would lose
+  digits to cancellation there), else sin(a)/a. Both sides are finite (the series sees a * small,
+  the division a + small, never 0) and one of them is multiplied by 0, so the blend is exactly one
+  side. A select (``if_else``) instead made gcc sink the sin call into a branch and give up
+  vectorising the particle loop.
 * Noise inputs (the filter samples them; eqs. 2-3): n_v ~ N(0, a1 v^2 + a2 omega^2) and
   n_omega ~ N(0, a3 v^2 + a4 omega^2) (body noise, m/s and rad/s, held over the step) and
   e_x, e_y ~ N(0, sigma^2) (environment noise, m per step: the sigma the fuzzy logic sets).
@@ -27,14 +29,13 @@ with v and omega the noisy body velocities of eq. 2 (v + n_v, omega + n_omega).
   (data, not equations: ``abyssal.runtime.terrain``), so it is not part of the model.
 
 The bundle also carries the fuzzy process-noise logic of section 3.2 as the generated function
-``fuzzy_sigma(gradient, gradient_rate) -> sigma`` (``abyssal.symbolic.fuzzy``; see EXTRA_UNITS
-in ``abyssal.symbolic.models``).
+``fuzzy_sigma(gradient, gradient_rate) -> sigma`` (``abyssal.symbolic.fuzzy``), one of the Model's
+``functions`` (generated into ``tan3dof_functions.c``).
 """
 from __future__ import annotations
 
 import casadi as ca
 
-from ..codegen import Unit
 from ..fuzzy import fuzzy_sigma_function
 from ..model import Model, Parameter, Quantity, symbols
 
@@ -63,12 +64,12 @@ SINC_SERIES_BELOW = 1e-2
 
 
 def sinc(a: ca.SX) -> ca.SX:
-    """sin(a)/a, exact and smooth through a = 0, without a branch (both sides are evaluated)."""
-    small = ca.fabs(a) < SINC_SERIES_BELOW
-    a2 = a * a
+    """sin(a)/a, exact and smooth through a = 0, without a branch (module docstring)."""
+    small = ca.fabs(a) < SINC_SERIES_BELOW  # 0 or 1
+    a2 = (a * small) ** 2
     series = 1 - a2 / 6 * (1 - a2 / 20 * (1 - a2 / 42))
-    safe = ca.if_else(small, 1.0, a, False)  # never divides by zero, even in the unused side
-    return ca.if_else(small, series, ca.sin(safe) / safe, False)
+    safe = a + small
+    return small * series + (1 - small) * (ca.sin(safe) / safe)
 
 
 def tan3dof() -> Model:
@@ -101,14 +102,10 @@ def tan3dof() -> Model:
         dt=dt,
         angle_states=(2,),
         angle_outputs=(0,),
+        functions=(fuzzy_sigma_function("tan3dof_fuzzy_sigma"),),  # section 3.2
         notes=(
             "eq. 1's y row printed with sin(theta + w dt); the arc has -cos(theta + w dt): written as the exact "
             "chord form v dt cos/sin(theta + w dt/2) sinc(w dt/2), smooth through w = 0",
             "current (d_x, d_y) is a runtime parameter; body noise (eq. 2) and environment noise (eq. 3) are noise inputs",
         ),
     )
-
-
-def tan3dof_units(model: Model) -> list[Unit]:
-    """Extra generated unit of the TAN bundle: the fuzzy process-noise logic (section 3.2)."""
-    return [Unit("fuzzy", (fuzzy_sigma_function(f"{model.name}_fuzzy_sigma"),))]

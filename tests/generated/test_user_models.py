@@ -242,3 +242,42 @@ def test_a_skipped_check_is_a_status_of_its_own():
     table = report.table()
     assert "SKIPPED m order: skipped, because the model is discrete" in table
     assert table.splitlines()[-1] == "1 of 1 checks passed, 1 skipped"
+
+
+def _toy_with_functions(functions):
+    import dataclasses
+
+    return dataclasses.replace(_toy(), functions=functions)
+
+
+def _toy_thrust():
+    import casadi as ca
+
+    g, r = ca.SX.sym("gain"), ca.SX.sym("rate", 2)
+    thrust = ca.Function("toy_d_thrust", [g, r], [g * ca.tanh(r), ca.sumsqr(r)], ["gain", "rate"], ["force", "energy"])
+    return _toy_with_functions((thrust,))
+
+
+def test_a_models_further_functions_are_generated_loaded_and_verified(tmp_path):
+    folder = abyssal.generate(_toy_thrust, tmp_path)
+    assert (folder / "toy_d_functions.c").is_file()
+    bundle = abyssal.load(folder)
+    force, energy = bundle.function("thrust")(2.0, [0.5, -1.0])
+    np.testing.assert_allclose(np.ravel(force), 2.0 * np.tanh([0.5, -1.0]), rtol=1e-15)
+    assert float(np.ravel(energy)[0]) == pytest.approx(1.25, rel=1e-15)
+    report = abyssal.verify(folder)
+    assert report.ok, report.table()
+    assert any(c.name == "thrust: compiled C vs CasADi" and not c.skipped for c in report.checks)
+
+
+def test_further_functions_are_validated(tmp_path):
+    import casadi as ca
+
+    a = ca.SX.sym("a")
+    with pytest.raises(ValueError, match="must be named toy_d_<suffix>"):
+        _toy_with_functions((ca.Function("thrust", [a], [a]),))
+    m = ca.MX.sym("m")
+    with pytest.raises(ValueError, match="not an SX Function"):
+        _toy_with_functions((ca.Function("toy_d_mx", [m], [2 * m]),))
+    with pytest.raises(ValueError, match="names of generated model or filter functions"):
+        abyssal.generate(_toy_with_functions((ca.Function("toy_d_h", [a], [a]),)), tmp_path)

@@ -136,3 +136,94 @@ def test_gradient_rate_is_the_change_over_the_last_map_cell_travelled(tan, arcti
             history.pop(0)
         assert pf.gradient_rate == pytest.approx((pf.gradient - history[0][1]) / 0.5, rel=1e-12, abs=1e-12)
     assert 499.0 <= travelled - history[0][0] <= 500.5
+
+
+# ------------------------------------------------------------------ the compiled step (terrain_step)
+def numpy_sir_step(particles, log_w, u, dt, noise, uniform, sigma, z, terrain, body=(0.1, 0.1, 0.001, 0.1),
+                   altimeter_sigma=5.0, out_of_map_ll=-12.5, resample_below=0.0):
+    """Fig. 5 written out in NumPy, independent of the compiled step (exact arc in the v/omega form)."""
+    v, om = u
+    a1, a2, a3, a4 = body
+    vv = v + np.sqrt(a1 * v * v + a2 * om * om) * noise[0]
+    ww = om + np.sqrt(a3 * v * v + a4 * om * om) * noise[1]
+    th = particles[2]
+    turned = np.abs(ww) > 1e-9
+    wsafe = np.where(turned, ww, 1.0)
+    dx = np.where(turned, vv / wsafe * (np.sin(th + ww * dt) - np.sin(th)), vv * dt * np.cos(th))
+    dy = np.where(turned, vv / wsafe * (np.cos(th) - np.cos(th + ww * dt)), vv * dt * np.sin(th))
+    proposed = np.vstack([particles[0] + dx + sigma * noise[2], particles[1] + dy + sigma * noise[3], th + ww * dt])
+    proposed[2] = z[1]  # compass
+    interp = RegularGridInterpolator((terrain.origin[1] + terrain.resolution * np.arange(terrain.shape[0]),
+                                      terrain.origin[0] + terrain.resolution * np.arange(terrain.shape[1])),
+                                     terrain.depth, bounds_error=False, fill_value=None)
+    depth = interp(np.column_stack([proposed[1], proposed[0]]))
+    log_w = log_w - 0.5 * ((z[0] - depth) / altimeter_sigma) ** 2
+    w = np.exp(log_w - log_w.max())
+    w /= w.sum()
+    ess = 1.0 / np.sum(w * w)
+    mean = proposed @ w
+    centred = proposed - mean[:, None]
+    cov = (centred * w) @ centred.T
+    resampled = proposed
+    if ess < resample_below:
+        cdf = np.cumsum(w)
+        resampled = proposed[:, np.searchsorted(cdf / cdf[-1], (np.arange(w.size) + uniform) / w.size, side="right")]
+    return proposed, w, ess, mean, cov, resampled
+
+
+@pytest.mark.parametrize("resample", [False, True])
+def test_compiled_step_matches_an_independent_numpy_step(tan, arctic, resample):
+    from abyssal.runtime.filters.particle import terrain_step as ts
+    from abyssal.runtime.resampling import ResamplingPolicy
+
+    n = 400
+    pf = TerrainParticleFilter(tan, [20e3, 20e3, 0.3], np.diag([200.0 ** 2, 200.0 ** 2, 0.0]), 3.0, 5.0, n, 5,
+                               terrain=arctic, policy=ResamplingPolicy("systematic", 1.0 if resample else 0.0))
+    pf.step([0.5, 0.02], 1.0, [arctic.depth_at(20e3, 20e3), 0.3])  # non-uniform weights to start from
+    particles, log_w = pf.particles.copy(), pf.log_weights.copy()
+    rng = np.random.default_rng(11)
+    noise, uniform = rng.standard_normal((4, n)), 0.37
+    pf._step.noise[...] = noise
+    pf._scalars[ts.S_DRAW], pf._scalars[ts.S_UNIFORM] = 0.0, uniform
+    z = [arctic.depth_at(20e3 + 0.5, 20e3 + 0.2) + 3.0, 0.31]
+    pf.step([0.6, 0.05], 2.0, z)
+    proposed, w, ess, mean, cov, resampled = numpy_sir_step(particles, log_w, (0.6, 0.05), 2.0, noise, uniform, 3.0,
+                                                            z, arctic, resample_below=np.inf if resample else 0.0)
+    assert pf.resamples == (2 if resample else 0)
+    np.testing.assert_allclose(pf.weights, w, rtol=1e-9, atol=1e-15)
+    assert pf.ess == pytest.approx(ess, rel=1e-12)
+    np.testing.assert_allclose(pf.x, mean, rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(pf.P, cov, rtol=1e-8, atol=1e-9)
+    np.testing.assert_allclose(pf.particles, resampled, rtol=1e-12, atol=1e-9)
+    if resample:
+        assert len(np.unique(pf.particles[0])) < n  # copies of the heavy particles
+        np.testing.assert_array_equal(pf.log_weights, -np.log(n))
+
+
+def test_the_steps_own_normals_are_standard_normal():
+    from scipy import stats
+
+    from abyssal.runtime.filters.particle import terrain_step as ts
+
+    state = ts.seed_streams(np.random.default_rng(3))
+    before = state.copy()
+    draws = ts.normals(state, 200_000)
+    assert not np.array_equal(state, before)  # the state advanced
+    assert abs(draws.mean()) < 4 / np.sqrt(draws.size)
+    assert abs(draws.var() - 1.0) < 4 * np.sqrt(2.0 / draws.size)
+    assert stats.kstest(draws, "norm").pvalue > 1e-3
+    # the two halves of the Box-Muller pairs, and neighbouring lanes, are uncorrelated
+    half = draws.size // 2
+    assert abs(np.corrcoef(draws[:half], draws[half:])[0, 1]) < 4 / np.sqrt(half)
+    assert abs(np.corrcoef(draws[:-1], draws[1:])[0, 1]) < 4 / np.sqrt(draws.size)
+    # a restored state replays the same draws (the filter's checkpoint relies on it)
+    replay = before.copy()
+    np.testing.assert_array_equal(ts.normals(replay, 200_000), draws)
+
+
+def test_the_compiled_step_refuses_non_systematic_resampling(tan, arctic):
+    from abyssal.runtime.resampling import ResamplingPolicy
+
+    with pytest.raises(ValueError, match="policy"):
+        TerrainParticleFilter(tan, [20e3, 20e3, 0.0], np.eye(3), 3.0, 5.0, 10, 0, terrain=arctic,
+                              policy=ResamplingPolicy("multinomial", 0.5))

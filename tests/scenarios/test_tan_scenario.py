@@ -14,7 +14,7 @@ def test_run_one_rows_are_tidy_and_deterministic():
     rows = run_one(CONFIG, seed)
     untimed = lambda rs: [r for r in rs if r["metric"] not in TIMING_METRICS]
     assert untimed(rows) == untimed(run_one(CONFIG, seed))  # wall-clock timings aside, bit-identical
-    assert {r["filter"] for r in rows} == {"sigma_2", "fuzzy", "dead_reckoning"}
+    assert {r["filter"] for r in rows} == {"sigma_2", "fuzzy", "oracle_known_current", "dead_reckoning"}
     assert {r["case"] for r in rows} == {"arctic/flat/current_0.15"}
     assert set(rows[0]) == {"run", "case", "filter", "metric", "value"}
     summary = experiment.summary(rows)["arctic/flat/current_0.15"]
@@ -25,6 +25,8 @@ def test_run_one_rows_are_tidy_and_deterministic():
     for name in ("sigma_2", "fuzzy", "dead_reckoning"):
         assert 0.7 * drift < summary[name]["final_error_m"] < 1.3 * drift, name
     assert summary["fuzzy"]["mean_sigma_m"] > 6.5
+    # the matched-model oracle is given the current: no drift to absorb
+    assert summary["oracle_known_current"]["final_error_m"] < 0.3 * drift
     assert "arctic/flat/current_0.15" in experiment.report(rows, CONFIG)
 
 

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from . import paper
-from .scenario import TanConfig, case_name, run_case
+from .scenario import ORACLE, TanConfig, case_name, run_case
 
 EXTRA_COLUMNS: tuple[str, ...] = ()
 METRICS = ("mean_error_m", "final_error_m", "max_error_m", "lost", "mean_std_m", "step_us")
@@ -45,7 +45,8 @@ def report(rows, config: TanConfig) -> str:
              "error = |estimated - true position| (m), averaged over runs; lost = share of runs whose error ever "
              f"exceeded {config.lost_m:g} m; spread = the filter's own sqrt(P_xx + P_yy); +- = sd over runs of the mean error",
              ""]
-    header = f"{'filter':<16}{'mean':>9}{'+-':>7}{'final':>9}{'max':>9}{'lost':>6}{'spread':>8}{'sigma':>7}{'us/step':>9}"
+    width = max(len(name) for name in config.filters()) + 2
+    header = f"{'filter':<{width}}{'mean':>9}{'+-':>7}{'final':>9}{'max':>9}{'lost':>6}{'spread':>8}{'sigma':>7}{'us/step':>9}"
     for case, block in s.items():
         lines += [f"== {case}", header]
         for name in config.filters():
@@ -53,9 +54,12 @@ def report(rows, config: TanConfig) -> str:
                 continue
             e = block[name]
             sig = f"{e['mean_sigma_m']:7.2f}" if "mean_sigma_m" in e else f"{'':7}"
-            lines.append(f"{name:<16}{e['mean_error_m']:9.1f}{e['mean_error_sd_m']:7.1f}{e['final_error_m']:9.1f}"
+            lines.append(f"{name:<{width}}{e['mean_error_m']:9.1f}{e['mean_error_sd_m']:7.1f}{e['final_error_m']:9.1f}"
                          f"{e['max_error_m']:9.1f}{e['lost_fraction']:6.2f}{e['mean_std_m']:8.1f}{sig}{e['step_us']:9.1f}")
         lines.append("")
+    if config.oracle_sigma is not None:
+        lines.append(f"{ORACLE}: SIR with sigma = {config.oracle_sigma:g} m given the true current -- a matched-model "
+                     "oracle, not a method of the paper.")
     lines.append("THE PAPER (quoted; it prints figures, not an error table): " + paper.SUMMARY)
     lines.append(f"THE PAPER's timing: {paper.PAPER_STEP_MS} ms per step in MATLAB (2.6 GHz dual core); ours above is the "
                  "median of this machine's steps (a different machine and language).")

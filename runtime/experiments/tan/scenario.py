@@ -28,6 +28,10 @@ Set-up (Table 2 where it says; DECISION where it does not):
 * Filters: SIR with fixed sigma 1..6 m, "fuzzy" (gradient in percent, rate in percent per km) and
   "fuzzy_per_cell" (the same rules with the inputs per 500 m map cell: a sensitivity row, the paper
   defines no units), and dead reckoning.
+* Baseline (not a method of the paper): "oracle_known_current", SIR with sigma = ``oracle_sigma``
+  (1 m) that is given the true current as its model parameter -- a matched-model oracle. It shows
+  what the terrain information supports when nothing has to be absorbed, so a failure of the
+  other filters can be told apart from a map without information.
 """
 from __future__ import annotations
 
@@ -46,6 +50,8 @@ START_LABELS = {"arctic": {"rough": "rough", "flat": "flat"}, "topobathy": {"rou
 #: fuzzy variants: name -> (gradient_scale, rate_length_m): percent and %/km (default), or per 500 m cell
 FUZZY_VARIANTS = {"fuzzy": (100.0, 1000.0), "fuzzy_per_cell": (500.0, 500.0)}
 CURRENTS = {"0": (0.0, 0.0), "0.1": (0.1, 0.1), "0.15": (0.15, 0.15)}
+#: the matched-model oracle's row name (module docstring)
+ORACLE = "oracle_known_current"
 
 
 @dataclass(frozen=True)
@@ -68,6 +74,8 @@ class TanConfig:
     lost_m: float = 1000.0
     map_seed: int = 0
     trace_every: int = 10
+    #: sigma of the known-current oracle (None: no oracle row)
+    oracle_sigma: float | None = 1.0
 
     def quick(self) -> "TanConfig":
         return replace(self, duration_s=3000.0)
@@ -80,7 +88,8 @@ class TanConfig:
         return [(m, s, c) for m in self.maps for s in self.starts for c in self.currents]
 
     def filters(self) -> list[str]:
-        return [sigma_name(s) for s in self.sigmas] + list(self.fuzzy) + ["dead_reckoning"]
+        oracle = [ORACLE] if self.oracle_sigma is not None else []
+        return [sigma_name(s) for s in self.sigmas] + list(self.fuzzy) + oracle + ["dead_reckoning"]
 
 
 def sigma_name(sigma: float) -> str:
@@ -155,7 +164,7 @@ class FilterRun:
 
 
 def run_filter(bundle, terrain, config: TanConfig, truth: Truth, sigma, rng: np.random.Generator,
-               fuzzy_units: tuple[float, float] = FUZZY_VARIANTS["fuzzy"]) -> FilterRun:
+               fuzzy_units: tuple[float, float] = FUZZY_VARIANTS["fuzzy"], knows_current: bool = False) -> FilterRun:
     from ...filters.particle.terrain import TerrainParticleFilter
     from ...resampling import ResamplingPolicy
 
@@ -171,10 +180,11 @@ def run_filter(bundle, terrain, config: TanConfig, truth: Truth, sigma, rng: np.
     grad = np.empty(T) if fuzzy else None
     rate = np.empty(T) if fuzzy else None
     U, Z = truth.inputs, truth.measurements
+    p = np.array(truth.current, dtype=np.float64) if knows_current else None
     clock = time.perf_counter
     for k in range(T):
         t0 = clock()
-        filt.step(U[k], dt, Z[k])
+        filt.step(U[k], dt, Z[k], p)
         times[k] = clock() - t0
         x, P = filt._x, filt._P
         est[k] = x[:2]
@@ -219,6 +229,9 @@ def run_case(config: TanConfig, case_index: int, seed: np.random.SeedSequence):
     for j, (name, sigma, units) in enumerate(specs):
         runs[name] = run_filter(bundle, terrain, config, truth, sigma,
                                 np.random.default_rng(derive(seed, case_index, 1 + j)), units)
+    if config.oracle_sigma is not None:
+        runs[ORACLE] = run_filter(bundle, terrain, config, truth, config.oracle_sigma,
+                                  np.random.default_rng(derive(seed, case_index, 1 + len(specs))), knows_current=True)
     runs["dead_reckoning"] = dead_reckoning(bundle, config, truth)
     return truth, runs
 

@@ -21,6 +21,10 @@ Decisions (the paper's Fig. 5 fixes the SIR loop, not these):
   the generated exact-arc step ``tan3dof_f`` (its SIMD kernel, per-particle inputs), then gets the
   environment noise of eq. 3, N(0, sigma^2) in x and y (sigma in m per step). The current is
   unknown to the filter (p = [0, 0] unless given).
+* One compiled call per step (``terrain_step``): draws, move, lookup, weights, moments and
+  resampling; Python keeps the contract's checks and the fuzzy inputs. The draws come from the
+  step's own xoshiro256++ streams, seeded once from ``rng`` at construction (the numpy Generator
+  is not advanced by steps); ``checkpoint()`` includes their state.
 * sigma: a fixed number (the paper's 1..6 m), or "fuzzy": the generated Mamdani system
   ``tan3dof_fuzzy_sigma(gradient, gradient_rate)`` evaluated once per step on:
     - gradient G_k: the posterior mean of the map's slope along each particle's heading, in
@@ -49,8 +53,9 @@ import numpy as np
 
 from ...contract import (ConcurrencyGuard, FilterBase, register, as_generator, check_count, check_covariance, check_dt, check_p,
                          check_state, check_u, check_z, run_filter)
-from ...noise.mixtures import weighted_moments
 from ...resampling import ResamplingPolicy
+from .terrain_step import (M_ESS, M_P, M_RESAMPLED, M_SLOPE, M_X, S_DEPTH, S_HEADING, S_MOVE, S_OMEGA, S_SIGMA, S_SLOPE,
+                           S_V, S_Z_DEPTH, S_Z_HEADING, TerrainStep, seed_streams)
 
 #: seed 003, Table 2: (a1, a2, a3, a4) of eq. 2
 BODY_NOISE = (0.1, 0.1, 0.001, 0.1)
@@ -93,6 +98,9 @@ class TerrainParticleFilter(FilterBase):
             raise ValueError(f"altimeter_sigma must be positive, got {altimeter_sigma}")
         if len(body_noise) != 4 or not all(np.isfinite(a) and a >= 0 for a in body_noise):
             raise ValueError("body_noise must be four non-negative coefficients (a1, a2, a3, a4)")
+        if not isinstance(policy, ResamplingPolicy) or policy.scheme != "systematic":
+            raise ValueError(f"policy must be a systematic ResamplingPolicy (the compiled step resamples "
+                             f"systematically, Fig. 5), got {policy!r}")
         self.bundle, self.terrain, self.policy = model, terrain, policy
         # run() checks shapes against this view: z has two entries (depth, heading)
         self.model = SimpleNamespace(n_x=model.n_x, n_u=model.n_u, n_p=model.n_p, n_y=2, p_default=model.p_default,
@@ -104,24 +112,30 @@ class TerrainParticleFilter(FilterBase):
         self.out_of_map_log_likelihood = -0.5 * out_of_map_sigmas ** 2
         self.rate_window_m = float(rate_window_m)
         self.gradient_scale, self.rate_length_m = float(gradient_scale), float(rate_length_m)
-        # buffers: particles (3, N) C-ordered, the SIMD kernel's layout
+        # one compiled call per step (terrain_step); its buffers hold both sides of the state
+        self._p_default = np.array(model.p_default, dtype=np.float64)
+        self._p = self._p_default.copy()
+        self._dt = np.zeros(1)
+        f = model.function("f")
+        if f.soa_batched_inputs != ("x", "u"):
+            raise TypeError("model's f has no structure-of-arrays kernel over x and u: regenerate tan3dof")
+        self._step = TerrainStep(f.soa_address, self._p, self._dt, terrain, N, self.body_noise, self.altimeter_sigma,
+                                 self.out_of_map_log_likelihood,
+                                 math.inf if policy.threshold >= 1.0 else policy.threshold * N)
+        self._side = 0
         values, vectors = np.linalg.eigh(P0)
         root = vectors * np.sqrt(np.maximum(values, 0.0))
-        self.particles = np.ascontiguousarray(x0[:, None] + root @ self.rng.standard_normal((3, N)))
-        self._x_in = np.zeros((3, N))
-        self._u = np.zeros((2, N))
-        self._p = np.array(model.p_default, dtype=np.float64)
-        self._dt = np.zeros(1)
-        self.proposed = np.zeros((3, N))
-        self._f = model.function("f").bind_soa([self._x_in, self._u, self._p, self._dt], [self.proposed])
-        self._lookup = terrain.bind(self.proposed[0], self.proposed[1])
+        self._step.particles[0][...] = x0[:, None] + root @ self.rng.standard_normal((3, N))
+        self._step.rng[0][...] = seed_streams(self.rng)
+        self._scalars = self._step.scalars
+        # x and P are views of the committed side's moments (FilterBase returns copies); a step writes the other side
+        self._moment_views = [(m[M_X:M_X + 3], m[M_P:M_P + 9].reshape(3, 3)) for m in self._step.moments]
         self._g_in, self._r_in, self._sigma_out = np.zeros(1), np.zeros(1), np.zeros(1)
         self._fuzzy = model.function("fuzzy_sigma").bind([self._g_in, self._r_in], [self._sigma_out]).eval
-        self.log_weights = np.full(N, -math.log(N))
-        self.weights = np.full(N, 1.0 / N)
         self.ess = float(N)
         self.resamples = 0
-        self._x, self._P = x0.copy(), np.array(P0)
+        self._x, self._P = self._moment_views[0]
+        self._x[...], self._P[...] = x0, P0
         self._guard = ConcurrencyGuard(type(self).__name__)
         # fuzzy inputs: the gradient history along the track (travelled distance, G)
         self._history: deque[tuple[float, float]] = deque()
@@ -130,19 +144,34 @@ class TerrainParticleFilter(FilterBase):
         self.sigma = self._fuzzy_sigma(self.gradient, 0.0) if self.fuzzy else float(sigma)
         self._history.append((0.0, self.gradient))
 
-    # ---------------------------------------------------------------- contract: state
+    # ---------------------------------------------------------------- state (the step's committed side)
+    @property
+    def particles(self) -> np.ndarray:
+        """(3, N) particles after the last step's resampling (a view: copy before keeping it)."""
+        return self._step.particles[self._side]
 
+    @property
+    def log_weights(self) -> np.ndarray:
+        return self._step.log_w[self._side]
+
+    @property
+    def weights(self) -> np.ndarray:
+        """(N,) normalised weights of the last update, before resampling."""
+        return self._step.w[self._side]
+
+    # ---------------------------------------------------------------- contract: state
     def checkpoint(self):
-        return (self.particles.copy(), self.log_weights.copy(), self.weights.copy(), self.ess, self._x.copy(),
-                self._P.copy(), self.resamples, self.rng.bit_generator.state, self._p.copy(), list(self._history),
-                self._travelled, self.gradient, self.gradient_rate, self.sigma)
+        st, side = self._step, self._side
+        return (st.particles[side].copy(), st.log_w[side].copy(), st.w[side].copy(), st.rng[side].copy(), self.ess,
+                self._x.copy(), self._P.copy(), self.resamples, self._p.copy(), list(self._history), self._travelled,
+                self.gradient, self.gradient_rate, self.sigma)
 
     def restore(self, state) -> None:
-        (particles, log_w, w, self.ess, x, P, self.resamples, rng_state, p, history, self._travelled, self.gradient,
+        (particles, log_w, w, streams, self.ess, x, P, self.resamples, p, history, self._travelled, self.gradient,
          self.gradient_rate, self.sigma) = state
-        self.particles[...] = particles
-        self.log_weights, self.weights, self._x, self._P = log_w.copy(), w.copy(), x.copy(), P.copy()
-        self.rng.bit_generator.state = rng_state
+        st, side = self._step, self._side
+        st.particles[side][...], st.log_w[side][...], st.w[side][...], st.rng[side][...] = particles, log_w, w, streams
+        self._x[...], self._P[...] = x, P
         self._p[:] = p
         self._history = deque(history)
 
@@ -178,92 +207,51 @@ class TerrainParticleFilter(FilterBase):
         self._fuzzy()
         return float(self._sigma_out[0])
 
-    def _move(self, u: np.ndarray, dt: float) -> None:
-        """proposed = f(particles, u + body noise) + environment noise (Fig. 5 lines 3-4)."""
-        N, rng = self.N, self.rng
-        a1, a2, a3, a4 = self.body_noise
-        v, omega = u
-        noise = rng.standard_normal((4, N))
-        np.multiply(noise[0], math.sqrt(a1 * v * v + a2 * omega * omega), out=self._u[0])
-        self._u[0] += v
-        np.multiply(noise[1], math.sqrt(a3 * v * v + a4 * omega * omega), out=self._u[1])
-        self._u[1] += omega
-        self._x_in[...] = self.particles
-        self._dt[0] = dt
-        self._f(N)
-        if self.sigma > 0:
-            noise[2:] *= self.sigma
-            self.proposed[0:2] += noise[2:]
-
     def _transaction(self, u, dt, measurement, p) -> bool:
-        """One predict/update/step on checked inputs. Only the random generator and p change before the
-        commit at the end, so a failure restores just those two (the rest is computed into scratch)."""
-        rng_state, saved_p = self.rng.bit_generator.state, self._p.copy()
-        try:
-            self._p[:] = self.bundle.p_default if p is None else p
-            if u is not None:
-                self._move(u, dt)
-            else:
-                self.proposed[...] = self.particles
-            log_w = self.log_weights.copy()
-            if measurement is not None:
-                z, present = measurement
-                if present[1]:
-                    self.proposed[2] = z[1]  # heading from the compass
-                self._lookup(self.N)
-                if present[0]:
-                    r = (z[0] - self._lookup.depth) / self.altimeter_sigma
-                    log_lik = -0.5 * r * r
-                    inside = self._lookup.inside
-                    if inside.min() < 1.0:
-                        log_lik = np.where(inside > 0, log_lik, self.out_of_map_log_likelihood)
-                    log_w += log_lik
-            elif self.fuzzy:
-                self._lookup(self.N)
-            if not np.all(np.isfinite(self.proposed)):
-                raise FloatingPointError("TerrainParticleFilter: a particle left the finite range")
-            peak = log_w.max()
-            w = np.exp(log_w - peak)
-            total = w.sum()
-            w /= total
-            log_w -= peak + math.log(total)
-            ess = 1.0 / float(w @ w)
-            x, P = weighted_moments(self.proposed, w)
-            fuzzy_state = None
-            if self.fuzzy:
-                heading = self.proposed[2]
-                slope = self._lookup.gx * np.cos(heading) + self._lookup.gy * np.sin(heading)
-                gradient = self.gradient_scale * float(w @ slope)
-                travelled = self._travelled + (abs(u[0]) * dt if u is not None else 0.0)
-                # the window: the oldest entry of history + [new] such that the next one is < rate_window_m back
-                history, entry = self._history, (travelled, gradient)
-                n = len(history) + 1
-                dropped = 0
-                while n - dropped > 2 and travelled - (history[dropped + 1] if dropped + 1 < len(history) else entry)[0] \
-                        >= self.rate_window_m:
-                    dropped += 1
-                base = history[dropped] if dropped < len(history) else entry
-                rate = (gradient - base[1]) / (self.rate_window_m / self.rate_length_m)
-                fuzzy_state = (travelled, entry, dropped, gradient, rate, self._fuzzy_sigma(gradient, rate))
-            ancestors = None
-            if ess < self.policy.threshold * self.N or self.policy.threshold >= 1.0:
-                ancestors = self.policy.ancestors(w, self.rng)
-        except BaseException:
-            self.rng.bit_generator.state = rng_state
-            self._p[:] = saved_p
-            raise
-        # commit: nothing below can fail
-        if ancestors is not None:
-            np.take(self.proposed, ancestors, axis=1, out=self.particles)
-            self.log_weights = np.full(self.N, -math.log(self.N))
-            self.resamples += 1
+        """One predict/update/step on checked inputs: one compiled call (terrain_step) writing the uncommitted
+        side, then the fuzzy inputs; only p is touched before the commit, and restored on failure."""
+        sc, saved_p = self._scalars, self._p.copy()
+        self._p[:] = self._p_default if p is None else p
+        if u is not None:
+            sc[S_V], sc[S_OMEGA], sc[S_MOVE], sc[S_SIGMA] = u[0], u[1], 1.0, self.sigma
+            self._dt[0] = dt
         else:
-            self.particles[...] = self.proposed
-            self.log_weights = log_w
+            sc[S_MOVE] = 0.0
+        depth_present = heading_present = False
+        if measurement is not None:
+            z, present = measurement
+            depth_present, heading_present = bool(present[0]), bool(present[1])
+            sc[S_Z_DEPTH], sc[S_Z_HEADING] = (z[0] if depth_present else 0.0), (z[1] if heading_present else 0.0)
+        sc[S_DEPTH], sc[S_HEADING], sc[S_SLOPE] = depth_present, heading_present, self.fuzzy
+        status = self._step.step(self._side)
+        if status:
+            self._p[:] = saved_p
+            raise FloatingPointError("TerrainParticleFilter: a particle left the finite range" if status == 1 else
+                                     "TerrainParticleFilter: every weight vanished")
+        nxt = 1 - self._side
+        moments = self._step.moments[nxt]
+        fuzzy_state = None
+        if self.fuzzy:
+            gradient = self.gradient_scale * float(moments[M_SLOPE])
+            travelled = self._travelled + (abs(u[0]) * dt if u is not None else 0.0)
+            # the window: the oldest entry of history + [new] such that the next one is < rate_window_m back
+            history, entry = self._history, (travelled, gradient)
+            n = len(history) + 1
+            dropped = 0
+            while n - dropped > 2 and travelled - (history[dropped + 1] if dropped + 1 < len(history) else entry)[0] \
+                    >= self.rate_window_m:
+                dropped += 1
+            base = history[dropped] if dropped < len(history) else entry
+            rate = (gradient - base[1]) / (self.rate_window_m / self.rate_length_m)
+            fuzzy_state = (travelled, entry, dropped, gradient, rate, self._fuzzy_sigma(gradient, rate))
+        # commit: nothing below can fail
+        self._side = nxt
+        self.resamples += int(moments[M_RESAMPLED])
+        self.ess = float(moments[M_ESS])
+        self._x, self._P = self._moment_views[nxt]
         if fuzzy_state is not None:
             self._travelled, entry, dropped, self.gradient, self.gradient_rate, self.sigma = fuzzy_state
             self._history.append(entry)
             for _ in range(dropped):
                 self._history.popleft()
-        self.weights, self.ess, self._x, self._P = w, ess, x, P
         return measurement is not None
