@@ -54,8 +54,7 @@ import numpy as np
 from ...contract import (ConcurrencyGuard, FilterBase, register, as_generator, check_count, check_covariance, check_dt, check_p,
                          check_state, check_u, check_z, run_filter)
 from ...resampling import ResamplingPolicy
-from .terrain_step import (M_ESS, M_P, M_RESAMPLED, M_SLOPE, M_X, S_DEPTH, S_HEADING, S_MOVE, S_OMEGA, S_SIGMA, S_SLOPE,
-                           S_V, S_Z_DEPTH, S_Z_HEADING, TerrainStep, seed_streams)
+from .terrain_step import M_ESS, M_P, M_RESAMPLED, M_SLOPE, M_X, S_SLOPE, S_V, TerrainStep, seed_streams
 
 #: seed 003, Table 2: (a1, a2, a3, a4) of eq. 2
 BODY_NOISE = (0.1, 0.1, 0.001, 0.1)
@@ -114,14 +113,14 @@ class TerrainParticleFilter(FilterBase):
         self.gradient_scale, self.rate_length_m = float(gradient_scale), float(rate_length_m)
         # one compiled call per step (terrain_step); its buffers hold both sides of the state
         self._p_default = np.array(model.p_default, dtype=np.float64)
-        self._p = self._p_default.copy()
-        self._dt = np.zeros(1)
         f = model.function("f")
         if f.soa_batched_inputs != ("x", "u"):
             raise TypeError("model's f has no structure-of-arrays kernel over x and u: regenerate tan3dof")
-        self._step = TerrainStep(f.soa_address, self._p, self._dt, terrain, N, self.body_noise, self.altimeter_sigma,
+        self._step = TerrainStep(f.soa_address, model.n_p, terrain, N, self.body_noise, self.altimeter_sigma,
                                  self.out_of_map_log_likelihood,
                                  math.inf if policy.threshold >= 1.0 else policy.threshold * N)
+        self._p = self._step.p
+        self._p[:] = self._p_default
         self._side = 0
         values, vectors = np.linalg.eigh(P0)
         root = vectors * np.sqrt(np.maximum(values, 0.0))
@@ -163,16 +162,15 @@ class TerrainParticleFilter(FilterBase):
     def checkpoint(self):
         st, side = self._step, self._side
         return (st.particles[side].copy(), st.log_w[side].copy(), st.w[side].copy(), st.rng[side].copy(), self.ess,
-                self._x.copy(), self._P.copy(), self.resamples, self._p.copy(), list(self._history), self._travelled,
+                self._x.copy(), self._P.copy(), self.resamples, list(self._history), self._travelled,
                 self.gradient, self.gradient_rate, self.sigma)
 
     def restore(self, state) -> None:
-        (particles, log_w, w, streams, self.ess, x, P, self.resamples, p, history, self._travelled, self.gradient,
+        (particles, log_w, w, streams, self.ess, x, P, self.resamples, history, self._travelled, self.gradient,
          self.gradient_rate, self.sigma) = state
         st, side = self._step, self._side
         st.particles[side][...], st.log_w[side][...], st.w[side][...], st.rng[side][...] = particles, log_w, w, streams
         self._x[...], self._P[...] = x, P
-        self._p[:] = p
         self._history = deque(history)
 
     def run(self, U, Z, dt, params=None, truth=None):
@@ -209,23 +207,20 @@ class TerrainParticleFilter(FilterBase):
 
     def _transaction(self, u, dt, measurement, p) -> bool:
         """One predict/update/step on checked inputs: one compiled call (terrain_step) writing the uncommitted
-        side, then the fuzzy inputs; only p is touched before the commit, and restored on failure."""
-        sc, saved_p = self._scalars, self._p.copy()
-        self._p[:] = self._p_default if p is None else p
-        if u is not None:
-            sc[S_V], sc[S_OMEGA], sc[S_MOVE], sc[S_SIGMA] = u[0], u[1], 1.0, self.sigma
-            self._dt[0] = dt
-        else:
-            sc[S_MOVE] = 0.0
-        depth_present = heading_present = False
+        side, then the fuzzy inputs; only the step's input scalars are written before the commit."""
+        move, depth_present, heading_present = u is not None, False, False
+        z_depth = z_heading = 0.0
         if measurement is not None:
             z, present = measurement
             depth_present, heading_present = bool(present[0]), bool(present[1])
-            sc[S_Z_DEPTH], sc[S_Z_HEADING] = (z[0] if depth_present else 0.0), (z[1] if heading_present else 0.0)
-        sc[S_DEPTH], sc[S_HEADING], sc[S_SLOPE] = depth_present, heading_present, self.fuzzy
+            z_depth, z_heading = float(z[0]), float(z[1])
+        v, omega = (u[0], u[1]) if move else (0.0, 0.0)
+        sc = self._scalars  # inputs only (scratch): nothing to restore when the step is refused
+        sc[S_V:S_SLOPE + 1] = (v, omega, dt if move else 1.0, self.sigma, z_depth, z_heading, move, depth_present,
+                               heading_present, self.fuzzy)
+        self._p[:] = self._p_default if p is None else p
         status = self._step.step(self._side)
         if status:
-            self._p[:] = saved_p
             raise FloatingPointError("TerrainParticleFilter: a particle left the finite range" if status == 1 else
                                      "TerrainParticleFilter: every weight vanished")
         nxt = 1 - self._side

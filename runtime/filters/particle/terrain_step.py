@@ -74,7 +74,7 @@ typedef struct {
   double* u;                              /* (2, n) scratch: per-particle [v, omega] */
   double* noise;                          /* (4, n): n_v, n_omega, e_x, e_y */
   double* uniforms;                       /* (>= 4 n, multiple of LANES) scratch */
-  double* proposed;                       /* (3, n) */
+  double* proposed;                       /* (3, n) scratch: the proposals resampling gathers from */
   double* depth; double* gx; double* gy; double* inside;   /* (n) each */
   const double* dt;                       /* the model's dt buffer (1) */
   /* side read -> side written */
@@ -129,9 +129,10 @@ void terrain_normals(uint64_t* s, idx pairs, double* scratch, double* out) { nor
 /* One SIR step. Returns 0, 1 when a particle is not finite, 2 when no weight is left. */
 int terrain_sir_step(const terrain_step_t* t, const double* restrict sc) {
   const idx n = t->n;
-  double* restrict x = t->proposed;
-  double* restrict y = t->proposed + n;
-  double* restrict th = t->proposed + 2 * n;
+  /* the proposals are written straight into the next side (resampling gathers them from a scratch copy) */
+  double* x = t->particles_next;
+  double* y = t->particles_next + n;
+  double* th = t->particles_next + 2 * n;
   double* restrict noise = t->noise;
   uint64_t state[4 * LANES];
   memcpy(state, t->rng, sizeof state);
@@ -148,7 +149,7 @@ int terrain_sir_step(const terrain_step_t* t, const double* restrict sc) {
       uo[j] = om + sd_om * noise[n + j];
     }
     const double* arg[4] = {t->particles, t->u, t->p, t->dt};
-    double* res[1] = {t->proposed};
+    double* res[1] = {t->particles_next};
     t->f(n, n, arg, res);
     const double sigma = sc[S_SIGMA];                                     /* eq. 3 */
     if (sigma > 0.0) {
@@ -159,16 +160,12 @@ int terrain_sir_step(const terrain_step_t* t, const double* restrict sc) {
       }
     }
   } else {
-    memcpy(t->proposed, t->particles, 3 * n * sizeof(double));
+    memcpy(t->particles_next, t->particles, 3 * n * sizeof(double));
   }
   if (sc[S_HEADING] != 0.0) {
     const double heading = sc[S_Z_HEADING];
     for (idx j = 0; j < n; ++j) th[j] = heading;
   }
-  double check = 0.0;  /* x - x is NaN exactly when x is inf or NaN */
-#pragma omp simd reduction(+:check)
-  for (idx j = 0; j < 3 * n; ++j) check += t->proposed[j] - t->proposed[j];
-  if (check != 0.0) return 1;
   const int depth_present = sc[S_DEPTH] != 0.0, slope = sc[S_SLOPE] != 0.0;
   if (depth_present || slope)
     terrain_bilinear(n, x, y, t->grid, t->nx, t->ny, t->x0, t->y0, t->inv_res, t->depth, t->gx, t->gy, t->inside);
@@ -203,8 +200,8 @@ int terrain_sir_step(const terrain_step_t* t, const double* restrict sc) {
     total += w[j];
   }
   const double shift = peak + log(total);
-  double sum_sq = 0.0, mx = 0.0, my = 0.0, mt = 0.0;
-#pragma omp simd reduction(+:sum_sq, mx, my, mt)
+  double sum_sq = 0.0, mx = 0.0, my = 0.0, mt = 0.0, check = 0.0;  /* x - x is NaN exactly when x is inf or NaN */
+#pragma omp simd reduction(+:sum_sq, mx, my, mt, check)
   for (idx j = 0; j < n; ++j) {
     w[j] /= total;
     lw_next[j] -= shift;
@@ -212,7 +209,9 @@ int terrain_sir_step(const terrain_step_t* t, const double* restrict sc) {
     mx += w[j] * x[j];
     my += w[j] * y[j];
     mt += w[j] * th[j];
+    check += (x[j] - x[j]) + (y[j] - y[j]) + (th[j] - th[j]);
   }
+  if (check != 0.0) return 1;  /* (the lookup clamps a non-finite point, so the weights above stay finite) */
   double pxx = 0.0, pxy = 0.0, pxt = 0.0, pyy = 0.0, pyt = 0.0, ptt = 0.0, sl = 0.0;
   if (slope) {
     const double* restrict gx = t->gx;
@@ -240,7 +239,6 @@ int terrain_sir_step(const terrain_step_t* t, const double* restrict sc) {
   m[M_P + 6] = pxt; m[M_P + 7] = pyt; m[M_P + 8] = ptt;
   m[M_ESS] = ess;
   m[M_SLOPE] = sl;
-  double* restrict out = t->particles_next;
   if (ess < sc[S_RESAMPLE_BELOW]) {
     /* systematic: u_k = (k + u0) / n against the normalised cumulative weights; ancestor = first i with cdf[i] > u_k */
     double u0;
@@ -256,17 +254,19 @@ int terrain_sir_step(const terrain_step_t* t, const double* restrict sc) {
     for (idx j = 0; j < n; ++j) { c += w[j]; cdf[j] = c; }
 #pragma omp simd
     for (idx j = 0; j < n; ++j) cdf[j] /= c;
+    double* restrict from = t->proposed;
+    memcpy(from, t->particles_next, 3 * n * sizeof(double));
+    double* restrict out = t->particles_next;
     idx i = 0;
     const double log_uniform = -log((double)n);
     for (idx k = 0; k < n; ++k) {
       const double target = ((double)k + u0) / (double)n;
       while (i < n - 1 && cdf[i] <= target) ++i;
-      out[k] = x[i]; out[n + k] = y[i]; out[2 * n + k] = th[i];
+      out[k] = from[i]; out[n + k] = from[n + i]; out[2 * n + k] = from[2 * n + i];
       lw_next[k] = log_uniform;
     }
     m[M_RESAMPLED] = 1.0;
   } else {
-    memcpy(out, t->proposed, 3 * n * sizeof(double));
     m[M_RESAMPLED] = 0.0;
   }
   memcpy(t->rng_next, state, sizeof state);
@@ -329,13 +329,16 @@ class TerrainStep:
     """The compiled step bound to one filter's buffers (both sides of every state buffer).
 
     ``step(side)`` reads side ``side`` and writes side ``1 - side``; returns the C status
-    (0 ok, 1 non-finite particle, 2 no weight left). Fill ``scalars`` first (S_* indices).
+    (0 ok, 1 non-finite particle, 2 no weight left). Fill ``scalars`` first (S_* indices, then p).
     """
 
-    def __init__(self, f_soa_address: int, p: np.ndarray, dt: np.ndarray, terrain, n: int, body_noise,
-                 altimeter_sigma: float, out_of_map_log_likelihood: float, resample_below: float):
+    def __init__(self, f_soa_address: int, n_p: int, terrain, n: int, body_noise, altimeter_sigma: float,
+                 out_of_map_log_likelihood: float, resample_below: float):
         self.n = n
-        self.scalars = np.zeros(S_COUNT)
+        #: the step's inputs: scalars[:S_COUNT] (S_* indices), then the model parameters p (n_p); the
+        #: model's dt is scalars[S_DT]. Everything a step takes is written with two slice assignments.
+        self.scalars = np.zeros(S_COUNT + n_p)
+        self.p = self.scalars[S_COUNT:]
         self.scalars[[S_A1, S_A2, S_A3, S_A4]] = body_noise
         self.scalars[S_INV_ALTIMETER_SIGMA] = 1.0 / altimeter_sigma
         self.scalars[S_OUT_OF_MAP_LOG_LIKELIHOOD] = out_of_map_log_likelihood
@@ -352,7 +355,7 @@ class TerrainStep:
         self.w = (np.full(n, 1.0 / n), np.full(n, 1.0 / n))
         self.moments = (np.zeros(M_COUNT), np.zeros(M_COUNT))
         self.rng = (np.zeros(4 * LANES, dtype=np.uint64), np.zeros(4 * LANES, dtype=np.uint64))
-        self._keep = (p, dt, terrain.depth)
+        self._keep = (terrain.depth,)
 
         def address(a):
             return a.ctypes.data
@@ -361,11 +364,11 @@ class TerrainStep:
         self._structs = []
         for side in (0, 1):
             other = 1 - side
-            s = _Step(n=n, f=f_soa_address, p=address(p), grid=address(terrain.depth), nx=nx, ny=ny,
+            s = _Step(n=n, f=f_soa_address, p=address(self.scalars) + 8 * S_COUNT, grid=address(terrain.depth), nx=nx, ny=ny,
                       x0=terrain.origin[0], y0=terrain.origin[1], inv_res=1.0 / terrain.resolution,
                       u=address(self.u), noise=address(self.noise), uniforms=address(self.uniforms),
                       proposed=address(self.proposed), depth=address(self.depth), gx=address(self.gx),
-                      gy=address(self.gy), inside=address(self.inside), dt=address(dt),
+                      gy=address(self.gy), inside=address(self.inside), dt=address(self.scalars) + 8 * S_DT,
                       particles=address(self.particles[side]), particles_next=address(self.particles[other]),
                       log_w=address(self.log_w[side]), log_w_next=address(self.log_w[other]),
                       w_next=address(self.w[other]), moments_next=address(self.moments[other]),
