@@ -60,10 +60,11 @@ from pathlib import Path
 DEFAULT_CFLAGS = "-O3 -fPIC -fno-semantic-interposition -march=native"
 LINK_FLAGS = ["-shared"]
 LIBS = ["-lm"]
-# Structure-of-arrays kernels (files *_soa.c): let the loop vectorise with libmvec's sin/cos/tan
-# instead of the scalar fused sincos, and sqrt without the errno branch (errno is never read).
+# Structure-of-arrays kernels (files *_soa.c): let the loop vectorise with libmvec's sin/cos/tan (and
+# the float sinf/cosf/logf of the TAN step's normals) instead of the scalar fused sincos, and sqrt without the errno branch (errno is never read).
 # These flags do not change any IEEE operation.
-SOA_FLAGS = ["-fopenmp-simd", "-fno-builtin-sin", "-fno-builtin-cos", "-fno-builtin-tan", "-fno-math-errno"]
+SOA_FLAGS = ["-fopenmp-simd", "-fno-builtin-sin", "-fno-builtin-cos", "-fno-builtin-tan", "-fno-builtin-sinf",
+             "-fno-builtin-cosf", "-fno-builtin-logf", "-fno-math-errno"]
 
 #: seconds one build may take (all compile and link steps; a slow vehicle computer needs minutes for the largest model)
 DEFAULT_TIMEOUT = 600.0

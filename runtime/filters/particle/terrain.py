@@ -97,6 +97,8 @@ class TerrainParticleFilter(FilterBase):
             raise ValueError(f"altimeter_sigma must be positive, got {altimeter_sigma}")
         if len(body_noise) != 4 or not all(np.isfinite(a) and a >= 0 for a in body_noise):
             raise ValueError("body_noise must be four non-negative coefficients (a1, a2, a3, a4)")
+        if not (np.isfinite(rate_window_m) and rate_window_m > 0 and np.isfinite(rate_length_m) and rate_length_m > 0):
+            raise ValueError(f"rate_window_m and rate_length_m must be positive metres, got {rate_window_m}, {rate_length_m}")
         if not isinstance(policy, ResamplingPolicy) or policy.scheme != "systematic":
             raise ValueError(f"policy must be a systematic ResamplingPolicy (the compiled step resamples "
                              f"systematically, Fig. 5), got {policy!r}")
@@ -121,6 +123,7 @@ class TerrainParticleFilter(FilterBase):
                                  math.inf if policy.threshold >= 1.0 else policy.threshold * N)
         self._p = self._step.p
         self._p[:] = self._p_default
+        self._p_is_default = True
         self._side = 0
         values, vectors = np.linalg.eigh(P0)
         root = vectors * np.sqrt(np.maximum(values, 0.0))
@@ -212,13 +215,18 @@ class TerrainParticleFilter(FilterBase):
         z_depth = z_heading = 0.0
         if measurement is not None:
             z, present = measurement
-            depth_present, heading_present = bool(present[0]), bool(present[1])
-            z_depth, z_heading = float(z[0]), float(z[1])
-        v, omega = (u[0], u[1]) if move else (0.0, 0.0)
+            depth_present, heading_present = present.tolist()
+            z_depth, z_heading = z.tolist()
+        v, omega = u.tolist() if move else (0.0, 0.0)
         sc = self._scalars  # inputs only (scratch): nothing to restore when the step is refused
         sc[S_V:S_SLOPE + 1] = (v, omega, dt if move else 1.0, self.sigma, z_depth, z_heading, move, depth_present,
                                heading_present, self.fuzzy)
-        self._p[:] = self._p_default if p is None else p
+        if p is not None:
+            self._p[:] = p
+            self._p_is_default = False
+        elif not self._p_is_default:
+            self._p[:] = self._p_default
+            self._p_is_default = True
         status = self._step.step(self._side)
         if status:
             raise FloatingPointError("TerrainParticleFilter: a particle left the finite range" if status == 1 else
@@ -227,22 +235,20 @@ class TerrainParticleFilter(FilterBase):
         moments = self._step.moments[nxt]
         fuzzy_state = None
         if self.fuzzy:
-            gradient = self.gradient_scale * float(moments[M_SLOPE])
-            travelled = self._travelled + (abs(u[0]) * dt if u is not None else 0.0)
-            # the window: the oldest entry of history + [new] such that the next one is < rate_window_m back
-            history, entry = self._history, (travelled, gradient)
-            n = len(history) + 1
-            dropped = 0
-            while n - dropped > 2 and travelled - (history[dropped + 1] if dropped + 1 < len(history) else entry)[0] \
-                    >= self.rate_window_m:
+            gradient = self.gradient_scale * moments.item(M_SLOPE)
+            travelled = self._travelled + (abs(v) * dt if move else 0.0)
+            # the window's base: the newest history entry such that the one after it is < rate_window_m back
+            # (history holds at least one entry; the new one is never a window back, rate_window_m > 0)
+            history, window = self._history, self.rate_window_m
+            dropped, last = 0, len(history) - 1
+            while dropped < last and travelled - history[dropped + 1][0] >= window:
                 dropped += 1
-            base = history[dropped] if dropped < len(history) else entry
-            rate = (gradient - base[1]) / (self.rate_window_m / self.rate_length_m)
-            fuzzy_state = (travelled, entry, dropped, gradient, rate, self._fuzzy_sigma(gradient, rate))
+            rate = (gradient - history[dropped][1]) / (window / self.rate_length_m)
+            fuzzy_state = (travelled, (travelled, gradient), dropped, gradient, rate, self._fuzzy_sigma(gradient, rate))
         # commit: nothing below can fail
         self._side = nxt
-        self.resamples += int(moments[M_RESAMPLED])
-        self.ess = float(moments[M_ESS])
+        self.resamples += moments.item(M_RESAMPLED) > 0.0
+        self.ess = moments.item(M_ESS)
         self._x, self._P = self._moment_views[nxt]
         if fuzzy_state is not None:
             self._travelled, entry, dropped, self.gradient, self.gradient_rate, self.sigma = fuzzy_state

@@ -10,9 +10,14 @@ contract checks and the fuzzy inputs' window (a few scalars per step).
 Random numbers. The step draws its own: 8 independent xoshiro256++ streams (Blackman & Vigna,
 2018), one per SIMD lane, seeded once from the filter's numpy Generator (4 x 8 words; an all-zero
 lane, probability 2^-256, is refused). Uniforms in [0, 1) take the top 52 bits; normals come from
-the Box-Muller transform of pairs (sqrt(-2 log(1 - u1)) cos/sin(2 pi u2), |n| <= 8.5). NumPy's
+the Box-Muller transform of pairs (sqrt(-2 log(1 - u1)) cos/sin(2 pi u2), |n| <= 8.5), evaluated in
+single precision (each normal to ~1e-6 relative: far below any noise model's own uncertainty). NumPy's
 generator costs ~10 ns per normal from Python, the 4 N normals of a step more than the whole rest of
 it. ``normals()`` below exposes the stream for the statistical tests.
+
+Memory. The first phase (draws, move, compass, lookup, log-likelihood) runs in blocks of 2048
+particles, so its intermediates stay in cache; the later passes (normalisation, moments,
+resampling) stream the whole cloud. At 10^6 particles the step is bound by memory bandwidth.
 
 Transactions. Every buffer the step writes is scratch or belongs to the "next" side of a pair:
 particles, log-weights, weights, moments and the random state exist twice, the step reads side s
@@ -46,6 +51,12 @@ extern double cos(double) __attribute__((const));
 extern double log(double) __attribute__((const));
 #pragma omp declare simd notinbranch
 extern double exp(double) __attribute__((const));
+#pragma omp declare simd notinbranch
+extern float logf(float) __attribute__((const));
+#pragma omp declare simd notinbranch
+extern float sinf(float) __attribute__((const));
+#pragma omp declare simd notinbranch
+extern float cosf(float) __attribute__((const));
 #endif
 
 /* 512-bit vectors where the CPU has them: the transcendental loops (Box-Muller, weights) run ~1.3x faster */
@@ -53,6 +64,7 @@ extern double exp(double) __attribute__((const));
 #pragma GCC target("prefer-vector-width=512")
 #endif
 #define LANES 8
+#define BLOCK 2048  /* particles per block of the step's first phase (~300 kB of intermediates: in L2) */
 typedef long long idx;
 typedef int (*soa_fn)(idx n, idx ld, const double** arg, double** res);
 
@@ -109,17 +121,20 @@ static void uniforms(uint64_t* restrict s, idx n, double* restrict out) {
   memcpy(s + 2 * LANES, s2, sizeof s2); memcpy(s + 3 * LANES, s3, sizeof s3);
 }
 
-/* 2 * pairs standard normals (Box-Muller) into a[0..pairs) and b[0..pairs); scratch u of >= 2 pairs, padded. */
+/* 2 * pairs standard normals (Box-Muller) into a[0..pairs) and b[0..pairs); scratch u of >= 2 pairs, padded.
+ * log, sqrt, sin and cos in single precision (16 lanes per 512-bit vector, twice the double rate): each
+ * normal to ~1e-6 relative, the tail still reaching sqrt(-2 log 2^-52) = 8.5 (1 - u is rounded to float
+ * after the double subtraction, and float holds 2^-52). */
 static void normals(uint64_t* restrict s, idx pairs, double* restrict u, double* restrict a, double* restrict b) {
   idx n = (2 * pairs + LANES - 1) / LANES * LANES;
   uniforms(s, n, u);
   const double* restrict u2 = u + pairs;
 #pragma omp simd
   for (idx k = 0; k < pairs; ++k) {
-    double r = sqrt(-2.0 * log(1.0 - u[k]));
-    double angle = 6.283185307179586 * u2[k];
-    a[k] = r * cos(angle);
-    b[k] = r * sin(angle);
+    float r = sqrtf(-2.0f * logf((float)(1.0 - u[k])));
+    float angle = (float)(6.283185307179586 * u2[k]);
+    a[k] = (double)(r * cosf(angle));
+    b[k] = (double)(r * sinf(angle));
   }
 }
 
@@ -136,60 +151,78 @@ int terrain_sir_step(const terrain_step_t* t, const double* restrict sc) {
   double* restrict noise = t->noise;
   uint64_t state[4 * LANES];
   memcpy(state, t->rng, sizeof state);
-  if (sc[S_MOVE] != 0.0) {
-    if (sc[S_DRAW] != 0.0) normals(state, 2 * n, t->uniforms, noise, noise + 2 * n);
-    const double v = sc[S_V], om = sc[S_OMEGA];
-    const double sd_v = sqrt(sc[S_A1] * v * v + sc[S_A2] * om * om);     /* eq. 2 */
-    const double sd_om = sqrt(sc[S_A3] * v * v + sc[S_A4] * om * om);
-    double* restrict uv = t->u;
-    double* restrict uo = t->u + n;
-#pragma omp simd
-    for (idx j = 0; j < n; ++j) {
-      uv[j] = v + sd_v * noise[j];
-      uo[j] = om + sd_om * noise[n + j];
-    }
-    const double* arg[4] = {t->particles, t->u, t->p, t->dt};
-    double* res[1] = {t->particles_next};
-    t->f(n, n, arg, res);
-    const double sigma = sc[S_SIGMA];                                     /* eq. 3 */
-    if (sigma > 0.0) {
-#pragma omp simd
-      for (idx j = 0; j < n; ++j) {
-        x[j] += sigma * noise[2 * n + j];
-        y[j] += sigma * noise[3 * n + j];
-      }
-    }
-  } else {
-    memcpy(t->particles_next, t->particles, 3 * n * sizeof(double));
-  }
-  if (sc[S_HEADING] != 0.0) {
-    const double heading = sc[S_Z_HEADING];
-    for (idx j = 0; j < n; ++j) th[j] = heading;
-  }
+  const int move = sc[S_MOVE] != 0.0, draw = sc[S_DRAW] != 0.0, heading_present = sc[S_HEADING] != 0.0;
   const int depth_present = sc[S_DEPTH] != 0.0, slope = sc[S_SLOPE] != 0.0;
-  if (depth_present || slope)
-    terrain_bilinear(n, x, y, t->grid, t->nx, t->ny, t->x0, t->y0, t->inv_res, t->depth, t->gx, t->gy, t->inside);
-  /* weights: log w += log N(z; map(x, y), sigma^2) up to a constant; outside the map: a fixed residual */
+  const double v = sc[S_V], om = sc[S_OMEGA], sigma = sc[S_SIGMA];
+  const double sd_v = sqrt(sc[S_A1] * v * v + sc[S_A2] * om * om);     /* eq. 2 */
+  const double sd_om = sqrt(sc[S_A3] * v * v + sc[S_A4] * om * om);
+  const double z = sc[S_Z_DEPTH], inv_sd = sc[S_INV_ALTIMETER_SIGMA], out_ll = sc[S_OUT_OF_MAP_LOG_LIKELIHOOD];
   const double* restrict lw = t->log_w;
   double* restrict lw_next = t->log_w_next;
   double* restrict w = t->w_next;
   double peak = -INFINITY;
-  if (depth_present) {
-    const double z = sc[S_Z_DEPTH], inv_sd = sc[S_INV_ALTIMETER_SIGMA], out_ll = sc[S_OUT_OF_MAP_LOG_LIKELIHOOD];
-    const double* restrict depth = t->depth;
-    const double* restrict inside = t->inside;
-#pragma omp simd reduction(max:peak)
-    for (idx j = 0; j < n; ++j) {
-      double r = (z - depth[j]) * inv_sd;
-      double v = lw[j] + (inside[j] > 0.0 ? -0.5 * r * r : out_ll);
-      lw_next[j] = v;
-      peak = v > peak ? v : peak;
+  /* Phase 1 -- draws, move, compass, lookup, log-likelihood -- in blocks of BLOCK particles, so its
+   * intermediates (uniforms, noise, inputs, lookups) stay in cache for large n. */
+  for (idx b0 = 0; b0 < n; b0 += BLOCK) {
+    const idx nb = n - b0 < BLOCK ? n - b0 : BLOCK;
+    double* xb = x + b0;
+    double* yb = y + b0;
+    double* thb = th + b0;
+    if (move) {
+      double* restrict nv = noise + b0;
+      double* restrict nom = noise + n + b0;
+      double* restrict ex = noise + 2 * n + b0;
+      double* restrict ey = noise + 3 * n + b0;
+      if (draw) {
+        normals(state, nb, t->uniforms, nv, nom);
+        normals(state, nb, t->uniforms, ex, ey);
+      }
+      double* restrict uv = t->u + b0;
+      double* restrict uo = t->u + n + b0;
+#pragma omp simd
+      for (idx j = 0; j < nb; ++j) {
+        uv[j] = v + sd_v * nv[j];
+        uo[j] = om + sd_om * nom[j];
+      }
+      const double* arg[4] = {t->particles + b0, t->u + b0, t->p, t->dt};
+      double* res[1] = {xb};
+      t->f(nb, n, arg, res);                                             /* rows of length n: ld = n */
+      if (sigma > 0.0) {                                                 /* eq. 3 */
+#pragma omp simd
+        for (idx j = 0; j < nb; ++j) {
+          xb[j] += sigma * ex[j];
+          yb[j] += sigma * ey[j];
+        }
+      }
+    } else {
+      for (int r = 0; r < 3; ++r) memcpy(t->particles_next + r * n + b0, t->particles + r * n + b0, nb * sizeof(double));
     }
-  } else {
+    if (heading_present) {
+      const double heading = sc[S_Z_HEADING];
+      for (idx j = 0; j < nb; ++j) thb[j] = heading;
+    }
+    if (depth_present || slope)
+      terrain_bilinear(nb, xb, yb, t->grid, t->nx, t->ny, t->x0, t->y0, t->inv_res, t->depth + b0, t->gx + b0,
+                       t->gy + b0, t->inside + b0);
+    /* weights: log w += log N(z; map(x, y), sigma^2) up to a constant; outside the map: a fixed residual */
+    const double* restrict lwb = lw + b0;
+    double* restrict lwnb = lw_next + b0;
+    if (depth_present) {
+      const double* restrict depth = t->depth + b0;
+      const double* restrict inside = t->inside + b0;
 #pragma omp simd reduction(max:peak)
-    for (idx j = 0; j < n; ++j) {
-      lw_next[j] = lw[j];
-      peak = lw[j] > peak ? lw[j] : peak;
+      for (idx j = 0; j < nb; ++j) {
+        double r = (z - depth[j]) * inv_sd;
+        double value = lwb[j] + (inside[j] > 0.0 ? -0.5 * r * r : out_ll);
+        lwnb[j] = value;
+        peak = value > peak ? value : peak;
+      }
+    } else {
+#pragma omp simd reduction(max:peak)
+      for (idx j = 0; j < nb; ++j) {
+        lwnb[j] = lwb[j];
+        peak = lwb[j] > peak ? lwb[j] : peak;
+      }
     }
   }
   if (!(peak > -INFINITY && peak < INFINITY)) return 2;
@@ -213,7 +246,7 @@ int terrain_sir_step(const terrain_step_t* t, const double* restrict sc) {
   }
   if (check != 0.0) return 1;  /* (the lookup clamps a non-finite point, so the weights above stay finite) */
   double pxx = 0.0, pxy = 0.0, pxt = 0.0, pyy = 0.0, pyt = 0.0, ptt = 0.0, sl = 0.0;
-  if (slope) {
+  if (slope && !heading_present) {
     const double* restrict gx = t->gx;
     const double* restrict gy = t->gy;
 #pragma omp simd reduction(+:pxx, pxy, pxt, pyy, pyt, ptt, sl)
@@ -223,6 +256,19 @@ int terrain_sir_step(const terrain_step_t* t, const double* restrict sc) {
       pyy += w[j] * dy * dy; pyt += w[j] * dy * dt_; ptt += w[j] * dt_ * dt_;
       sl += w[j] * (gx[j] * cos(th[j]) + gy[j] * sin(th[j]));
     }
+  } else if (slope) {  /* every particle has the compass heading: its cos and sin once */
+    const double* restrict gx = t->gx;
+    const double* restrict gy = t->gy;
+    double sx = 0.0, sy = 0.0;
+#pragma omp simd reduction(+:pxx, pxy, pxt, pyy, pyt, ptt, sx, sy)
+    for (idx j = 0; j < n; ++j) {
+      double dx = x[j] - mx, dy = y[j] - my, dt_ = th[j] - mt;
+      pxx += w[j] * dx * dx; pxy += w[j] * dx * dy; pxt += w[j] * dx * dt_;
+      pyy += w[j] * dy * dy; pyt += w[j] * dy * dt_; ptt += w[j] * dt_ * dt_;
+      sx += w[j] * gx[j];
+      sy += w[j] * gy[j];
+    }
+    sl = sx * cos(sc[S_Z_HEADING]) + sy * sin(sc[S_Z_HEADING]);
   } else {
 #pragma omp simd reduction(+:pxx, pxy, pxt, pyy, pyt, ptt)
     for (idx j = 0; j < n; ++j) {
