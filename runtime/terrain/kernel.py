@@ -66,6 +66,11 @@ def _library() -> ctypes.CDLL:
     return lib
 
 
+def lookup_address() -> int:
+    """Address of ``terrain_bilinear`` (for runtime C that calls the lookup itself; the library stays loaded)."""
+    return ctypes.cast(_library().terrain_bilinear, ctypes.c_void_p).value
+
+
 class BilinearLookup:
     """The kernel bound to one grid and fixed point/result buffers; ``lookup(n)`` fills the first n.
 

@@ -34,6 +34,8 @@ from functools import lru_cache
 
 import numpy as np
 
+from ...terrain.kernel import lookup_address
+
 #: SIMD lanes = independent random streams
 LANES = 8
 
@@ -68,9 +70,10 @@ extern float cosf(float) __attribute__((const));
 typedef long long idx;
 typedef int (*soa_fn)(idx n, idx ld, const double** arg, double** res);
 
-void terrain_bilinear(idx n, const double* restrict px, const double* restrict py, const double* restrict grid,
-                      idx nx, idx ny, double x0, double y0, double inv_res, double* restrict depth,
-                      double* restrict gx, double* restrict gy, double* restrict inside);
+/* abyssal.runtime.terrain.kernel's terrain_bilinear, called through a pointer (its own library) */
+typedef void (*bilinear_fn)(idx n, const double* px, const double* py, const double* grid, idx nx, idx ny,
+                            double x0, double y0, double inv_res, double* depth, double* gx, double* gy,
+                            double* inside);
 
 /* scalars[]: inputs of one step */
 enum { S_V, S_OMEGA, S_DT, S_SIGMA, S_Z_DEPTH, S_Z_HEADING, S_MOVE, S_DEPTH, S_HEADING, S_SLOPE, S_DRAW, S_UNIFORM,
@@ -81,11 +84,12 @@ enum { M_X = 0, M_P = 3, M_ESS = 12, M_SLOPE = 13, M_RESAMPLED = 14, M_COUNT = 1
 typedef struct {
   idx n;
   soa_fn f;                               /* tan3dof_f_soa */
+  bilinear_fn lookup;                     /* terrain_bilinear */
   const double* p;                        /* model parameters (current) */
   const double* grid; idx nx, ny; double x0, y0, inv_res;
   double* u;                              /* (2, n) scratch: per-particle [v, omega] */
   double* noise;                          /* (4, n): n_v, n_omega, e_x, e_y */
-  double* uniforms;                       /* (>= 4 n, multiple of LANES) scratch */
+  double* uniforms;                       /* (>= 2 n, padded) scratch: a block's uniforms, the CDF */
   double* proposed;                       /* (3, n) scratch: the proposals resampling gathers from */
   double* depth; double* gx; double* gy; double* inside;   /* (n) each */
   const double* dt;                       /* the model's dt buffer (1) */
@@ -202,7 +206,7 @@ int terrain_sir_step(const terrain_step_t* t, const double* restrict sc) {
       for (idx j = 0; j < nb; ++j) thb[j] = heading;
     }
     if (depth_present || slope)
-      terrain_bilinear(nb, xb, yb, t->grid, t->nx, t->ny, t->x0, t->y0, t->inv_res, t->depth + b0, t->gx + b0,
+      t->lookup(nb, xb, yb, t->grid, t->nx, t->ny, t->x0, t->y0, t->inv_res, t->depth + b0, t->gx + b0,
                        t->gy + b0, t->inside + b0);
     /* weights: log w += log N(z; map(x, y), sigma^2) up to a constant; outside the map: a fixed residual */
     const double* restrict lwb = lw + b0;
@@ -325,9 +329,7 @@ int terrain_sir_step(const terrain_step_t* t, const double* restrict sc) {
 def _library() -> ctypes.CDLL:
     from abyssal.generated.build import build
 
-    from ...terrain.kernel import SOURCE as BILINEAR
-
-    lib = ctypes.CDLL(str(build("terrain_sir", {"terrain_bilinear_soa.c": BILINEAR, "terrain_sir_soa.c": SOURCE})))
+    lib = ctypes.CDLL(str(build("terrain_sir", {"terrain_sir_soa.c": SOURCE})))
     lib.terrain_sir_step.restype = ctypes.c_int
     lib.terrain_sir_step.argtypes = [ctypes.c_void_p, ctypes.c_void_p]
     lib.terrain_normals.restype = None
@@ -341,7 +343,8 @@ M_X, M_P, M_ESS, M_SLOPE, M_RESAMPLED, M_COUNT = 0, 3, 12, 13, 14, 15
 
 
 class _Step(ctypes.Structure):
-    _fields_ = [("n", ctypes.c_longlong), ("f", ctypes.c_void_p), ("p", ctypes.c_void_p), ("grid", ctypes.c_void_p),
+    _fields_ = [("n", ctypes.c_longlong), ("f", ctypes.c_void_p), ("lookup", ctypes.c_void_p), ("p", ctypes.c_void_p),
+                ("grid", ctypes.c_void_p),
                 ("nx", ctypes.c_longlong), ("ny", ctypes.c_longlong), ("x0", ctypes.c_double), ("y0", ctypes.c_double),
                 ("inv_res", ctypes.c_double)] + [(name, ctypes.c_void_p) for name in (
                     "u", "noise", "uniforms", "proposed", "depth", "gx", "gy", "inside", "dt", "particles",
@@ -392,7 +395,8 @@ class TerrainStep:
         self.scalars[S_DRAW] = 1.0
         # scratch
         self.u, self.noise = np.zeros((2, n)), np.zeros((4, n))
-        self.uniforms = np.zeros((4 * n + LANES - 1) // LANES * LANES + LANES)
+        # a block's uniforms (2 per particle of a block of <= n) and the resampling CDF (n): 2 n, padded
+        self.uniforms = np.zeros((2 * n + LANES - 1) // LANES * LANES + LANES)
         self.proposed = np.zeros((3, n))
         self.depth, self.gx, self.gy, self.inside = (np.zeros(n) for _ in range(4))
         # both sides of the state
@@ -410,7 +414,8 @@ class TerrainStep:
         self._structs = []
         for side in (0, 1):
             other = 1 - side
-            s = _Step(n=n, f=f_soa_address, p=address(self.scalars) + 8 * S_COUNT, grid=address(terrain.depth), nx=nx, ny=ny,
+            s = _Step(n=n, f=f_soa_address, lookup=lookup_address(), p=address(self.scalars) + 8 * S_COUNT,
+                      grid=address(terrain.depth), nx=nx, ny=ny,
                       x0=terrain.origin[0], y0=terrain.origin[1], inv_res=1.0 / terrain.resolution,
                       u=address(self.u), noise=address(self.noise), uniforms=address(self.uniforms),
                       proposed=address(self.proposed), depth=address(self.depth), gx=address(self.gx),
