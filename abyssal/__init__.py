@@ -20,7 +20,7 @@ from abyssal.generated.regenerate import generate
 from abyssal.runtime import CKF, EKF, MCUKF, UKF, FilterResult, HuberUKF
 from abyssal.runtime.filters.particle import CubatureParticleFilter, ParticleFilter
 from abyssal.runtime.noise import GaussianMixture
-from abyssal.symbolic import Model, Parameter, Quantity, discretise, fossen, symbols
+from abyssal.symbolic import Envelope, Model, Parameter, Quantity, discretise, fossen, symbols
 
 
 def verify(target, *, strict: bool = False):
@@ -44,7 +44,7 @@ def verify(target, *, strict: bool = False):
 
 
 __all__ = [
-    "CKF", "CubatureParticleFilter", "EKF", "FilterResult", "GaussianMixture", "HuberUKF", "MCUKF", "Model",
+    "CKF", "CubatureParticleFilter", "EKF", "Envelope", "FilterResult", "GaussianMixture", "HuberUKF", "MCUKF", "Model",
     "Parameter", "ParticleFilter", "Quantity", "UKF", "check_generated", "discretise", "fossen", "generate", "load",
     "symbols", "verify",
 ]

@@ -23,6 +23,10 @@ library, so a process that has it mapped never sees it change (unlinking a mappe
 safe; truncating or rewriting it in place kills that process with SIGBUS: never edit entries
 by hand, delete them or use ``abyssal cache clear``).
 
+Visible. A build running longer than PROGRESS_AFTER seconds prints one line on stderr, "abyssal:
+compiling <model>: <k> files, <size> MB of C ..." and " done in <t> s" at its end; a timed-out build
+names the files still compiling.
+
 Builds of one key are serialised by ``<model>-<key[:24]>.lock`` (flock, removed after the build).
 The compiler runs in its own process group under a deadline (ABYSSAL_BUILD_TIMEOUT): on timeout
 the whole group is killed, the temporary folder removed, the lock released, and BuildError raised.
@@ -50,6 +54,7 @@ import shlex
 import shutil
 import signal
 import subprocess
+import sys
 import tempfile
 import threading
 import time
@@ -68,6 +73,8 @@ SOA_FLAGS = ["-fopenmp-simd", "-fno-builtin-sin", "-fno-builtin-cos", "-fno-buil
 
 #: seconds one build may take (all compile and link steps; a slow vehicle computer needs minutes for the largest model)
 DEFAULT_TIMEOUT = 600.0
+#: a build running longer than this many seconds prints one progress line on stderr (_Progress)
+PROGRESS_AFTER = 2.0
 #: seconds `cc --version` may take (only run when building, to record the compiler in entry.json)
 VERSION_TIMEOUT = 3.0
 #: seconds a process waits for another's build of the same key beyond ABYSSAL_BUILD_TIMEOUT
@@ -263,7 +270,46 @@ def _compiler_identity(cc: str) -> str:
 class _Job:
     cmd: list[str]
     log: Path
+    source: str = "the link step"
     proc: subprocess.Popen | None = None
+
+
+class _Progress:
+    """One line on stderr for a build that takes longer than PROGRESS_AFTER seconds.
+
+    "abyssal: compiling rov4dof: 6 files, 0.97 MB of C ..." once the build has run that long, and
+    " done in 12.3 s" (or " failed after ...") at its end; a quick build prints nothing.
+    """
+
+    def __init__(self, model: str, sources: dict[str, str]):
+        c_files = [text for name, text in sources.items() if name.endswith(".c")]
+        megabytes = sum(len(text.encode()) for text in c_files) / 1e6
+        self.message = f"abyssal: compiling {model}: {len(c_files)} files, {megabytes:.2f} MB of C ..."
+        self.start = time.monotonic()
+        self.shown = False
+        self._lock = threading.Lock()
+        self._timer = threading.Timer(PROGRESS_AFTER, self._show)
+        self._timer.daemon = True
+
+    def _show(self):
+        with self._lock:
+            if not self.shown:
+                sys.stderr.write(self.message)
+                sys.stderr.flush()
+                self.shown = True
+
+    def __enter__(self):
+        self._timer.start()
+        return self
+
+    def __exit__(self, exc_type, exc, tb):
+        self._timer.cancel()
+        with self._lock:
+            if self.shown:
+                outcome = "done in" if exc_type is None else "failed after"
+                sys.stderr.write(f" {outcome} {time.monotonic() - self.start:.1f} s\n")
+                sys.stderr.flush()
+            self.shown = True  # a timer that fires late prints nothing
 
 
 def _run_jobs(jobs: list[_Job], deadline: float, timeout: float, workdir: Path, max_parallel: int) -> None:
@@ -293,9 +339,10 @@ def _run_jobs(jobs: list[_Job], deadline: float, timeout: float, workdir: Path, 
                     output = job.log.read_text(errors="replace")[-4000:]
                     raise BuildError(f"compiling generated C failed (exit {code}): {' '.join(job.cmd)}\n{output}")
             if running and time.monotonic() > deadline:
+                still = ", ".join(job.source for job in running)
                 raise BuildError(
-                    f"the C compiler did not finish within {timeout:g} s (ABYSSAL_BUILD_TIMEOUT) and was stopped; "
-                    f"nothing was cached: {' '.join(running[0].cmd)}")
+                    f"the C compiler did not finish within {timeout:g} s (ABYSSAL_BUILD_TIMEOUT) and was stopped "
+                    f"while compiling {still}; nothing was cached: {' '.join(running[0].cmd)}")
             if running:
                 time.sleep(0.01)
     finally:
@@ -308,11 +355,12 @@ def _compile(sources: dict[str, str], workdir: Path, lib_path: Path, flags: list
     objects, jobs = [], []
     for name, text in sorted(sources.items()):
         (workdir / name).write_text(text)
-    for name in sorted(n for n in sources if n.endswith(".c")):
+    # largest first: the longest compile starts at once and the others fill the remaining cores
+    for name in sorted((n for n in sources if n.endswith(".c")), key=lambda n: (-len(sources[n]), n)):
         src = workdir / name
         obj = workdir / (name + ".o")
         objects.append(obj)
-        jobs.append(_Job([cc, *_file_flags(name, flags), "-c", str(src), "-o", str(obj)], workdir / (name + ".log")))
+        jobs.append(_Job([cc, *_file_flags(name, flags), "-c", str(src), "-o", str(obj)], workdir / (name + ".log"), name))
     _run_jobs(jobs, deadline, timeout, workdir, max(1, os.cpu_count() or 1))
     link = _Job([cc, *flags, *LINK_FLAGS, *map(str, objects), "-o", str(lib_path), *_libraries()], workdir / "link.log")
     _run_jobs([link], deadline, timeout, workdir, 1)
@@ -532,7 +580,8 @@ def _build_entry(model, sources, symbols, flags, requested, key, cc, timeout, en
     try:
         lib = work / lib_name
         try:
-            _compile(sources, work, lib, flags, cc, deadline, timeout)
+            with _Progress(model, sources):
+                _compile(sources, work, lib, flags, cc, deadline, timeout)
         except BuildError as exc:
             notes = [f"ABYSSAL_CFLAGS={os.environ['ABYSSAL_CFLAGS']!r}"] if "ABYSSAL_CFLAGS" in os.environ else []
             notes += [f"{requested_var}={requested!r}"] if requested_var else []

@@ -359,6 +359,9 @@ class ModelBundle:
         self.discretisation = manifest["discretisation"]
         #: the filter families generated for this model (None: recorded before families were a choice)
         self.filter_families = manifest.get("filter_families")
+        #: the operating envelope the manifest records: {"declared": bool, "states"/"inputs": name -> [low, high],
+        #: "max_dt", "min_dt", "default_range"} (None: a manifest written before models declared envelopes)
+        self.envelope = manifest.get("envelope")
         #: the folder the sources were read from (set by abyssal.generated.load)
         self.folder: Path | None = None
         self.n_x, self.n_u, self.n_p = len(self.state_names), len(self.input_names), len(self.parameter_names)

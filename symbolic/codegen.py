@@ -11,8 +11,12 @@ column-major, as CasADi stores them):
     <m>_xdot(x, u, p, w) -> xdot        continuous dynamics (continuous models)
     <m>_x_next(x, u, p, w, dt) -> x_next  the given step with its noise input (discrete models)
 
-Filter families (abyssal.symbolic.filters) add their whole steps as further units. Each
-unit becomes one C file; next to CasADi's code every function gets a ``<name>_batch``
+Filter families (abyssal.symbolic.filters) add their whole steps as further units: MX graphs of
+calls to SX leaves (the model's step and measurement, the points, the moments, the gain), each
+leaf emitted once per file, so a file grows with the model plus the dense algebra, not with
+(sigma points x model). The manifest's ``instructions`` of a function count the operations one
+call executes (operation_count). Each unit becomes one C file; next to CasADi's code every
+function gets a ``<name>_batch``
 entry point that evaluates it over N column-major slices (see BATCH_TEMPLATE), so N is
 chosen at run time instead of being fixed by ``Function.map``.
 
@@ -29,7 +33,7 @@ from dataclasses import dataclass
 
 import casadi as ca
 
-from .discretise import discrete_step, step_and_jacobian
+from .discretise import noise_jacobian, step_and_jacobian
 from .model import Model
 
 FUNCTION_OPTIONS = {"cse": True}
@@ -40,7 +44,8 @@ BANNER = """\
  * Model {model}, equations sha256 {eq_hash}, CasADi {casadi}.
  * Edit the equations and run `{command}`; `{check}` fails on drift.
  *
- * Functions (CasADi SX instructions after common-subexpression elimination):
+ * Functions (operations per call: CasADi SX instructions after common-subexpression elimination,
+ * of the function itself or of the leaves it calls, times the calls):
 {listing}
  */
 """
@@ -195,22 +200,14 @@ def model_functions(model: Model) -> tuple[ca.Function, ...]:
     """The core functions of a model (see the module docstring)."""
     m = model.name
     x, u, p, w = model.x, model.u, model.p, model.w
-    dt = ca.SX.sym("dt")
-    x_next = discrete_step(model, x, u, p, w, dt)
-
-    def at_zero_noise(expr):
-        return ca.substitute(expr, w, ca.DM.zeros(w.shape)) if model.n_w else expr
-
-    if model.is_discrete:
-        dt = model.dt  # the symbol x_next uses; the generated functions take it as their input "dt"
-        x_next = model.x_next
+    dt = model.dt if model.is_discrete else ca.SX.sym("dt")  # a discrete model's x_next uses its own dt symbol
     f, F = step_and_jacobian(model, x, u, p, dt)
     functions = [
         ca.Function(f"{m}_f", [x, u, p, dt], [f], ["x", "u", "p", "dt"], ["x_next"], FUNCTION_OPTIONS),
         ca.Function(f"{m}_F", [x, u, p, dt], [ca.densify(F)], ["x", "u", "p", "dt"], ["dfdx"], FUNCTION_OPTIONS),
     ]
     if model.n_w:
-        G = at_zero_noise(ca.jacobian(x_next, w))
+        G = noise_jacobian(model, x, u, p, dt)
         functions.append(
             ca.Function(f"{m}_G", [x, u, p, dt], [ca.densify(G)], ["x", "u", "p", "dt"], ["dfdw"], FUNCTION_OPTIONS)
         )
@@ -219,12 +216,32 @@ def model_functions(model: Model) -> tuple[ca.Function, ...]:
         ca.Function(f"{m}_H", [x, p], [ca.densify(ca.jacobian(model.y, x))], ["x", "p"], ["dhdx"], FUNCTION_OPTIONS),
     ]
     if model.is_discrete:
-        functions.append(ca.Function(f"{m}_x_next", [x, u, p, w, dt], [ca.densify(x_next)], ["x", "u", "p", "w", "dt"],
+        functions.append(ca.Function(f"{m}_x_next", [x, u, p, w, dt], [ca.densify(model.x_next)], ["x", "u", "p", "w", "dt"],
                                      ["x_next"], FUNCTION_OPTIONS))
     else:
         functions.append(ca.Function(f"{m}_xdot", [x, u, p, w], [ca.densify(model.xdot)], ["x", "u", "p", "w"], ["xdot"],
                                      FUNCTION_OPTIONS))
     return tuple(functions)
+
+
+def operation_count(fn: ca.Function) -> int:
+    """Scalar operations one call of fn executes: an SX Function's instructions; for an MX graph of
+    calls (the filter steps, symbolic/filters/common.py), the operations of every Function it calls
+    (a map: times its count) plus one per output entry of its own nodes (copies, sums, products)."""
+    kind = fn.class_name()
+    if kind == "SXFunction":
+        return int(fn.n_instructions())
+    if kind == "Map":
+        inner = fn.find_functions(1)[0]
+        return fn.size2_out(0) // inner.size2_out(0) * operation_count(inner)
+    total = 0
+    for k in range(fn.n_instructions()):
+        op = fn.instruction_id(k)
+        if op in (ca.OP_INPUT, ca.OP_OUTPUT):
+            continue
+        node = fn.instruction_MX(k)
+        total += operation_count(node.which_function()) if op == ca.OP_CALL else int(node.nnz())
+    return total
 
 
 def _signature(fn: ca.Function, i: int, io: str) -> dict:
@@ -244,7 +261,7 @@ def describe_function(fn: ca.Function, file: str) -> dict:
         "sz_res": int(fn.sz_res()),
         "sz_iw": int(fn.sz_iw()),
         "sz_w": int(fn.sz_w()),
-        "instructions": int(fn.n_instructions()),
+        "instructions": operation_count(fn),
     }
 
 
@@ -258,7 +275,7 @@ def unit_source(model: Model, unit: Unit, origin: Origin) -> str:
     cg = ca.CodeGenerator(f"{model.name}_{unit.name}.c", CODEGEN_OPTIONS)
     for fn in unit.functions:
         cg.add(fn)
-    listing = "\n".join(f" *   {fn.name():<28} {fn.n_instructions():>8} instructions" for fn in unit.functions)
+    listing = "\n".join(f" *   {fn.name():<28} {operation_count(fn):>8} operations" for fn in unit.functions)
     banner = _banner(model, origin, listing)
     batches = "".join(
         BATCH_TEMPLATE.format(
@@ -327,6 +344,7 @@ def generate_model(model: Model, units: list[Unit], origin: Origin, families: tu
         "outputs": [{"name": q.name, "unit": q.unit, "description": q.description} for q in model.outputs],
         "angle_outputs": list(model.angle_outputs),
         "angle_states": list(model.angle_states),
+        "envelope": model.envelope_record(),
         "filter_families": list(families) if families is not None else None,
         "notes": list(model.notes),
         "files": {

@@ -13,11 +13,17 @@ Parameters are a runtime input of every generated function, so a user can change
 vehicle's mass or a leader vehicle's position without regenerating C; their defaults
 are recorded in the manifest and used when the runtime is given ``p=None``
 (``bundle.params(m=30.0)`` overrides them by name).
+
+A model may declare its operating :class:`Envelope`: the nominal range of each state and input
+(for Euler angles, where the kinematics are regular) and the step lengths it is meant for.
+`abyssal verify` samples a model without a NumPy twin inside it; it is recorded in the manifest
+and does not enter :meth:`Model.equations_hash` (it is not an equation).
 """
 from __future__ import annotations
 
 import hashlib
 import keyword
+import math
 import re
 from dataclasses import dataclass, field
 
@@ -60,6 +66,93 @@ def c_identifier_problem(name) -> str | None:
     return None
 
 
+#: The range of a state or input the envelope does not name (and of every one when a model declares
+#: no envelope): a unit box, what an engineer would call "order one" in SI units.
+DEFAULT_RANGE = (-1.0, 1.0)
+DEFAULT_MAX_DT = 0.5
+DEFAULT_MIN_DT = 0.01
+
+
+@dataclass(frozen=True)
+class Envelope:
+    """Where a model is meant to be used: nominal ranges of its states and inputs, and its step lengths.
+
+    Fields
+    ------
+    states: state name -> (low, high), the nominal range of that state (low < high, both finite, in
+        the state's unit). For an angle whose kinematics are singular somewhere (the pitch of Euler
+        angles at +-pi/2), the range is where they are regular, e.g. ``"theta": (-1.4, 1.4)``.
+    inputs: input name -> (low, high), likewise.
+        A state or input not named gets ``DEFAULT_RANGE`` = [-1, 1].
+    max_dt: the longest step [s] the discretisation is meant for (> 0, finite).
+    min_dt: the shortest step [s] (0 < min_dt <= max_dt).
+
+    ``abyssal verify`` draws a model's states, inputs and dt uniformly inside this box when the model
+    has no NumPy twin, and reports a step leaving 10x the box (about its centre) as diverged. The
+    names are checked against the Model it is given to (``Model(..., envelope=Envelope(...))``).
+    """
+
+    states: dict[str, tuple[float, float]] = field(default_factory=dict)
+    inputs: dict[str, tuple[float, float]] = field(default_factory=dict)
+    max_dt: float = DEFAULT_MAX_DT
+    min_dt: float = DEFAULT_MIN_DT
+
+    def __post_init__(self):
+        for group in ("states", "inputs"):
+            ranges = getattr(self, group)
+            if not isinstance(ranges, dict):
+                raise TypeError(f"Envelope {group} must be a dict name -> (low, high), got {type(ranges).__name__}")
+            checked = {}
+            for name, bounds in ranges.items():
+                what = f"Envelope {group}[{name!r}]"
+                try:
+                    low, high = bounds
+                    low, high = _real(low), _real(high)
+                except (TypeError, ValueError):
+                    raise ValueError(f"{what} must be a pair (low, high) of numbers, got {bounds!r}") from None
+                if not (math.isfinite(low) and math.isfinite(high)):
+                    raise ValueError(f"{what} = {bounds!r}: low and high must be finite")
+                if not low < high:
+                    raise ValueError(f"{what} = {bounds!r}: low must be < high")
+                checked[name] = (low, high)
+            object.__setattr__(self, group, checked)  # a copy: later edits of the caller's dict do not leak in
+        for label in ("max_dt", "min_dt"):
+            try:
+                value = _real(getattr(self, label))
+            except (TypeError, ValueError):
+                raise ValueError(f"Envelope {label} must be a number of seconds, got {getattr(self, label)!r}") from None
+            if not math.isfinite(value) or value <= 0:
+                raise ValueError(f"Envelope {label} = {value!r} s: must be positive and finite")
+            object.__setattr__(self, label, value)
+        if self.min_dt > self.max_dt:
+            raise ValueError(f"Envelope min_dt = {self.min_dt!r} s is larger than max_dt = {self.max_dt!r} s")
+
+    def __hash__(self):
+        return hash((tuple(self.states.items()), tuple(self.inputs.items()), self.max_dt, self.min_dt))
+
+    def resolved(self, state_names, input_names) -> tuple[dict, dict]:
+        """(states, inputs): name -> (low, high) for every given name, DEFAULT_RANGE where not declared."""
+        return ({n: self.states.get(n, DEFAULT_RANGE) for n in state_names},
+                {n: self.inputs.get(n, DEFAULT_RANGE) for n in input_names})
+
+
+def _real(value) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) and not hasattr(value, "__float__"):
+        raise TypeError(f"not a number: {value!r}")
+    return float(value)
+
+
+def envelope_record(envelope: Envelope | None, state_names, input_names) -> dict:
+    """The manifest's "envelope" entry: every state's and input's range (defaults resolved), the dt range,
+    whether the model declared it (False: the defaults of a model that declares none) and the default range."""
+    declared = envelope is not None
+    envelope = envelope if declared else Envelope()
+    states, inputs = envelope.resolved(state_names, input_names)
+    return {"declared": declared, "states": {n: list(r) for n, r in states.items()},
+            "inputs": {n: list(r) for n, r in inputs.items()}, "max_dt": envelope.max_dt, "min_dt": envelope.min_dt,
+            "default_range": list(DEFAULT_RANGE)}
+
+
 @dataclass(frozen=True)
 class Model:
     """Symbolic model of a vehicle.
@@ -82,6 +175,9 @@ class Model:
     functions: further CasADi SX Functions generated with the model into ``<name>_functions.c``
         (e.g. a noise law: tan3dof's fuzzy_sigma), each named ``<name>_<suffix>`` and loaded as
         ``bundle.function("<suffix>")``; ``abyssal verify`` compares their C with CasADi.
+    envelope: the operating :class:`Envelope` (nominal state and input ranges, dt range); None
+        declares none (verify then samples [-1, 1] and dt in [0.01, 0.5] s, and says so). Recorded in
+        the manifest; not part of equations_hash.
 
     Validation happens here, when the Model is built, so a mistake is reported next to the line
     that made it rather than as a compiler error or a silently wrong filter: SX (not MX)
@@ -108,6 +204,7 @@ class Model:
     dt: ca.SX | None = None
     angle_states: tuple[int, ...] = ()
     functions: tuple[ca.Function, ...] = ()
+    envelope: Envelope | None = None
 
     def __post_init__(self):
         problem = c_identifier_problem(self.name)
@@ -119,6 +216,7 @@ class Model:
         self._check_symbols()
         self._check_indices()
         self._check_functions()
+        self._check_envelope()
 
     # ----------------------------------------------------------------- validation
     def _fail(self, message: str):
@@ -237,6 +335,23 @@ class Model:
         duplicates = sorted({n for n in names if names.count(n) > 1})
         if duplicates:
             self._fail(f"functions: duplicate names {duplicates}")
+
+    def _check_envelope(self):
+        if self.envelope is None:
+            return
+        if not isinstance(self.envelope, Envelope):
+            self._fail(f"envelope must be an abyssal Envelope (abyssal.symbolic.Envelope), got "
+                       f"{type(self.envelope).__name__}")
+        for group, quantities in (("states", self.states), ("inputs", self.inputs)):
+            known = [q.name for q in quantities]
+            unknown = [n for n in getattr(self.envelope, group) if n not in known]
+            if unknown:
+                self._fail(f"envelope {group}: {unknown} {'is not a' if len(unknown) == 1 else 'are not'} "
+                           f"{group[:-1]} name{'s' if len(unknown) > 1 else ''} of the model; its {group}: {known}")
+
+    def envelope_record(self) -> dict:
+        """The manifest's "envelope" entry (see :func:`envelope_record`): ranges of every state and input."""
+        return envelope_record(self.envelope, [q.name for q in self.states], [q.name for q in self.inputs])
 
     def _check_indices(self):
         for label, indices, n, what in (("angle_outputs", self.angle_outputs, self.n_y, "outputs"),

@@ -2,9 +2,11 @@
  * Model cn2d, equations sha256 d18b0bc949beb8eb544358aabafbf037a41dce14bc5bbbcfe95e0dfce4cc76e1, CasADi 3.8.2.
  * Edit the equations and run `abyssal regenerate`; `abyssal regenerate --check` fails on drift.
  *
- * Functions (CasADi SX instructions after common-subexpression elimination):
- *   cn2d_ckf_predict                  128 instructions
- *   cn2d_ckf_update                   156 instructions
+ * Functions (operations per call: CasADi SX instructions after common-subexpression elimination,
+ * of the function itself or of the leaves it calls, times the calls):
+ *   cn2d_ckf_predict                  268 operations
+ *   cn2d_ckf_update                   229 operations
+ *   cn2d_ckf_step                     498 operations
  */
 /* How to prefix internal symbols */
 #ifdef CASADI_CODEGEN_PREFIX
@@ -26,15 +28,35 @@
 #endif
 
 /* Add prefix to internal symbols */
+#define casadi_clear CASADI_PREFIX(clear)
+#define casadi_copy CASADI_PREFIX(copy)
 #define casadi_f0 CASADI_PREFIX(f0)
 #define casadi_f1 CASADI_PREFIX(f1)
+#define casadi_f10 CASADI_PREFIX(f10)
+#define casadi_f11 CASADI_PREFIX(f11)
+#define casadi_f12 CASADI_PREFIX(f12)
+#define casadi_f13 CASADI_PREFIX(f13)
+#define casadi_f14 CASADI_PREFIX(f14)
+#define casadi_f15 CASADI_PREFIX(f15)
+#define casadi_f16 CASADI_PREFIX(f16)
+#define casadi_f2 CASADI_PREFIX(f2)
+#define casadi_f3 CASADI_PREFIX(f3)
+#define casadi_f4 CASADI_PREFIX(f4)
+#define casadi_f5 CASADI_PREFIX(f5)
+#define casadi_f6 CASADI_PREFIX(f6)
+#define casadi_f7 CASADI_PREFIX(f7)
+#define casadi_f8 CASADI_PREFIX(f8)
+#define casadi_f9 CASADI_PREFIX(f9)
 #define casadi_fabs CASADI_PREFIX(fabs)
+#define casadi_fill CASADI_PREFIX(fill)
 #define casadi_fmax CASADI_PREFIX(fmax)
+#define casadi_mtimes_dense CASADI_PREFIX(mtimes_dense)
 #define casadi_s0 CASADI_PREFIX(s0)
 #define casadi_s1 CASADI_PREFIX(s1)
 #define casadi_s2 CASADI_PREFIX(s2)
 #define casadi_s3 CASADI_PREFIX(s3)
 #define casadi_sq CASADI_PREFIX(sq)
+#define casadi_zeros CASADI_PREFIX(zeros)
 
 /* Symbol visibility in DLLs */
 #ifndef CASADI_SYMBOL_EXPORT
@@ -71,9 +93,56 @@ casadi_real casadi_fmax(casadi_real x, casadi_real y) {
 
 casadi_real casadi_sq(casadi_real x) { return x*x;}
 
+void casadi_copy(const casadi_real* x, casadi_int n, casadi_real* y) {
+  casadi_int i;
+  if (y) {
+    if (x) {
+      for (i=0; i<n; ++i) *y++ = *x++;
+    } else {
+      for (i=0; i<n; ++i) *y++ = 0.;
+    }
+  }
+}
+
+void casadi_clear(casadi_real* x, casadi_int n) {
+  casadi_int i;
+  if (x) {
+    for (i=0; i<n; ++i) *x++ = 0;
+  }
+}
+
 #ifndef casadi_inf
   #define casadi_inf INFINITY
 #endif
+
+void casadi_fill(casadi_real* x, casadi_int n, casadi_real alpha) {
+  casadi_int i;
+  if (x) {
+    for (i=0; i<n; ++i) *x++ = alpha;
+  }
+}
+
+void casadi_mtimes_dense(const casadi_real* x, casadi_int nrow_x, casadi_int ncol_x,
+    const casadi_real* y, casadi_int ncol_y, casadi_real* z, casadi_int tr) {
+  casadi_int i, j, k;
+  if (tr) {
+    for (i=0; i<ncol_y; ++i) {
+      for (j=0; j<ncol_x; ++j) {
+        for (k=0; k<nrow_x; ++k) {
+          z[j + i*ncol_x] += x[k + j*nrow_x] * y[k + i*nrow_x];
+        }
+      }
+    }
+  } else {
+    for (i=0; i<ncol_y; ++i) {
+      for (j=0; j<nrow_x; ++j) {
+        for (k=0; k<ncol_x; ++k) {
+          z[j + i*nrow_x] += x[j + k*nrow_x] * y[k + i*ncol_x];
+        }
+      }
+    }
+  }
+}
 
 /* Configuration this file was compiled with */
 CASADI_SYMBOL_EXPORT void cn2d_ckf_casadi_version(int* major, int* minor, int* patch) {
@@ -89,138 +158,318 @@ static const casadi_int casadi_s1[3] = {2, 2, 1};
 static const casadi_int casadi_s2[3] = {3, 1, 1};
 static const casadi_int casadi_s3[3] = {1, 1, 1};
 
+static const casadi_real casadi_zeros[8] = {0.};
+
+/* cn2d_ckf_points:(x[2],P[2x2])->(X[2x4],L[2x2],ok) */
+static int casadi_f1(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10;
+  a00=arg[0]? arg[0][0] : 0;
+  a01=1.4142135623730951e+00;
+  a02=arg[1]? arg[1][0] : 0;
+  a03=1.0000000000000000e-13;
+  a04=casadi_fabs(a02);
+  a04=(a03*a04);
+  a05=1.0000000000000000e-300;
+  a04=(a04+a05);
+  a06=casadi_fmax(a02,a04);
+  a06=sqrt(a06);
+  a07=(a01*a06);
+  a07=(a00+a07);
+  if (res[0]!=0) res[0][0]=a07;
+  a07=arg[0]? arg[0][1] : 0;
+  a08=5.0000000000000000e-01;
+  a09=arg[1]? arg[1][2] : 0;
+  a10=arg[1]? arg[1][1] : 0;
+  a09=(a09+a10);
+  a08=(a08*a09);
+  a09=(1./a06);
+  a09=copysign(a09,a06);
+  a08=(a08*a09);
+  a09=(a01*a08);
+  a09=(a07+a09);
+  if (res[0]!=0) res[0][1]=a09;
+  if (res[0]!=0) res[0][2]=a00;
+  a09=arg[1]? arg[1][3] : 0;
+  a10=casadi_sq(a08);
+  a10=(a09-a10);
+  a09=casadi_fabs(a09);
+  a03=(a03*a09);
+  a03=(a03+a05);
+  a05=casadi_fmax(a10,a03);
+  a05=sqrt(a05);
+  a01=(a01*a05);
+  a01=(a07+a01);
+  if (res[0]!=0) res[0][3]=a01;
+  a01=-1.4142135623730951e+00;
+  a09=(a01*a06);
+  a09=(a00+a09);
+  if (res[0]!=0) res[0][4]=a09;
+  a09=(a01*a08);
+  a09=(a07+a09);
+  if (res[0]!=0) res[0][5]=a09;
+  if (res[0]!=0) res[0][6]=a00;
+  a01=(a01*a05);
+  a07=(a07+a01);
+  if (res[0]!=0) res[0][7]=a07;
+  if (res[1]!=0) res[1][0]=a06;
+  if (res[1]!=0) res[1][1]=a08;
+  a08=0.;
+  if (res[1]!=0) res[1][2]=a08;
+  if (res[1]!=0) res[1][3]=a05;
+  a04=(a04<a02);
+  a03=(a03<a10);
+  a04=(a04*a03);
+  if (res[2]!=0) res[2][0]=a04;
+  return 0;
+}
+
+/* cn2d_step:(x[2],u[3],p[2],dt)->(x_next[2]) */
+static int casadi_f4(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a0, a1, a2, a3, a4, a5, a6, a7;
+  a0=arg[0]? arg[0][0] : 0;
+  a1=arg[3]? arg[3][0] : 0;
+  a2=arg[1]? arg[1][0] : 0;
+  a3=arg[1]? arg[1][2] : 0;
+  a4=cos(a3);
+  a5=(a2*a4);
+  a6=arg[1]? arg[1][1] : 0;
+  a3=sin(a3);
+  a7=(a6*a3);
+  a5=(a5+a7);
+  a5=(a1*a5);
+  a0=(a0+a5);
+  if (res[0]!=0) res[0][0]=a0;
+  a0=arg[0]? arg[0][1] : 0;
+  a2=(a2*a3);
+  a6=(a6*a4);
+  a2=(a2-a6);
+  a1=(a1*a2);
+  a0=(a0+a1);
+  if (res[0]!=0) res[0][1]=a0;
+  return 0;
+}
+
+/* map4_cn2d_step:(x[2x4],u[3x4],p[2x4],dt[1x4])->(x_next[2x4]) */
+static int casadi_f3(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_int i;
+  casadi_real* *res1;
+  const casadi_real* *arg1;
+  arg1 = arg+4;
+  for (i=0; i<4; ++i) arg1[i]=arg[i];
+  res1 = res+1;
+  for (i=0; i<1; ++i) res1[i]=res[i];
+  for (i=0; i<4; ++i) {
+    if (casadi_f4(arg1, res1, iw, w, 0)) return 1;
+    if (arg1[0]) arg1[0]+=2;
+    if (arg1[1]) arg1[1]+=3;
+    if (arg1[2]) arg1[2]+=2;
+    if (arg1[3]) arg1[3]+=1;
+    if (res1[0]) res1[0]+=2;
+  }
+  return 0;
+}
+
+/* cn2d_step_columns:(x[2x4],u[3],p[2],dt)->(x_next[2x4]) */
+static int casadi_f2(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_int i;
+  casadi_real **res1=res+1, *w1=w+8, *w2=w+11, *w3=w+23, *w4=w+25, w5, *w6=w+33, *w7=w+37;
+  const casadi_real **arg1=arg+4, *wr0;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  casadi_copy(arg[1], 3, w1);
+  /* #2: @2 = repmat(@1, 4) */
+  for (i=0;i<4;++i) {
+    casadi_copy(w1, 3, w2+ i*3);
+  }
+  /* #3: @3 = input[2][0] */
+  casadi_copy(arg[2], 2, w3);
+  /* #4: @4 = repmat(@3, 4) */
+  for (i=0;i<4;++i) {
+    casadi_copy(w3, 2, w4+ i*2);
+  }
+  /* #5: @5 = input[3][0] */
+  w5 = arg[3] ? arg[3][0] : 0;
+  /* #6: @6 = repmat(@5, 4) */
+  for (i=0;i<4;++i) {
+    casadi_copy((&w5), 1, w6+ i*1);
+  }
+  /* #7: @7 = map4_cn2d_step(@0, @2, @4, @6) */
+  arg1[0]=wr0;
+  arg1[1]=w2;
+  arg1[2]=w4;
+  arg1[3]=w6;
+  res1[0]=w7;
+  if (casadi_f3(arg1, res1, iw, w, 0)) return 1;
+  /* #8: output[0][0] = @7 */
+  casadi_copy(w7, 8, res[0]);
+  return 0;
+}
+
+/* cn2d_ckf_outer:(y[2],mean[2])->(ddT[2x2]) */
+static int casadi_f7(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a0, a1, a2;
+  a0=arg[0]? arg[0][0] : 0;
+  a1=arg[1]? arg[1][0] : 0;
+  a0=(a0-a1);
+  a1=casadi_sq(a0);
+  if (res[0]!=0) res[0][0]=a1;
+  a1=arg[0]? arg[0][1] : 0;
+  a2=arg[1]? arg[1][1] : 0;
+  a1=(a1-a2);
+  a0=(a0*a1);
+  if (res[0]!=0) res[0][1]=a0;
+  if (res[0]!=0) res[0][2]=a0;
+  a1=casadi_sq(a1);
+  if (res[0]!=0) res[0][3]=a1;
+  return 0;
+}
+
+/* map4_cn2d_ckf_outer:(y[2x4],mean[2x4])->(ddT[2x8]) */
+static int casadi_f6(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_int i;
+  casadi_real* *res1;
+  const casadi_real* *arg1;
+  arg1 = arg+2;
+  for (i=0; i<2; ++i) arg1[i]=arg[i];
+  res1 = res+1;
+  for (i=0; i<1; ++i) res1[i]=res[i];
+  for (i=0; i<4; ++i) {
+    if (casadi_f7(arg1, res1, iw, w, 0)) return 1;
+    if (arg1[0]) arg1[0]+=2;
+    if (arg1[1]) arg1[1]+=2;
+    if (res1[0]) res1[0]+=4;
+  }
+  return 0;
+}
+
+/* cn2d_ckf_outer_sum_0_4:(y[2x4],mean[2])->(ddT[2x2]) */
+static int casadi_f5(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_int i, j;
+  casadi_real **res1=res+1, *w1=w+3, *w2=w+5, *w3=w+13, *w4=w+29;
+  const casadi_real **arg1=arg+2, *wr0;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  casadi_copy(arg[1], 2, w1);
+  /* #2: @2 = repmat(@1, 4) */
+  for (i=0;i<4;++i) {
+    casadi_copy(w1, 2, w2+ i*2);
+  }
+  /* #3: @3 = map4_cn2d_ckf_outer(@0, @2) */
+  arg1[0]=wr0;
+  arg1[1]=w2;
+  res1[0]=w3;
+  if (casadi_f6(arg1, res1, iw, w, 0)) return 1;
+  /* #4: @4 = repsum(@3, 4) */
+  casadi_clear(w4, 4);
+    for (i=0;i<4;++i) {
+        for (j=0;j<4;++j) {
+            w4[j] += w3[j+i*4];
+          }
+      }
+  /* #5: output[0][0] = @4 */
+  casadi_copy(w4, 4, res[0]);
+  return 0;
+}
+
+/* cn2d_ckf_predicted:(x_pred[2],C[2x2],Q[2x2])->(P_pred[2x2],ok) */
+static int casadi_f8(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a0, a1, a2, a3, a4;
+  a0=arg[1]? arg[1][0] : 0;
+  a1=arg[2]? arg[2][0] : 0;
+  a0=(a0+a1);
+  if (res[0]!=0) res[0][0]=a0;
+  a1=arg[1]? arg[1][2] : 0;
+  a2=5.0000000000000000e-01;
+  a3=arg[2]? arg[2][2] : 0;
+  a4=arg[2]? arg[2][1] : 0;
+  a3=(a3+a4);
+  a2=(a2*a3);
+  a1=(a1+a2);
+  if (res[0]!=0) res[0][1]=a1;
+  if (res[0]!=0) res[0][2]=a1;
+  a2=arg[1]? arg[1][3] : 0;
+  a3=arg[2]? arg[2][3] : 0;
+  a2=(a2+a3);
+  if (res[0]!=0) res[0][3]=a2;
+  a3=arg[0]? arg[0][0] : 0;
+  a4=arg[0]? arg[0][1] : 0;
+  a3=(a3+a4);
+  a3=(a3+a0);
+  a3=(a3+a1);
+  a3=(a3+a2);
+  a3=casadi_fabs(a3);
+  a2=casadi_inf;
+  a3=(a3<a2);
+  if (res[1]!=0) res[1][0]=a3;
+  return 0;
+}
+
 /* cn2d_ckf_predict:(x[2],P[2x2],u[3],p[2],dt,Q[2x2])->(x_pred[2],P_pred[2x2],ok) */
 static int casadi_f0(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
-  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20;
-  a00=2.5000000000000000e-01;
-  a01=arg[0]? arg[0][0] : 0;
-  a02=1.4142135623730951e+00;
-  a03=arg[1]? arg[1][0] : 0;
-  a04=1.0000000000000000e-13;
-  a05=casadi_fabs(a03);
-  a05=(a04*a05);
-  a06=1.0000000000000000e-300;
-  a05=(a05+a06);
-  a07=casadi_fmax(a03,a05);
-  a07=sqrt(a07);
-  a08=(a02*a07);
-  a08=(a01+a08);
-  a09=arg[4]? arg[4][0] : 0;
-  a10=arg[2]? arg[2][0] : 0;
-  a11=arg[2]? arg[2][2] : 0;
-  a12=cos(a11);
-  a13=(a10*a12);
-  a14=arg[2]? arg[2][1] : 0;
-  a11=sin(a11);
-  a15=(a14*a11);
-  a13=(a13+a15);
-  a13=(a09*a13);
-  a08=(a08+a13);
-  a15=(a01+a13);
-  a16=(a08+a15);
-  a17=-1.4142135623730951e+00;
-  a18=(a17*a07);
-  a01=(a01+a18);
-  a01=(a01+a13);
-  a16=(a16+a01);
-  a16=(a16+a15);
-  a16=(a00*a16);
-  if (res[0]!=0) res[0][0]=a16;
-  a13=arg[0]? arg[0][1] : 0;
-  a18=5.0000000000000000e-01;
-  a19=arg[1]? arg[1][2] : 0;
-  a20=arg[1]? arg[1][1] : 0;
-  a19=(a19+a20);
-  a19=(a18*a19);
-  a20=(1./a07);
-  a20=copysign(a20,a07);
-  a19=(a19*a20);
-  a20=(a02*a19);
-  a20=(a13+a20);
-  a10=(a10*a11);
-  a14=(a14*a12);
-  a10=(a10-a14);
-  a09=(a09*a10);
-  a20=(a20+a09);
-  a10=arg[1]? arg[1][3] : 0;
-  a14=casadi_sq(a19);
-  a14=(a10-a14);
-  a10=casadi_fabs(a10);
-  a04=(a04*a10);
-  a04=(a04+a06);
-  a06=casadi_fmax(a14,a04);
-  a06=sqrt(a06);
-  a02=(a02*a06);
-  a02=(a13+a02);
-  a02=(a02+a09);
-  a10=(a20+a02);
-  a19=(a17*a19);
-  a19=(a13+a19);
-  a19=(a19+a09);
-  a10=(a10+a19);
-  a17=(a17*a06);
-  a13=(a13+a17);
-  a13=(a13+a09);
-  a10=(a10+a13);
-  a10=(a00*a10);
-  if (res[0]!=0) res[0][1]=a10;
-  a08=(a08-a16);
-  a09=casadi_sq(a08);
-  a15=(a15-a16);
-  a17=casadi_sq(a15);
-  a09=(a09+a17);
-  a01=(a01-a16);
-  a06=casadi_sq(a01);
-  a09=(a09+a06);
-  a09=(a09+a17);
-  a09=(a00*a09);
-  a17=arg[5]? arg[5][0] : 0;
-  a09=(a09+a17);
-  if (res[1]!=0) res[1][0]=a09;
-  a20=(a20-a10);
-  a08=(a08*a20);
-  a02=(a02-a10);
-  a17=(a15*a02);
-  a08=(a08+a17);
-  a19=(a19-a10);
-  a01=(a01*a19);
-  a08=(a08+a01);
-  a13=(a13-a10);
-  a15=(a15*a13);
-  a08=(a08+a15);
-  a08=(a00*a08);
-  a15=arg[5]? arg[5][2] : 0;
-  a01=arg[5]? arg[5][1] : 0;
-  a15=(a15+a01);
-  a18=(a18*a15);
-  a08=(a08+a18);
-  if (res[1]!=0) res[1][1]=a08;
-  if (res[1]!=0) res[1][2]=a08;
-  a20=casadi_sq(a20);
-  a02=casadi_sq(a02);
-  a20=(a20+a02);
-  a19=casadi_sq(a19);
-  a20=(a20+a19);
-  a13=casadi_sq(a13);
-  a20=(a20+a13);
-  a00=(a00*a20);
-  a20=arg[5]? arg[5][3] : 0;
-  a00=(a00+a20);
-  if (res[1]!=0) res[1][3]=a00;
-  a05=(a05<a03);
-  a04=(a04<a14);
-  a05=(a05*a04);
-  a16=(a16+a10);
-  a16=(a16+a09);
-  a16=(a16+a08);
-  a16=(a16+a08);
-  a16=(a16+a00);
-  a16=casadi_fabs(a16);
-  a00=casadi_inf;
-  a16=(a16<a00);
-  a05=(a05*a16);
-  if (res[2]!=0) res[2][0]=a05;
+  casadi_int i;
+  casadi_real **res1=res+3, *rr, w00, *w01=w+54, *w02=w+56, *w03=w+58, *w04=w+62, w05, *w06=w+70, w07, *w08=w+73, *w09=w+81;
+  casadi_real *w10=w+85;
+  const casadi_real **arg1=arg+6, *cs;
+  /* #0: @0 = 0.25 */
+  w00 = 2.5000000000000000e-01;
+  /* #1: @1 = zeros(2x1) */
+  casadi_clear(w01, 2);
+  /* #2: @2 = input[0][0] */
+  casadi_copy(arg[0], 2, w02);
+  /* #3: @3 = input[1][0] */
+  casadi_copy(arg[1], 4, w03);
+  /* #4: {@4, NULL, @5} = cn2d_ckf_points(@2, @3) */
+  arg1[0]=w02;
+  arg1[1]=w03;
+  res1[0]=w04;
+  res1[1]=0;
+  res1[2]=(&w05);
+  if (casadi_f1(arg1, res1, iw, w, 0)) return 1;
+  /* #5: @6 = input[2][0] */
+  casadi_copy(arg[2], 3, w06);
+  /* #6: @2 = input[3][0] */
+  casadi_copy(arg[3], 2, w02);
+  /* #7: @7 = input[4][0] */
+  w07 = arg[4] ? arg[4][0] : 0;
+  /* #8: @8 = cn2d_step_columns(@4, @6, @2, @7) */
+  arg1[0]=w04;
+  arg1[1]=w06;
+  arg1[2]=w02;
+  arg1[3]=(&w07);
+  res1[0]=w08;
+  if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
+  /* #9: @3 = ones(4x1) */
+  casadi_fill(w03, 4, 1.);
+  /* #10: @1 = mac(@8,@3,@1) */
+  casadi_mtimes_dense(w08, 2, 4, w03, 1, w01, 0);
+  /* #11: @1 = (@0*@1) */
+  for (i=0, rr=w01, cs=w01; i<2; ++i) (*rr++)  = (w00*(*cs++));
+  /* #12: output[0][0] = @1 */
+  casadi_copy(w01, 2, res[0]);
+  /* #13: @3 = cn2d_ckf_outer_sum_0_4(@8, @1) */
+  arg1[0]=w08;
+  arg1[1]=w01;
+  res1[0]=w03;
+  if (casadi_f5(arg1, res1, iw, w, 0)) return 1;
+  /* #14: @3 = (@0*@3) */
+  for (i=0, rr=w03, cs=w03; i<4; ++i) (*rr++)  = (w00*(*cs++));
+  /* #15: @9 = input[5][0] */
+  casadi_copy(arg[5], 4, w09);
+  /* #16: {@10, @0} = cn2d_ckf_predicted(@1, @3, @9) */
+  arg1[0]=w01;
+  arg1[1]=w03;
+  arg1[2]=w09;
+  res1[0]=w10;
+  res1[1]=(&w00);
+  if (casadi_f8(arg1, res1, iw, w, 0)) return 1;
+  /* #17: output[1][0] = @10 */
+  casadi_copy(w10, 4, res[1]);
+  /* #18: @5 = (@5*@0) */
+  w05 *= w00;
+  /* #19: output[2][0] = @5 */
+  if (res[2]) res[2][0] = w05;
   return 0;
 }
 
@@ -294,187 +543,292 @@ CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ckf_predict_sparsity_out(casadi_int 
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ckf_predict_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 6;
-  if (sz_res) *sz_res = 3;
+  if (sz_arg) *sz_arg = 18;
+  if (sz_res) *sz_res = 6;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 0;
+  if (sz_w) *sz_w = 89;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ckf_predict_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 6*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 3*sizeof(casadi_real*);
+  if (sz_arg) *sz_arg = 18*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 6*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  if (sz_w) *sz_w = 89*sizeof(casadi_real);
+  return 0;
+}
+
+/* cn2d_measurement:(x[2],p[2])->(y) */
+static int casadi_f12(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a0, a1, a2;
+  a0=arg[0]? arg[0][0] : 0;
+  a1=arg[1]? arg[1][0] : 0;
+  a0=(a0-a1);
+  a0=casadi_sq(a0);
+  a1=arg[0]? arg[0][1] : 0;
+  a2=arg[1]? arg[1][1] : 0;
+  a1=(a1-a2);
+  a1=casadi_sq(a1);
+  a0=(a0+a1);
+  a0=sqrt(a0);
+  if (res[0]!=0) res[0][0]=a0;
+  return 0;
+}
+
+/* map4_cn2d_measurement:(x[2x4],p[2x4])->(y[1x4]) */
+static int casadi_f11(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_int i;
+  casadi_real* *res1;
+  const casadi_real* *arg1;
+  arg1 = arg+2;
+  for (i=0; i<2; ++i) arg1[i]=arg[i];
+  res1 = res+1;
+  for (i=0; i<1; ++i) res1[i]=res[i];
+  for (i=0; i<4; ++i) {
+    if (casadi_f12(arg1, res1, iw, w, 0)) return 1;
+    if (arg1[0]) arg1[0]+=2;
+    if (arg1[1]) arg1[1]+=2;
+    if (res1[0]) res1[0]+=1;
+  }
+  return 0;
+}
+
+/* cn2d_measurement_columns:(x[2x4],p[2])->(y[1x4]) */
+static int casadi_f10(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_int i;
+  casadi_real **res1=res+1, *w1=w+3, *w2=w+5, *w3=w+13;
+  const casadi_real **arg1=arg+2, *wr0;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  casadi_copy(arg[1], 2, w1);
+  /* #2: @2 = repmat(@1, 4) */
+  for (i=0;i<4;++i) {
+    casadi_copy(w1, 2, w2+ i*2);
+  }
+  /* #3: @3 = map4_cn2d_measurement(@0, @2) */
+  arg1[0]=wr0;
+  arg1[1]=w2;
+  res1[0]=w3;
+  if (casadi_f11(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 4, res[0]);
+  return 0;
+}
+
+/* cn2d_ckf_moments:(L[2x2],Z[1x4],z,mask)->(innovation,Pzz,Pxz[2]) */
+static int casadi_f13(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a0, a1, a2, a3, a4, a5, a6, a7, a8, a9;
+  a0=arg[3]? arg[3][0] : 0;
+  a1=0.;
+  a0=(a0!=a1);
+  a1=arg[2]? arg[2][0] : 0;
+  a2=2.5000000000000000e-01;
+  a3=arg[1]? arg[1][0] : 0;
+  a4=arg[1]? arg[1][1] : 0;
+  a5=(a3+a4);
+  a6=arg[1]? arg[1][2] : 0;
+  a5=(a5+a6);
+  a7=arg[1]? arg[1][3] : 0;
+  a5=(a5+a7);
+  a5=(a2*a5);
+  a1=(a1-a5);
+  a1=(a0?a1:0);
+  if (res[0]!=0) res[0][0]=a1;
+  a1=casadi_sq(a0);
+  a3=(a3-a5);
+  a8=casadi_sq(a3);
+  a4=(a4-a5);
+  a9=casadi_sq(a4);
+  a8=(a8+a9);
+  a6=(a6-a5);
+  a9=casadi_sq(a6);
+  a8=(a8+a9);
+  a7=(a7-a5);
+  a5=casadi_sq(a7);
+  a8=(a8+a5);
+  a2=(a2*a8);
+  a1=(a1*a2);
+  if (res[1]!=0) res[1][0]=a1;
+  a1=arg[0]? arg[0][0] : 0;
+  a2=3.5355339059327379e-01;
+  a3=(a2*a3);
+  a8=-3.5355339059327379e-01;
+  a6=(a8*a6);
+  a3=(a3+a6);
+  a1=(a1*a3);
+  a1=(a0*a1);
+  if (res[2]!=0) res[2][0]=a1;
+  a1=arg[0]? arg[0][1] : 0;
+  a1=(a1*a3);
+  a3=arg[0]? arg[0][3] : 0;
+  a2=(a2*a4);
+  a8=(a8*a7);
+  a2=(a2+a8);
+  a3=(a3*a2);
+  a1=(a1+a3);
+  a0=(a0*a1);
+  if (res[2]!=0) res[2][1]=a0;
+  return 0;
+}
+
+/* cn2d_ckf_noise:(R,mask,Pzz,innovation)->(R_used,ok) */
+static int casadi_f14(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a0, a1, a2;
+  a0=arg[1]? arg[1][0] : 0;
+  a1=0.;
+  a0=(a0!=a1);
+  a1=casadi_sq(a0);
+  a2=arg[0]? arg[0][0] : 0;
+  a1=(a1*a2);
+  a2=1.;
+  a0=(a2-a0);
+  a1=(a1+a0);
+  if (res[0]!=0) res[0][0]=a1;
+  if (res[1]!=0) res[1][0]=a2;
+  return 0;
+}
+
+/* cn2d_ckf_kalman:(x[2],P[2x2],Pzz,Pxz[2],R_used,innovation)->(x_post[2],P_post[2x2],S,ok) */
+static int casadi_f15(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10;
+  a00=arg[0]? arg[0][0] : 0;
+  a01=arg[3]? arg[3][0] : 0;
+  a02=arg[2]? arg[2][0] : 0;
+  a03=arg[4]? arg[4][0] : 0;
+  a02=(a02+a03);
+  a03=1.0000000000000000e-13;
+  a04=casadi_fabs(a02);
+  a03=(a03*a04);
+  a04=1.0000000000000000e-300;
+  a03=(a03+a04);
+  a04=casadi_fmax(a02,a03);
+  a04=sqrt(a04);
+  a05=(1./a04);
+  a05=copysign(a05,a04);
+  a01=(a01*a05);
+  a04=(a01*a05);
+  a06=arg[5]? arg[5][0] : 0;
+  a04=(a04*a06);
+  a00=(a00+a04);
+  if (res[0]!=0) res[0][0]=a00;
+  a04=arg[0]? arg[0][1] : 0;
+  a07=arg[3]? arg[3][1] : 0;
+  a07=(a07*a05);
+  a05=(a07*a05);
+  a05=(a05*a06);
+  a04=(a04+a05);
+  if (res[0]!=0) res[0][1]=a04;
+  a05=arg[1]? arg[1][0] : 0;
+  a08=casadi_sq(a01);
+  a05=(a05-a08);
+  if (res[1]!=0) res[1][0]=a05;
+  a08=5.0000000000000000e-01;
+  a09=arg[1]? arg[1][2] : 0;
+  a10=arg[1]? arg[1][1] : 0;
+  a09=(a09+a10);
+  a08=(a08*a09);
+  a01=(a01*a07);
+  a08=(a08-a01);
+  if (res[1]!=0) res[1][1]=a08;
+  if (res[1]!=0) res[1][2]=a08;
+  a01=arg[1]? arg[1][3] : 0;
+  a07=casadi_sq(a07);
+  a01=(a01-a07);
+  if (res[1]!=0) res[1][3]=a01;
+  if (res[2]!=0) res[2][0]=a02;
+  a03=(a03<a02);
+  a00=(a00+a04);
+  a00=(a00+a05);
+  a00=(a00+a08);
+  a00=(a00+a01);
+  a00=(a00+a06);
+  a00=(a00+a02);
+  a00=casadi_fabs(a00);
+  a02=casadi_inf;
+  a00=(a00<a02);
+  a03=(a03*a00);
+  if (res[3]!=0) res[3][0]=a03;
   return 0;
 }
 
 /* cn2d_ckf_update:(x[2],P[2x2],z,p[2],R,mask)->(x_post[2],P_post[2x2],innovation,S,ok) */
-static int casadi_f1(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
-  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
-  casadi_real a24, a25;
-  a00=arg[0]? arg[0][0] : 0;
-  a01=arg[5]? arg[5][0] : 0;
-  a02=0.;
-  a01=(a01!=a02);
-  a02=2.5000000000000000e-01;
-  a03=1.4142135623730951e+00;
-  a04=arg[1]? arg[1][0] : 0;
-  a05=1.0000000000000000e-13;
-  a06=casadi_fabs(a04);
-  a06=(a05*a06);
-  a07=1.0000000000000000e-300;
-  a06=(a06+a07);
-  a08=casadi_fmax(a04,a06);
-  a08=sqrt(a08);
-  a09=(a03*a08);
-  a10=(a00+a09);
-  a11=arg[3]? arg[3][0] : 0;
-  a10=(a10-a11);
-  a10=casadi_sq(a10);
-  a12=arg[0]? arg[0][1] : 0;
-  a13=5.0000000000000000e-01;
-  a14=arg[1]? arg[1][2] : 0;
-  a15=arg[1]? arg[1][1] : 0;
-  a14=(a14+a15);
-  a13=(a13*a14);
-  a14=(1./a08);
-  a14=copysign(a14,a08);
-  a14=(a13*a14);
-  a15=(a03*a14);
-  a16=(a12+a15);
-  a17=arg[3]? arg[3][1] : 0;
-  a16=(a16-a17);
-  a16=casadi_sq(a16);
-  a10=(a10+a16);
-  a10=sqrt(a10);
-  a16=(a00-a11);
-  a16=casadi_sq(a16);
-  a18=arg[1]? arg[1][3] : 0;
-  a19=casadi_sq(a14);
-  a19=(a18-a19);
-  a20=casadi_fabs(a18);
-  a20=(a05*a20);
-  a20=(a20+a07);
-  a21=casadi_fmax(a19,a20);
-  a21=sqrt(a21);
-  a03=(a03*a21);
-  a22=(a12+a03);
-  a22=(a22-a17);
-  a22=casadi_sq(a22);
-  a22=(a16+a22);
-  a22=sqrt(a22);
-  a23=(a10+a22);
-  a24=-1.4142135623730951e+00;
-  a08=(a24*a08);
-  a25=(a00+a08);
-  a25=(a25-a11);
-  a25=casadi_sq(a25);
-  a14=(a24*a14);
-  a11=(a12+a14);
-  a11=(a11-a17);
-  a11=casadi_sq(a11);
-  a25=(a25+a11);
-  a25=sqrt(a25);
-  a23=(a23+a25);
-  a24=(a24*a21);
-  a21=(a12+a24);
-  a21=(a21-a17);
-  a21=casadi_sq(a21);
-  a16=(a16+a21);
-  a16=sqrt(a16);
-  a23=(a23+a16);
-  a23=(a02*a23);
-  a10=(a10-a23);
-  a09=(a09*a10);
-  a25=(a25-a23);
-  a08=(a08*a25);
-  a09=(a09+a08);
-  a09=(a02*a09);
-  a09=(a01*a09);
-  a08=casadi_sq(a01);
-  a21=casadi_sq(a10);
-  a22=(a22-a23);
-  a17=casadi_sq(a22);
-  a21=(a21+a17);
-  a17=casadi_sq(a25);
-  a21=(a21+a17);
-  a16=(a16-a23);
-  a17=casadi_sq(a16);
-  a21=(a21+a17);
-  a21=(a02*a21);
-  a21=(a08*a21);
-  a17=arg[4]? arg[4][0] : 0;
-  a08=(a08*a17);
-  a17=1.;
-  a17=(a17-a01);
-  a08=(a08+a17);
-  a21=(a21+a08);
-  a08=casadi_fabs(a21);
-  a05=(a05*a08);
-  a05=(a05+a07);
-  a07=casadi_fmax(a21,a05);
-  a07=sqrt(a07);
-  a08=(1./a07);
-  a08=copysign(a08,a07);
-  a09=(a09*a08);
-  a07=(a09*a08);
-  a17=arg[2]? arg[2][0] : 0;
-  a17=(a17-a23);
-  a07=(a07*a17);
-  a07=(a01?a07:0);
-  a00=(a00+a07);
-  if (res[0]!=0) res[0][0]=a00;
-  a15=(a15*a10);
-  a03=(a03*a22);
-  a15=(a15+a03);
-  a14=(a14*a25);
-  a15=(a15+a14);
-  a24=(a24*a16);
-  a15=(a15+a24);
-  a02=(a02*a15);
-  a02=(a01*a02);
-  a02=(a02*a08);
-  a08=(a02*a08);
-  a08=(a08*a17);
-  a08=(a01?a08:0);
-  a12=(a12+a08);
-  if (res[0]!=0) res[0][1]=a12;
-  a08=casadi_sq(a09);
-  a08=(a04-a08);
-  if (res[1]!=0) res[1][0]=a08;
-  a09=(a09*a02);
-  a13=(a13-a09);
-  if (res[1]!=0) res[1][1]=a13;
-  if (res[1]!=0) res[1][2]=a13;
-  a02=casadi_sq(a02);
-  a18=(a18-a02);
-  if (res[1]!=0) res[1][3]=a18;
-  a01=(a01?a17:0);
-  if (res[2]!=0) res[2][0]=a01;
-  if (res[3]!=0) res[3][0]=a21;
-  a06=(a06<a04);
-  a20=(a20<a19);
-  a06=(a06*a20);
-  a05=(a05<a21);
-  a06=(a06*a05);
-  a00=(a00+a12);
-  a00=(a00+a08);
-  a00=(a00+a13);
-  a00=(a00+a18);
-  a00=(a00+a01);
-  a00=(a00+a21);
-  a00=casadi_fabs(a00);
-  a21=casadi_inf;
-  a00=(a00<a21);
-  a06=(a06*a00);
-  if (res[4]!=0) res[4][0]=a06;
+static int casadi_f9(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+5, *w00=w+25, *w01=w+27, *w02=w+31, *w03=w+39, w04, *w05=w+43, *w06=w+45, w07, w08, w09, w10;
+  casadi_real w11, w12, *w13=w+49;
+  const casadi_real **arg1=arg+6;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 2, w00);
+  /* #1: @1 = input[1][0] */
+  casadi_copy(arg[1], 4, w01);
+  /* #2: {@2, @3, @4} = cn2d_ckf_points(@0, @1) */
+  arg1[0]=w00;
+  arg1[1]=w01;
+  res1[0]=w02;
+  res1[1]=w03;
+  res1[2]=(&w04);
+  if (casadi_f1(arg1, res1, iw, w, 0)) return 1;
+  /* #3: @5 = input[3][0] */
+  casadi_copy(arg[3], 2, w05);
+  /* #4: @6 = cn2d_measurement_columns(@2, @5) */
+  arg1[0]=w02;
+  arg1[1]=w05;
+  res1[0]=w06;
+  if (casadi_f10(arg1, res1, iw, w, 0)) return 1;
+  /* #5: @7 = input[2][0] */
+  w07 = arg[2] ? arg[2][0] : 0;
+  /* #6: @8 = input[5][0] */
+  w08 = arg[5] ? arg[5][0] : 0;
+  /* #7: {@9, @10, @5} = cn2d_ckf_moments(@3, @6, @7, @8) */
+  arg1[0]=w03;
+  arg1[1]=w06;
+  arg1[2]=(&w07);
+  arg1[3]=(&w08);
+  res1[0]=(&w09);
+  res1[1]=(&w10);
+  res1[2]=w05;
+  if (casadi_f13(arg1, res1, iw, w, 0)) return 1;
+  /* #8: @7 = input[4][0] */
+  w07 = arg[4] ? arg[4][0] : 0;
+  /* #9: {@11, @12} = cn2d_ckf_noise(@7, @8, @10, @9) */
+  arg1[0]=(&w07);
+  arg1[1]=(&w08);
+  arg1[2]=(&w10);
+  arg1[3]=(&w09);
+  res1[0]=(&w11);
+  res1[1]=(&w12);
+  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
+  /* #10: {@13, @3, @7, @8} = cn2d_ckf_kalman(@0, @1, @10, @5, @11, @9) */
+  arg1[0]=w00;
+  arg1[1]=w01;
+  arg1[2]=(&w10);
+  arg1[3]=w05;
+  arg1[4]=(&w11);
+  arg1[5]=(&w09);
+  res1[0]=w13;
+  res1[1]=w03;
+  res1[2]=(&w07);
+  res1[3]=(&w08);
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #11: output[0][0] = @13 */
+  casadi_copy(w13, 2, res[0]);
+  /* #12: output[1][0] = @3 */
+  casadi_copy(w03, 4, res[1]);
+  /* #13: output[2][0] = @9 */
+  if (res[2]) res[2][0] = w09;
+  /* #14: output[3][0] = @7 */
+  if (res[3]) res[3][0] = w07;
+  /* #15: @4 = (@4*@12) */
+  w04 *= w12;
+  /* #16: @4 = (@4*@8) */
+  w04 *= w08;
+  /* #17: output[4][0] = @4 */
+  if (res[4]) res[4][0] = w04;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ckf_update(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f1(arg, res, iw, w, mem);
+  return casadi_f9(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ckf_update_checkout(void) {
@@ -547,18 +901,175 @@ CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ckf_update_sparsity_out(casadi_int i
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ckf_update_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 6;
-  if (sz_res) *sz_res = 5;
+  if (sz_arg) *sz_arg = 12;
+  if (sz_res) *sz_res = 9;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 0;
+  if (sz_w) *sz_w = 51;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ckf_update_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 6*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 5*sizeof(casadi_real*);
+  if (sz_arg) *sz_arg = 12*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 9*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  if (sz_w) *sz_w = 51*sizeof(casadi_real);
+  return 0;
+}
+
+/* cn2d_ckf_step:(x[2],P[2x2],u[3],p[2],dt,Q[2x2],z,R,mask)->(x_post[2],P_post[2x2],innovation,S,ok) */
+static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+5, *w00=w+92, *w01=w+94, *w02=w+98, *w03=w+101, w04, *w05=w+103, *w06=w+107, *w07=w+109, w08, w09, w10;
+  casadi_real w11, w12, w13;
+  const casadi_real **arg1=arg+9;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 2, w00);
+  /* #1: @1 = input[1][0] */
+  casadi_copy(arg[1], 4, w01);
+  /* #2: @2 = input[2][0] */
+  casadi_copy(arg[2], 3, w02);
+  /* #3: @3 = input[3][0] */
+  casadi_copy(arg[3], 2, w03);
+  /* #4: @4 = input[4][0] */
+  w04 = arg[4] ? arg[4][0] : 0;
+  /* #5: @5 = input[5][0] */
+  casadi_copy(arg[5], 4, w05);
+  /* #6: {@6, @7, @8} = cn2d_ckf_predict(@0, @1, @2, @3, @4, @5) */
+  arg1[0]=w00;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  arg1[3]=w03;
+  arg1[4]=(&w04);
+  arg1[5]=w05;
+  res1[0]=w06;
+  res1[1]=w07;
+  res1[2]=(&w08);
+  if (casadi_f0(arg1, res1, iw, w, 0)) return 1;
+  /* #7: @4 = input[6][0] */
+  w04 = arg[6] ? arg[6][0] : 0;
+  /* #8: @9 = input[7][0] */
+  w09 = arg[7] ? arg[7][0] : 0;
+  /* #9: @10 = input[8][0] */
+  w10 = arg[8] ? arg[8][0] : 0;
+  /* #10: {@0, @1, @11, @12, @13} = cn2d_ckf_update(@6, @7, @4, @3, @9, @10) */
+  arg1[0]=w06;
+  arg1[1]=w07;
+  arg1[2]=(&w04);
+  arg1[3]=w03;
+  arg1[4]=(&w09);
+  arg1[5]=(&w10);
+  res1[0]=w00;
+  res1[1]=w01;
+  res1[2]=(&w11);
+  res1[3]=(&w12);
+  res1[4]=(&w13);
+  if (casadi_f9(arg1, res1, iw, w, 0)) return 1;
+  /* #11: output[0][0] = @0 */
+  casadi_copy(w00, 2, res[0]);
+  /* #12: output[1][0] = @1 */
+  casadi_copy(w01, 4, res[1]);
+  /* #13: output[2][0] = @11 */
+  if (res[2]) res[2][0] = w11;
+  /* #14: output[3][0] = @12 */
+  if (res[3]) res[3][0] = w12;
+  /* #15: @8 = (@8*@13) */
+  w08 *= w13;
+  /* #16: output[4][0] = @8 */
+  if (res[4]) res[4][0] = w08;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int cn2d_ckf_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f16(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int cn2d_ckf_step_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void cn2d_ckf_step_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void cn2d_ckf_step_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void cn2d_ckf_step_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int cn2d_ckf_step_n_in(void) { return 9;}
+
+CASADI_SYMBOL_EXPORT casadi_int cn2d_ckf_step_n_out(void) { return 5;}
+
+CASADI_SYMBOL_EXPORT casadi_real cn2d_ckf_step_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* cn2d_ckf_step_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "x";
+    case 1: return "P";
+    case 2: return "u";
+    case 3: return "p";
+    case 4: return "dt";
+    case 5: return "Q";
+    case 6: return "z";
+    case 7: return "R";
+    case 8: return "mask";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* cn2d_ckf_step_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "x_post";
+    case 1: return "P_post";
+    case 2: return "innovation";
+    case 3: return "S";
+    case 4: return "ok";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ckf_step_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s0;
+    case 1: return casadi_s1;
+    case 2: return casadi_s2;
+    case 3: return casadi_s0;
+    case 4: return casadi_s3;
+    case 5: return casadi_s1;
+    case 6: return casadi_s3;
+    case 7: return casadi_s3;
+    case 8: return casadi_s3;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ckf_step_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s0;
+    case 1: return casadi_s1;
+    case 2: return casadi_s3;
+    case 3: return casadi_s3;
+    case 4: return casadi_s3;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int cn2d_ckf_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 27;
+  if (sz_res) *sz_res = 14;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 113;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int cn2d_ckf_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 27*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 14*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 113*sizeof(casadi_real);
   return 0;
 }
 
@@ -569,13 +1080,13 @@ CASADI_SYMBOL_EXPORT int cn2d_ckf_update_work_bytes(casadi_int *sz_arg, casadi_i
  * failing evaluation. */
 CASADI_SYMBOL_EXPORT int cn2d_ckf_predict_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
-  const casadi_real* a[6];
-  casadi_real* r[3];
+  const casadi_real* a[18];
+  casadi_real* r[6];
   casadi_int iw[1];
-  casadi_real w[21];
+  casadi_real w[92];
   casadi_int j, k;
-  for (k = 0; k < 6; ++k) a[k] = 0;
-  for (k = 0; k < 3; ++k) r[k] = 0;
+  for (k = 0; k < 18; ++k) a[k] = 0;
+  for (k = 0; k < 6; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
     for (k = 0; k < 6; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
     for (k = 0; k < 3; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
@@ -589,17 +1100,37 @@ CASADI_SYMBOL_EXPORT int cn2d_ckf_predict_batch(casadi_int N, const casadi_real*
  * failing evaluation. */
 CASADI_SYMBOL_EXPORT int cn2d_ckf_update_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
-  const casadi_real* a[6];
-  casadi_real* r[5];
+  const casadi_real* a[12];
+  casadi_real* r[9];
   casadi_int iw[1];
-  casadi_real w[26];
+  casadi_real w[58];
   casadi_int j, k;
-  for (k = 0; k < 6; ++k) a[k] = 0;
-  for (k = 0; k < 5; ++k) r[k] = 0;
+  for (k = 0; k < 12; ++k) a[k] = 0;
+  for (k = 0; k < 9; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
     for (k = 0; k < 6; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
     for (k = 0; k < 5; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
     if (cn2d_ckf_update(a, r, iw, w, 0)) return (int)(1 + j);
+  }
+  return 0;
+}
+
+/* cn2d_ckf_step_batch: evaluate cn2d_ckf_step for j = 0..N-1 on slices arg[k] + j*arg_step[k] and
+ * res[k] + j*res_step[k] (a step of 0 shares the argument). Returns 0, or 1 + j of the first
+ * failing evaluation. */
+CASADI_SYMBOL_EXPORT int cn2d_ckf_step_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
+                                  casadi_real** res, const casadi_int* res_step) {
+  const casadi_real* a[27];
+  casadi_real* r[14];
+  casadi_int iw[1];
+  casadi_real w[120];
+  casadi_int j, k;
+  for (k = 0; k < 27; ++k) a[k] = 0;
+  for (k = 0; k < 14; ++k) r[k] = 0;
+  for (j = 0; j < N; ++j) {
+    for (k = 0; k < 9; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
+    for (k = 0; k < 5; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
+    if (cn2d_ckf_step(a, r, iw, w, 0)) return (int)(1 + j);
   }
   return 0;
 }

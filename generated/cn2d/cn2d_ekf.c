@@ -2,9 +2,11 @@
  * Model cn2d, equations sha256 d18b0bc949beb8eb544358aabafbf037a41dce14bc5bbbcfe95e0dfce4cc76e1, CasADi 3.8.2.
  * Edit the equations and run `abyssal regenerate`; `abyssal regenerate --check` fails on drift.
  *
- * Functions (CasADi SX instructions after common-subexpression elimination):
- *   cn2d_ekf_predict                   49 instructions
- *   cn2d_ekf_update                   100 instructions
+ * Functions (operations per call: CasADi SX instructions after common-subexpression elimination,
+ * of the function itself or of the leaves it calls, times the calls):
+ *   cn2d_ekf_predict                   49 operations
+ *   cn2d_ekf_update                   100 operations
+ *   cn2d_ekf_step                     150 operations
  */
 /* How to prefix internal symbols */
 #ifdef CASADI_CODEGEN_PREFIX
@@ -26,8 +28,10 @@
 #endif
 
 /* Add prefix to internal symbols */
+#define casadi_copy CASADI_PREFIX(copy)
 #define casadi_f0 CASADI_PREFIX(f0)
 #define casadi_f1 CASADI_PREFIX(f1)
+#define casadi_f2 CASADI_PREFIX(f2)
 #define casadi_fabs CASADI_PREFIX(fabs)
 #define casadi_fmax CASADI_PREFIX(fmax)
 #define casadi_s0 CASADI_PREFIX(s0)
@@ -73,6 +77,17 @@ casadi_real casadi_fmax(casadi_real x, casadi_real y) {
 #else
   return fmax(x, y);
 #endif
+}
+
+void casadi_copy(const casadi_real* x, casadi_int n, casadi_real* y) {
+  casadi_int i;
+  if (y) {
+    if (x) {
+      for (i=0; i<n; ++i) *y++ = *x++;
+    } else {
+      for (i=0; i<n; ++i) *y++ = 0.;
+    }
+  }
 }
 
 /* Configuration this file was compiled with */
@@ -425,6 +440,163 @@ CASADI_SYMBOL_EXPORT int cn2d_ekf_update_work_bytes(casadi_int *sz_arg, casadi_i
   return 0;
 }
 
+/* cn2d_ekf_step:(x[2],P[2x2],u[3],p[2],dt,Q[2x2],z,R,mask)->(x_post[2],P_post[2x2],innovation,S,ok) */
+static int casadi_f2(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+5, *w00=w+14, *w01=w+16, *w02=w+20, *w03=w+23, w04, *w05=w+25, *w06=w+29, *w07=w+31, w08, w09, w10;
+  casadi_real w11, w12, w13;
+  const casadi_real **arg1=arg+9;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 2, w00);
+  /* #1: @1 = input[1][0] */
+  casadi_copy(arg[1], 4, w01);
+  /* #2: @2 = input[2][0] */
+  casadi_copy(arg[2], 3, w02);
+  /* #3: @3 = input[3][0] */
+  casadi_copy(arg[3], 2, w03);
+  /* #4: @4 = input[4][0] */
+  w04 = arg[4] ? arg[4][0] : 0;
+  /* #5: @5 = input[5][0] */
+  casadi_copy(arg[5], 4, w05);
+  /* #6: {@6, @7, @8} = cn2d_ekf_predict(@0, @1, @2, @3, @4, @5) */
+  arg1[0]=w00;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  arg1[3]=w03;
+  arg1[4]=(&w04);
+  arg1[5]=w05;
+  res1[0]=w06;
+  res1[1]=w07;
+  res1[2]=(&w08);
+  if (casadi_f0(arg1, res1, iw, w, 0)) return 1;
+  /* #7: @4 = input[6][0] */
+  w04 = arg[6] ? arg[6][0] : 0;
+  /* #8: @9 = input[7][0] */
+  w09 = arg[7] ? arg[7][0] : 0;
+  /* #9: @10 = input[8][0] */
+  w10 = arg[8] ? arg[8][0] : 0;
+  /* #10: {@0, @1, @11, @12, @13} = cn2d_ekf_update(@6, @7, @4, @3, @9, @10) */
+  arg1[0]=w06;
+  arg1[1]=w07;
+  arg1[2]=(&w04);
+  arg1[3]=w03;
+  arg1[4]=(&w09);
+  arg1[5]=(&w10);
+  res1[0]=w00;
+  res1[1]=w01;
+  res1[2]=(&w11);
+  res1[3]=(&w12);
+  res1[4]=(&w13);
+  if (casadi_f1(arg1, res1, iw, w, 0)) return 1;
+  /* #11: output[0][0] = @0 */
+  casadi_copy(w00, 2, res[0]);
+  /* #12: output[1][0] = @1 */
+  casadi_copy(w01, 4, res[1]);
+  /* #13: output[2][0] = @11 */
+  if (res[2]) res[2][0] = w11;
+  /* #14: output[3][0] = @12 */
+  if (res[3]) res[3][0] = w12;
+  /* #15: @8 = (@8*@13) */
+  w08 *= w13;
+  /* #16: output[4][0] = @8 */
+  if (res[4]) res[4][0] = w08;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int cn2d_ekf_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f2(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int cn2d_ekf_step_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void cn2d_ekf_step_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void cn2d_ekf_step_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void cn2d_ekf_step_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int cn2d_ekf_step_n_in(void) { return 9;}
+
+CASADI_SYMBOL_EXPORT casadi_int cn2d_ekf_step_n_out(void) { return 5;}
+
+CASADI_SYMBOL_EXPORT casadi_real cn2d_ekf_step_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* cn2d_ekf_step_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "x";
+    case 1: return "P";
+    case 2: return "u";
+    case 3: return "p";
+    case 4: return "dt";
+    case 5: return "Q";
+    case 6: return "z";
+    case 7: return "R";
+    case 8: return "mask";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* cn2d_ekf_step_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "x_post";
+    case 1: return "P_post";
+    case 2: return "innovation";
+    case 3: return "S";
+    case 4: return "ok";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ekf_step_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s0;
+    case 1: return casadi_s1;
+    case 2: return casadi_s2;
+    case 3: return casadi_s0;
+    case 4: return casadi_s3;
+    case 5: return casadi_s1;
+    case 6: return casadi_s3;
+    case 7: return casadi_s3;
+    case 8: return casadi_s3;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ekf_step_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s0;
+    case 1: return casadi_s1;
+    case 2: return casadi_s3;
+    case 3: return casadi_s3;
+    case 4: return casadi_s3;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int cn2d_ekf_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 15;
+  if (sz_res) *sz_res = 10;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 35;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int cn2d_ekf_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 15*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 10*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 35*sizeof(casadi_real);
+  return 0;
+}
+
 
 
 /* cn2d_ekf_predict_batch: evaluate cn2d_ekf_predict for j = 0..N-1 on slices arg[k] + j*arg_step[k] and
@@ -463,6 +635,26 @@ CASADI_SYMBOL_EXPORT int cn2d_ekf_update_batch(casadi_int N, const casadi_real**
     for (k = 0; k < 6; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
     for (k = 0; k < 5; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
     if (cn2d_ekf_update(a, r, iw, w, 0)) return (int)(1 + j);
+  }
+  return 0;
+}
+
+/* cn2d_ekf_step_batch: evaluate cn2d_ekf_step for j = 0..N-1 on slices arg[k] + j*arg_step[k] and
+ * res[k] + j*res_step[k] (a step of 0 shares the argument). Returns 0, or 1 + j of the first
+ * failing evaluation. */
+CASADI_SYMBOL_EXPORT int cn2d_ekf_step_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
+                                  casadi_real** res, const casadi_int* res_step) {
+  const casadi_real* a[15];
+  casadi_real* r[10];
+  casadi_int iw[1];
+  casadi_real w[42];
+  casadi_int j, k;
+  for (k = 0; k < 15; ++k) a[k] = 0;
+  for (k = 0; k < 10; ++k) r[k] = 0;
+  for (j = 0; j < N; ++j) {
+    for (k = 0; k < 9; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
+    for (k = 0; k < 5; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
+    if (cn2d_ekf_step(a, r, iw, w, 0)) return (int)(1 + j);
   }
   return 0;
 }

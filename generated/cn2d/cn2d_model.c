@@ -2,13 +2,14 @@
  * Model cn2d, equations sha256 d18b0bc949beb8eb544358aabafbf037a41dce14bc5bbbcfe95e0dfce4cc76e1, CasADi 3.8.2.
  * Edit the equations and run `abyssal regenerate`; `abyssal regenerate --check` fails on drift.
  *
- * Functions (CasADi SX instructions after common-subexpression elimination):
- *   cn2d_f                             20 instructions
- *   cn2d_F                              6 instructions
- *   cn2d_G                              6 instructions
- *   cn2d_h                             11 instructions
- *   cn2d_H                             14 instructions
- *   cn2d_xdot                          17 instructions
+ * Functions (operations per call: CasADi SX instructions after common-subexpression elimination,
+ * of the function itself or of the leaves it calls, times the calls):
+ *   cn2d_f                             20 operations
+ *   cn2d_F                              6 operations
+ *   cn2d_G                              6 operations
+ *   cn2d_h                             11 operations
+ *   cn2d_H                             14 operations
+ *   cn2d_xdot                          17 operations
  */
 /* How to prefix internal symbols */
 #ifdef CASADI_CODEGEN_PREFIX

@@ -2,9 +2,12 @@
  * Model cn2d, equations sha256 d18b0bc949beb8eb544358aabafbf037a41dce14bc5bbbcfe95e0dfce4cc76e1, CasADi 3.8.2.
  * Edit the equations and run `abyssal regenerate`; `abyssal regenerate --check` fails on drift.
  *
- * Functions (CasADi SX instructions after common-subexpression elimination):
- *   cn2d_ukf_predict                  155 instructions
- *   cn2d_ukf_update                   178 instructions
+ * Functions (operations per call: CasADi SX instructions after common-subexpression elimination,
+ * of the function itself or of the leaves it calls, times the calls):
+ *   cn2d_ukf_predict                  361 operations
+ *   cn2d_ukf_update                   270 operations
+ *   cn2d_mcukf_update                 294 operations
+ *   cn2d_huber_ukf_update             325 operations
  */
 /* How to prefix internal symbols */
 #ifdef CASADI_CODEGEN_PREFIX
@@ -26,15 +29,43 @@
 #endif
 
 /* Add prefix to internal symbols */
+#define casadi_clear CASADI_PREFIX(clear)
+#define casadi_copy CASADI_PREFIX(copy)
 #define casadi_f0 CASADI_PREFIX(f0)
 #define casadi_f1 CASADI_PREFIX(f1)
+#define casadi_f10 CASADI_PREFIX(f10)
+#define casadi_f11 CASADI_PREFIX(f11)
+#define casadi_f12 CASADI_PREFIX(f12)
+#define casadi_f13 CASADI_PREFIX(f13)
+#define casadi_f14 CASADI_PREFIX(f14)
+#define casadi_f15 CASADI_PREFIX(f15)
+#define casadi_f16 CASADI_PREFIX(f16)
+#define casadi_f17 CASADI_PREFIX(f17)
+#define casadi_f18 CASADI_PREFIX(f18)
+#define casadi_f19 CASADI_PREFIX(f19)
+#define casadi_f2 CASADI_PREFIX(f2)
+#define casadi_f20 CASADI_PREFIX(f20)
+#define casadi_f21 CASADI_PREFIX(f21)
+#define casadi_f22 CASADI_PREFIX(f22)
+#define casadi_f23 CASADI_PREFIX(f23)
+#define casadi_f3 CASADI_PREFIX(f3)
+#define casadi_f4 CASADI_PREFIX(f4)
+#define casadi_f5 CASADI_PREFIX(f5)
+#define casadi_f6 CASADI_PREFIX(f6)
+#define casadi_f7 CASADI_PREFIX(f7)
+#define casadi_f8 CASADI_PREFIX(f8)
+#define casadi_f9 CASADI_PREFIX(f9)
 #define casadi_fabs CASADI_PREFIX(fabs)
+#define casadi_fill CASADI_PREFIX(fill)
 #define casadi_fmax CASADI_PREFIX(fmax)
+#define casadi_fmin CASADI_PREFIX(fmin)
+#define casadi_mtimes_dense CASADI_PREFIX(mtimes_dense)
 #define casadi_s0 CASADI_PREFIX(s0)
 #define casadi_s1 CASADI_PREFIX(s1)
 #define casadi_s2 CASADI_PREFIX(s2)
 #define casadi_s3 CASADI_PREFIX(s3)
 #define casadi_sq CASADI_PREFIX(sq)
+#define casadi_zeros CASADI_PREFIX(zeros)
 
 /* Symbol visibility in DLLs */
 #ifndef CASADI_SYMBOL_EXPORT
@@ -71,9 +102,65 @@ casadi_real casadi_fmax(casadi_real x, casadi_real y) {
 #endif
 }
 
+void casadi_copy(const casadi_real* x, casadi_int n, casadi_real* y) {
+  casadi_int i;
+  if (y) {
+    if (x) {
+      for (i=0; i<n; ++i) *y++ = *x++;
+    } else {
+      for (i=0; i<n; ++i) *y++ = 0.;
+    }
+  }
+}
+
+void casadi_clear(casadi_real* x, casadi_int n) {
+  casadi_int i;
+  if (x) {
+    for (i=0; i<n; ++i) *x++ = 0;
+  }
+}
+
 #ifndef casadi_inf
   #define casadi_inf INFINITY
 #endif
+
+void casadi_fill(casadi_real* x, casadi_int n, casadi_real alpha) {
+  casadi_int i;
+  if (x) {
+    for (i=0; i<n; ++i) *x++ = alpha;
+  }
+}
+
+void casadi_mtimes_dense(const casadi_real* x, casadi_int nrow_x, casadi_int ncol_x,
+    const casadi_real* y, casadi_int ncol_y, casadi_real* z, casadi_int tr) {
+  casadi_int i, j, k;
+  if (tr) {
+    for (i=0; i<ncol_y; ++i) {
+      for (j=0; j<ncol_x; ++j) {
+        for (k=0; k<nrow_x; ++k) {
+          z[j + i*ncol_x] += x[k + j*nrow_x] * y[k + i*nrow_x];
+        }
+      }
+    }
+  } else {
+    for (i=0; i<ncol_y; ++i) {
+      for (j=0; j<nrow_x; ++j) {
+        for (k=0; k<ncol_x; ++k) {
+          z[j + i*nrow_x] += x[j + k*nrow_x] * y[k + i*ncol_x];
+        }
+      }
+    }
+  }
+}
+
+casadi_real casadi_fmin(casadi_real x, casadi_real y) {
+/* Pre-c99 compatibility */
+#if __STDC_VERSION__ < 199901L
+  return x<y ? x : y;
+#else
+  return fmin(x, y);
+#endif
+}
 
 /* Configuration this file was compiled with */
 CASADI_SYMBOL_EXPORT void cn2d_ukf_casadi_version(int* major, int* minor, int* patch) {
@@ -89,165 +176,408 @@ static const casadi_int casadi_s1[3] = {2, 2, 1};
 static const casadi_int casadi_s2[3] = {3, 1, 1};
 static const casadi_int casadi_s3[3] = {1, 1, 1};
 
+static const casadi_real casadi_zeros[10] = 
+  {0.};
+
+/* cn2d_ukf_weights:(abk[3])->(wm[2],wc[2]) */
+static int casadi_f1(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a0, a1, a2, a3;
+  a0=arg[0]? arg[0][0] : 0;
+  a0=casadi_sq(a0);
+  a1=2.;
+  a2=arg[0]? arg[0][2] : 0;
+  a2=(a1+a2);
+  a2=(a0*a2);
+  a1=(a2-a1);
+  a3=(1./a2);
+  a3=copysign(a3,a2);
+  a1=(a1*a3);
+  if (res[0]!=0) res[0][0]=a1;
+  a2=(2.*a2);
+  a2=(1./a2);
+  if (res[0]!=0) res[0][1]=a2;
+  a3=1.;
+  a1=(a1+a3);
+  a1=(a1-a0);
+  a0=arg[0]? arg[0][1] : 0;
+  a1=(a1+a0);
+  if (res[1]!=0) res[1][0]=a1;
+  if (res[1]!=0) res[1][1]=a2;
+  return 0;
+}
+
+/* cn2d_ukf_points:(x[2],P[2x2],abk[3])->(X[2x5],L[2x2],ok) */
+static int casadi_f2(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12;
+  a00=arg[0]? arg[0][0] : 0;
+  if (res[0]!=0) res[0][0]=a00;
+  a01=arg[0]? arg[0][1] : 0;
+  if (res[0]!=0) res[0][1]=a01;
+  a02=arg[1]? arg[1][0] : 0;
+  a03=1.0000000000000000e-13;
+  a04=casadi_fabs(a02);
+  a04=(a03*a04);
+  a05=1.0000000000000000e-300;
+  a04=(a04+a05);
+  a06=casadi_fmax(a02,a04);
+  a06=sqrt(a06);
+  a07=arg[2]? arg[2][0] : 0;
+  a07=casadi_sq(a07);
+  a08=2.;
+  a09=arg[2]? arg[2][2] : 0;
+  a08=(a08+a09);
+  a07=(a07*a08);
+  a07=sqrt(a07);
+  a08=(a06*a07);
+  a09=(a00+a08);
+  if (res[0]!=0) res[0][2]=a09;
+  a09=5.0000000000000000e-01;
+  a10=arg[1]? arg[1][2] : 0;
+  a11=arg[1]? arg[1][1] : 0;
+  a10=(a10+a11);
+  a09=(a09*a10);
+  a10=(1./a06);
+  a10=copysign(a10,a06);
+  a09=(a09*a10);
+  a10=(a09*a07);
+  a11=(a01+a10);
+  if (res[0]!=0) res[0][3]=a11;
+  if (res[0]!=0) res[0][4]=a00;
+  a11=arg[1]? arg[1][3] : 0;
+  a12=casadi_sq(a09);
+  a12=(a11-a12);
+  a11=casadi_fabs(a11);
+  a03=(a03*a11);
+  a03=(a03+a05);
+  a05=casadi_fmax(a12,a03);
+  a05=sqrt(a05);
+  a07=(a05*a07);
+  a11=(a01+a07);
+  if (res[0]!=0) res[0][5]=a11;
+  a08=(a00-a08);
+  if (res[0]!=0) res[0][6]=a08;
+  a10=(a01-a10);
+  if (res[0]!=0) res[0][7]=a10;
+  if (res[0]!=0) res[0][8]=a00;
+  a01=(a01-a07);
+  if (res[0]!=0) res[0][9]=a01;
+  if (res[1]!=0) res[1][0]=a06;
+  if (res[1]!=0) res[1][1]=a09;
+  a09=0.;
+  if (res[1]!=0) res[1][2]=a09;
+  if (res[1]!=0) res[1][3]=a05;
+  a04=(a04<a02);
+  a03=(a03<a12);
+  a04=(a04*a03);
+  if (res[2]!=0) res[2][0]=a04;
+  return 0;
+}
+
+/* cn2d_step:(x[2],u[3],p[2],dt)->(x_next[2]) */
+static int casadi_f5(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a0, a1, a2, a3, a4, a5, a6, a7;
+  a0=arg[0]? arg[0][0] : 0;
+  a1=arg[3]? arg[3][0] : 0;
+  a2=arg[1]? arg[1][0] : 0;
+  a3=arg[1]? arg[1][2] : 0;
+  a4=cos(a3);
+  a5=(a2*a4);
+  a6=arg[1]? arg[1][1] : 0;
+  a3=sin(a3);
+  a7=(a6*a3);
+  a5=(a5+a7);
+  a5=(a1*a5);
+  a0=(a0+a5);
+  if (res[0]!=0) res[0][0]=a0;
+  a0=arg[0]? arg[0][1] : 0;
+  a2=(a2*a3);
+  a6=(a6*a4);
+  a2=(a2-a6);
+  a1=(a1*a2);
+  a0=(a0+a1);
+  if (res[0]!=0) res[0][1]=a0;
+  return 0;
+}
+
+/* map5_cn2d_step:(x[2x5],u[3x5],p[2x5],dt[1x5])->(x_next[2x5]) */
+static int casadi_f4(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_int i;
+  casadi_real* *res1;
+  const casadi_real* *arg1;
+  arg1 = arg+4;
+  for (i=0; i<4; ++i) arg1[i]=arg[i];
+  res1 = res+1;
+  for (i=0; i<1; ++i) res1[i]=res[i];
+  for (i=0; i<5; ++i) {
+    if (casadi_f5(arg1, res1, iw, w, 0)) return 1;
+    if (arg1[0]) arg1[0]+=2;
+    if (arg1[1]) arg1[1]+=3;
+    if (arg1[2]) arg1[2]+=2;
+    if (arg1[3]) arg1[3]+=1;
+    if (res1[0]) res1[0]+=2;
+  }
+  return 0;
+}
+
+/* cn2d_step_columns:(x[2x5],u[3],p[2],dt)->(x_next[2x5]) */
+static int casadi_f3(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_int i;
+  casadi_real **res1=res+1, *w1=w+8, *w2=w+11, *w3=w+26, *w4=w+28, w5, *w6=w+38, *w7=w+43;
+  const casadi_real **arg1=arg+4, *wr0;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  casadi_copy(arg[1], 3, w1);
+  /* #2: @2 = repmat(@1, 5) */
+  for (i=0;i<5;++i) {
+    casadi_copy(w1, 3, w2+ i*3);
+  }
+  /* #3: @3 = input[2][0] */
+  casadi_copy(arg[2], 2, w3);
+  /* #4: @4 = repmat(@3, 5) */
+  for (i=0;i<5;++i) {
+    casadi_copy(w3, 2, w4+ i*2);
+  }
+  /* #5: @5 = input[3][0] */
+  w5 = arg[3] ? arg[3][0] : 0;
+  /* #6: @6 = repmat(@5, 5) */
+  for (i=0;i<5;++i) {
+    casadi_copy((&w5), 1, w6+ i*1);
+  }
+  /* #7: @7 = map5_cn2d_step(@0, @2, @4, @6) */
+  arg1[0]=wr0;
+  arg1[1]=w2;
+  arg1[2]=w4;
+  arg1[3]=w6;
+  res1[0]=w7;
+  if (casadi_f4(arg1, res1, iw, w, 0)) return 1;
+  /* #8: output[0][0] = @7 */
+  casadi_copy(w7, 10, res[0]);
+  return 0;
+}
+
+/* cn2d_ukf_outer:(y[2],mean[2])->(ddT[2x2]) */
+static int casadi_f7(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a0, a1, a2;
+  a0=arg[0]? arg[0][0] : 0;
+  a1=arg[1]? arg[1][0] : 0;
+  a0=(a0-a1);
+  a1=casadi_sq(a0);
+  if (res[0]!=0) res[0][0]=a1;
+  a1=arg[0]? arg[0][1] : 0;
+  a2=arg[1]? arg[1][1] : 0;
+  a1=(a1-a2);
+  a0=(a0*a1);
+  if (res[0]!=0) res[0][1]=a0;
+  if (res[0]!=0) res[0][2]=a0;
+  a1=casadi_sq(a1);
+  if (res[0]!=0) res[0][3]=a1;
+  return 0;
+}
+
+/* cn2d_ukf_outer_sum_0_1:(y[2],mean[2])->(ddT[2x2]) */
+static int casadi_f6(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_int i, j;
+  casadi_real **res1=res+1, *w0=w+3, *w1=w+5, *w2=w+7, *w3=w+11;
+  const casadi_real **arg1=arg+2;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 2, w0);
+  /* #1: @1 = input[1][0] */
+  casadi_copy(arg[1], 2, w1);
+  /* #2: @2 = cn2d_ukf_outer(@0, @1) */
+  arg1[0]=w0;
+  arg1[1]=w1;
+  res1[0]=w2;
+  if (casadi_f7(arg1, res1, iw, w, 0)) return 1;
+  /* #3: @3 = repsum(@2, 1) */
+  casadi_clear(w3, 4);
+    for (i=0;i<1;++i) {
+        for (j=0;j<4;++j) {
+            w3[j] += w2[j+i*4];
+          }
+      }
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 4, res[0]);
+  return 0;
+}
+
+/* map4_cn2d_ukf_outer:(y[2x4],mean[2x4])->(ddT[2x8]) */
+static int casadi_f9(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_int i;
+  casadi_real* *res1;
+  const casadi_real* *arg1;
+  arg1 = arg+2;
+  for (i=0; i<2; ++i) arg1[i]=arg[i];
+  res1 = res+1;
+  for (i=0; i<1; ++i) res1[i]=res[i];
+  for (i=0; i<4; ++i) {
+    if (casadi_f7(arg1, res1, iw, w, 0)) return 1;
+    if (arg1[0]) arg1[0]+=2;
+    if (arg1[1]) arg1[1]+=2;
+    if (res1[0]) res1[0]+=4;
+  }
+  return 0;
+}
+
+/* cn2d_ukf_outer_sum_1_5:(y[2x4],mean[2])->(ddT[2x2]) */
+static int casadi_f8(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_int i, j;
+  casadi_real **res1=res+1, *w1=w+3, *w2=w+5, *w3=w+13, *w4=w+29;
+  const casadi_real **arg1=arg+2, *wr0;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  casadi_copy(arg[1], 2, w1);
+  /* #2: @2 = repmat(@1, 4) */
+  for (i=0;i<4;++i) {
+    casadi_copy(w1, 2, w2+ i*2);
+  }
+  /* #3: @3 = map4_cn2d_ukf_outer(@0, @2) */
+  arg1[0]=wr0;
+  arg1[1]=w2;
+  res1[0]=w3;
+  if (casadi_f9(arg1, res1, iw, w, 0)) return 1;
+  /* #4: @4 = repsum(@3, 4) */
+  casadi_clear(w4, 4);
+    for (i=0;i<4;++i) {
+        for (j=0;j<4;++j) {
+            w4[j] += w3[j+i*4];
+          }
+      }
+  /* #5: output[0][0] = @4 */
+  casadi_copy(w4, 4, res[0]);
+  return 0;
+}
+
+/* cn2d_ukf_predicted:(x_pred[2],C[2x2],Q[2x2])->(P_pred[2x2],ok) */
+static int casadi_f10(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a0, a1, a2, a3, a4;
+  a0=arg[1]? arg[1][0] : 0;
+  a1=arg[2]? arg[2][0] : 0;
+  a0=(a0+a1);
+  if (res[0]!=0) res[0][0]=a0;
+  a1=arg[1]? arg[1][2] : 0;
+  a2=5.0000000000000000e-01;
+  a3=arg[2]? arg[2][2] : 0;
+  a4=arg[2]? arg[2][1] : 0;
+  a3=(a3+a4);
+  a2=(a2*a3);
+  a1=(a1+a2);
+  if (res[0]!=0) res[0][1]=a1;
+  if (res[0]!=0) res[0][2]=a1;
+  a2=arg[1]? arg[1][3] : 0;
+  a3=arg[2]? arg[2][3] : 0;
+  a2=(a2+a3);
+  if (res[0]!=0) res[0][3]=a2;
+  a3=arg[0]? arg[0][0] : 0;
+  a4=arg[0]? arg[0][1] : 0;
+  a3=(a3+a4);
+  a3=(a3+a0);
+  a3=(a3+a1);
+  a3=(a3+a2);
+  a3=casadi_fabs(a3);
+  a2=casadi_inf;
+  a3=(a3<a2);
+  if (res[1]!=0) res[1][0]=a3;
+  return 0;
+}
+
 /* cn2d_ukf_predict:(x[2],P[2x2],u[3],p[2],dt,Q[2x2],abk[3])->(x_pred[2],P_pred[2x2],ok) */
 static int casadi_f0(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
-  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20;
-  a00=arg[6]? arg[6][0] : 0;
-  a00=casadi_sq(a00);
-  a01=2.;
-  a02=arg[6]? arg[6][2] : 0;
-  a02=(a01+a02);
-  a02=(a00*a02);
-  a01=(a02-a01);
-  a03=(1./a02);
-  a03=copysign(a03,a02);
-  a01=(a01*a03);
-  a03=arg[0]? arg[0][0] : 0;
-  a04=arg[4]? arg[4][0] : 0;
-  a05=arg[2]? arg[2][0] : 0;
-  a06=arg[2]? arg[2][2] : 0;
-  a07=cos(a06);
-  a08=(a05*a07);
-  a09=arg[2]? arg[2][1] : 0;
-  a06=sin(a06);
-  a10=(a09*a06);
-  a08=(a08+a10);
-  a08=(a04*a08);
-  a10=(a03+a08);
-  a11=(a01*a10);
-  a12=arg[1]? arg[1][0] : 0;
-  a13=1.0000000000000000e-13;
-  a14=casadi_fabs(a12);
-  a14=(a13*a14);
-  a15=1.0000000000000000e-300;
-  a14=(a14+a15);
-  a16=casadi_fmax(a12,a14);
-  a16=sqrt(a16);
-  a17=sqrt(a02);
-  a18=(a16*a17);
-  a19=(a03+a18);
-  a19=(a19+a08);
-  a20=(a19+a10);
-  a03=(a03-a18);
-  a03=(a03+a08);
-  a20=(a20+a03);
-  a20=(a20+a10);
-  a02=(2.*a02);
-  a08=(1./a02);
-  a08=copysign(a08,a02);
-  a20=(a20*a08);
-  a11=(a11+a20);
-  if (res[0]!=0) res[0][0]=a11;
-  a20=arg[0]? arg[0][1] : 0;
-  a05=(a05*a06);
-  a09=(a09*a07);
-  a05=(a05-a09);
-  a04=(a04*a05);
-  a05=(a20+a04);
-  a09=(a01*a05);
-  a07=5.0000000000000000e-01;
-  a06=arg[1]? arg[1][2] : 0;
-  a02=arg[1]? arg[1][1] : 0;
-  a06=(a06+a02);
-  a06=(a07*a06);
-  a02=(1./a16);
-  a02=copysign(a02,a16);
-  a06=(a06*a02);
-  a02=(a06*a17);
-  a16=(a20+a02);
-  a16=(a16+a04);
-  a18=arg[1]? arg[1][3] : 0;
-  a06=casadi_sq(a06);
-  a06=(a18-a06);
-  a18=casadi_fabs(a18);
-  a13=(a13*a18);
-  a13=(a13+a15);
-  a15=casadi_fmax(a06,a13);
-  a15=sqrt(a15);
-  a15=(a15*a17);
-  a17=(a20+a15);
-  a17=(a17+a04);
-  a18=(a16+a17);
-  a02=(a20-a02);
-  a02=(a02+a04);
-  a18=(a18+a02);
-  a20=(a20-a15);
-  a20=(a20+a04);
-  a18=(a18+a20);
-  a18=(a18*a08);
-  a09=(a09+a18);
-  if (res[0]!=0) res[0][1]=a09;
-  a18=1.;
-  a01=(a01+a18);
-  a01=(a01-a00);
-  a00=arg[6]? arg[6][1] : 0;
-  a01=(a01+a00);
-  a10=(a10-a11);
-  a00=casadi_sq(a10);
-  a18=(a01*a00);
-  a19=(a19-a11);
-  a04=casadi_sq(a19);
-  a04=(a04+a00);
-  a03=(a03-a11);
-  a15=casadi_sq(a03);
-  a04=(a04+a15);
-  a04=(a04+a00);
-  a04=(a04*a08);
-  a18=(a18+a04);
-  a04=arg[5]? arg[5][0] : 0;
-  a18=(a18+a04);
-  if (res[1]!=0) res[1][0]=a18;
-  a05=(a05-a09);
-  a04=(a10*a05);
-  a04=(a01*a04);
-  a16=(a16-a09);
-  a19=(a19*a16);
-  a17=(a17-a09);
-  a00=(a10*a17);
-  a19=(a19+a00);
-  a02=(a02-a09);
-  a03=(a03*a02);
-  a19=(a19+a03);
-  a20=(a20-a09);
-  a10=(a10*a20);
-  a19=(a19+a10);
-  a19=(a19*a08);
-  a04=(a04+a19);
-  a19=arg[5]? arg[5][2] : 0;
-  a10=arg[5]? arg[5][1] : 0;
-  a19=(a19+a10);
-  a07=(a07*a19);
-  a04=(a04+a07);
-  if (res[1]!=0) res[1][1]=a04;
-  if (res[1]!=0) res[1][2]=a04;
-  a05=casadi_sq(a05);
-  a01=(a01*a05);
-  a16=casadi_sq(a16);
-  a17=casadi_sq(a17);
-  a16=(a16+a17);
-  a02=casadi_sq(a02);
-  a16=(a16+a02);
-  a20=casadi_sq(a20);
-  a16=(a16+a20);
-  a16=(a16*a08);
-  a01=(a01+a16);
-  a16=arg[5]? arg[5][3] : 0;
-  a01=(a01+a16);
-  if (res[1]!=0) res[1][3]=a01;
-  a14=(a14<a12);
-  a13=(a13<a06);
-  a14=(a14*a13);
-  a11=(a11+a09);
-  a11=(a11+a18);
-  a11=(a11+a04);
-  a11=(a11+a04);
-  a11=(a11+a01);
-  a11=casadi_fabs(a11);
-  a01=casadi_inf;
-  a11=(a11<a01);
-  a14=(a14*a11);
-  if (res[2]!=0) res[2][0]=a14;
+  casadi_int i;
+  casadi_real **res1=res+3, *rr, *w00=w+64, *w01=w+67, *w02=w+69, w03, *w04=w+71, *w05=w+73, *w06=w+77, w07, w08, *w09=w+87;
+  casadi_real *w10=w+97, *w11=w+99, *w12=w+107, *w13=w+111;
+  const casadi_real **arg1=arg+7, *cs;
+  /* #0: @0 = input[6][0] */
+  casadi_copy(arg[6], 3, w00);
+  /* #1: {@1, @2} = cn2d_ukf_weights(@0) */
+  arg1[0]=w00;
+  res1[0]=w01;
+  res1[1]=w02;
+  if (casadi_f1(arg1, res1, iw, w, 0)) return 1;
+  /* #2: @3 = @1[0] */
+  for (rr=(&w03), cs=w01+0; cs!=w01+1; cs+=1) *rr++ = *cs;
+  /* #3: @4 = input[0][0] */
+  casadi_copy(arg[0], 2, w04);
+  /* #4: @5 = input[1][0] */
+  casadi_copy(arg[1], 4, w05);
+  /* #5: {@6, NULL, @7} = cn2d_ukf_points(@4, @5, @0) */
+  arg1[0]=w04;
+  arg1[1]=w05;
+  arg1[2]=w00;
+  res1[0]=w06;
+  res1[1]=0;
+  res1[2]=(&w07);
+  if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
+  /* #6: @0 = input[2][0] */
+  casadi_copy(arg[2], 3, w00);
+  /* #7: @4 = input[3][0] */
+  casadi_copy(arg[3], 2, w04);
+  /* #8: @8 = input[4][0] */
+  w08 = arg[4] ? arg[4][0] : 0;
+  /* #9: @9 = cn2d_step_columns(@6, @0, @4, @8) */
+  arg1[0]=w06;
+  arg1[1]=w00;
+  arg1[2]=w04;
+  arg1[3]=(&w08);
+  res1[0]=w09;
+  if (casadi_f3(arg1, res1, iw, w, 0)) return 1;
+  /* #10: @4 = @9[:2] */
+  for (rr=w04, cs=w09+0; cs!=w09+2; cs+=1) *rr++ = *cs;
+  /* #11: @10 = (@3*@4) */
+  for (i=0, rr=w10, cs=w04; i<2; ++i) (*rr++)  = (w03*(*cs++));
+  /* #12: @3 = @1[1] */
+  for (rr=(&w03), cs=w01+1; cs!=w01+2; cs+=1) *rr++ = *cs;
+  /* #13: @1 = zeros(2x1) */
+  casadi_clear(w01, 2);
+  /* #14: @11 = @9[2:10] */
+  for (rr=w11, cs=w09+2; cs!=w09+10; cs+=1) *rr++ = *cs;
+  /* #15: @5 = ones(4x1) */
+  casadi_fill(w05, 4, 1.);
+  /* #16: @1 = mac(@11,@5,@1) */
+  casadi_mtimes_dense(w11, 2, 4, w05, 1, w01, 0);
+  /* #17: @1 = (@3*@1) */
+  for (i=0, rr=w01, cs=w01; i<2; ++i) (*rr++)  = (w03*(*cs++));
+  /* #18: @10 = (@10+@1) */
+  for (i=0, rr=w10, cs=w01; i<2; ++i) (*rr++) += (*cs++);
+  /* #19: output[0][0] = @10 */
+  casadi_copy(w10, 2, res[0]);
+  /* #20: @3 = @2[0] */
+  for (rr=(&w03), cs=w02+0; cs!=w02+1; cs+=1) *rr++ = *cs;
+  /* #21: @5 = cn2d_ukf_outer_sum_0_1(@4, @10) */
+  arg1[0]=w04;
+  arg1[1]=w10;
+  res1[0]=w05;
+  if (casadi_f6(arg1, res1, iw, w, 0)) return 1;
+  /* #22: @5 = (@3*@5) */
+  for (i=0, rr=w05, cs=w05; i<4; ++i) (*rr++)  = (w03*(*cs++));
+  /* #23: @3 = @2[1] */
+  for (rr=(&w03), cs=w02+1; cs!=w02+2; cs+=1) *rr++ = *cs;
+  /* #24: @12 = cn2d_ukf_outer_sum_1_5(@11, @10) */
+  arg1[0]=w11;
+  arg1[1]=w10;
+  res1[0]=w12;
+  if (casadi_f8(arg1, res1, iw, w, 0)) return 1;
+  /* #25: @12 = (@3*@12) */
+  for (i=0, rr=w12, cs=w12; i<4; ++i) (*rr++)  = (w03*(*cs++));
+  /* #26: @5 = (@5+@12) */
+  for (i=0, rr=w05, cs=w12; i<4; ++i) (*rr++) += (*cs++);
+  /* #27: @12 = input[5][0] */
+  casadi_copy(arg[5], 4, w12);
+  /* #28: {@13, @3} = cn2d_ukf_predicted(@10, @5, @12) */
+  arg1[0]=w10;
+  arg1[1]=w05;
+  arg1[2]=w12;
+  res1[0]=w13;
+  res1[1]=(&w03);
+  if (casadi_f10(arg1, res1, iw, w, 0)) return 1;
+  /* #29: output[1][0] = @13 */
+  casadi_copy(w13, 4, res[1]);
+  /* #30: @7 = (@7*@3) */
+  w07 *= w03;
+  /* #31: output[2][0] = @7 */
+  if (res[2]) res[2][0] = w07;
   return 0;
 }
 
@@ -323,209 +653,321 @@ CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ukf_predict_sparsity_out(casadi_int 
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ukf_predict_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 7;
-  if (sz_res) *sz_res = 3;
+  if (sz_arg) *sz_arg = 19;
+  if (sz_res) *sz_res = 6;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 0;
+  if (sz_w) *sz_w = 115;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ukf_predict_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 7*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 3*sizeof(casadi_real*);
+  if (sz_arg) *sz_arg = 19*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 6*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  if (sz_w) *sz_w = 115*sizeof(casadi_real);
+  return 0;
+}
+
+/* cn2d_measurement:(x[2],p[2])->(y) */
+static int casadi_f14(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a0, a1, a2;
+  a0=arg[0]? arg[0][0] : 0;
+  a1=arg[1]? arg[1][0] : 0;
+  a0=(a0-a1);
+  a0=casadi_sq(a0);
+  a1=arg[0]? arg[0][1] : 0;
+  a2=arg[1]? arg[1][1] : 0;
+  a1=(a1-a2);
+  a1=casadi_sq(a1);
+  a0=(a0+a1);
+  a0=sqrt(a0);
+  if (res[0]!=0) res[0][0]=a0;
+  return 0;
+}
+
+/* map5_cn2d_measurement:(x[2x5],p[2x5])->(y[1x5]) */
+static int casadi_f13(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_int i;
+  casadi_real* *res1;
+  const casadi_real* *arg1;
+  arg1 = arg+2;
+  for (i=0; i<2; ++i) arg1[i]=arg[i];
+  res1 = res+1;
+  for (i=0; i<1; ++i) res1[i]=res[i];
+  for (i=0; i<5; ++i) {
+    if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
+    if (arg1[0]) arg1[0]+=2;
+    if (arg1[1]) arg1[1]+=2;
+    if (res1[0]) res1[0]+=1;
+  }
+  return 0;
+}
+
+/* cn2d_measurement_columns:(x[2x5],p[2])->(y[1x5]) */
+static int casadi_f12(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_int i;
+  casadi_real **res1=res+1, *w1=w+3, *w2=w+5, *w3=w+15;
+  const casadi_real **arg1=arg+2, *wr0;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  casadi_copy(arg[1], 2, w1);
+  /* #2: @2 = repmat(@1, 5) */
+  for (i=0;i<5;++i) {
+    casadi_copy(w1, 2, w2+ i*2);
+  }
+  /* #3: @3 = map5_cn2d_measurement(@0, @2) */
+  arg1[0]=wr0;
+  arg1[1]=w2;
+  res1[0]=w3;
+  if (casadi_f13(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 5, res[0]);
+  return 0;
+}
+
+/* cn2d_ukf_moments:(L[2x2],Z[1x5],z,mask,abk[3])->(innovation,Pzz,Pxz[2]) */
+static int casadi_f15(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13;
+  a00=arg[3]? arg[3][0] : 0;
+  a01=0.;
+  a00=(a00!=a01);
+  a01=arg[2]? arg[2][0] : 0;
+  a02=arg[4]? arg[4][0] : 0;
+  a02=casadi_sq(a02);
+  a03=2.;
+  a04=arg[4]? arg[4][2] : 0;
+  a04=(a03+a04);
+  a04=(a02*a04);
+  a03=(a04-a03);
+  a05=(1./a04);
+  a05=copysign(a05,a04);
+  a03=(a03*a05);
+  a05=arg[1]? arg[1][0] : 0;
+  a06=(a03*a05);
+  a07=arg[1]? arg[1][1] : 0;
+  a08=arg[1]? arg[1][2] : 0;
+  a09=(a07+a08);
+  a10=arg[1]? arg[1][3] : 0;
+  a09=(a09+a10);
+  a11=arg[1]? arg[1][4] : 0;
+  a09=(a09+a11);
+  a12=(2.*a04);
+  a13=(1./a12);
+  a13=copysign(a13,a12);
+  a09=(a09*a13);
+  a06=(a06+a09);
+  a01=(a01-a06);
+  a01=(a00?a01:0);
+  if (res[0]!=0) res[0][0]=a01;
+  a01=casadi_sq(a00);
+  a09=1.;
+  a03=(a03+a09);
+  a03=(a03-a02);
+  a02=arg[4]? arg[4][1] : 0;
+  a03=(a03+a02);
+  a05=(a05-a06);
+  a05=casadi_sq(a05);
+  a03=(a03*a05);
+  a07=(a07-a06);
+  a05=casadi_sq(a07);
+  a08=(a08-a06);
+  a02=casadi_sq(a08);
+  a05=(a05+a02);
+  a10=(a10-a06);
+  a02=casadi_sq(a10);
+  a05=(a05+a02);
+  a11=(a11-a06);
+  a06=casadi_sq(a11);
+  a05=(a05+a06);
+  a05=(a05*a13);
+  a03=(a03+a05);
+  a01=(a01*a03);
+  if (res[1]!=0) res[1][0]=a01;
+  a01=arg[0]? arg[0][0] : 0;
+  a04=sqrt(a04);
+  a04=(a04*a13);
+  a07=(a04*a07);
+  a10=(a04*a10);
+  a07=(a07-a10);
+  a01=(a01*a07);
+  a01=(a00*a01);
+  if (res[2]!=0) res[2][0]=a01;
+  a01=arg[0]? arg[0][1] : 0;
+  a01=(a01*a07);
+  a07=arg[0]? arg[0][3] : 0;
+  a08=(a04*a08);
+  a04=(a04*a11);
+  a08=(a08-a04);
+  a07=(a07*a08);
+  a01=(a01+a07);
+  a00=(a00*a01);
+  if (res[2]!=0) res[2][1]=a00;
+  return 0;
+}
+
+/* cn2d_ukf_noise:(R,mask,Pzz,innovation)->(R_used,ok) */
+static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a0, a1, a2;
+  a0=arg[1]? arg[1][0] : 0;
+  a1=0.;
+  a0=(a0!=a1);
+  a1=casadi_sq(a0);
+  a2=arg[0]? arg[0][0] : 0;
+  a1=(a1*a2);
+  a2=1.;
+  a0=(a2-a0);
+  a1=(a1+a0);
+  if (res[0]!=0) res[0][0]=a1;
+  if (res[1]!=0) res[1][0]=a2;
+  return 0;
+}
+
+/* cn2d_ukf_kalman:(x[2],P[2x2],Pzz,Pxz[2],R_used,innovation)->(x_post[2],P_post[2x2],S,ok) */
+static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10;
+  a00=arg[0]? arg[0][0] : 0;
+  a01=arg[3]? arg[3][0] : 0;
+  a02=arg[2]? arg[2][0] : 0;
+  a03=arg[4]? arg[4][0] : 0;
+  a02=(a02+a03);
+  a03=1.0000000000000000e-13;
+  a04=casadi_fabs(a02);
+  a03=(a03*a04);
+  a04=1.0000000000000000e-300;
+  a03=(a03+a04);
+  a04=casadi_fmax(a02,a03);
+  a04=sqrt(a04);
+  a05=(1./a04);
+  a05=copysign(a05,a04);
+  a01=(a01*a05);
+  a04=(a01*a05);
+  a06=arg[5]? arg[5][0] : 0;
+  a04=(a04*a06);
+  a00=(a00+a04);
+  if (res[0]!=0) res[0][0]=a00;
+  a04=arg[0]? arg[0][1] : 0;
+  a07=arg[3]? arg[3][1] : 0;
+  a07=(a07*a05);
+  a05=(a07*a05);
+  a05=(a05*a06);
+  a04=(a04+a05);
+  if (res[0]!=0) res[0][1]=a04;
+  a05=arg[1]? arg[1][0] : 0;
+  a08=casadi_sq(a01);
+  a05=(a05-a08);
+  if (res[1]!=0) res[1][0]=a05;
+  a08=5.0000000000000000e-01;
+  a09=arg[1]? arg[1][2] : 0;
+  a10=arg[1]? arg[1][1] : 0;
+  a09=(a09+a10);
+  a08=(a08*a09);
+  a01=(a01*a07);
+  a08=(a08-a01);
+  if (res[1]!=0) res[1][1]=a08;
+  if (res[1]!=0) res[1][2]=a08;
+  a01=arg[1]? arg[1][3] : 0;
+  a07=casadi_sq(a07);
+  a01=(a01-a07);
+  if (res[1]!=0) res[1][3]=a01;
+  if (res[2]!=0) res[2][0]=a02;
+  a03=(a03<a02);
+  a00=(a00+a04);
+  a00=(a00+a05);
+  a00=(a00+a08);
+  a00=(a00+a01);
+  a00=(a00+a06);
+  a00=(a00+a02);
+  a00=casadi_fabs(a00);
+  a02=casadi_inf;
+  a00=(a00<a02);
+  a03=(a03*a00);
+  if (res[3]!=0) res[3][0]=a03;
   return 0;
 }
 
 /* cn2d_ukf_update:(x[2],P[2x2],z,p[2],R,mask,abk[3])->(x_post[2],P_post[2x2],innovation,S,ok) */
-static int casadi_f1(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
-  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
-  casadi_real a24, a25;
-  a00=arg[0]? arg[0][0] : 0;
-  a01=arg[5]? arg[5][0] : 0;
-  a02=0.;
-  a01=(a01!=a02);
-  a02=arg[1]? arg[1][0] : 0;
-  a03=1.0000000000000000e-13;
-  a04=casadi_fabs(a02);
-  a04=(a03*a04);
-  a05=1.0000000000000000e-300;
-  a04=(a04+a05);
-  a06=casadi_fmax(a02,a04);
-  a06=sqrt(a06);
-  a07=arg[6]? arg[6][0] : 0;
-  a07=casadi_sq(a07);
-  a08=2.;
-  a09=arg[6]? arg[6][2] : 0;
-  a09=(a08+a09);
-  a09=(a07*a09);
-  a10=sqrt(a09);
-  a11=(a06*a10);
-  a12=(a00+a11);
-  a13=arg[3]? arg[3][0] : 0;
-  a12=(a12-a13);
-  a12=casadi_sq(a12);
-  a14=arg[0]? arg[0][1] : 0;
-  a15=5.0000000000000000e-01;
-  a16=arg[1]? arg[1][2] : 0;
-  a17=arg[1]? arg[1][1] : 0;
-  a16=(a16+a17);
-  a15=(a15*a16);
-  a16=(1./a06);
-  a16=copysign(a16,a06);
-  a16=(a15*a16);
-  a06=(a16*a10);
-  a17=(a14+a06);
-  a18=arg[3]? arg[3][1] : 0;
-  a17=(a17-a18);
-  a17=casadi_sq(a17);
-  a12=(a12+a17);
-  a12=sqrt(a12);
-  a08=(a09-a08);
-  a17=(1./a09);
-  a17=copysign(a17,a09);
-  a08=(a08*a17);
-  a17=(a00-a13);
-  a17=casadi_sq(a17);
-  a19=(a14-a18);
-  a19=casadi_sq(a19);
-  a19=(a17+a19);
-  a19=sqrt(a19);
-  a20=(a08*a19);
-  a21=arg[1]? arg[1][3] : 0;
-  a16=casadi_sq(a16);
-  a16=(a21-a16);
-  a22=casadi_fabs(a21);
-  a22=(a03*a22);
-  a22=(a22+a05);
-  a23=casadi_fmax(a16,a22);
-  a23=sqrt(a23);
-  a23=(a23*a10);
-  a10=(a14+a23);
-  a10=(a10-a18);
-  a10=casadi_sq(a10);
-  a10=(a17+a10);
-  a10=sqrt(a10);
-  a24=(a12+a10);
-  a25=(a00-a11);
-  a25=(a25-a13);
-  a25=casadi_sq(a25);
-  a13=(a14-a06);
-  a13=(a13-a18);
-  a13=casadi_sq(a13);
-  a25=(a25+a13);
-  a25=sqrt(a25);
-  a24=(a24+a25);
-  a13=(a14-a23);
-  a13=(a13-a18);
-  a13=casadi_sq(a13);
-  a17=(a17+a13);
-  a17=sqrt(a17);
-  a24=(a24+a17);
-  a09=(2.*a09);
-  a13=(1./a09);
-  a13=copysign(a13,a09);
-  a24=(a24*a13);
-  a20=(a20+a24);
-  a12=(a12-a20);
-  a24=(a11*a12);
-  a25=(a25-a20);
-  a11=(a11*a25);
-  a24=(a24-a11);
-  a24=(a24*a13);
-  a24=(a01*a24);
-  a11=casadi_sq(a01);
-  a09=1.;
-  a08=(a08+a09);
-  a08=(a08-a07);
-  a07=arg[6]? arg[6][1] : 0;
-  a08=(a08+a07);
-  a19=(a19-a20);
-  a19=casadi_sq(a19);
-  a08=(a08*a19);
-  a19=casadi_sq(a12);
-  a10=(a10-a20);
-  a07=casadi_sq(a10);
-  a19=(a19+a07);
-  a07=casadi_sq(a25);
-  a19=(a19+a07);
-  a17=(a17-a20);
-  a07=casadi_sq(a17);
-  a19=(a19+a07);
-  a19=(a19*a13);
-  a08=(a08+a19);
-  a08=(a11*a08);
-  a19=arg[4]? arg[4][0] : 0;
-  a11=(a11*a19);
-  a09=(a09-a01);
-  a11=(a11+a09);
-  a08=(a08+a11);
-  a11=casadi_fabs(a08);
-  a03=(a03*a11);
-  a03=(a03+a05);
-  a05=casadi_fmax(a08,a03);
-  a05=sqrt(a05);
-  a11=(1./a05);
-  a11=copysign(a11,a05);
-  a24=(a24*a11);
-  a05=(a24*a11);
-  a09=arg[2]? arg[2][0] : 0;
-  a09=(a09-a20);
-  a05=(a05*a09);
-  a05=(a01?a05:0);
-  a00=(a00+a05);
-  if (res[0]!=0) res[0][0]=a00;
-  a12=(a06*a12);
-  a10=(a23*a10);
-  a12=(a12+a10);
-  a06=(a06*a25);
-  a12=(a12-a06);
-  a23=(a23*a17);
-  a12=(a12-a23);
-  a12=(a12*a13);
-  a12=(a01*a12);
-  a12=(a12*a11);
-  a11=(a12*a11);
-  a11=(a11*a09);
-  a11=(a01?a11:0);
-  a14=(a14+a11);
-  if (res[0]!=0) res[0][1]=a14;
-  a11=casadi_sq(a24);
-  a11=(a02-a11);
-  if (res[1]!=0) res[1][0]=a11;
-  a24=(a24*a12);
-  a15=(a15-a24);
-  if (res[1]!=0) res[1][1]=a15;
-  if (res[1]!=0) res[1][2]=a15;
-  a12=casadi_sq(a12);
-  a21=(a21-a12);
-  if (res[1]!=0) res[1][3]=a21;
-  a01=(a01?a09:0);
-  if (res[2]!=0) res[2][0]=a01;
-  if (res[3]!=0) res[3][0]=a08;
-  a04=(a04<a02);
-  a22=(a22<a16);
-  a04=(a04*a22);
-  a03=(a03<a08);
-  a04=(a04*a03);
-  a00=(a00+a14);
-  a00=(a00+a11);
-  a00=(a00+a15);
-  a00=(a00+a21);
-  a00=(a00+a01);
-  a00=(a00+a08);
-  a00=casadi_fabs(a00);
-  a08=casadi_inf;
-  a00=(a00<a08);
-  a04=(a04*a00);
-  if (res[4]!=0) res[4][0]=a04;
+static int casadi_f11(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+5, *w00=w+30, *w01=w+32, *w02=w+36, *w03=w+39, *w04=w+49, w05, *w06=w+53, *w07=w+55, w08, w09, w10;
+  casadi_real w11, w12, w13, *w14=w+60;
+  const casadi_real **arg1=arg+7;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 2, w00);
+  /* #1: @1 = input[1][0] */
+  casadi_copy(arg[1], 4, w01);
+  /* #2: @2 = input[6][0] */
+  casadi_copy(arg[6], 3, w02);
+  /* #3: {@3, @4, @5} = cn2d_ukf_points(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w03;
+  res1[1]=w04;
+  res1[2]=(&w05);
+  if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
+  /* #4: @6 = input[3][0] */
+  casadi_copy(arg[3], 2, w06);
+  /* #5: @7 = cn2d_measurement_columns(@3, @6) */
+  arg1[0]=w03;
+  arg1[1]=w06;
+  res1[0]=w07;
+  if (casadi_f12(arg1, res1, iw, w, 0)) return 1;
+  /* #6: @8 = input[2][0] */
+  w08 = arg[2] ? arg[2][0] : 0;
+  /* #7: @9 = input[5][0] */
+  w09 = arg[5] ? arg[5][0] : 0;
+  /* #8: {@10, @11, @6} = cn2d_ukf_moments(@4, @7, @8, @9, @2) */
+  arg1[0]=w04;
+  arg1[1]=w07;
+  arg1[2]=(&w08);
+  arg1[3]=(&w09);
+  arg1[4]=w02;
+  res1[0]=(&w10);
+  res1[1]=(&w11);
+  res1[2]=w06;
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #9: @8 = input[4][0] */
+  w08 = arg[4] ? arg[4][0] : 0;
+  /* #10: {@12, @13} = cn2d_ukf_noise(@8, @9, @11, @10) */
+  arg1[0]=(&w08);
+  arg1[1]=(&w09);
+  arg1[2]=(&w11);
+  arg1[3]=(&w10);
+  res1[0]=(&w12);
+  res1[1]=(&w13);
+  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
+  /* #11: {@14, @4, @8, @9} = cn2d_ukf_kalman(@0, @1, @11, @6, @12, @10) */
+  arg1[0]=w00;
+  arg1[1]=w01;
+  arg1[2]=(&w11);
+  arg1[3]=w06;
+  arg1[4]=(&w12);
+  arg1[5]=(&w10);
+  res1[0]=w14;
+  res1[1]=w04;
+  res1[2]=(&w08);
+  res1[3]=(&w09);
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  /* #12: output[0][0] = @14 */
+  casadi_copy(w14, 2, res[0]);
+  /* #13: output[1][0] = @4 */
+  casadi_copy(w04, 4, res[1]);
+  /* #14: output[2][0] = @10 */
+  if (res[2]) res[2][0] = w10;
+  /* #15: output[3][0] = @8 */
+  if (res[3]) res[3][0] = w08;
+  /* #16: @5 = (@5*@13) */
+  w05 *= w13;
+  /* #17: @5 = (@5*@9) */
+  w05 *= w09;
+  /* #18: output[4][0] = @5 */
+  if (res[4]) res[4][0] = w05;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ukf_update(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f1(arg, res, iw, w, mem);
+  return casadi_f11(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ukf_update_checkout(void) {
@@ -600,18 +1042,528 @@ CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ukf_update_sparsity_out(casadi_int i
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ukf_update_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 7;
-  if (sz_res) *sz_res = 5;
+  if (sz_arg) *sz_arg = 13;
+  if (sz_res) *sz_res = 9;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 0;
+  if (sz_w) *sz_w = 62;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ukf_update_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 7*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 5*sizeof(casadi_real*);
+  if (sz_arg) *sz_arg = 13*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 9*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  if (sz_w) *sz_w = 62*sizeof(casadi_real);
+  return 0;
+}
+
+/* cn2d_measurement_columns:(x[2x5],p[2])->(y[1x5]) */
+static int casadi_f19(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_int i;
+  casadi_real **res1=res+1, *w1=w+3, *w2=w+5, *w3=w+15;
+  const casadi_real **arg1=arg+2, *wr0;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  casadi_copy(arg[1], 2, w1);
+  /* #2: @2 = repmat(@1, 5) */
+  for (i=0;i<5;++i) {
+    casadi_copy(w1, 2, w2+ i*2);
+  }
+  /* #3: @3 = map5_cn2d_measurement(@0, @2) */
+  arg1[0]=wr0;
+  arg1[1]=w2;
+  res1[0]=w3;
+  if (casadi_f13(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 5, res[0]);
+  return 0;
+}
+
+/* cn2d_mcc_noise:(R,mask,Pzz,innovation,sigma)->(R_used,ok) */
+static int casadi_f20(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a0, a1, a2, a3, a4, a5;
+  a0=arg[1]? arg[1][0] : 0;
+  a1=0.;
+  a0=(a0!=a1);
+  a1=casadi_sq(a0);
+  a2=arg[0]? arg[0][0] : 0;
+  a1=(a1*a2);
+  a2=1.;
+  a2=(a2-a0);
+  a1=(a1+a2);
+  a2=1.0000000000000000e-13;
+  a0=casadi_fabs(a1);
+  a2=(a2*a0);
+  a0=1.0000000000000000e-300;
+  a2=(a2+a0);
+  a0=casadi_fmax(a1,a2);
+  a0=sqrt(a0);
+  a3=arg[3]? arg[3][0] : 0;
+  a4=(1./a0);
+  a4=copysign(a4,a0);
+  a3=(a3*a4);
+  a3=casadi_sq(a3);
+  a4=arg[4]? arg[4][0] : 0;
+  a4=casadi_sq(a4);
+  a4=(2.*a4);
+  a5=(1./a4);
+  a5=copysign(a5,a4);
+  a3=(a3*a5);
+  a5=50.;
+  a3=casadi_fmin(a3,a5);
+  a3=exp(a3);
+  a3=(a0*a3);
+  a3=(a3*a0);
+  if (res[0]!=0) res[0][0]=a3;
+  a2=(a2<a1);
+  if (res[1]!=0) res[1][0]=a2;
+  return 0;
+}
+
+/* cn2d_mcukf_update:(x[2],P[2x2],z,p[2],R,mask,abk[3],sigma)->(x_post[2],P_post[2x2],innovation,S,ok) */
+static int casadi_f18(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+5, *w00=w+30, *w01=w+32, *w02=w+36, *w03=w+39, *w04=w+49, w05, *w06=w+53, *w07=w+55, w08, w09, w10;
+  casadi_real w11, w12, w13, w14, *w15=w+60;
+  const casadi_real **arg1=arg+8;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 2, w00);
+  /* #1: @1 = input[1][0] */
+  casadi_copy(arg[1], 4, w01);
+  /* #2: @2 = input[6][0] */
+  casadi_copy(arg[6], 3, w02);
+  /* #3: {@3, @4, @5} = cn2d_ukf_points(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w03;
+  res1[1]=w04;
+  res1[2]=(&w05);
+  if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
+  /* #4: @6 = input[3][0] */
+  casadi_copy(arg[3], 2, w06);
+  /* #5: @7 = cn2d_measurement_columns(@3, @6) */
+  arg1[0]=w03;
+  arg1[1]=w06;
+  res1[0]=w07;
+  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
+  /* #6: @8 = input[2][0] */
+  w08 = arg[2] ? arg[2][0] : 0;
+  /* #7: @9 = input[5][0] */
+  w09 = arg[5] ? arg[5][0] : 0;
+  /* #8: {@10, @11, @6} = cn2d_ukf_moments(@4, @7, @8, @9, @2) */
+  arg1[0]=w04;
+  arg1[1]=w07;
+  arg1[2]=(&w08);
+  arg1[3]=(&w09);
+  arg1[4]=w02;
+  res1[0]=(&w10);
+  res1[1]=(&w11);
+  res1[2]=w06;
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #9: @8 = input[4][0] */
+  w08 = arg[4] ? arg[4][0] : 0;
+  /* #10: @12 = input[7][0] */
+  w12 = arg[7] ? arg[7][0] : 0;
+  /* #11: {@13, @14} = cn2d_mcc_noise(@8, @9, @11, @10, @12) */
+  arg1[0]=(&w08);
+  arg1[1]=(&w09);
+  arg1[2]=(&w11);
+  arg1[3]=(&w10);
+  arg1[4]=(&w12);
+  res1[0]=(&w13);
+  res1[1]=(&w14);
+  if (casadi_f20(arg1, res1, iw, w, 0)) return 1;
+  /* #12: {@15, @4, @8, @9} = cn2d_ukf_kalman(@0, @1, @11, @6, @13, @10) */
+  arg1[0]=w00;
+  arg1[1]=w01;
+  arg1[2]=(&w11);
+  arg1[3]=w06;
+  arg1[4]=(&w13);
+  arg1[5]=(&w10);
+  res1[0]=w15;
+  res1[1]=w04;
+  res1[2]=(&w08);
+  res1[3]=(&w09);
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  /* #13: output[0][0] = @15 */
+  casadi_copy(w15, 2, res[0]);
+  /* #14: output[1][0] = @4 */
+  casadi_copy(w04, 4, res[1]);
+  /* #15: output[2][0] = @10 */
+  if (res[2]) res[2][0] = w10;
+  /* #16: output[3][0] = @8 */
+  if (res[3]) res[3][0] = w08;
+  /* #17: @5 = (@5*@14) */
+  w05 *= w14;
+  /* #18: @5 = (@5*@9) */
+  w05 *= w09;
+  /* #19: output[4][0] = @5 */
+  if (res[4]) res[4][0] = w05;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int cn2d_mcukf_update(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f18(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int cn2d_mcukf_update_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void cn2d_mcukf_update_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void cn2d_mcukf_update_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void cn2d_mcukf_update_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int cn2d_mcukf_update_n_in(void) { return 8;}
+
+CASADI_SYMBOL_EXPORT casadi_int cn2d_mcukf_update_n_out(void) { return 5;}
+
+CASADI_SYMBOL_EXPORT casadi_real cn2d_mcukf_update_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* cn2d_mcukf_update_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "x";
+    case 1: return "P";
+    case 2: return "z";
+    case 3: return "p";
+    case 4: return "R";
+    case 5: return "mask";
+    case 6: return "abk";
+    case 7: return "sigma";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* cn2d_mcukf_update_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "x_post";
+    case 1: return "P_post";
+    case 2: return "innovation";
+    case 3: return "S";
+    case 4: return "ok";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* cn2d_mcukf_update_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s0;
+    case 1: return casadi_s1;
+    case 2: return casadi_s3;
+    case 3: return casadi_s0;
+    case 4: return casadi_s3;
+    case 5: return casadi_s3;
+    case 6: return casadi_s2;
+    case 7: return casadi_s3;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* cn2d_mcukf_update_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s0;
+    case 1: return casadi_s1;
+    case 2: return casadi_s3;
+    case 3: return casadi_s3;
+    case 4: return casadi_s3;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int cn2d_mcukf_update_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 14;
+  if (sz_res) *sz_res = 9;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 62;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int cn2d_mcukf_update_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 14*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 9*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 62*sizeof(casadi_real);
+  return 0;
+}
+
+/* cn2d_measurement_columns:(x[2x5],p[2])->(y[1x5]) */
+static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_int i;
+  casadi_real **res1=res+1, *w1=w+3, *w2=w+5, *w3=w+15;
+  const casadi_real **arg1=arg+2, *wr0;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  casadi_copy(arg[1], 2, w1);
+  /* #2: @2 = repmat(@1, 5) */
+  for (i=0;i<5;++i) {
+    casadi_copy(w1, 2, w2+ i*2);
+  }
+  /* #3: @3 = map5_cn2d_measurement(@0, @2) */
+  arg1[0]=wr0;
+  arg1[1]=w2;
+  res1[0]=w3;
+  if (casadi_f13(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 5, res[0]);
+  return 0;
+}
+
+/* cn2d_huber_noise:(R,mask,Pzz,innovation,gamma)->(R_used,ok) */
+static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12;
+  a00=arg[1]? arg[1][0] : 0;
+  a01=0.;
+  a00=(a00!=a01);
+  a01=casadi_sq(a00);
+  a02=arg[0]? arg[0][0] : 0;
+  a01=(a01*a02);
+  a02=1.;
+  a00=(a02-a00);
+  a01=(a01+a00);
+  a00=1.0000000000000000e-13;
+  a03=casadi_fabs(a01);
+  a03=(a00*a03);
+  a04=1.0000000000000000e-300;
+  a03=(a03+a04);
+  a05=casadi_fmax(a01,a03);
+  a05=sqrt(a05);
+  a06=arg[3]? arg[3][0] : 0;
+  a07=(1./a05);
+  a07=copysign(a07,a05);
+  a08=(a06*a07);
+  a08=casadi_fabs(a08);
+  a09=arg[4]? arg[4][0] : 0;
+  a10=(1./a09);
+  a10=copysign(a10,a09);
+  a08=(a08*a10);
+  a08=casadi_fmax(a02,a08);
+  a08=(a05*a08);
+  a08=(a08*a05);
+  a09=arg[2]? arg[2][0] : 0;
+  a11=(a09+a08);
+  a12=casadi_fabs(a11);
+  a12=(a00*a12);
+  a12=(a12+a04);
+  a11=casadi_fmax(a11,a12);
+  a11=sqrt(a11);
+  a12=(1./a11);
+  a12=copysign(a12,a11);
+  a11=(a06*a12);
+  a11=(a11*a12);
+  a08=(a08*a11);
+  a08=(a08*a07);
+  a08=casadi_fabs(a08);
+  a08=(a08*a10);
+  a08=casadi_fmax(a02,a08);
+  a08=(a05*a08);
+  a08=(a08*a05);
+  a09=(a09+a08);
+  a11=casadi_fabs(a09);
+  a00=(a00*a11);
+  a00=(a00+a04);
+  a09=casadi_fmax(a09,a00);
+  a09=sqrt(a09);
+  a00=(1./a09);
+  a00=copysign(a00,a09);
+  a06=(a06*a00);
+  a06=(a06*a00);
+  a08=(a08*a06);
+  a08=(a08*a07);
+  a08=casadi_fabs(a08);
+  a08=(a08*a10);
+  a02=casadi_fmax(a02,a08);
+  a02=(a05*a02);
+  a02=(a02*a05);
+  if (res[0]!=0) res[0][0]=a02;
+  a03=(a03<a01);
+  if (res[1]!=0) res[1][0]=a03;
+  return 0;
+}
+
+/* cn2d_huber_ukf_update:(x[2],P[2x2],z,p[2],R,mask,abk[3],gamma)->(x_post[2],P_post[2x2],innovation,S,ok) */
+static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+5, *w00=w+30, *w01=w+32, *w02=w+36, *w03=w+39, *w04=w+49, w05, *w06=w+53, *w07=w+55, w08, w09, w10;
+  casadi_real w11, w12, w13, w14, *w15=w+60;
+  const casadi_real **arg1=arg+8;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 2, w00);
+  /* #1: @1 = input[1][0] */
+  casadi_copy(arg[1], 4, w01);
+  /* #2: @2 = input[6][0] */
+  casadi_copy(arg[6], 3, w02);
+  /* #3: {@3, @4, @5} = cn2d_ukf_points(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w03;
+  res1[1]=w04;
+  res1[2]=(&w05);
+  if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
+  /* #4: @6 = input[3][0] */
+  casadi_copy(arg[3], 2, w06);
+  /* #5: @7 = cn2d_measurement_columns(@3, @6) */
+  arg1[0]=w03;
+  arg1[1]=w06;
+  res1[0]=w07;
+  if (casadi_f22(arg1, res1, iw, w, 0)) return 1;
+  /* #6: @8 = input[2][0] */
+  w08 = arg[2] ? arg[2][0] : 0;
+  /* #7: @9 = input[5][0] */
+  w09 = arg[5] ? arg[5][0] : 0;
+  /* #8: {@10, @11, @6} = cn2d_ukf_moments(@4, @7, @8, @9, @2) */
+  arg1[0]=w04;
+  arg1[1]=w07;
+  arg1[2]=(&w08);
+  arg1[3]=(&w09);
+  arg1[4]=w02;
+  res1[0]=(&w10);
+  res1[1]=(&w11);
+  res1[2]=w06;
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #9: @8 = input[4][0] */
+  w08 = arg[4] ? arg[4][0] : 0;
+  /* #10: @12 = input[7][0] */
+  w12 = arg[7] ? arg[7][0] : 0;
+  /* #11: {@13, @14} = cn2d_huber_noise(@8, @9, @11, @10, @12) */
+  arg1[0]=(&w08);
+  arg1[1]=(&w09);
+  arg1[2]=(&w11);
+  arg1[3]=(&w10);
+  arg1[4]=(&w12);
+  res1[0]=(&w13);
+  res1[1]=(&w14);
+  if (casadi_f23(arg1, res1, iw, w, 0)) return 1;
+  /* #12: {@15, @4, @8, @9} = cn2d_ukf_kalman(@0, @1, @11, @6, @13, @10) */
+  arg1[0]=w00;
+  arg1[1]=w01;
+  arg1[2]=(&w11);
+  arg1[3]=w06;
+  arg1[4]=(&w13);
+  arg1[5]=(&w10);
+  res1[0]=w15;
+  res1[1]=w04;
+  res1[2]=(&w08);
+  res1[3]=(&w09);
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  /* #13: output[0][0] = @15 */
+  casadi_copy(w15, 2, res[0]);
+  /* #14: output[1][0] = @4 */
+  casadi_copy(w04, 4, res[1]);
+  /* #15: output[2][0] = @10 */
+  if (res[2]) res[2][0] = w10;
+  /* #16: output[3][0] = @8 */
+  if (res[3]) res[3][0] = w08;
+  /* #17: @5 = (@5*@14) */
+  w05 *= w14;
+  /* #18: @5 = (@5*@9) */
+  w05 *= w09;
+  /* #19: output[4][0] = @5 */
+  if (res[4]) res[4][0] = w05;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int cn2d_huber_ukf_update(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f21(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int cn2d_huber_ukf_update_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void cn2d_huber_ukf_update_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void cn2d_huber_ukf_update_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void cn2d_huber_ukf_update_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int cn2d_huber_ukf_update_n_in(void) { return 8;}
+
+CASADI_SYMBOL_EXPORT casadi_int cn2d_huber_ukf_update_n_out(void) { return 5;}
+
+CASADI_SYMBOL_EXPORT casadi_real cn2d_huber_ukf_update_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* cn2d_huber_ukf_update_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "x";
+    case 1: return "P";
+    case 2: return "z";
+    case 3: return "p";
+    case 4: return "R";
+    case 5: return "mask";
+    case 6: return "abk";
+    case 7: return "gamma";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* cn2d_huber_ukf_update_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "x_post";
+    case 1: return "P_post";
+    case 2: return "innovation";
+    case 3: return "S";
+    case 4: return "ok";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* cn2d_huber_ukf_update_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s0;
+    case 1: return casadi_s1;
+    case 2: return casadi_s3;
+    case 3: return casadi_s0;
+    case 4: return casadi_s3;
+    case 5: return casadi_s3;
+    case 6: return casadi_s2;
+    case 7: return casadi_s3;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* cn2d_huber_ukf_update_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s0;
+    case 1: return casadi_s1;
+    case 2: return casadi_s3;
+    case 3: return casadi_s3;
+    case 4: return casadi_s3;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int cn2d_huber_ukf_update_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 14;
+  if (sz_res) *sz_res = 9;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 62;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int cn2d_huber_ukf_update_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 14*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 9*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 62*sizeof(casadi_real);
   return 0;
 }
 
@@ -622,13 +1574,13 @@ CASADI_SYMBOL_EXPORT int cn2d_ukf_update_work_bytes(casadi_int *sz_arg, casadi_i
  * failing evaluation. */
 CASADI_SYMBOL_EXPORT int cn2d_ukf_predict_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
-  const casadi_real* a[7];
-  casadi_real* r[3];
+  const casadi_real* a[19];
+  casadi_real* r[6];
   casadi_int iw[1];
-  casadi_real w[21];
+  casadi_real w[118];
   casadi_int j, k;
-  for (k = 0; k < 7; ++k) a[k] = 0;
-  for (k = 0; k < 3; ++k) r[k] = 0;
+  for (k = 0; k < 19; ++k) a[k] = 0;
+  for (k = 0; k < 6; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
     for (k = 0; k < 7; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
     for (k = 0; k < 3; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
@@ -642,17 +1594,57 @@ CASADI_SYMBOL_EXPORT int cn2d_ukf_predict_batch(casadi_int N, const casadi_real*
  * failing evaluation. */
 CASADI_SYMBOL_EXPORT int cn2d_ukf_update_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
-  const casadi_real* a[7];
-  casadi_real* r[5];
+  const casadi_real* a[13];
+  casadi_real* r[9];
   casadi_int iw[1];
-  casadi_real w[26];
+  casadi_real w[69];
   casadi_int j, k;
-  for (k = 0; k < 7; ++k) a[k] = 0;
-  for (k = 0; k < 5; ++k) r[k] = 0;
+  for (k = 0; k < 13; ++k) a[k] = 0;
+  for (k = 0; k < 9; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
     for (k = 0; k < 7; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
     for (k = 0; k < 5; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
     if (cn2d_ukf_update(a, r, iw, w, 0)) return (int)(1 + j);
+  }
+  return 0;
+}
+
+/* cn2d_mcukf_update_batch: evaluate cn2d_mcukf_update for j = 0..N-1 on slices arg[k] + j*arg_step[k] and
+ * res[k] + j*res_step[k] (a step of 0 shares the argument). Returns 0, or 1 + j of the first
+ * failing evaluation. */
+CASADI_SYMBOL_EXPORT int cn2d_mcukf_update_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
+                                  casadi_real** res, const casadi_int* res_step) {
+  const casadi_real* a[14];
+  casadi_real* r[9];
+  casadi_int iw[1];
+  casadi_real w[70];
+  casadi_int j, k;
+  for (k = 0; k < 14; ++k) a[k] = 0;
+  for (k = 0; k < 9; ++k) r[k] = 0;
+  for (j = 0; j < N; ++j) {
+    for (k = 0; k < 8; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
+    for (k = 0; k < 5; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
+    if (cn2d_mcukf_update(a, r, iw, w, 0)) return (int)(1 + j);
+  }
+  return 0;
+}
+
+/* cn2d_huber_ukf_update_batch: evaluate cn2d_huber_ukf_update for j = 0..N-1 on slices arg[k] + j*arg_step[k] and
+ * res[k] + j*res_step[k] (a step of 0 shares the argument). Returns 0, or 1 + j of the first
+ * failing evaluation. */
+CASADI_SYMBOL_EXPORT int cn2d_huber_ukf_update_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
+                                  casadi_real** res, const casadi_int* res_step) {
+  const casadi_real* a[14];
+  casadi_real* r[9];
+  casadi_int iw[1];
+  casadi_real w[70];
+  casadi_int j, k;
+  for (k = 0; k < 14; ++k) a[k] = 0;
+  for (k = 0; k < 9; ++k) r[k] = 0;
+  for (j = 0; j < N; ++j) {
+    for (k = 0; k < 8; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
+    for (k = 0; k < 5; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
+    if (cn2d_huber_ukf_update(a, r, iw, w, 0)) return (int)(1 + j);
   }
   return 0;
 }

@@ -2,9 +2,11 @@
  * Model linear_cv, equations sha256 3921f0ab22d488004fdefa145e4b141b16744c444661c4aeba43cc1d339cf976, CasADi 3.8.2.
  * Edit the equations and run `abyssal regenerate`; `abyssal regenerate --check` fails on drift.
  *
- * Functions (CasADi SX instructions after common-subexpression elimination):
- *   linear_cv_ckf_predict             593 instructions
- *   linear_cv_ckf_update              482 instructions
+ * Functions (operations per call: CasADi SX instructions after common-subexpression elimination,
+ * of the function itself or of the leaves it calls, times the calls):
+ *   linear_cv_ckf_predict            1085 operations
+ *   linear_cv_ckf_update              708 operations
+ *   linear_cv_ckf_step               1794 operations
  */
 /* How to prefix internal symbols */
 #ifdef CASADI_CODEGEN_PREFIX
@@ -26,16 +28,36 @@
 #endif
 
 /* Add prefix to internal symbols */
+#define casadi_clear CASADI_PREFIX(clear)
+#define casadi_copy CASADI_PREFIX(copy)
 #define casadi_f0 CASADI_PREFIX(f0)
 #define casadi_f1 CASADI_PREFIX(f1)
+#define casadi_f10 CASADI_PREFIX(f10)
+#define casadi_f11 CASADI_PREFIX(f11)
+#define casadi_f12 CASADI_PREFIX(f12)
+#define casadi_f13 CASADI_PREFIX(f13)
+#define casadi_f14 CASADI_PREFIX(f14)
+#define casadi_f15 CASADI_PREFIX(f15)
+#define casadi_f16 CASADI_PREFIX(f16)
+#define casadi_f2 CASADI_PREFIX(f2)
+#define casadi_f3 CASADI_PREFIX(f3)
+#define casadi_f4 CASADI_PREFIX(f4)
+#define casadi_f5 CASADI_PREFIX(f5)
+#define casadi_f6 CASADI_PREFIX(f6)
+#define casadi_f7 CASADI_PREFIX(f7)
+#define casadi_f8 CASADI_PREFIX(f8)
+#define casadi_f9 CASADI_PREFIX(f9)
 #define casadi_fabs CASADI_PREFIX(fabs)
+#define casadi_fill CASADI_PREFIX(fill)
 #define casadi_fmax CASADI_PREFIX(fmax)
+#define casadi_mtimes_dense CASADI_PREFIX(mtimes_dense)
 #define casadi_s0 CASADI_PREFIX(s0)
 #define casadi_s1 CASADI_PREFIX(s1)
 #define casadi_s2 CASADI_PREFIX(s2)
 #define casadi_s3 CASADI_PREFIX(s3)
 #define casadi_s4 CASADI_PREFIX(s4)
 #define casadi_sq CASADI_PREFIX(sq)
+#define casadi_zeros CASADI_PREFIX(zeros)
 
 /* Symbol visibility in DLLs */
 #ifndef CASADI_SYMBOL_EXPORT
@@ -72,9 +94,56 @@ casadi_real casadi_fmax(casadi_real x, casadi_real y) {
 
 casadi_real casadi_sq(casadi_real x) { return x*x;}
 
+void casadi_copy(const casadi_real* x, casadi_int n, casadi_real* y) {
+  casadi_int i;
+  if (y) {
+    if (x) {
+      for (i=0; i<n; ++i) *y++ = *x++;
+    } else {
+      for (i=0; i<n; ++i) *y++ = 0.;
+    }
+  }
+}
+
+void casadi_clear(casadi_real* x, casadi_int n) {
+  casadi_int i;
+  if (x) {
+    for (i=0; i<n; ++i) *x++ = 0;
+  }
+}
+
 #ifndef casadi_inf
   #define casadi_inf INFINITY
 #endif
+
+void casadi_fill(casadi_real* x, casadi_int n, casadi_real alpha) {
+  casadi_int i;
+  if (x) {
+    for (i=0; i<n; ++i) *x++ = alpha;
+  }
+}
+
+void casadi_mtimes_dense(const casadi_real* x, casadi_int nrow_x, casadi_int ncol_x,
+    const casadi_real* y, casadi_int ncol_y, casadi_real* z, casadi_int tr) {
+  casadi_int i, j, k;
+  if (tr) {
+    for (i=0; i<ncol_y; ++i) {
+      for (j=0; j<ncol_x; ++j) {
+        for (k=0; k<nrow_x; ++k) {
+          z[j + i*ncol_x] += x[k + j*nrow_x] * y[k + i*nrow_x];
+        }
+      }
+    }
+  } else {
+    for (i=0; i<ncol_y; ++i) {
+      for (j=0; j<nrow_x; ++j) {
+        for (k=0; k<ncol_x; ++k) {
+          z[j + i*nrow_x] += x[j + k*nrow_x] * y[k + i*ncol_x];
+        }
+      }
+    }
+  }
+}
 
 /* Configuration this file was compiled with */
 CASADI_SYMBOL_EXPORT void linear_cv_ckf_casadi_version(int* major, int* minor, int* patch) {
@@ -91,606 +160,560 @@ static const casadi_int casadi_s2[3] = {2, 1, 1};
 static const casadi_int casadi_s3[3] = {1, 1, 1};
 static const casadi_int casadi_s4[3] = {2, 2, 1};
 
-/* linear_cv_ckf_predict:(x[4],P[4x4],u[2],p[2],dt,Q[4x4])->(x_pred[4],P_pred[4x4],ok) */
-static int casadi_f0(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static const casadi_real casadi_zeros[32] = 
+  {0.};
+
+/* linear_cv_ckf_points:(x[4],P[4x4])->(X[4x8],L[4x4],ok) */
+static int casadi_f1(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
-  casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
-  casadi_real a36, a37, a38, a39, a40, a41, a42, a43, a44, a45, a46, a47;
-  casadi_real a48, a49;
-  a00=1.2500000000000000e-01;
-  a01=arg[0]? arg[0][0] : 0;
-  a02=arg[1]? arg[1][0] : 0;
-  a03=1.0000000000000000e-13;
-  a04=casadi_fabs(a02);
-  a04=(a03*a04);
-  a05=1.0000000000000000e-300;
-  a04=(a04+a05);
-  a06=casadi_fmax(a02,a04);
-  a06=sqrt(a06);
-  a07=(2.*a06);
-  a07=(a01+a07);
-  a08=1.6666666666666666e-01;
-  a09=arg[4]? arg[4][0] : 0;
+  a00=arg[0]? arg[0][0] : 0;
+  a01=arg[1]? arg[1][0] : 0;
+  a02=1.0000000000000000e-13;
+  a03=casadi_fabs(a01);
+  a03=(a02*a03);
+  a04=1.0000000000000000e-300;
+  a03=(a03+a04);
+  a05=casadi_fmax(a01,a03);
+  a05=sqrt(a05);
+  a06=(2.*a05);
+  a06=(a00+a06);
+  if (res[0]!=0) res[0][0]=a06;
+  a06=arg[0]? arg[0][1] : 0;
+  a07=5.0000000000000000e-01;
+  a08=arg[1]? arg[1][4] : 0;
+  a09=arg[1]? arg[1][1] : 0;
+  a08=(a08+a09);
+  a08=(a07*a08);
+  a09=(1./a05);
+  a09=copysign(a09,a05);
   a08=(a08*a09);
+  a10=(2.*a08);
+  a10=(a06+a10);
+  if (res[0]!=0) res[0][1]=a10;
   a10=arg[0]? arg[0][2] : 0;
-  a11=5.0000000000000000e-01;
-  a12=arg[1]? arg[1][8] : 0;
-  a13=arg[1]? arg[1][2] : 0;
-  a12=(a12+a13);
-  a12=(a11*a12);
-  a13=(1./a06);
-  a13=copysign(a13,a06);
-  a12=(a12*a13);
-  a14=(2.*a12);
-  a14=(a10+a14);
-  a15=(a11*a09);
-  a16=arg[2]? arg[2][0] : 0;
-  a17=(a15*a16);
-  a18=(a14+a17);
-  a18=(2.*a18);
-  a19=(a14+a18);
-  a19=(a19+a18);
-  a18=(a09*a16);
-  a20=(a14+a18);
+  a11=arg[1]? arg[1][8] : 0;
+  a12=arg[1]? arg[1][2] : 0;
+  a11=(a11+a12);
+  a11=(a07*a11);
+  a11=(a11*a09);
+  a12=(2.*a11);
+  a12=(a10+a12);
+  if (res[0]!=0) res[0][2]=a12;
+  a12=arg[0]? arg[0][3] : 0;
+  a13=arg[1]? arg[1][12] : 0;
+  a14=arg[1]? arg[1][3] : 0;
+  a13=(a13+a14);
+  a13=(a07*a13);
+  a13=(a13*a09);
+  a09=(2.*a13);
+  a09=(a12+a09);
+  if (res[0]!=0) res[0][3]=a09;
+  if (res[0]!=0) res[0][4]=a00;
+  a09=arg[1]? arg[1][5] : 0;
+  a14=casadi_sq(a08);
+  a14=(a09-a14);
+  a09=casadi_fabs(a09);
+  a09=(a02*a09);
+  a09=(a09+a04);
+  a15=casadi_fmax(a14,a09);
+  a15=sqrt(a15);
+  a16=(2.*a15);
+  a16=(a06+a16);
+  if (res[0]!=0) res[0][5]=a16;
+  a16=arg[1]? arg[1][9] : 0;
+  a17=arg[1]? arg[1][6] : 0;
+  a16=(a16+a17);
+  a16=(a07*a16);
+  a17=(a11*a08);
+  a16=(a16-a17);
+  a17=(1./a15);
+  a17=copysign(a17,a15);
+  a16=(a16*a17);
+  a18=(2.*a16);
+  a18=(a10+a18);
+  if (res[0]!=0) res[0][6]=a18;
+  a18=arg[1]? arg[1][13] : 0;
+  a19=arg[1]? arg[1][7] : 0;
+  a18=(a18+a19);
+  a18=(a07*a18);
+  a19=(a13*a08);
+  a18=(a18-a19);
+  a18=(a18*a17);
+  a17=(2.*a18);
+  a17=(a12+a17);
+  if (res[0]!=0) res[0][7]=a17;
+  if (res[0]!=0) res[0][8]=a00;
+  if (res[0]!=0) res[0][9]=a06;
+  a17=arg[1]? arg[1][10] : 0;
+  a19=casadi_sq(a11);
+  a20=casadi_sq(a16);
   a19=(a19+a20);
-  a19=(a08*a19);
-  a07=(a07+a19);
-  a19=arg[1]? arg[1][9] : 0;
-  a20=arg[1]? arg[1][6] : 0;
-  a19=(a19+a20);
-  a19=(a11*a19);
-  a20=arg[1]? arg[1][4] : 0;
-  a21=arg[1]? arg[1][1] : 0;
-  a20=(a20+a21);
-  a20=(a11*a20);
-  a20=(a20*a13);
-  a21=(a12*a20);
-  a19=(a19-a21);
-  a21=arg[1]? arg[1][5] : 0;
-  a22=casadi_sq(a20);
+  a19=(a17-a19);
+  a17=casadi_fabs(a17);
+  a17=(a02*a17);
+  a17=(a17+a04);
+  a20=casadi_fmax(a19,a17);
+  a20=sqrt(a20);
+  a21=(2.*a20);
+  a21=(a10+a21);
+  if (res[0]!=0) res[0][10]=a21;
+  a21=arg[1]? arg[1][14] : 0;
+  a22=arg[1]? arg[1][11] : 0;
+  a21=(a21+a22);
+  a07=(a07*a21);
+  a21=(a13*a11);
+  a22=(a18*a16);
+  a21=(a21+a22);
+  a07=(a07-a21);
+  a21=(1./a20);
+  a21=copysign(a21,a20);
+  a07=(a07*a21);
+  a21=(2.*a07);
+  a21=(a12+a21);
+  if (res[0]!=0) res[0][11]=a21;
+  if (res[0]!=0) res[0][12]=a00;
+  if (res[0]!=0) res[0][13]=a06;
+  if (res[0]!=0) res[0][14]=a10;
+  a21=arg[1]? arg[1][15] : 0;
+  a22=casadi_sq(a13);
+  a23=casadi_sq(a18);
+  a22=(a22+a23);
+  a23=casadi_sq(a07);
+  a22=(a22+a23);
   a22=(a21-a22);
   a21=casadi_fabs(a21);
-  a21=(a03*a21);
-  a21=(a21+a05);
-  a23=casadi_fmax(a22,a21);
-  a23=sqrt(a23);
-  a24=(1./a23);
-  a24=copysign(a24,a23);
-  a19=(a19*a24);
-  a25=(2.*a19);
-  a25=(a10+a25);
-  a26=(a25+a17);
-  a26=(2.*a26);
-  a27=(a25+a26);
-  a27=(a27+a26);
-  a26=(a25+a18);
-  a27=(a27+a26);
-  a27=(a08*a27);
-  a27=(a01+a27);
-  a26=(a07+a27);
-  a28=arg[1]? arg[1][10] : 0;
-  a29=casadi_sq(a12);
-  a30=casadi_sq(a19);
-  a29=(a29+a30);
-  a29=(a28-a29);
-  a28=casadi_fabs(a28);
-  a28=(a03*a28);
-  a28=(a28+a05);
-  a30=casadi_fmax(a29,a28);
-  a30=sqrt(a30);
-  a31=(2.*a30);
-  a31=(a10+a31);
-  a32=(a31+a17);
-  a32=(2.*a32);
-  a33=(a31+a32);
-  a33=(a33+a32);
-  a32=(a31+a18);
-  a33=(a33+a32);
-  a33=(a08*a33);
-  a33=(a01+a33);
-  a26=(a26+a33);
-  a32=(a10+a17);
-  a32=(2.*a32);
-  a34=(a10+a32);
-  a34=(a34+a32);
-  a32=(a10+a18);
-  a34=(a34+a32);
-  a34=(a08*a34);
-  a34=(a01+a34);
-  a26=(a26+a34);
-  a32=-2.;
-  a06=(a32*a06);
-  a06=(a01+a06);
-  a35=(a32*a12);
-  a35=(a10+a35);
-  a36=(a35+a17);
-  a36=(2.*a36);
-  a37=(a35+a36);
-  a37=(a37+a36);
-  a36=(a35+a18);
-  a37=(a37+a36);
-  a37=(a08*a37);
-  a06=(a06+a37);
-  a26=(a26+a06);
-  a37=(a32*a19);
-  a37=(a10+a37);
-  a36=(a37+a17);
-  a36=(2.*a36);
-  a38=(a37+a36);
-  a38=(a38+a36);
-  a36=(a37+a18);
-  a38=(a38+a36);
-  a38=(a08*a38);
-  a38=(a01+a38);
-  a26=(a26+a38);
-  a36=(a32*a30);
-  a36=(a10+a36);
-  a17=(a36+a17);
-  a17=(2.*a17);
-  a39=(a36+a17);
-  a39=(a39+a17);
-  a18=(a36+a18);
-  a39=(a39+a18);
-  a39=(a08*a39);
-  a01=(a01+a39);
-  a26=(a26+a01);
-  a26=(a26+a34);
-  a26=(a00*a26);
-  if (res[0]!=0) res[0][0]=a26;
-  a39=arg[0]? arg[0][1] : 0;
-  a18=(2.*a20);
-  a18=(a39+a18);
-  a17=arg[0]? arg[0][3] : 0;
-  a40=arg[1]? arg[1][12] : 0;
-  a41=arg[1]? arg[1][3] : 0;
-  a40=(a40+a41);
-  a40=(a11*a40);
-  a40=(a40*a13);
-  a13=(2.*a40);
-  a13=(a17+a13);
-  a41=arg[2]? arg[2][1] : 0;
-  a15=(a15*a41);
-  a42=(a13+a15);
-  a42=(2.*a42);
-  a43=(a13+a42);
-  a43=(a43+a42);
-  a09=(a09*a41);
-  a42=(a13+a09);
-  a43=(a43+a42);
-  a43=(a08*a43);
-  a18=(a18+a43);
-  a43=(2.*a23);
-  a43=(a39+a43);
-  a42=arg[1]? arg[1][13] : 0;
-  a44=arg[1]? arg[1][7] : 0;
-  a42=(a42+a44);
-  a42=(a11*a42);
-  a44=(a40*a20);
-  a42=(a42-a44);
-  a42=(a42*a24);
-  a24=(2.*a42);
-  a24=(a17+a24);
-  a44=(a24+a15);
-  a44=(2.*a44);
-  a45=(a24+a44);
-  a45=(a45+a44);
-  a44=(a24+a09);
-  a45=(a45+a44);
-  a45=(a08*a45);
-  a43=(a43+a45);
-  a45=(a18+a43);
-  a44=arg[1]? arg[1][14] : 0;
-  a46=arg[1]? arg[1][11] : 0;
-  a44=(a44+a46);
-  a44=(a11*a44);
-  a12=(a40*a12);
-  a19=(a42*a19);
-  a12=(a12+a19);
-  a44=(a44-a12);
-  a12=(1./a30);
-  a12=copysign(a12,a30);
-  a44=(a44*a12);
-  a12=(2.*a44);
-  a12=(a17+a12);
-  a30=(a12+a15);
-  a30=(2.*a30);
-  a19=(a12+a30);
-  a19=(a19+a30);
-  a30=(a12+a09);
-  a19=(a19+a30);
-  a19=(a08*a19);
-  a19=(a39+a19);
-  a45=(a45+a19);
-  a30=arg[1]? arg[1][15] : 0;
-  a46=casadi_sq(a40);
-  a47=casadi_sq(a42);
-  a46=(a46+a47);
-  a47=casadi_sq(a44);
-  a46=(a46+a47);
-  a46=(a30-a46);
-  a30=casadi_fabs(a30);
-  a03=(a03*a30);
-  a03=(a03+a05);
-  a05=casadi_fmax(a46,a03);
-  a05=sqrt(a05);
-  a30=(2.*a05);
-  a30=(a17+a30);
-  a47=(a30+a15);
-  a47=(2.*a47);
-  a48=(a30+a47);
-  a48=(a48+a47);
-  a47=(a30+a09);
-  a48=(a48+a47);
-  a48=(a08*a48);
-  a48=(a39+a48);
-  a45=(a45+a48);
-  a20=(a32*a20);
-  a20=(a39+a20);
-  a40=(a32*a40);
-  a40=(a17+a40);
-  a47=(a40+a15);
-  a47=(2.*a47);
-  a49=(a40+a47);
-  a49=(a49+a47);
-  a47=(a40+a09);
-  a49=(a49+a47);
-  a49=(a08*a49);
-  a20=(a20+a49);
-  a45=(a45+a20);
-  a23=(a32*a23);
-  a23=(a39+a23);
-  a42=(a32*a42);
-  a42=(a17+a42);
-  a49=(a42+a15);
-  a49=(2.*a49);
-  a47=(a42+a49);
-  a47=(a47+a49);
-  a49=(a42+a09);
-  a47=(a47+a49);
-  a47=(a08*a47);
-  a23=(a23+a47);
-  a45=(a45+a23);
-  a44=(a32*a44);
-  a44=(a17+a44);
-  a47=(a44+a15);
-  a47=(2.*a47);
-  a49=(a44+a47);
-  a49=(a49+a47);
-  a47=(a44+a09);
-  a49=(a49+a47);
-  a49=(a08*a49);
-  a49=(a39+a49);
-  a45=(a45+a49);
-  a32=(a32*a05);
-  a17=(a17+a32);
-  a15=(a17+a15);
-  a15=(2.*a15);
-  a32=(a17+a15);
-  a32=(a32+a15);
-  a09=(a17+a09);
-  a32=(a32+a09);
-  a32=(a08*a32);
-  a39=(a39+a32);
-  a45=(a45+a39);
-  a45=(a00*a45);
-  if (res[0]!=0) res[0][1]=a45;
-  a32=3.;
-  a09=(a32*a16);
-  a15=(2.*a16);
-  a09=(a09+a15);
-  a09=(a09+a16);
-  a09=(a08*a09);
-  a14=(a14+a09);
-  a25=(a25+a09);
-  a16=(a14+a25);
-  a31=(a31+a09);
-  a16=(a16+a31);
-  a10=(a10+a09);
-  a16=(a16+a10);
-  a35=(a35+a09);
-  a16=(a16+a35);
-  a37=(a37+a09);
-  a16=(a16+a37);
-  a36=(a36+a09);
-  a16=(a16+a36);
-  a16=(a16+a10);
-  a16=(a00*a16);
-  if (res[0]!=0) res[0][2]=a16;
-  a32=(a32*a41);
-  a09=(2.*a41);
-  a32=(a32+a09);
-  a32=(a32+a41);
-  a08=(a08*a32);
-  a13=(a13+a08);
-  a24=(a24+a08);
-  a32=(a13+a24);
-  a12=(a12+a08);
-  a32=(a32+a12);
-  a30=(a30+a08);
-  a32=(a32+a30);
-  a40=(a40+a08);
-  a32=(a32+a40);
-  a42=(a42+a08);
-  a32=(a32+a42);
-  a44=(a44+a08);
-  a32=(a32+a44);
-  a17=(a17+a08);
-  a32=(a32+a17);
-  a32=(a00*a32);
-  if (res[0]!=0) res[0][3]=a32;
-  a07=(a07-a26);
-  a08=casadi_sq(a07);
-  a27=(a27-a26);
-  a41=casadi_sq(a27);
-  a08=(a08+a41);
-  a33=(a33-a26);
-  a41=casadi_sq(a33);
-  a08=(a08+a41);
-  a34=(a34-a26);
-  a41=casadi_sq(a34);
-  a08=(a08+a41);
-  a06=(a06-a26);
-  a09=casadi_sq(a06);
-  a08=(a08+a09);
-  a38=(a38-a26);
-  a09=casadi_sq(a38);
-  a08=(a08+a09);
-  a01=(a01-a26);
-  a09=casadi_sq(a01);
-  a08=(a08+a09);
-  a08=(a08+a41);
-  a08=(a00*a08);
-  a41=arg[5]? arg[5][0] : 0;
-  a08=(a08+a41);
-  if (res[1]!=0) res[1][0]=a08;
-  a18=(a18-a45);
-  a41=(a07*a18);
-  a43=(a43-a45);
-  a09=(a27*a43);
-  a41=(a41+a09);
-  a19=(a19-a45);
-  a09=(a33*a19);
-  a41=(a41+a09);
-  a48=(a48-a45);
-  a09=(a34*a48);
-  a41=(a41+a09);
-  a20=(a20-a45);
-  a09=(a06*a20);
-  a41=(a41+a09);
-  a23=(a23-a45);
-  a09=(a38*a23);
-  a41=(a41+a09);
-  a49=(a49-a45);
-  a09=(a01*a49);
-  a41=(a41+a09);
-  a39=(a39-a45);
-  a09=(a34*a39);
-  a41=(a41+a09);
-  a41=(a00*a41);
-  a09=arg[5]? arg[5][4] : 0;
-  a15=arg[5]? arg[5][1] : 0;
-  a09=(a09+a15);
-  a09=(a11*a09);
-  a41=(a41+a09);
-  if (res[1]!=0) res[1][1]=a41;
-  a14=(a14-a16);
-  a09=(a07*a14);
-  a25=(a25-a16);
-  a15=(a27*a25);
-  a09=(a09+a15);
-  a31=(a31-a16);
-  a15=(a33*a31);
-  a09=(a09+a15);
-  a10=(a10-a16);
-  a15=(a34*a10);
-  a09=(a09+a15);
-  a35=(a35-a16);
-  a05=(a06*a35);
-  a09=(a09+a05);
-  a37=(a37-a16);
-  a05=(a38*a37);
-  a09=(a09+a05);
-  a36=(a36-a16);
-  a05=(a01*a36);
-  a09=(a09+a05);
-  a09=(a09+a15);
-  a09=(a00*a09);
-  a15=arg[5]? arg[5][8] : 0;
-  a05=arg[5]? arg[5][2] : 0;
-  a15=(a15+a05);
-  a15=(a11*a15);
-  a09=(a09+a15);
-  if (res[1]!=0) res[1][2]=a09;
-  a13=(a13-a32);
-  a07=(a07*a13);
-  a24=(a24-a32);
-  a27=(a27*a24);
-  a07=(a07+a27);
-  a12=(a12-a32);
-  a33=(a33*a12);
-  a07=(a07+a33);
-  a30=(a30-a32);
-  a33=(a34*a30);
-  a07=(a07+a33);
-  a40=(a40-a32);
-  a06=(a06*a40);
-  a07=(a07+a06);
-  a42=(a42-a32);
-  a38=(a38*a42);
-  a07=(a07+a38);
-  a44=(a44-a32);
-  a01=(a01*a44);
-  a07=(a07+a01);
-  a17=(a17-a32);
-  a34=(a34*a17);
-  a07=(a07+a34);
-  a07=(a00*a07);
-  a34=arg[5]? arg[5][12] : 0;
-  a01=arg[5]? arg[5][3] : 0;
-  a34=(a34+a01);
-  a34=(a11*a34);
-  a07=(a07+a34);
-  if (res[1]!=0) res[1][3]=a07;
-  if (res[1]!=0) res[1][4]=a41;
-  a34=casadi_sq(a18);
-  a01=casadi_sq(a43);
-  a34=(a34+a01);
-  a01=casadi_sq(a19);
-  a34=(a34+a01);
-  a01=casadi_sq(a48);
-  a34=(a34+a01);
-  a01=casadi_sq(a20);
-  a34=(a34+a01);
-  a01=casadi_sq(a23);
-  a34=(a34+a01);
-  a01=casadi_sq(a49);
-  a34=(a34+a01);
-  a01=casadi_sq(a39);
-  a34=(a34+a01);
-  a34=(a00*a34);
-  a01=arg[5]? arg[5][5] : 0;
-  a34=(a34+a01);
-  if (res[1]!=0) res[1][5]=a34;
-  a01=(a18*a14);
-  a38=(a43*a25);
-  a01=(a01+a38);
-  a38=(a19*a31);
-  a01=(a01+a38);
-  a38=(a48*a10);
-  a01=(a01+a38);
-  a38=(a20*a35);
-  a01=(a01+a38);
-  a38=(a23*a37);
-  a01=(a01+a38);
-  a38=(a49*a36);
-  a01=(a01+a38);
-  a38=(a39*a10);
-  a01=(a01+a38);
-  a01=(a00*a01);
-  a38=arg[5]? arg[5][9] : 0;
-  a06=arg[5]? arg[5][6] : 0;
-  a38=(a38+a06);
-  a38=(a11*a38);
-  a01=(a01+a38);
-  if (res[1]!=0) res[1][6]=a01;
-  a18=(a18*a13);
-  a43=(a43*a24);
-  a18=(a18+a43);
-  a19=(a19*a12);
-  a18=(a18+a19);
-  a48=(a48*a30);
-  a18=(a18+a48);
-  a20=(a20*a40);
-  a18=(a18+a20);
-  a23=(a23*a42);
-  a18=(a18+a23);
-  a49=(a49*a44);
-  a18=(a18+a49);
-  a39=(a39*a17);
-  a18=(a18+a39);
-  a18=(a00*a18);
-  a39=arg[5]? arg[5][13] : 0;
-  a49=arg[5]? arg[5][7] : 0;
-  a39=(a39+a49);
-  a39=(a11*a39);
-  a18=(a18+a39);
+  a02=(a02*a21);
+  a02=(a02+a04);
+  a04=casadi_fmax(a22,a02);
+  a04=sqrt(a04);
+  a21=(2.*a04);
+  a21=(a12+a21);
+  if (res[0]!=0) res[0][15]=a21;
+  a21=-2.;
+  a23=(a21*a05);
+  a23=(a00+a23);
+  if (res[0]!=0) res[0][16]=a23;
+  a23=(a21*a08);
+  a23=(a06+a23);
+  if (res[0]!=0) res[0][17]=a23;
+  a23=(a21*a11);
+  a23=(a10+a23);
+  if (res[0]!=0) res[0][18]=a23;
+  a23=(a21*a13);
+  a23=(a12+a23);
+  if (res[0]!=0) res[0][19]=a23;
+  if (res[0]!=0) res[0][20]=a00;
+  a23=(a21*a15);
+  a23=(a06+a23);
+  if (res[0]!=0) res[0][21]=a23;
+  a23=(a21*a16);
+  a23=(a10+a23);
+  if (res[0]!=0) res[0][22]=a23;
+  a23=(a21*a18);
+  a23=(a12+a23);
+  if (res[0]!=0) res[0][23]=a23;
+  if (res[0]!=0) res[0][24]=a00;
+  if (res[0]!=0) res[0][25]=a06;
+  a23=(a21*a20);
+  a23=(a10+a23);
+  if (res[0]!=0) res[0][26]=a23;
+  a23=(a21*a07);
+  a23=(a12+a23);
+  if (res[0]!=0) res[0][27]=a23;
+  if (res[0]!=0) res[0][28]=a00;
+  if (res[0]!=0) res[0][29]=a06;
+  if (res[0]!=0) res[0][30]=a10;
+  a21=(a21*a04);
+  a12=(a12+a21);
+  if (res[0]!=0) res[0][31]=a12;
+  if (res[1]!=0) res[1][0]=a05;
+  if (res[1]!=0) res[1][1]=a08;
+  if (res[1]!=0) res[1][2]=a11;
+  if (res[1]!=0) res[1][3]=a13;
+  a13=0.;
+  if (res[1]!=0) res[1][4]=a13;
+  if (res[1]!=0) res[1][5]=a15;
+  if (res[1]!=0) res[1][6]=a16;
   if (res[1]!=0) res[1][7]=a18;
-  if (res[1]!=0) res[1][8]=a09;
-  if (res[1]!=0) res[1][9]=a01;
-  a39=casadi_sq(a14);
-  a49=casadi_sq(a25);
-  a39=(a39+a49);
-  a49=casadi_sq(a31);
-  a39=(a39+a49);
-  a49=casadi_sq(a10);
-  a39=(a39+a49);
-  a23=casadi_sq(a35);
-  a39=(a39+a23);
-  a23=casadi_sq(a37);
-  a39=(a39+a23);
-  a23=casadi_sq(a36);
-  a39=(a39+a23);
-  a39=(a39+a49);
-  a39=(a00*a39);
-  a49=arg[5]? arg[5][10] : 0;
-  a39=(a39+a49);
-  if (res[1]!=0) res[1][10]=a39;
-  a14=(a14*a13);
-  a25=(a25*a24);
-  a14=(a14+a25);
-  a31=(a31*a12);
-  a14=(a14+a31);
-  a31=(a10*a30);
-  a14=(a14+a31);
-  a35=(a35*a40);
-  a14=(a14+a35);
-  a37=(a37*a42);
-  a14=(a14+a37);
-  a36=(a36*a44);
-  a14=(a14+a36);
-  a10=(a10*a17);
-  a14=(a14+a10);
-  a14=(a00*a14);
-  a10=arg[5]? arg[5][14] : 0;
-  a36=arg[5]? arg[5][11] : 0;
-  a10=(a10+a36);
-  a11=(a11*a10);
-  a14=(a14+a11);
-  if (res[1]!=0) res[1][11]=a14;
-  if (res[1]!=0) res[1][12]=a07;
-  if (res[1]!=0) res[1][13]=a18;
-  if (res[1]!=0) res[1][14]=a14;
-  a13=casadi_sq(a13);
-  a24=casadi_sq(a24);
-  a13=(a13+a24);
-  a12=casadi_sq(a12);
-  a13=(a13+a12);
-  a30=casadi_sq(a30);
-  a13=(a13+a30);
-  a40=casadi_sq(a40);
-  a13=(a13+a40);
-  a42=casadi_sq(a42);
-  a13=(a13+a42);
-  a44=casadi_sq(a44);
-  a13=(a13+a44);
-  a17=casadi_sq(a17);
-  a13=(a13+a17);
-  a00=(a00*a13);
-  a13=arg[5]? arg[5][15] : 0;
-  a00=(a00+a13);
-  if (res[1]!=0) res[1][15]=a00;
-  a04=(a04<a02);
-  a21=(a21<a22);
-  a04=(a04*a21);
-  a28=(a28<a29);
-  a04=(a04*a28);
-  a03=(a03<a46);
-  a04=(a04*a03);
-  a26=(a26+a45);
-  a26=(a26+a16);
-  a26=(a26+a32);
-  a26=(a26+a08);
-  a26=(a26+a41);
-  a26=(a26+a09);
-  a26=(a26+a07);
-  a26=(a26+a41);
-  a26=(a26+a34);
-  a26=(a26+a01);
-  a26=(a26+a18);
-  a26=(a26+a09);
-  a26=(a26+a01);
-  a26=(a26+a39);
-  a26=(a26+a14);
-  a26=(a26+a07);
-  a26=(a26+a18);
-  a26=(a26+a14);
-  a26=(a26+a00);
-  a26=casadi_fabs(a26);
-  a00=casadi_inf;
-  a26=(a26<a00);
-  a04=(a04*a26);
-  if (res[2]!=0) res[2][0]=a04;
+  if (res[1]!=0) res[1][8]=a13;
+  if (res[1]!=0) res[1][9]=a13;
+  if (res[1]!=0) res[1][10]=a20;
+  if (res[1]!=0) res[1][11]=a07;
+  if (res[1]!=0) res[1][12]=a13;
+  if (res[1]!=0) res[1][13]=a13;
+  if (res[1]!=0) res[1][14]=a13;
+  if (res[1]!=0) res[1][15]=a04;
+  a03=(a03<a01);
+  a09=(a09<a14);
+  a03=(a03*a09);
+  a17=(a17<a19);
+  a03=(a03*a17);
+  a02=(a02<a22);
+  a03=(a03*a02);
+  if (res[2]!=0) res[2][0]=a03;
+  return 0;
+}
+
+/* linear_cv_step:(x[4],u[2],p[2],dt)->(x_next[4]) */
+static int casadi_f4(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a0, a1, a2, a3, a4, a5, a6, a7, a8;
+  a0=arg[0]? arg[0][0] : 0;
+  a1=1.6666666666666666e-01;
+  a2=arg[3]? arg[3][0] : 0;
+  a1=(a1*a2);
+  a3=arg[0]? arg[0][2] : 0;
+  a4=5.0000000000000000e-01;
+  a4=(a4*a2);
+  a5=arg[1]? arg[1][0] : 0;
+  a6=(a4*a5);
+  a6=(a3+a6);
+  a6=(2.*a6);
+  a7=(a3+a6);
+  a7=(a7+a6);
+  a6=(a2*a5);
+  a6=(a3+a6);
+  a7=(a7+a6);
+  a7=(a1*a7);
+  a0=(a0+a7);
+  if (res[0]!=0) res[0][0]=a0;
+  a0=arg[0]? arg[0][1] : 0;
+  a7=arg[0]? arg[0][3] : 0;
+  a6=arg[1]? arg[1][1] : 0;
+  a4=(a4*a6);
+  a4=(a7+a4);
+  a4=(2.*a4);
+  a8=(a7+a4);
+  a8=(a8+a4);
+  a2=(a2*a6);
+  a2=(a7+a2);
+  a8=(a8+a2);
+  a8=(a1*a8);
+  a0=(a0+a8);
+  if (res[0]!=0) res[0][1]=a0;
+  a0=3.;
+  a8=(a0*a5);
+  a2=(2.*a5);
+  a8=(a8+a2);
+  a8=(a8+a5);
+  a8=(a1*a8);
+  a3=(a3+a8);
+  if (res[0]!=0) res[0][2]=a3;
+  a0=(a0*a6);
+  a3=(2.*a6);
+  a0=(a0+a3);
+  a0=(a0+a6);
+  a1=(a1*a0);
+  a7=(a7+a1);
+  if (res[0]!=0) res[0][3]=a7;
+  return 0;
+}
+
+/* map8_linear_cv_step:(x[4x8],u[2x8],p[2x8],dt[1x8])->(x_next[4x8]) */
+static int casadi_f3(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_int i;
+  casadi_real* *res1;
+  const casadi_real* *arg1;
+  arg1 = arg+4;
+  for (i=0; i<4; ++i) arg1[i]=arg[i];
+  res1 = res+1;
+  for (i=0; i<1; ++i) res1[i]=res[i];
+  for (i=0; i<8; ++i) {
+    if (casadi_f4(arg1, res1, iw, w, 0)) return 1;
+    if (arg1[0]) arg1[0]+=4;
+    if (arg1[1]) arg1[1]+=2;
+    if (arg1[2]) arg1[2]+=2;
+    if (arg1[3]) arg1[3]+=1;
+    if (res1[0]) res1[0]+=4;
+  }
+  return 0;
+}
+
+/* linear_cv_step_columns:(x[4x8],u[2],p[2],dt)->(x_next[4x8]) */
+static int casadi_f2(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_int i;
+  casadi_real **res1=res+1, *w1=w+9, *w2=w+11, *w3=w+27, w4, *w5=w+43, *w6=w+51;
+  const casadi_real **arg1=arg+4, *wr0;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  casadi_copy(arg[1], 2, w1);
+  /* #2: @2 = repmat(@1, 8) */
+  for (i=0;i<8;++i) {
+    casadi_copy(w1, 2, w2+ i*2);
+  }
+  /* #3: @1 = input[2][0] */
+  casadi_copy(arg[2], 2, w1);
+  /* #4: @3 = repmat(@1, 8) */
+  for (i=0;i<8;++i) {
+    casadi_copy(w1, 2, w3+ i*2);
+  }
+  /* #5: @4 = input[3][0] */
+  w4 = arg[3] ? arg[3][0] : 0;
+  /* #6: @5 = repmat(@4, 8) */
+  for (i=0;i<8;++i) {
+    casadi_copy((&w4), 1, w5+ i*1);
+  }
+  /* #7: @6 = map8_linear_cv_step(@0, @2, @3, @5) */
+  arg1[0]=wr0;
+  arg1[1]=w2;
+  arg1[2]=w3;
+  arg1[3]=w5;
+  res1[0]=w6;
+  if (casadi_f3(arg1, res1, iw, w, 0)) return 1;
+  /* #8: output[0][0] = @6 */
+  casadi_copy(w6, 32, res[0]);
+  return 0;
+}
+
+/* linear_cv_ckf_outer:(y[4],mean[4])->(ddT[4x4]) */
+static int casadi_f7(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a0, a1, a2, a3, a4, a5, a6;
+  a0=arg[0]? arg[0][0] : 0;
+  a1=arg[1]? arg[1][0] : 0;
+  a0=(a0-a1);
+  a1=casadi_sq(a0);
+  if (res[0]!=0) res[0][0]=a1;
+  a1=arg[0]? arg[0][1] : 0;
+  a2=arg[1]? arg[1][1] : 0;
+  a1=(a1-a2);
+  a2=(a0*a1);
+  if (res[0]!=0) res[0][1]=a2;
+  a3=arg[0]? arg[0][2] : 0;
+  a4=arg[1]? arg[1][2] : 0;
+  a3=(a3-a4);
+  a4=(a0*a3);
+  if (res[0]!=0) res[0][2]=a4;
+  a5=arg[0]? arg[0][3] : 0;
+  a6=arg[1]? arg[1][3] : 0;
+  a5=(a5-a6);
+  a0=(a0*a5);
+  if (res[0]!=0) res[0][3]=a0;
+  if (res[0]!=0) res[0][4]=a2;
+  a2=casadi_sq(a1);
+  if (res[0]!=0) res[0][5]=a2;
+  a2=(a1*a3);
+  if (res[0]!=0) res[0][6]=a2;
+  a1=(a1*a5);
+  if (res[0]!=0) res[0][7]=a1;
+  if (res[0]!=0) res[0][8]=a4;
+  if (res[0]!=0) res[0][9]=a2;
+  a2=casadi_sq(a3);
+  if (res[0]!=0) res[0][10]=a2;
+  a3=(a3*a5);
+  if (res[0]!=0) res[0][11]=a3;
+  if (res[0]!=0) res[0][12]=a0;
+  if (res[0]!=0) res[0][13]=a1;
+  if (res[0]!=0) res[0][14]=a3;
+  a5=casadi_sq(a5);
+  if (res[0]!=0) res[0][15]=a5;
+  return 0;
+}
+
+/* map8_linear_cv_ckf_outer:(y[4x8],mean[4x8])->(ddT[4x32]) */
+static int casadi_f6(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_int i;
+  casadi_real* *res1;
+  const casadi_real* *arg1;
+  arg1 = arg+2;
+  for (i=0; i<2; ++i) arg1[i]=arg[i];
+  res1 = res+1;
+  for (i=0; i<1; ++i) res1[i]=res[i];
+  for (i=0; i<8; ++i) {
+    if (casadi_f7(arg1, res1, iw, w, 0)) return 1;
+    if (arg1[0]) arg1[0]+=4;
+    if (arg1[1]) arg1[1]+=4;
+    if (res1[0]) res1[0]+=16;
+  }
+  return 0;
+}
+
+/* linear_cv_ckf_outer_sum_0_8:(y[4x8],mean[4])->(ddT[4x4]) */
+static int casadi_f5(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_int i, j;
+  casadi_real **res1=res+1, *w1=w+7, *w2=w+11, *w3=w+43, *w4=w+171;
+  const casadi_real **arg1=arg+2, *wr0;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  casadi_copy(arg[1], 4, w1);
+  /* #2: @2 = repmat(@1, 8) */
+  for (i=0;i<8;++i) {
+    casadi_copy(w1, 4, w2+ i*4);
+  }
+  /* #3: @3 = map8_linear_cv_ckf_outer(@0, @2) */
+  arg1[0]=wr0;
+  arg1[1]=w2;
+  res1[0]=w3;
+  if (casadi_f6(arg1, res1, iw, w, 0)) return 1;
+  /* #4: @4 = repsum(@3, 8) */
+  casadi_clear(w4, 16);
+    for (i=0;i<8;++i) {
+        for (j=0;j<16;++j) {
+            w4[j] += w3[j+i*16];
+          }
+      }
+  /* #5: output[0][0] = @4 */
+  casadi_copy(w4, 16, res[0]);
+  return 0;
+}
+
+/* linear_cv_ckf_predicted:(x_pred[4],C[4x4],Q[4x4])->(P_pred[4x4],ok) */
+static int casadi_f8(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  a00=arg[1]? arg[1][0] : 0;
+  a01=arg[2]? arg[2][0] : 0;
+  a00=(a00+a01);
+  if (res[0]!=0) res[0][0]=a00;
+  a01=arg[1]? arg[1][4] : 0;
+  a02=5.0000000000000000e-01;
+  a03=arg[2]? arg[2][4] : 0;
+  a04=arg[2]? arg[2][1] : 0;
+  a03=(a03+a04);
+  a03=(a02*a03);
+  a01=(a01+a03);
+  if (res[0]!=0) res[0][1]=a01;
+  a03=arg[1]? arg[1][8] : 0;
+  a04=arg[2]? arg[2][8] : 0;
+  a05=arg[2]? arg[2][2] : 0;
+  a04=(a04+a05);
+  a04=(a02*a04);
+  a03=(a03+a04);
+  if (res[0]!=0) res[0][2]=a03;
+  a04=arg[1]? arg[1][12] : 0;
+  a05=arg[2]? arg[2][12] : 0;
+  a06=arg[2]? arg[2][3] : 0;
+  a05=(a05+a06);
+  a05=(a02*a05);
+  a04=(a04+a05);
+  if (res[0]!=0) res[0][3]=a04;
+  if (res[0]!=0) res[0][4]=a01;
+  a05=arg[1]? arg[1][5] : 0;
+  a06=arg[2]? arg[2][5] : 0;
+  a05=(a05+a06);
+  if (res[0]!=0) res[0][5]=a05;
+  a06=arg[1]? arg[1][9] : 0;
+  a07=arg[2]? arg[2][9] : 0;
+  a08=arg[2]? arg[2][6] : 0;
+  a07=(a07+a08);
+  a07=(a02*a07);
+  a06=(a06+a07);
+  if (res[0]!=0) res[0][6]=a06;
+  a07=arg[1]? arg[1][13] : 0;
+  a08=arg[2]? arg[2][13] : 0;
+  a09=arg[2]? arg[2][7] : 0;
+  a08=(a08+a09);
+  a08=(a02*a08);
+  a07=(a07+a08);
+  if (res[0]!=0) res[0][7]=a07;
+  if (res[0]!=0) res[0][8]=a03;
+  if (res[0]!=0) res[0][9]=a06;
+  a08=arg[1]? arg[1][10] : 0;
+  a09=arg[2]? arg[2][10] : 0;
+  a08=(a08+a09);
+  if (res[0]!=0) res[0][10]=a08;
+  a09=arg[1]? arg[1][14] : 0;
+  a10=arg[2]? arg[2][14] : 0;
+  a11=arg[2]? arg[2][11] : 0;
+  a10=(a10+a11);
+  a02=(a02*a10);
+  a09=(a09+a02);
+  if (res[0]!=0) res[0][11]=a09;
+  if (res[0]!=0) res[0][12]=a04;
+  if (res[0]!=0) res[0][13]=a07;
+  if (res[0]!=0) res[0][14]=a09;
+  a02=arg[1]? arg[1][15] : 0;
+  a10=arg[2]? arg[2][15] : 0;
+  a02=(a02+a10);
+  if (res[0]!=0) res[0][15]=a02;
+  a10=arg[0]? arg[0][0] : 0;
+  a11=arg[0]? arg[0][1] : 0;
+  a10=(a10+a11);
+  a11=arg[0]? arg[0][2] : 0;
+  a10=(a10+a11);
+  a11=arg[0]? arg[0][3] : 0;
+  a10=(a10+a11);
+  a10=(a10+a00);
+  a10=(a10+a01);
+  a10=(a10+a03);
+  a10=(a10+a04);
+  a10=(a10+a05);
+  a10=(a10+a06);
+  a10=(a10+a07);
+  a10=(a10+a08);
+  a10=(a10+a09);
+  a10=(a10+a02);
+  a10=casadi_fabs(a10);
+  a02=casadi_inf;
+  a10=(a10<a02);
+  if (res[1]!=0) res[1][0]=a10;
+  return 0;
+}
+
+/* linear_cv_ckf_predict:(x[4],P[4x4],u[2],p[2],dt,Q[4x4])->(x_pred[4],P_pred[4x4],ok) */
+static int casadi_f0(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_int i;
+  casadi_real **res1=res+3, *rr, w00, *w01=w+219, *w02=w+223, *w03=w+227, *w04=w+243, w05, *w06=w+275, *w07=w+277, w08, *w09=w+279;
+  casadi_real *w10=w+311, *w12=w+319;
+  const casadi_real **arg1=arg+6, *cs, *wr03, *wr11;
+  /* #0: @0 = 0.125 */
+  w00 = 1.2500000000000000e-01;
+  /* #1: @1 = zeros(4x1) */
+  casadi_clear(w01, 4);
+  /* #2: @2 = input[0][0] */
+  casadi_copy(arg[0], 4, w02);
+  /* #3: @3 = input[1][0] */
+  wr03 = arg[1] ? arg[1] : casadi_zeros;
+  /* #4: {@4, NULL, @5} = linear_cv_ckf_points(@2, @3) */
+  arg1[0]=w02;
+  arg1[1]=wr03;
+  res1[0]=w04;
+  res1[1]=0;
+  res1[2]=(&w05);
+  if (casadi_f1(arg1, res1, iw, w, 0)) return 1;
+  /* #5: @6 = input[2][0] */
+  casadi_copy(arg[2], 2, w06);
+  /* #6: @7 = input[3][0] */
+  casadi_copy(arg[3], 2, w07);
+  /* #7: @8 = input[4][0] */
+  w08 = arg[4] ? arg[4][0] : 0;
+  /* #8: @9 = linear_cv_step_columns(@4, @6, @7, @8) */
+  arg1[0]=w04;
+  arg1[1]=w06;
+  arg1[2]=w07;
+  arg1[3]=(&w08);
+  res1[0]=w09;
+  if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
+  /* #9: @10 = ones(8x1) */
+  casadi_fill(w10, 8, 1.);
+  /* #10: @1 = mac(@9,@10,@1) */
+  casadi_mtimes_dense(w09, 4, 8, w10, 1, w01, 0);
+  /* #11: @1 = (@0*@1) */
+  for (i=0, rr=w01, cs=w01; i<4; ++i) (*rr++)  = (w00*(*cs++));
+  /* #12: output[0][0] = @1 */
+  casadi_copy(w01, 4, res[0]);
+  /* #13: @3 = linear_cv_ckf_outer_sum_0_8(@9, @1) */
+  arg1[0]=w09;
+  arg1[1]=w01;
+  res1[0]=w03;
+  if (casadi_f5(arg1, res1, iw, w, 0)) return 1;
+  /* #14: @3 = (@0*@3) */
+  for (i=0, rr=w03, cs=w03; i<16; ++i) (*rr++)  = (w00*(*cs++));
+  /* #15: @11 = input[5][0] */
+  wr11 = arg[5] ? arg[5] : casadi_zeros;
+  /* #16: {@12, @0} = linear_cv_ckf_predicted(@1, @3, @11) */
+  arg1[0]=w01;
+  arg1[1]=w03;
+  arg1[2]=wr11;
+  res1[0]=w12;
+  res1[1]=(&w00);
+  if (casadi_f8(arg1, res1, iw, w, 0)) return 1;
+  /* #17: output[1][0] = @12 */
+  casadi_copy(w12, 16, res[1]);
+  /* #18: @5 = (@5*@0) */
+  w05 *= w00;
+  /* #19: output[2][0] = @5 */
+  if (res[2]) res[2][0] = w05;
   return 0;
 }
 
@@ -764,515 +787,616 @@ CASADI_SYMBOL_EXPORT const casadi_int* linear_cv_ckf_predict_sparsity_out(casadi
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_ckf_predict_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 6;
-  if (sz_res) *sz_res = 3;
+  if (sz_arg) *sz_arg = 18;
+  if (sz_res) *sz_res = 6;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 0;
+  if (sz_w) *sz_w = 335;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_ckf_predict_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 6*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 3*sizeof(casadi_real*);
+  if (sz_arg) *sz_arg = 18*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 6*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  if (sz_w) *sz_w = 335*sizeof(casadi_real);
+  return 0;
+}
+
+/* linear_cv_measurement:(x[4],p[2])->(y[2]) */
+static int casadi_f12(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a0, a1;
+  a0=arg[0]? arg[0][0] : 0;
+  a1=arg[1]? arg[1][0] : 0;
+  a0=(a0-a1);
+  if (res[0]!=0) res[0][0]=a0;
+  a0=arg[0]? arg[0][1] : 0;
+  a1=arg[1]? arg[1][1] : 0;
+  a0=(a0-a1);
+  if (res[0]!=0) res[0][1]=a0;
+  return 0;
+}
+
+/* map8_linear_cv_measurement:(x[4x8],p[2x8])->(y[2x8]) */
+static int casadi_f11(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_int i;
+  casadi_real* *res1;
+  const casadi_real* *arg1;
+  arg1 = arg+2;
+  for (i=0; i<2; ++i) arg1[i]=arg[i];
+  res1 = res+1;
+  for (i=0; i<1; ++i) res1[i]=res[i];
+  for (i=0; i<8; ++i) {
+    if (casadi_f12(arg1, res1, iw, w, 0)) return 1;
+    if (arg1[0]) arg1[0]+=4;
+    if (arg1[1]) arg1[1]+=2;
+    if (res1[0]) res1[0]+=2;
+  }
+  return 0;
+}
+
+/* linear_cv_measurement_columns:(x[4x8],p[2])->(y[2x8]) */
+static int casadi_f10(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_int i;
+  casadi_real **res1=res+1, *w1=w+2, *w2=w+4, *w3=w+20;
+  const casadi_real **arg1=arg+2, *wr0;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  casadi_copy(arg[1], 2, w1);
+  /* #2: @2 = repmat(@1, 8) */
+  for (i=0;i<8;++i) {
+    casadi_copy(w1, 2, w2+ i*2);
+  }
+  /* #3: @3 = map8_linear_cv_measurement(@0, @2) */
+  arg1[0]=wr0;
+  arg1[1]=w2;
+  res1[0]=w3;
+  if (casadi_f11(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 16, res[0]);
+  return 0;
+}
+
+/* linear_cv_ckf_moments:(L[4x4],Z[2x8],z[2],mask[2])->(innovation[2],Pzz[2x2],Pxz[4x2]) */
+static int casadi_f13(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
+  casadi_real a24;
+  a00=arg[3]? arg[3][0] : 0;
+  a01=0.;
+  a00=(a00!=a01);
+  a02=arg[2]? arg[2][0] : 0;
+  a03=1.2500000000000000e-01;
+  a04=arg[1]? arg[1][0] : 0;
+  a05=arg[1]? arg[1][2] : 0;
+  a06=(a04+a05);
+  a07=arg[1]? arg[1][4] : 0;
+  a06=(a06+a07);
+  a08=arg[1]? arg[1][6] : 0;
+  a06=(a06+a08);
+  a09=arg[1]? arg[1][8] : 0;
+  a06=(a06+a09);
+  a10=arg[1]? arg[1][10] : 0;
+  a06=(a06+a10);
+  a11=arg[1]? arg[1][12] : 0;
+  a06=(a06+a11);
+  a12=arg[1]? arg[1][14] : 0;
+  a06=(a06+a12);
+  a06=(a03*a06);
+  a02=(a02-a06);
+  a02=(a00?a02:0);
+  if (res[0]!=0) res[0][0]=a02;
+  a02=arg[3]? arg[3][1] : 0;
+  a02=(a02!=a01);
+  a01=arg[2]? arg[2][1] : 0;
+  a13=arg[1]? arg[1][1] : 0;
+  a14=arg[1]? arg[1][3] : 0;
+  a15=(a13+a14);
+  a16=arg[1]? arg[1][5] : 0;
+  a15=(a15+a16);
+  a17=arg[1]? arg[1][7] : 0;
+  a15=(a15+a17);
+  a18=arg[1]? arg[1][9] : 0;
+  a15=(a15+a18);
+  a19=arg[1]? arg[1][11] : 0;
+  a15=(a15+a19);
+  a20=arg[1]? arg[1][13] : 0;
+  a15=(a15+a20);
+  a21=arg[1]? arg[1][15] : 0;
+  a15=(a15+a21);
+  a15=(a03*a15);
+  a01=(a01-a15);
+  a01=(a02?a01:0);
+  if (res[0]!=0) res[0][1]=a01;
+  a01=casadi_sq(a00);
+  a04=(a04-a06);
+  a22=casadi_sq(a04);
+  a05=(a05-a06);
+  a23=casadi_sq(a05);
+  a22=(a22+a23);
+  a07=(a07-a06);
+  a23=casadi_sq(a07);
+  a22=(a22+a23);
+  a08=(a08-a06);
+  a23=casadi_sq(a08);
+  a22=(a22+a23);
+  a09=(a09-a06);
+  a23=casadi_sq(a09);
+  a22=(a22+a23);
+  a10=(a10-a06);
+  a23=casadi_sq(a10);
+  a22=(a22+a23);
+  a11=(a11-a06);
+  a23=casadi_sq(a11);
+  a22=(a22+a23);
+  a12=(a12-a06);
+  a06=casadi_sq(a12);
+  a22=(a22+a06);
+  a22=(a03*a22);
+  a01=(a01*a22);
+  if (res[1]!=0) res[1][0]=a01;
+  a01=(a00*a02);
+  a13=(a13-a15);
+  a22=(a04*a13);
+  a14=(a14-a15);
+  a06=(a05*a14);
+  a22=(a22+a06);
+  a16=(a16-a15);
+  a06=(a07*a16);
+  a22=(a22+a06);
+  a17=(a17-a15);
+  a06=(a08*a17);
+  a22=(a22+a06);
+  a18=(a18-a15);
+  a06=(a09*a18);
+  a22=(a22+a06);
+  a19=(a19-a15);
+  a06=(a10*a19);
+  a22=(a22+a06);
+  a20=(a20-a15);
+  a06=(a11*a20);
+  a22=(a22+a06);
+  a21=(a21-a15);
+  a15=(a12*a21);
+  a22=(a22+a15);
+  a22=(a03*a22);
+  a01=(a01*a22);
+  if (res[1]!=0) res[1][1]=a01;
+  if (res[1]!=0) res[1][2]=a01;
+  a01=casadi_sq(a02);
+  a22=casadi_sq(a13);
+  a15=casadi_sq(a14);
+  a22=(a22+a15);
+  a15=casadi_sq(a16);
+  a22=(a22+a15);
+  a15=casadi_sq(a17);
+  a22=(a22+a15);
+  a15=casadi_sq(a18);
+  a22=(a22+a15);
+  a15=casadi_sq(a19);
+  a22=(a22+a15);
+  a15=casadi_sq(a20);
+  a22=(a22+a15);
+  a15=casadi_sq(a21);
+  a22=(a22+a15);
+  a03=(a03*a22);
+  a01=(a01*a03);
+  if (res[1]!=0) res[1][3]=a01;
+  a01=arg[0]? arg[0][0] : 0;
+  a03=2.5000000000000000e-01;
+  a04=(a03*a04);
+  a22=-2.5000000000000000e-01;
+  a09=(a22*a09);
+  a04=(a04+a09);
+  a09=(a01*a04);
+  a09=(a00*a09);
+  if (res[2]!=0) res[2][0]=a09;
+  a09=arg[0]? arg[0][1] : 0;
+  a15=(a09*a04);
+  a06=arg[0]? arg[0][5] : 0;
+  a05=(a03*a05);
+  a10=(a22*a10);
+  a05=(a05+a10);
+  a10=(a06*a05);
+  a15=(a15+a10);
+  a15=(a00*a15);
+  if (res[2]!=0) res[2][1]=a15;
+  a15=arg[0]? arg[0][2] : 0;
+  a10=(a15*a04);
+  a23=arg[0]? arg[0][6] : 0;
+  a24=(a23*a05);
+  a10=(a10+a24);
+  a24=arg[0]? arg[0][10] : 0;
+  a07=(a03*a07);
+  a11=(a22*a11);
+  a07=(a07+a11);
+  a11=(a24*a07);
+  a10=(a10+a11);
+  a10=(a00*a10);
+  if (res[2]!=0) res[2][2]=a10;
+  a10=arg[0]? arg[0][3] : 0;
+  a04=(a10*a04);
+  a11=arg[0]? arg[0][7] : 0;
+  a05=(a11*a05);
+  a04=(a04+a05);
+  a05=arg[0]? arg[0][11] : 0;
+  a07=(a05*a07);
+  a04=(a04+a07);
+  a07=arg[0]? arg[0][15] : 0;
+  a08=(a03*a08);
+  a12=(a22*a12);
+  a08=(a08+a12);
+  a08=(a07*a08);
+  a04=(a04+a08);
+  a00=(a00*a04);
+  if (res[2]!=0) res[2][3]=a00;
+  a13=(a03*a13);
+  a18=(a22*a18);
+  a13=(a13+a18);
+  a01=(a01*a13);
+  a01=(a02*a01);
+  if (res[2]!=0) res[2][4]=a01;
+  a09=(a09*a13);
+  a14=(a03*a14);
+  a19=(a22*a19);
+  a14=(a14+a19);
+  a06=(a06*a14);
+  a09=(a09+a06);
+  a09=(a02*a09);
+  if (res[2]!=0) res[2][5]=a09;
+  a15=(a15*a13);
+  a23=(a23*a14);
+  a15=(a15+a23);
+  a16=(a03*a16);
+  a20=(a22*a20);
+  a16=(a16+a20);
+  a24=(a24*a16);
+  a15=(a15+a24);
+  a15=(a02*a15);
+  if (res[2]!=0) res[2][6]=a15;
+  a10=(a10*a13);
+  a11=(a11*a14);
+  a10=(a10+a11);
+  a05=(a05*a16);
+  a10=(a10+a05);
+  a03=(a03*a17);
+  a22=(a22*a21);
+  a03=(a03+a22);
+  a07=(a07*a03);
+  a10=(a10+a07);
+  a02=(a02*a10);
+  if (res[2]!=0) res[2][7]=a02;
+  return 0;
+}
+
+/* linear_cv_ckf_noise:(R[2x2],mask[2],Pzz[2x2],innovation[2])->(R_used[2x2],ok) */
+static int casadi_f14(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a0, a1, a2, a3, a4, a5;
+  a0=arg[1]? arg[1][0] : 0;
+  a1=0.;
+  a0=(a0!=a1);
+  a2=casadi_sq(a0);
+  a3=arg[0]? arg[0][0] : 0;
+  a2=(a2*a3);
+  a3=1.;
+  a4=(a3-a0);
+  a2=(a2+a4);
+  if (res[0]!=0) res[0][0]=a2;
+  a2=arg[1]? arg[1][1] : 0;
+  a2=(a2!=a1);
+  a0=(a0*a2);
+  a1=5.0000000000000000e-01;
+  a4=arg[0]? arg[0][2] : 0;
+  a5=arg[0]? arg[0][1] : 0;
+  a4=(a4+a5);
+  a1=(a1*a4);
+  a0=(a0*a1);
+  if (res[0]!=0) res[0][1]=a0;
+  if (res[0]!=0) res[0][2]=a0;
+  a0=casadi_sq(a2);
+  a1=arg[0]? arg[0][3] : 0;
+  a0=(a0*a1);
+  a2=(a3-a2);
+  a0=(a0+a2);
+  if (res[0]!=0) res[0][3]=a0;
+  if (res[1]!=0) res[1][0]=a3;
+  return 0;
+}
+
+/* linear_cv_ckf_kalman:(x[4],P[4x4],Pzz[2x2],Pxz[4x2],R_used[2x2],innovation[2])->(x_post[4],P_post[4x4],S[2x2],ok) */
+static int casadi_f15(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
+  casadi_real a24, a25, a26;
+  a00=arg[0]? arg[0][0] : 0;
+  a01=arg[3]? arg[3][0] : 0;
+  a02=arg[2]? arg[2][0] : 0;
+  a03=arg[4]? arg[4][0] : 0;
+  a02=(a02+a03);
+  a03=1.0000000000000000e-13;
+  a04=casadi_fabs(a02);
+  a04=(a03*a04);
+  a05=1.0000000000000000e-300;
+  a04=(a04+a05);
+  a06=casadi_fmax(a02,a04);
+  a06=sqrt(a06);
+  a07=(1./a06);
+  a07=copysign(a07,a06);
+  a01=(a01*a07);
+  a06=arg[2]? arg[2][2] : 0;
+  a08=arg[4]? arg[4][2] : 0;
+  a06=(a06+a08);
+  a08=(a06*a07);
+  a09=arg[3]? arg[3][4] : 0;
+  a10=(a08*a01);
+  a09=(a09-a10);
+  a10=arg[2]? arg[2][3] : 0;
+  a11=arg[4]? arg[4][3] : 0;
+  a10=(a10+a11);
+  a11=casadi_sq(a08);
+  a11=(a10-a11);
+  a12=casadi_fabs(a10);
+  a03=(a03*a12);
+  a03=(a03+a05);
+  a05=casadi_fmax(a11,a03);
+  a05=sqrt(a05);
+  a12=(1./a05);
+  a12=copysign(a12,a05);
+  a09=(a09*a12);
+  a05=(a09*a12);
+  a13=(a08*a05);
+  a13=(a01-a13);
+  a13=(a13*a07);
+  a14=arg[5]? arg[5][0] : 0;
+  a13=(a13*a14);
+  a15=arg[5]? arg[5][1] : 0;
+  a05=(a05*a15);
+  a13=(a13+a05);
+  a00=(a00+a13);
+  if (res[0]!=0) res[0][0]=a00;
+  a13=arg[0]? arg[0][1] : 0;
+  a05=arg[3]? arg[3][1] : 0;
+  a05=(a05*a07);
+  a16=arg[3]? arg[3][5] : 0;
+  a17=(a08*a05);
+  a16=(a16-a17);
+  a16=(a16*a12);
+  a17=(a16*a12);
+  a18=(a08*a17);
+  a18=(a05-a18);
+  a18=(a18*a07);
+  a18=(a18*a14);
+  a17=(a17*a15);
+  a18=(a18+a17);
+  a13=(a13+a18);
+  if (res[0]!=0) res[0][1]=a13;
+  a18=arg[0]? arg[0][2] : 0;
+  a17=arg[3]? arg[3][2] : 0;
+  a17=(a17*a07);
+  a19=arg[3]? arg[3][6] : 0;
+  a20=(a08*a17);
+  a19=(a19-a20);
+  a19=(a19*a12);
+  a20=(a19*a12);
+  a21=(a08*a20);
+  a21=(a17-a21);
+  a21=(a21*a07);
+  a21=(a21*a14);
+  a20=(a20*a15);
+  a21=(a21+a20);
+  a18=(a18+a21);
+  if (res[0]!=0) res[0][2]=a18;
+  a21=arg[0]? arg[0][3] : 0;
+  a20=arg[3]? arg[3][3] : 0;
+  a20=(a20*a07);
+  a22=arg[3]? arg[3][7] : 0;
+  a23=(a08*a20);
+  a22=(a22-a23);
+  a22=(a22*a12);
+  a12=(a22*a12);
+  a08=(a08*a12);
+  a08=(a20-a08);
+  a08=(a08*a07);
+  a08=(a08*a14);
+  a12=(a12*a15);
+  a08=(a08+a12);
+  a21=(a21+a08);
+  if (res[0]!=0) res[0][3]=a21;
+  a08=arg[1]? arg[1][0] : 0;
+  a12=casadi_sq(a01);
+  a07=casadi_sq(a09);
+  a12=(a12+a07);
+  a08=(a08-a12);
+  if (res[1]!=0) res[1][0]=a08;
+  a12=5.0000000000000000e-01;
+  a07=arg[1]? arg[1][4] : 0;
+  a23=arg[1]? arg[1][1] : 0;
+  a07=(a07+a23);
+  a07=(a12*a07);
+  a23=(a01*a05);
+  a24=(a09*a16);
+  a23=(a23+a24);
+  a07=(a07-a23);
+  if (res[1]!=0) res[1][1]=a07;
+  a23=arg[1]? arg[1][8] : 0;
+  a24=arg[1]? arg[1][2] : 0;
+  a23=(a23+a24);
+  a23=(a12*a23);
+  a24=(a01*a17);
+  a25=(a09*a19);
+  a24=(a24+a25);
+  a23=(a23-a24);
+  if (res[1]!=0) res[1][2]=a23;
+  a24=arg[1]? arg[1][12] : 0;
+  a25=arg[1]? arg[1][3] : 0;
+  a24=(a24+a25);
+  a24=(a12*a24);
+  a01=(a01*a20);
+  a09=(a09*a22);
+  a01=(a01+a09);
+  a24=(a24-a01);
+  if (res[1]!=0) res[1][3]=a24;
+  if (res[1]!=0) res[1][4]=a07;
+  a01=arg[1]? arg[1][5] : 0;
+  a09=casadi_sq(a05);
+  a25=casadi_sq(a16);
+  a09=(a09+a25);
+  a01=(a01-a09);
+  if (res[1]!=0) res[1][5]=a01;
+  a09=arg[1]? arg[1][9] : 0;
+  a25=arg[1]? arg[1][6] : 0;
+  a09=(a09+a25);
+  a09=(a12*a09);
+  a25=(a05*a17);
+  a26=(a16*a19);
+  a25=(a25+a26);
+  a09=(a09-a25);
+  if (res[1]!=0) res[1][6]=a09;
+  a25=arg[1]? arg[1][13] : 0;
+  a26=arg[1]? arg[1][7] : 0;
+  a25=(a25+a26);
+  a25=(a12*a25);
+  a05=(a05*a20);
+  a16=(a16*a22);
+  a05=(a05+a16);
+  a25=(a25-a05);
+  if (res[1]!=0) res[1][7]=a25;
+  if (res[1]!=0) res[1][8]=a23;
+  if (res[1]!=0) res[1][9]=a09;
+  a05=arg[1]? arg[1][10] : 0;
+  a16=casadi_sq(a17);
+  a26=casadi_sq(a19);
+  a16=(a16+a26);
+  a05=(a05-a16);
+  if (res[1]!=0) res[1][10]=a05;
+  a16=arg[1]? arg[1][14] : 0;
+  a26=arg[1]? arg[1][11] : 0;
+  a16=(a16+a26);
+  a12=(a12*a16);
+  a17=(a17*a20);
+  a19=(a19*a22);
+  a17=(a17+a19);
+  a12=(a12-a17);
+  if (res[1]!=0) res[1][11]=a12;
+  if (res[1]!=0) res[1][12]=a24;
+  if (res[1]!=0) res[1][13]=a25;
+  if (res[1]!=0) res[1][14]=a12;
+  a17=arg[1]? arg[1][15] : 0;
+  a20=casadi_sq(a20);
+  a22=casadi_sq(a22);
+  a20=(a20+a22);
+  a17=(a17-a20);
+  if (res[1]!=0) res[1][15]=a17;
+  if (res[2]!=0) res[2][0]=a02;
+  if (res[2]!=0) res[2][1]=a06;
+  if (res[2]!=0) res[2][2]=a06;
+  if (res[2]!=0) res[2][3]=a10;
+  a04=(a04<a02);
+  a03=(a03<a11);
+  a04=(a04*a03);
+  a00=(a00+a13);
+  a00=(a00+a18);
+  a00=(a00+a21);
+  a00=(a00+a08);
+  a00=(a00+a07);
+  a00=(a00+a23);
+  a00=(a00+a24);
+  a00=(a00+a01);
+  a00=(a00+a09);
+  a00=(a00+a25);
+  a00=(a00+a05);
+  a00=(a00+a12);
+  a00=(a00+a17);
+  a00=(a00+a14);
+  a00=(a00+a15);
+  a00=(a00+a02);
+  a00=(a00+a06);
+  a00=(a00+a10);
+  a00=casadi_fabs(a00);
+  a10=casadi_inf;
+  a00=(a00<a10);
+  a04=(a04*a00);
+  if (res[3]!=0) res[3][0]=a04;
   return 0;
 }
 
 /* linear_cv_ckf_update:(x[4],P[4x4],z[2],p[2],R[2x2],mask[2])->(x_post[4],P_post[4x4],innovation[2],S[2x2],ok) */
-static int casadi_f1(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
-  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
-  casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
-  casadi_real a36, a37, a38, a39, a40, a41, a42, a43, a44, a45, a46, a47;
-  casadi_real a48, a49, a50, a51, a52, a53, a54, a55, a56, a57, a58;
-  a00=arg[0]? arg[0][0] : 0;
-  a01=arg[5]? arg[5][0] : 0;
-  a02=0.;
-  a01=(a01!=a02);
-  a03=1.2500000000000000e-01;
-  a04=arg[1]? arg[1][0] : 0;
-  a05=1.0000000000000000e-13;
-  a06=casadi_fabs(a04);
-  a06=(a05*a06);
-  a07=1.0000000000000000e-300;
-  a06=(a06+a07);
-  a08=casadi_fmax(a04,a06);
-  a08=sqrt(a08);
-  a09=(2.*a08);
-  a10=(a00+a09);
-  a11=arg[3]? arg[3][0] : 0;
-  a10=(a10-a11);
-  a12=(a00-a11);
-  a13=(a10+a12);
-  a13=(a13+a12);
-  a13=(a13+a12);
-  a14=-2.;
-  a15=(a14*a08);
-  a16=(a00+a15);
-  a16=(a16-a11);
-  a13=(a13+a16);
-  a13=(a13+a12);
-  a13=(a13+a12);
-  a13=(a13+a12);
-  a13=(a03*a13);
-  a10=(a10-a13);
-  a11=(a09*a10);
-  a16=(a16-a13);
-  a17=(a15*a16);
-  a11=(a11+a17);
-  a11=(a03*a11);
-  a11=(a01*a11);
-  a17=casadi_sq(a01);
-  a18=casadi_sq(a10);
-  a12=(a12-a13);
-  a19=casadi_sq(a12);
-  a18=(a18+a19);
-  a18=(a18+a19);
-  a18=(a18+a19);
-  a20=casadi_sq(a16);
-  a18=(a18+a20);
-  a18=(a18+a19);
-  a18=(a18+a19);
-  a18=(a18+a19);
-  a18=(a03*a18);
-  a18=(a17*a18);
-  a19=arg[4]? arg[4][0] : 0;
-  a17=(a17*a19);
-  a19=1.;
-  a20=(a19-a01);
-  a17=(a17+a20);
-  a18=(a18+a17);
-  a17=casadi_fabs(a18);
-  a17=(a05*a17);
-  a17=(a17+a07);
-  a20=casadi_fmax(a18,a17);
-  a20=sqrt(a20);
-  a21=(1./a20);
-  a21=copysign(a21,a20);
-  a11=(a11*a21);
-  a20=arg[5]? arg[5][1] : 0;
-  a20=(a20!=a02);
-  a02=(a01*a20);
-  a22=arg[0]? arg[0][1] : 0;
-  a23=5.0000000000000000e-01;
-  a24=arg[1]? arg[1][4] : 0;
-  a25=arg[1]? arg[1][1] : 0;
-  a24=(a24+a25);
-  a24=(a23*a24);
-  a25=(1./a08);
-  a25=copysign(a25,a08);
-  a08=(a24*a25);
-  a26=(2.*a08);
-  a27=(a22+a26);
-  a28=arg[3]? arg[3][1] : 0;
-  a27=(a27-a28);
-  a29=arg[1]? arg[1][5] : 0;
-  a30=casadi_sq(a08);
-  a30=(a29-a30);
-  a31=casadi_fabs(a29);
-  a31=(a05*a31);
-  a31=(a31+a07);
-  a32=casadi_fmax(a30,a31);
-  a32=sqrt(a32);
-  a33=(2.*a32);
-  a34=(a22+a33);
-  a34=(a34-a28);
-  a35=(a27+a34);
-  a36=(a22-a28);
-  a35=(a35+a36);
-  a35=(a35+a36);
-  a37=(a14*a08);
-  a38=(a22+a37);
-  a38=(a38-a28);
-  a35=(a35+a38);
-  a39=(a14*a32);
-  a40=(a22+a39);
-  a40=(a40-a28);
-  a35=(a35+a40);
-  a35=(a35+a36);
-  a35=(a35+a36);
-  a35=(a03*a35);
-  a27=(a27-a35);
-  a28=(a10*a27);
-  a34=(a34-a35);
-  a41=(a12*a34);
-  a28=(a28+a41);
-  a36=(a36-a35);
-  a41=(a12*a36);
-  a28=(a28+a41);
-  a28=(a28+a41);
-  a38=(a38-a35);
-  a42=(a16*a38);
-  a28=(a28+a42);
-  a40=(a40-a35);
-  a42=(a12*a40);
-  a28=(a28+a42);
-  a28=(a28+a41);
-  a28=(a28+a41);
-  a28=(a03*a28);
-  a28=(a02*a28);
-  a41=arg[4]? arg[4][2] : 0;
-  a42=arg[4]? arg[4][1] : 0;
-  a41=(a41+a42);
-  a41=(a23*a41);
-  a02=(a02*a41);
-  a28=(a28+a02);
-  a02=(a28*a21);
-  a09=(a09*a27);
-  a15=(a15*a38);
-  a09=(a09+a15);
-  a09=(a03*a09);
-  a09=(a20*a09);
-  a15=(a02*a11);
-  a09=(a09-a15);
-  a15=casadi_sq(a20);
-  a41=casadi_sq(a27);
-  a42=casadi_sq(a34);
-  a41=(a41+a42);
-  a42=casadi_sq(a36);
-  a41=(a41+a42);
-  a41=(a41+a42);
-  a43=casadi_sq(a38);
-  a41=(a41+a43);
-  a43=casadi_sq(a40);
-  a41=(a41+a43);
-  a41=(a41+a42);
-  a41=(a41+a42);
-  a41=(a03*a41);
-  a41=(a15*a41);
-  a42=arg[4]? arg[4][3] : 0;
-  a15=(a15*a42);
-  a19=(a19-a20);
-  a15=(a15+a19);
-  a41=(a41+a15);
-  a15=casadi_sq(a02);
-  a15=(a41-a15);
-  a19=casadi_fabs(a41);
-  a19=(a05*a19);
-  a19=(a19+a07);
-  a42=casadi_fmax(a15,a19);
-  a42=sqrt(a42);
-  a43=(1./a42);
-  a43=copysign(a43,a42);
-  a09=(a09*a43);
-  a42=(a09*a43);
-  a44=(a02*a42);
-  a44=(a11-a44);
-  a44=(a44*a21);
-  a45=arg[2]? arg[2][0] : 0;
-  a45=(a45-a13);
-  a44=(a44*a45);
-  a44=(a01?a44:0);
-  a13=arg[2]? arg[2][1] : 0;
-  a13=(a13-a35);
-  a42=(a42*a13);
-  a42=(a20?a42:0);
-  a44=(a44+a42);
-  a00=(a00+a44);
-  if (res[0]!=0) res[0][0]=a00;
-  a44=(a26*a10);
-  a42=(a33*a12);
-  a44=(a44+a42);
-  a42=(a37*a16);
-  a44=(a44+a42);
-  a42=(a39*a12);
-  a44=(a44+a42);
-  a44=(a03*a44);
-  a44=(a01*a44);
-  a44=(a44*a21);
-  a26=(a26*a27);
-  a33=(a33*a34);
-  a26=(a26+a33);
-  a37=(a37*a38);
-  a26=(a26+a37);
-  a39=(a39*a40);
-  a26=(a26+a39);
-  a26=(a03*a26);
-  a26=(a20*a26);
-  a39=(a02*a44);
-  a26=(a26-a39);
-  a26=(a26*a43);
-  a39=(a26*a43);
-  a37=(a02*a39);
-  a37=(a44-a37);
-  a37=(a37*a21);
-  a37=(a37*a45);
-  a37=(a01?a37:0);
-  a39=(a39*a13);
-  a39=(a20?a39:0);
-  a37=(a37+a39);
-  a22=(a22+a37);
-  if (res[0]!=0) res[0][1]=a22;
-  a37=arg[0]? arg[0][2] : 0;
-  a39=arg[1]? arg[1][8] : 0;
-  a33=arg[1]? arg[1][2] : 0;
-  a39=(a39+a33);
-  a39=(a23*a39);
-  a33=(a39*a25);
-  a42=(2.*a33);
-  a35=(a42*a10);
-  a46=arg[1]? arg[1][9] : 0;
-  a47=arg[1]? arg[1][6] : 0;
-  a46=(a46+a47);
-  a46=(a23*a46);
-  a47=(a33*a08);
-  a47=(a46-a47);
-  a48=(1./a32);
-  a48=copysign(a48,a32);
-  a47=(a47*a48);
-  a32=(2.*a47);
-  a49=(a32*a12);
-  a35=(a35+a49);
-  a49=arg[1]? arg[1][10] : 0;
-  a50=casadi_sq(a33);
-  a51=casadi_sq(a47);
-  a50=(a50+a51);
-  a50=(a49-a50);
-  a51=casadi_fabs(a49);
-  a51=(a05*a51);
-  a51=(a51+a07);
-  a52=casadi_fmax(a50,a51);
-  a52=sqrt(a52);
-  a53=(2.*a52);
-  a54=(a53*a12);
-  a35=(a35+a54);
-  a54=(a14*a33);
-  a55=(a54*a16);
-  a35=(a35+a55);
-  a55=(a14*a47);
-  a56=(a55*a12);
-  a35=(a35+a56);
-  a56=(a14*a52);
-  a57=(a56*a12);
-  a35=(a35+a57);
-  a35=(a03*a35);
-  a35=(a01*a35);
-  a35=(a35*a21);
-  a42=(a42*a27);
-  a32=(a32*a34);
-  a42=(a42+a32);
-  a53=(a53*a36);
-  a42=(a42+a53);
-  a54=(a54*a38);
-  a42=(a42+a54);
-  a55=(a55*a40);
-  a42=(a42+a55);
-  a56=(a56*a36);
-  a42=(a42+a56);
-  a42=(a03*a42);
-  a42=(a20*a42);
-  a56=(a02*a35);
-  a42=(a42-a56);
-  a42=(a42*a43);
-  a56=(a42*a43);
-  a55=(a02*a56);
-  a55=(a35-a55);
-  a55=(a55*a21);
-  a55=(a55*a45);
-  a55=(a01?a55:0);
-  a56=(a56*a13);
-  a56=(a20?a56:0);
-  a55=(a55+a56);
-  a37=(a37+a55);
-  if (res[0]!=0) res[0][2]=a37;
-  a55=arg[0]? arg[0][3] : 0;
-  a56=arg[1]? arg[1][12] : 0;
-  a54=arg[1]? arg[1][3] : 0;
-  a56=(a56+a54);
-  a56=(a23*a56);
-  a25=(a56*a25);
-  a54=(2.*a25);
-  a10=(a54*a10);
-  a53=arg[1]? arg[1][13] : 0;
-  a32=arg[1]? arg[1][7] : 0;
-  a53=(a53+a32);
-  a53=(a23*a53);
-  a08=(a25*a08);
-  a08=(a53-a08);
-  a08=(a08*a48);
-  a48=(2.*a08);
-  a32=(a48*a12);
-  a10=(a10+a32);
-  a32=arg[1]? arg[1][14] : 0;
-  a57=arg[1]? arg[1][11] : 0;
-  a32=(a32+a57);
-  a23=(a23*a32);
-  a33=(a25*a33);
-  a47=(a08*a47);
-  a33=(a33+a47);
-  a33=(a23-a33);
-  a47=(1./a52);
-  a47=copysign(a47,a52);
-  a33=(a33*a47);
-  a47=(2.*a33);
-  a52=(a47*a12);
-  a10=(a10+a52);
-  a52=arg[1]? arg[1][15] : 0;
-  a32=casadi_sq(a25);
-  a57=casadi_sq(a08);
-  a32=(a32+a57);
-  a57=casadi_sq(a33);
-  a32=(a32+a57);
-  a32=(a52-a32);
-  a57=casadi_fabs(a52);
-  a05=(a05*a57);
-  a05=(a05+a07);
-  a07=casadi_fmax(a32,a05);
-  a07=sqrt(a07);
-  a57=(2.*a07);
-  a58=(a57*a12);
-  a10=(a10+a58);
-  a25=(a14*a25);
-  a16=(a25*a16);
-  a10=(a10+a16);
-  a08=(a14*a08);
-  a16=(a08*a12);
-  a10=(a10+a16);
-  a33=(a14*a33);
-  a16=(a33*a12);
-  a10=(a10+a16);
-  a14=(a14*a07);
-  a12=(a14*a12);
-  a10=(a10+a12);
-  a10=(a03*a10);
-  a10=(a01*a10);
-  a10=(a10*a21);
-  a54=(a54*a27);
-  a48=(a48*a34);
-  a54=(a54+a48);
-  a47=(a47*a36);
-  a54=(a54+a47);
-  a57=(a57*a36);
-  a54=(a54+a57);
-  a25=(a25*a38);
-  a54=(a54+a25);
-  a08=(a08*a40);
-  a54=(a54+a08);
-  a33=(a33*a36);
-  a54=(a54+a33);
-  a14=(a14*a36);
-  a54=(a54+a14);
-  a03=(a03*a54);
-  a03=(a20*a03);
-  a54=(a02*a10);
-  a03=(a03-a54);
-  a03=(a03*a43);
-  a43=(a03*a43);
-  a02=(a02*a43);
-  a02=(a10-a02);
-  a02=(a02*a21);
-  a02=(a02*a45);
-  a02=(a01?a02:0);
-  a43=(a43*a13);
-  a43=(a20?a43:0);
-  a02=(a02+a43);
-  a55=(a55+a02);
-  if (res[0]!=0) res[0][3]=a55;
-  a02=casadi_sq(a11);
-  a43=casadi_sq(a09);
-  a02=(a02+a43);
-  a02=(a04-a02);
-  if (res[1]!=0) res[1][0]=a02;
-  a43=(a11*a44);
-  a21=(a09*a26);
-  a43=(a43+a21);
-  a24=(a24-a43);
-  if (res[1]!=0) res[1][1]=a24;
-  a43=(a11*a35);
-  a21=(a09*a42);
-  a43=(a43+a21);
-  a39=(a39-a43);
-  if (res[1]!=0) res[1][2]=a39;
-  a11=(a11*a10);
-  a09=(a09*a03);
-  a11=(a11+a09);
-  a56=(a56-a11);
-  if (res[1]!=0) res[1][3]=a56;
-  if (res[1]!=0) res[1][4]=a24;
-  a11=casadi_sq(a44);
-  a09=casadi_sq(a26);
-  a11=(a11+a09);
-  a29=(a29-a11);
-  if (res[1]!=0) res[1][5]=a29;
-  a11=(a44*a35);
-  a09=(a26*a42);
-  a11=(a11+a09);
-  a46=(a46-a11);
-  if (res[1]!=0) res[1][6]=a46;
-  a44=(a44*a10);
-  a26=(a26*a03);
-  a44=(a44+a26);
-  a53=(a53-a44);
-  if (res[1]!=0) res[1][7]=a53;
-  if (res[1]!=0) res[1][8]=a39;
-  if (res[1]!=0) res[1][9]=a46;
-  a44=casadi_sq(a35);
-  a26=casadi_sq(a42);
-  a44=(a44+a26);
-  a49=(a49-a44);
-  if (res[1]!=0) res[1][10]=a49;
-  a35=(a35*a10);
-  a42=(a42*a03);
-  a35=(a35+a42);
-  a23=(a23-a35);
-  if (res[1]!=0) res[1][11]=a23;
-  if (res[1]!=0) res[1][12]=a56;
-  if (res[1]!=0) res[1][13]=a53;
-  if (res[1]!=0) res[1][14]=a23;
-  a10=casadi_sq(a10);
-  a03=casadi_sq(a03);
-  a10=(a10+a03);
-  a52=(a52-a10);
-  if (res[1]!=0) res[1][15]=a52;
-  a01=(a01?a45:0);
-  if (res[2]!=0) res[2][0]=a01;
-  a20=(a20?a13:0);
-  if (res[2]!=0) res[2][1]=a20;
-  if (res[3]!=0) res[3][0]=a18;
-  if (res[3]!=0) res[3][1]=a28;
-  if (res[3]!=0) res[3][2]=a28;
-  if (res[3]!=0) res[3][3]=a41;
-  a06=(a06<a04);
-  a31=(a31<a30);
-  a06=(a06*a31);
-  a51=(a51<a50);
-  a06=(a06*a51);
-  a05=(a05<a32);
-  a06=(a06*a05);
-  a17=(a17<a18);
-  a19=(a19<a15);
-  a17=(a17*a19);
-  a06=(a06*a17);
-  a00=(a00+a22);
-  a00=(a00+a37);
-  a00=(a00+a55);
-  a00=(a00+a02);
-  a00=(a00+a24);
-  a00=(a00+a39);
-  a00=(a00+a56);
-  a00=(a00+a29);
-  a00=(a00+a46);
-  a00=(a00+a53);
-  a00=(a00+a49);
-  a00=(a00+a23);
-  a00=(a00+a52);
-  a00=(a00+a01);
-  a00=(a00+a20);
-  a00=(a00+a18);
-  a00=(a00+a28);
-  a00=(a00+a28);
-  a00=(a00+a41);
-  a00=casadi_fabs(a00);
-  a41=casadi_inf;
-  a00=(a00<a41);
-  a06=(a06*a00);
-  if (res[4]!=0) res[4][0]=a06;
+static int casadi_f9(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+5, *w00=w+68, *w02=w+72, *w03=w+104, w04, *w05=w+120, *w06=w+122, *w07=w+138, *w08=w+140, *w09=w+142, *w10=w+146, *w11=w+154;
+  casadi_real *w12=w+158, w13, *w14=w+162, w15;
+  const casadi_real **arg1=arg+6, *wr01;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 4, w00);
+  /* #1: @1 = input[1][0] */
+  wr01 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: {@2, @3, @4} = linear_cv_ckf_points(@0, @1) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  res1[0]=w02;
+  res1[1]=w03;
+  res1[2]=(&w04);
+  if (casadi_f1(arg1, res1, iw, w, 0)) return 1;
+  /* #3: @5 = input[3][0] */
+  casadi_copy(arg[3], 2, w05);
+  /* #4: @6 = linear_cv_measurement_columns(@2, @5) */
+  arg1[0]=w02;
+  arg1[1]=w05;
+  res1[0]=w06;
+  if (casadi_f10(arg1, res1, iw, w, 0)) return 1;
+  /* #5: @5 = input[2][0] */
+  casadi_copy(arg[2], 2, w05);
+  /* #6: @7 = input[5][0] */
+  casadi_copy(arg[5], 2, w07);
+  /* #7: {@8, @9, @10} = linear_cv_ckf_moments(@3, @6, @5, @7) */
+  arg1[0]=w03;
+  arg1[1]=w06;
+  arg1[2]=w05;
+  arg1[3]=w07;
+  res1[0]=w08;
+  res1[1]=w09;
+  res1[2]=w10;
+  if (casadi_f13(arg1, res1, iw, w, 0)) return 1;
+  /* #8: @11 = input[4][0] */
+  casadi_copy(arg[4], 4, w11);
+  /* #9: {@12, @13} = linear_cv_ckf_noise(@11, @7, @9, @8) */
+  arg1[0]=w11;
+  arg1[1]=w07;
+  arg1[2]=w09;
+  arg1[3]=w08;
+  res1[0]=w12;
+  res1[1]=(&w13);
+  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
+  /* #10: {@11, @3, @14, @15} = linear_cv_ckf_kalman(@0, @1, @9, @10, @12, @8) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=w09;
+  arg1[3]=w10;
+  arg1[4]=w12;
+  arg1[5]=w08;
+  res1[0]=w11;
+  res1[1]=w03;
+  res1[2]=w14;
+  res1[3]=(&w15);
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #11: output[0][0] = @11 */
+  casadi_copy(w11, 4, res[0]);
+  /* #12: output[1][0] = @3 */
+  casadi_copy(w03, 16, res[1]);
+  /* #13: output[2][0] = @8 */
+  casadi_copy(w08, 2, res[2]);
+  /* #14: output[3][0] = @14 */
+  casadi_copy(w14, 4, res[3]);
+  /* #15: @4 = (@4*@13) */
+  w04 *= w13;
+  /* #16: @4 = (@4*@15) */
+  w04 *= w15;
+  /* #17: output[4][0] = @4 */
+  if (res[4]) res[4][0] = w04;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_ckf_update(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f1(arg, res, iw, w, mem);
+  return casadi_f9(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_ckf_update_checkout(void) {
@@ -1345,18 +1469,175 @@ CASADI_SYMBOL_EXPORT const casadi_int* linear_cv_ckf_update_sparsity_out(casadi_
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_ckf_update_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 6;
-  if (sz_res) *sz_res = 5;
+  if (sz_arg) *sz_arg = 12;
+  if (sz_res) *sz_res = 9;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 0;
+  if (sz_w) *sz_w = 166;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_ckf_update_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 6*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 5*sizeof(casadi_real*);
+  if (sz_arg) *sz_arg = 12*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 9*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  if (sz_w) *sz_w = 166*sizeof(casadi_real);
+  return 0;
+}
+
+/* linear_cv_ckf_step:(x[4],P[4x4],u[2],p[2],dt,Q[4x4],z[2],R[2x2],mask[2])->(x_post[4],P_post[4x4],innovation[2],S[2x2],ok) */
+static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+5, *w00=w+354, *w01=w+358, *w02=w+374, *w03=w+376, w04, *w06=w+378, *w07=w+382, w08, *w09=w+398, *w10=w+400, *w11=w+404;
+  casadi_real *w12=w+406;
+  const casadi_real **arg1=arg+9, *wr01, *wr05;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 4, w00);
+  /* #1: @1 = input[1][0] */
+  wr01 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  casadi_copy(arg[2], 2, w02);
+  /* #3: @3 = input[3][0] */
+  casadi_copy(arg[3], 2, w03);
+  /* #4: @4 = input[4][0] */
+  w04 = arg[4] ? arg[4][0] : 0;
+  /* #5: @5 = input[5][0] */
+  wr05 = arg[5] ? arg[5] : casadi_zeros;
+  /* #6: {@6, @7, @8} = linear_cv_ckf_predict(@0, @1, @2, @3, @4, @5) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=w02;
+  arg1[3]=w03;
+  arg1[4]=(&w04);
+  arg1[5]=wr05;
+  res1[0]=w06;
+  res1[1]=w07;
+  res1[2]=(&w08);
+  if (casadi_f0(arg1, res1, iw, w, 0)) return 1;
+  /* #7: @2 = input[6][0] */
+  casadi_copy(arg[6], 2, w02);
+  /* #8: @0 = input[7][0] */
+  casadi_copy(arg[7], 4, w00);
+  /* #9: @9 = input[8][0] */
+  casadi_copy(arg[8], 2, w09);
+  /* #10: {@10, @1, @11, @12, @4} = linear_cv_ckf_update(@6, @7, @2, @3, @0, @9) */
+  arg1[0]=w06;
+  arg1[1]=w07;
+  arg1[2]=w02;
+  arg1[3]=w03;
+  arg1[4]=w00;
+  arg1[5]=w09;
+  res1[0]=w10;
+  res1[1]=w01;
+  res1[2]=w11;
+  res1[3]=w12;
+  res1[4]=(&w04);
+  if (casadi_f9(arg1, res1, iw, w, 0)) return 1;
+  /* #11: output[0][0] = @10 */
+  casadi_copy(w10, 4, res[0]);
+  /* #12: output[1][0] = @1 */
+  casadi_copy(w01, 16, res[1]);
+  /* #13: output[2][0] = @11 */
+  casadi_copy(w11, 2, res[2]);
+  /* #14: output[3][0] = @12 */
+  casadi_copy(w12, 4, res[3]);
+  /* #15: @8 = (@8*@4) */
+  w08 *= w04;
+  /* #16: output[4][0] = @8 */
+  if (res[4]) res[4][0] = w08;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int linear_cv_ckf_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f16(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int linear_cv_ckf_step_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void linear_cv_ckf_step_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void linear_cv_ckf_step_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void linear_cv_ckf_step_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int linear_cv_ckf_step_n_in(void) { return 9;}
+
+CASADI_SYMBOL_EXPORT casadi_int linear_cv_ckf_step_n_out(void) { return 5;}
+
+CASADI_SYMBOL_EXPORT casadi_real linear_cv_ckf_step_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* linear_cv_ckf_step_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "x";
+    case 1: return "P";
+    case 2: return "u";
+    case 3: return "p";
+    case 4: return "dt";
+    case 5: return "Q";
+    case 6: return "z";
+    case 7: return "R";
+    case 8: return "mask";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* linear_cv_ckf_step_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "x_post";
+    case 1: return "P_post";
+    case 2: return "innovation";
+    case 3: return "S";
+    case 4: return "ok";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* linear_cv_ckf_step_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s0;
+    case 1: return casadi_s1;
+    case 2: return casadi_s2;
+    case 3: return casadi_s2;
+    case 4: return casadi_s3;
+    case 5: return casadi_s1;
+    case 6: return casadi_s2;
+    case 7: return casadi_s4;
+    case 8: return casadi_s2;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* linear_cv_ckf_step_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s0;
+    case 1: return casadi_s1;
+    case 2: return casadi_s2;
+    case 3: return casadi_s4;
+    case 4: return casadi_s3;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int linear_cv_ckf_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 27;
+  if (sz_res) *sz_res = 14;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 410;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int linear_cv_ckf_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 27*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 14*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 410*sizeof(casadi_real);
   return 0;
 }
 
@@ -1367,13 +1648,13 @@ CASADI_SYMBOL_EXPORT int linear_cv_ckf_update_work_bytes(casadi_int *sz_arg, cas
  * failing evaluation. */
 CASADI_SYMBOL_EXPORT int linear_cv_ckf_predict_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
-  const casadi_real* a[6];
-  casadi_real* r[3];
+  const casadi_real* a[18];
+  casadi_real* r[6];
   casadi_int iw[1];
-  casadi_real w[50];
+  casadi_real w[354];
   casadi_int j, k;
-  for (k = 0; k < 6; ++k) a[k] = 0;
-  for (k = 0; k < 3; ++k) r[k] = 0;
+  for (k = 0; k < 18; ++k) a[k] = 0;
+  for (k = 0; k < 6; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
     for (k = 0; k < 6; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
     for (k = 0; k < 3; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
@@ -1387,17 +1668,37 @@ CASADI_SYMBOL_EXPORT int linear_cv_ckf_predict_batch(casadi_int N, const casadi_
  * failing evaluation. */
 CASADI_SYMBOL_EXPORT int linear_cv_ckf_update_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
-  const casadi_real* a[6];
-  casadi_real* r[5];
+  const casadi_real* a[12];
+  casadi_real* r[9];
   casadi_int iw[1];
-  casadi_real w[59];
+  casadi_real w[185];
   casadi_int j, k;
-  for (k = 0; k < 6; ++k) a[k] = 0;
-  for (k = 0; k < 5; ++k) r[k] = 0;
+  for (k = 0; k < 12; ++k) a[k] = 0;
+  for (k = 0; k < 9; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
     for (k = 0; k < 6; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
     for (k = 0; k < 5; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
     if (linear_cv_ckf_update(a, r, iw, w, 0)) return (int)(1 + j);
+  }
+  return 0;
+}
+
+/* linear_cv_ckf_step_batch: evaluate linear_cv_ckf_step for j = 0..N-1 on slices arg[k] + j*arg_step[k] and
+ * res[k] + j*res_step[k] (a step of 0 shares the argument). Returns 0, or 1 + j of the first
+ * failing evaluation. */
+CASADI_SYMBOL_EXPORT int linear_cv_ckf_step_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
+                                  casadi_real** res, const casadi_int* res_step) {
+  const casadi_real* a[27];
+  casadi_real* r[14];
+  casadi_int iw[1];
+  casadi_real w[428];
+  casadi_int j, k;
+  for (k = 0; k < 27; ++k) a[k] = 0;
+  for (k = 0; k < 14; ++k) r[k] = 0;
+  for (j = 0; j < N; ++j) {
+    for (k = 0; k < 9; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
+    for (k = 0; k < 5; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
+    if (linear_cv_ckf_step(a, r, iw, w, 0)) return (int)(1 + j);
   }
   return 0;
 }

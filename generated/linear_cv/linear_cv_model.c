@@ -2,13 +2,14 @@
  * Model linear_cv, equations sha256 3921f0ab22d488004fdefa145e4b141b16744c444661c4aeba43cc1d339cf976, CasADi 3.8.2.
  * Edit the equations and run `abyssal regenerate`; `abyssal regenerate --check` fails on drift.
  *
- * Functions (CasADi SX instructions after common-subexpression elimination):
- *   linear_cv_f                        48 instructions
- *   linear_cv_F                        19 instructions
- *   linear_cv_G                        15 instructions
- *   linear_cv_h                         8 instructions
- *   linear_cv_H                        10 instructions
- *   linear_cv_xdot                     12 instructions
+ * Functions (operations per call: CasADi SX instructions after common-subexpression elimination,
+ * of the function itself or of the leaves it calls, times the calls):
+ *   linear_cv_f                        48 operations
+ *   linear_cv_F                        19 operations
+ *   linear_cv_G                        15 operations
+ *   linear_cv_h                         8 operations
+ *   linear_cv_H                        10 operations
+ *   linear_cv_xdot                     12 operations
  */
 /* How to prefix internal symbols */
 #ifdef CASADI_CODEGEN_PREFIX

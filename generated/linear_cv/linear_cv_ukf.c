@@ -2,9 +2,12 @@
  * Model linear_cv, equations sha256 3921f0ab22d488004fdefa145e4b141b16744c444661c4aeba43cc1d339cf976, CasADi 3.8.2.
  * Edit the equations and run `abyssal regenerate`; `abyssal regenerate --check` fails on drift.
  *
- * Functions (CasADi SX instructions after common-subexpression elimination):
- *   linear_cv_ukf_predict             646 instructions
- *   linear_cv_ukf_update              489 instructions
+ * Functions (operations per call: CasADi SX instructions after common-subexpression elimination,
+ * of the function itself or of the leaves it calls, times the calls):
+ *   linear_cv_ukf_predict            1292 operations
+ *   linear_cv_ukf_update              752 operations
+ *   linear_cv_mcukf_update            803 operations
+ *   linear_cv_huber_ukf_update        907 operations
  */
 /* How to prefix internal symbols */
 #ifdef CASADI_CODEGEN_PREFIX
@@ -26,10 +29,37 @@
 #endif
 
 /* Add prefix to internal symbols */
+#define casadi_clear CASADI_PREFIX(clear)
+#define casadi_copy CASADI_PREFIX(copy)
 #define casadi_f0 CASADI_PREFIX(f0)
 #define casadi_f1 CASADI_PREFIX(f1)
+#define casadi_f10 CASADI_PREFIX(f10)
+#define casadi_f11 CASADI_PREFIX(f11)
+#define casadi_f12 CASADI_PREFIX(f12)
+#define casadi_f13 CASADI_PREFIX(f13)
+#define casadi_f14 CASADI_PREFIX(f14)
+#define casadi_f15 CASADI_PREFIX(f15)
+#define casadi_f16 CASADI_PREFIX(f16)
+#define casadi_f17 CASADI_PREFIX(f17)
+#define casadi_f18 CASADI_PREFIX(f18)
+#define casadi_f19 CASADI_PREFIX(f19)
+#define casadi_f2 CASADI_PREFIX(f2)
+#define casadi_f20 CASADI_PREFIX(f20)
+#define casadi_f21 CASADI_PREFIX(f21)
+#define casadi_f22 CASADI_PREFIX(f22)
+#define casadi_f23 CASADI_PREFIX(f23)
+#define casadi_f3 CASADI_PREFIX(f3)
+#define casadi_f4 CASADI_PREFIX(f4)
+#define casadi_f5 CASADI_PREFIX(f5)
+#define casadi_f6 CASADI_PREFIX(f6)
+#define casadi_f7 CASADI_PREFIX(f7)
+#define casadi_f8 CASADI_PREFIX(f8)
+#define casadi_f9 CASADI_PREFIX(f9)
 #define casadi_fabs CASADI_PREFIX(fabs)
+#define casadi_fill CASADI_PREFIX(fill)
 #define casadi_fmax CASADI_PREFIX(fmax)
+#define casadi_fmin CASADI_PREFIX(fmin)
+#define casadi_mtimes_dense CASADI_PREFIX(mtimes_dense)
 #define casadi_s0 CASADI_PREFIX(s0)
 #define casadi_s1 CASADI_PREFIX(s1)
 #define casadi_s2 CASADI_PREFIX(s2)
@@ -37,6 +67,7 @@
 #define casadi_s4 CASADI_PREFIX(s4)
 #define casadi_s5 CASADI_PREFIX(s5)
 #define casadi_sq CASADI_PREFIX(sq)
+#define casadi_zeros CASADI_PREFIX(zeros)
 
 /* Symbol visibility in DLLs */
 #ifndef CASADI_SYMBOL_EXPORT
@@ -73,9 +104,65 @@ casadi_real casadi_fmax(casadi_real x, casadi_real y) {
 #endif
 }
 
+void casadi_copy(const casadi_real* x, casadi_int n, casadi_real* y) {
+  casadi_int i;
+  if (y) {
+    if (x) {
+      for (i=0; i<n; ++i) *y++ = *x++;
+    } else {
+      for (i=0; i<n; ++i) *y++ = 0.;
+    }
+  }
+}
+
+void casadi_clear(casadi_real* x, casadi_int n) {
+  casadi_int i;
+  if (x) {
+    for (i=0; i<n; ++i) *x++ = 0;
+  }
+}
+
 #ifndef casadi_inf
   #define casadi_inf INFINITY
 #endif
+
+void casadi_fill(casadi_real* x, casadi_int n, casadi_real alpha) {
+  casadi_int i;
+  if (x) {
+    for (i=0; i<n; ++i) *x++ = alpha;
+  }
+}
+
+void casadi_mtimes_dense(const casadi_real* x, casadi_int nrow_x, casadi_int ncol_x,
+    const casadi_real* y, casadi_int ncol_y, casadi_real* z, casadi_int tr) {
+  casadi_int i, j, k;
+  if (tr) {
+    for (i=0; i<ncol_y; ++i) {
+      for (j=0; j<ncol_x; ++j) {
+        for (k=0; k<nrow_x; ++k) {
+          z[j + i*ncol_x] += x[k + j*nrow_x] * y[k + i*nrow_x];
+        }
+      }
+    }
+  } else {
+    for (i=0; i<ncol_y; ++i) {
+      for (j=0; j<nrow_x; ++j) {
+        for (k=0; k<ncol_x; ++k) {
+          z[j + i*nrow_x] += x[j + k*nrow_x] * y[k + i*ncol_x];
+        }
+      }
+    }
+  }
+}
+
+casadi_real casadi_fmin(casadi_real x, casadi_real y) {
+/* Pre-c99 compatibility */
+#if __STDC_VERSION__ < 199901L
+  return x<y ? x : y;
+#else
+  return fmin(x, y);
+#endif
+}
 
 /* Configuration this file was compiled with */
 CASADI_SYMBOL_EXPORT void linear_cv_ukf_casadi_version(int* major, int* minor, int* patch) {
@@ -93,659 +180,645 @@ static const casadi_int casadi_s3[3] = {1, 1, 1};
 static const casadi_int casadi_s4[3] = {3, 1, 1};
 static const casadi_int casadi_s5[3] = {2, 2, 1};
 
-/* linear_cv_ukf_predict:(x[4],P[4x4],u[2],p[2],dt,Q[4x4],abk[3])->(x_pred[4],P_pred[4x4],ok) */
-static int casadi_f0(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static const casadi_real casadi_zeros[36] = 
+  {0.};
+
+/* linear_cv_ukf_weights:(abk[3])->(wm[2],wc[2]) */
+static int casadi_f1(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a0, a1, a2, a3;
+  a0=arg[0]? arg[0][0] : 0;
+  a0=casadi_sq(a0);
+  a1=4.;
+  a2=arg[0]? arg[0][2] : 0;
+  a2=(a1+a2);
+  a2=(a0*a2);
+  a1=(a2-a1);
+  a3=(1./a2);
+  a3=copysign(a3,a2);
+  a1=(a1*a3);
+  if (res[0]!=0) res[0][0]=a1;
+  a2=(2.*a2);
+  a2=(1./a2);
+  if (res[0]!=0) res[0][1]=a2;
+  a3=1.;
+  a1=(a1+a3);
+  a1=(a1-a0);
+  a0=arg[0]? arg[0][1] : 0;
+  a1=(a1+a0);
+  if (res[1]!=0) res[1][0]=a1;
+  if (res[1]!=0) res[1][1]=a2;
+  return 0;
+}
+
+/* linear_cv_ukf_points:(x[4],P[4x4],abk[3])->(X[4x9],L[4x4],ok) */
+static int casadi_f2(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
-  casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
-  casadi_real a36, a37, a38, a39, a40, a41, a42, a43, a44, a45, a46, a47;
-  casadi_real a48, a49, a50, a51, a52;
-  a00=arg[6]? arg[6][0] : 0;
-  a00=casadi_sq(a00);
-  a01=4.;
-  a02=arg[6]? arg[6][2] : 0;
-  a02=(a01+a02);
-  a02=(a00*a02);
-  a01=(a02-a01);
-  a03=(1./a02);
-  a03=copysign(a03,a02);
-  a01=(a01*a03);
-  a03=arg[0]? arg[0][0] : 0;
-  a04=1.6666666666666666e-01;
-  a05=arg[4]? arg[4][0] : 0;
-  a04=(a04*a05);
-  a06=arg[0]? arg[0][2] : 0;
-  a07=5.0000000000000000e-01;
-  a08=(a07*a05);
+  casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33;
+  a00=arg[0]? arg[0][0] : 0;
+  if (res[0]!=0) res[0][0]=a00;
+  a01=arg[0]? arg[0][1] : 0;
+  if (res[0]!=0) res[0][1]=a01;
+  a02=arg[0]? arg[0][2] : 0;
+  if (res[0]!=0) res[0][2]=a02;
+  a03=arg[0]? arg[0][3] : 0;
+  if (res[0]!=0) res[0][3]=a03;
+  a04=arg[1]? arg[1][0] : 0;
+  a05=1.0000000000000000e-13;
+  a06=casadi_fabs(a04);
+  a06=(a05*a06);
+  a07=1.0000000000000000e-300;
+  a06=(a06+a07);
+  a08=casadi_fmax(a04,a06);
+  a08=sqrt(a08);
   a09=arg[2]? arg[2][0] : 0;
+  a09=casadi_sq(a09);
+  a10=4.;
+  a11=arg[2]? arg[2][2] : 0;
+  a10=(a10+a11);
+  a09=(a09*a10);
+  a09=sqrt(a09);
   a10=(a08*a09);
-  a11=(a06+a10);
-  a11=(2.*a11);
-  a12=(a06+a11);
-  a12=(a12+a11);
-  a11=(a05*a09);
-  a13=(a06+a11);
+  a11=(a00+a10);
+  if (res[0]!=0) res[0][4]=a11;
+  a11=5.0000000000000000e-01;
+  a12=arg[1]? arg[1][4] : 0;
+  a13=arg[1]? arg[1][1] : 0;
   a12=(a12+a13);
-  a12=(a04*a12);
-  a12=(a03+a12);
-  a13=(a01*a12);
-  a14=arg[1]? arg[1][0] : 0;
-  a15=1.0000000000000000e-13;
-  a16=casadi_fabs(a14);
-  a16=(a15*a16);
-  a17=1.0000000000000000e-300;
-  a16=(a16+a17);
-  a18=casadi_fmax(a14,a16);
-  a18=sqrt(a18);
-  a19=sqrt(a02);
-  a20=(a18*a19);
-  a21=(a03+a20);
-  a22=arg[1]? arg[1][8] : 0;
-  a23=arg[1]? arg[1][2] : 0;
+  a12=(a11*a12);
+  a13=(1./a08);
+  a13=copysign(a13,a08);
+  a12=(a12*a13);
+  a14=(a12*a09);
+  a15=(a01+a14);
+  if (res[0]!=0) res[0][5]=a15;
+  a15=arg[1]? arg[1][8] : 0;
+  a16=arg[1]? arg[1][2] : 0;
+  a15=(a15+a16);
+  a15=(a11*a15);
+  a15=(a15*a13);
+  a16=(a15*a09);
+  a17=(a02+a16);
+  if (res[0]!=0) res[0][6]=a17;
+  a17=arg[1]? arg[1][12] : 0;
+  a18=arg[1]? arg[1][3] : 0;
+  a17=(a17+a18);
+  a17=(a11*a17);
+  a17=(a17*a13);
+  a13=(a17*a09);
+  a18=(a03+a13);
+  if (res[0]!=0) res[0][7]=a18;
+  if (res[0]!=0) res[0][8]=a00;
+  a18=arg[1]? arg[1][5] : 0;
+  a19=casadi_sq(a12);
+  a19=(a18-a19);
+  a18=casadi_fabs(a18);
+  a18=(a05*a18);
+  a18=(a18+a07);
+  a20=casadi_fmax(a19,a18);
+  a20=sqrt(a20);
+  a21=(a20*a09);
+  a22=(a01+a21);
+  if (res[0]!=0) res[0][9]=a22;
+  a22=arg[1]? arg[1][9] : 0;
+  a23=arg[1]? arg[1][6] : 0;
   a22=(a22+a23);
-  a22=(a07*a22);
-  a23=(1./a18);
-  a23=copysign(a23,a18);
+  a22=(a11*a22);
+  a23=(a15*a12);
+  a22=(a22-a23);
+  a23=(1./a20);
+  a23=copysign(a23,a20);
   a22=(a22*a23);
-  a18=(a22*a19);
-  a24=(a06+a18);
-  a25=(a24+a10);
-  a25=(2.*a25);
-  a26=(a24+a25);
-  a26=(a26+a25);
-  a25=(a24+a11);
-  a26=(a26+a25);
-  a26=(a04*a26);
-  a21=(a21+a26);
-  a26=arg[1]? arg[1][9] : 0;
-  a25=arg[1]? arg[1][6] : 0;
-  a26=(a26+a25);
-  a26=(a07*a26);
-  a25=arg[1]? arg[1][4] : 0;
-  a27=arg[1]? arg[1][1] : 0;
-  a25=(a25+a27);
-  a25=(a07*a25);
+  a24=(a22*a09);
+  a25=(a02+a24);
+  if (res[0]!=0) res[0][10]=a25;
+  a25=arg[1]? arg[1][13] : 0;
+  a26=arg[1]? arg[1][7] : 0;
+  a25=(a25+a26);
+  a25=(a11*a25);
+  a26=(a17*a12);
+  a25=(a25-a26);
   a25=(a25*a23);
-  a27=(a22*a25);
-  a26=(a26-a27);
-  a27=arg[1]? arg[1][5] : 0;
-  a28=casadi_sq(a25);
-  a28=(a27-a28);
-  a27=casadi_fabs(a27);
-  a27=(a15*a27);
-  a27=(a27+a17);
-  a29=casadi_fmax(a28,a27);
-  a29=sqrt(a29);
-  a30=(1./a29);
-  a30=copysign(a30,a29);
-  a26=(a26*a30);
-  a31=(a26*a19);
-  a32=(a06+a31);
-  a33=(a32+a10);
-  a33=(2.*a33);
-  a34=(a32+a33);
-  a34=(a34+a33);
-  a33=(a32+a11);
-  a34=(a34+a33);
-  a34=(a04*a34);
-  a34=(a03+a34);
-  a33=(a21+a34);
-  a35=arg[1]? arg[1][10] : 0;
-  a36=casadi_sq(a22);
-  a37=casadi_sq(a26);
-  a36=(a36+a37);
-  a36=(a35-a36);
-  a35=casadi_fabs(a35);
-  a35=(a15*a35);
-  a35=(a35+a17);
-  a37=casadi_fmax(a36,a35);
-  a37=sqrt(a37);
-  a38=(a37*a19);
-  a39=(a06+a38);
-  a40=(a39+a10);
-  a40=(2.*a40);
-  a41=(a39+a40);
-  a41=(a41+a40);
-  a40=(a39+a11);
-  a41=(a41+a40);
-  a41=(a04*a41);
-  a41=(a03+a41);
-  a33=(a33+a41);
-  a33=(a33+a12);
-  a20=(a03-a20);
-  a18=(a06-a18);
-  a40=(a18+a10);
-  a40=(2.*a40);
-  a42=(a18+a40);
-  a42=(a42+a40);
-  a40=(a18+a11);
-  a42=(a42+a40);
-  a42=(a04*a42);
-  a20=(a20+a42);
-  a33=(a33+a20);
-  a31=(a06-a31);
-  a42=(a31+a10);
-  a42=(2.*a42);
-  a40=(a31+a42);
-  a40=(a40+a42);
-  a42=(a31+a11);
-  a40=(a40+a42);
-  a40=(a04*a40);
-  a40=(a03+a40);
-  a33=(a33+a40);
-  a38=(a06-a38);
-  a10=(a38+a10);
-  a10=(2.*a10);
-  a42=(a38+a10);
-  a42=(a42+a10);
-  a11=(a38+a11);
-  a42=(a42+a11);
-  a42=(a04*a42);
-  a03=(a03+a42);
-  a33=(a33+a03);
-  a33=(a33+a12);
-  a02=(2.*a02);
-  a42=(1./a02);
-  a42=copysign(a42,a02);
-  a33=(a33*a42);
-  a13=(a13+a33);
-  if (res[0]!=0) res[0][0]=a13;
-  a33=arg[0]? arg[0][1] : 0;
-  a02=arg[0]? arg[0][3] : 0;
-  a11=arg[2]? arg[2][1] : 0;
-  a08=(a08*a11);
-  a10=(a02+a08);
-  a10=(2.*a10);
-  a43=(a02+a10);
-  a43=(a43+a10);
-  a05=(a05*a11);
-  a10=(a02+a05);
-  a43=(a43+a10);
-  a43=(a04*a43);
-  a43=(a33+a43);
-  a10=(a01*a43);
-  a44=(a25*a19);
-  a45=(a33+a44);
-  a46=arg[1]? arg[1][12] : 0;
-  a47=arg[1]? arg[1][3] : 0;
-  a46=(a46+a47);
-  a46=(a07*a46);
-  a46=(a46*a23);
-  a23=(a46*a19);
-  a47=(a02+a23);
-  a48=(a47+a08);
-  a48=(2.*a48);
-  a49=(a47+a48);
-  a49=(a49+a48);
-  a48=(a47+a05);
-  a49=(a49+a48);
-  a49=(a04*a49);
-  a45=(a45+a49);
-  a29=(a29*a19);
-  a49=(a33+a29);
-  a48=arg[1]? arg[1][13] : 0;
-  a50=arg[1]? arg[1][7] : 0;
-  a48=(a48+a50);
-  a48=(a07*a48);
-  a25=(a46*a25);
-  a48=(a48-a25);
-  a48=(a48*a30);
-  a30=(a48*a19);
-  a25=(a02+a30);
-  a50=(a25+a08);
-  a50=(2.*a50);
-  a51=(a25+a50);
-  a51=(a51+a50);
-  a50=(a25+a05);
-  a51=(a51+a50);
-  a51=(a04*a51);
-  a49=(a49+a51);
-  a51=(a45+a49);
-  a50=arg[1]? arg[1][14] : 0;
-  a52=arg[1]? arg[1][11] : 0;
-  a50=(a50+a52);
-  a50=(a07*a50);
-  a22=(a46*a22);
-  a26=(a48*a26);
-  a22=(a22+a26);
-  a50=(a50-a22);
-  a22=(1./a37);
-  a22=copysign(a22,a37);
-  a50=(a50*a22);
-  a22=(a50*a19);
-  a37=(a02+a22);
-  a26=(a37+a08);
-  a26=(2.*a26);
-  a52=(a37+a26);
-  a52=(a52+a26);
-  a26=(a37+a05);
-  a52=(a52+a26);
-  a52=(a04*a52);
-  a52=(a33+a52);
-  a51=(a51+a52);
-  a26=arg[1]? arg[1][15] : 0;
-  a46=casadi_sq(a46);
-  a48=casadi_sq(a48);
-  a46=(a46+a48);
-  a50=casadi_sq(a50);
-  a46=(a46+a50);
-  a46=(a26-a46);
+  a23=(a25*a09);
+  a26=(a03+a23);
+  if (res[0]!=0) res[0][11]=a26;
+  if (res[0]!=0) res[0][12]=a00;
+  if (res[0]!=0) res[0][13]=a01;
+  a26=arg[1]? arg[1][10] : 0;
+  a27=casadi_sq(a15);
+  a28=casadi_sq(a22);
+  a27=(a27+a28);
+  a27=(a26-a27);
   a26=casadi_fabs(a26);
-  a15=(a15*a26);
-  a15=(a15+a17);
-  a17=casadi_fmax(a46,a15);
-  a17=sqrt(a17);
-  a17=(a17*a19);
-  a19=(a02+a17);
-  a26=(a19+a08);
-  a26=(2.*a26);
-  a50=(a19+a26);
-  a50=(a50+a26);
-  a26=(a19+a05);
-  a50=(a50+a26);
-  a50=(a04*a50);
-  a50=(a33+a50);
-  a51=(a51+a50);
-  a44=(a33-a44);
-  a23=(a02-a23);
-  a26=(a23+a08);
-  a26=(2.*a26);
-  a48=(a23+a26);
-  a48=(a48+a26);
-  a26=(a23+a05);
-  a48=(a48+a26);
-  a48=(a04*a48);
-  a44=(a44+a48);
-  a51=(a51+a44);
-  a29=(a33-a29);
-  a30=(a02-a30);
-  a48=(a30+a08);
-  a48=(2.*a48);
-  a26=(a30+a48);
-  a26=(a26+a48);
-  a48=(a30+a05);
-  a26=(a26+a48);
-  a26=(a04*a26);
-  a29=(a29+a26);
-  a51=(a51+a29);
-  a22=(a02-a22);
-  a26=(a22+a08);
-  a26=(2.*a26);
-  a48=(a22+a26);
-  a48=(a48+a26);
-  a26=(a22+a05);
-  a48=(a48+a26);
-  a48=(a04*a48);
-  a48=(a33+a48);
-  a51=(a51+a48);
-  a17=(a02-a17);
-  a08=(a17+a08);
-  a08=(2.*a08);
-  a26=(a17+a08);
-  a26=(a26+a08);
-  a05=(a17+a05);
-  a26=(a26+a05);
-  a26=(a04*a26);
-  a33=(a33+a26);
-  a51=(a51+a33);
-  a51=(a51*a42);
-  a10=(a10+a51);
-  if (res[0]!=0) res[0][1]=a10;
-  a51=3.;
-  a26=(a51*a09);
-  a05=(2.*a09);
-  a26=(a26+a05);
-  a26=(a26+a09);
-  a26=(a04*a26);
-  a06=(a06+a26);
-  a09=(a01*a06);
-  a24=(a24+a26);
-  a32=(a32+a26);
-  a05=(a24+a32);
-  a39=(a39+a26);
-  a05=(a05+a39);
+  a26=(a05*a26);
+  a26=(a26+a07);
+  a28=casadi_fmax(a27,a26);
+  a28=sqrt(a28);
+  a29=(a28*a09);
+  a30=(a02+a29);
+  if (res[0]!=0) res[0][14]=a30;
+  a30=arg[1]? arg[1][14] : 0;
+  a31=arg[1]? arg[1][11] : 0;
+  a30=(a30+a31);
+  a11=(a11*a30);
+  a30=(a17*a15);
+  a31=(a25*a22);
+  a30=(a30+a31);
+  a11=(a11-a30);
+  a30=(1./a28);
+  a30=copysign(a30,a28);
+  a11=(a11*a30);
+  a30=(a11*a09);
+  a31=(a03+a30);
+  if (res[0]!=0) res[0][15]=a31;
+  if (res[0]!=0) res[0][16]=a00;
+  if (res[0]!=0) res[0][17]=a01;
+  if (res[0]!=0) res[0][18]=a02;
+  a31=arg[1]? arg[1][15] : 0;
+  a32=casadi_sq(a17);
+  a33=casadi_sq(a25);
+  a32=(a32+a33);
+  a33=casadi_sq(a11);
+  a32=(a32+a33);
+  a32=(a31-a32);
+  a31=casadi_fabs(a31);
+  a05=(a05*a31);
+  a05=(a05+a07);
+  a07=casadi_fmax(a32,a05);
+  a07=sqrt(a07);
+  a09=(a07*a09);
+  a31=(a03+a09);
+  if (res[0]!=0) res[0][19]=a31;
+  a10=(a00-a10);
+  if (res[0]!=0) res[0][20]=a10;
+  a14=(a01-a14);
+  if (res[0]!=0) res[0][21]=a14;
+  a16=(a02-a16);
+  if (res[0]!=0) res[0][22]=a16;
+  a13=(a03-a13);
+  if (res[0]!=0) res[0][23]=a13;
+  if (res[0]!=0) res[0][24]=a00;
+  a21=(a01-a21);
+  if (res[0]!=0) res[0][25]=a21;
+  a24=(a02-a24);
+  if (res[0]!=0) res[0][26]=a24;
+  a23=(a03-a23);
+  if (res[0]!=0) res[0][27]=a23;
+  if (res[0]!=0) res[0][28]=a00;
+  if (res[0]!=0) res[0][29]=a01;
+  a29=(a02-a29);
+  if (res[0]!=0) res[0][30]=a29;
+  a30=(a03-a30);
+  if (res[0]!=0) res[0][31]=a30;
+  if (res[0]!=0) res[0][32]=a00;
+  if (res[0]!=0) res[0][33]=a01;
+  if (res[0]!=0) res[0][34]=a02;
+  a03=(a03-a09);
+  if (res[0]!=0) res[0][35]=a03;
+  if (res[1]!=0) res[1][0]=a08;
+  if (res[1]!=0) res[1][1]=a12;
+  if (res[1]!=0) res[1][2]=a15;
+  if (res[1]!=0) res[1][3]=a17;
+  a17=0.;
+  if (res[1]!=0) res[1][4]=a17;
+  if (res[1]!=0) res[1][5]=a20;
+  if (res[1]!=0) res[1][6]=a22;
+  if (res[1]!=0) res[1][7]=a25;
+  if (res[1]!=0) res[1][8]=a17;
+  if (res[1]!=0) res[1][9]=a17;
+  if (res[1]!=0) res[1][10]=a28;
+  if (res[1]!=0) res[1][11]=a11;
+  if (res[1]!=0) res[1][12]=a17;
+  if (res[1]!=0) res[1][13]=a17;
+  if (res[1]!=0) res[1][14]=a17;
+  if (res[1]!=0) res[1][15]=a07;
+  a06=(a06<a04);
+  a18=(a18<a19);
+  a06=(a06*a18);
+  a26=(a26<a27);
+  a06=(a06*a26);
+  a05=(a05<a32);
+  a06=(a06*a05);
+  if (res[2]!=0) res[2][0]=a06;
+  return 0;
+}
+
+/* linear_cv_step:(x[4],u[2],p[2],dt)->(x_next[4]) */
+static int casadi_f5(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a0, a1, a2, a3, a4, a5, a6, a7, a8;
+  a0=arg[0]? arg[0][0] : 0;
+  a1=1.6666666666666666e-01;
+  a2=arg[3]? arg[3][0] : 0;
+  a1=(a1*a2);
+  a3=arg[0]? arg[0][2] : 0;
+  a4=5.0000000000000000e-01;
+  a4=(a4*a2);
+  a5=arg[1]? arg[1][0] : 0;
+  a6=(a4*a5);
+  a6=(a3+a6);
+  a6=(2.*a6);
+  a7=(a3+a6);
+  a7=(a7+a6);
+  a6=(a2*a5);
+  a6=(a3+a6);
+  a7=(a7+a6);
+  a7=(a1*a7);
+  a0=(a0+a7);
+  if (res[0]!=0) res[0][0]=a0;
+  a0=arg[0]? arg[0][1] : 0;
+  a7=arg[0]? arg[0][3] : 0;
+  a6=arg[1]? arg[1][1] : 0;
+  a4=(a4*a6);
+  a4=(a7+a4);
+  a4=(2.*a4);
+  a8=(a7+a4);
+  a8=(a8+a4);
+  a2=(a2*a6);
+  a2=(a7+a2);
+  a8=(a8+a2);
+  a8=(a1*a8);
+  a0=(a0+a8);
+  if (res[0]!=0) res[0][1]=a0;
+  a0=3.;
+  a8=(a0*a5);
+  a2=(2.*a5);
+  a8=(a8+a2);
+  a8=(a8+a5);
+  a8=(a1*a8);
+  a3=(a3+a8);
+  if (res[0]!=0) res[0][2]=a3;
+  a0=(a0*a6);
+  a3=(2.*a6);
+  a0=(a0+a3);
+  a0=(a0+a6);
+  a1=(a1*a0);
+  a7=(a7+a1);
+  if (res[0]!=0) res[0][3]=a7;
+  return 0;
+}
+
+/* map9_linear_cv_step:(x[4x9],u[2x9],p[2x9],dt[1x9])->(x_next[4x9]) */
+static int casadi_f4(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_int i;
+  casadi_real* *res1;
+  const casadi_real* *arg1;
+  arg1 = arg+4;
+  for (i=0; i<4; ++i) arg1[i]=arg[i];
+  res1 = res+1;
+  for (i=0; i<1; ++i) res1[i]=res[i];
+  for (i=0; i<9; ++i) {
+    if (casadi_f5(arg1, res1, iw, w, 0)) return 1;
+    if (arg1[0]) arg1[0]+=4;
+    if (arg1[1]) arg1[1]+=2;
+    if (arg1[2]) arg1[2]+=2;
+    if (arg1[3]) arg1[3]+=1;
+    if (res1[0]) res1[0]+=4;
+  }
+  return 0;
+}
+
+/* linear_cv_step_columns:(x[4x9],u[2],p[2],dt)->(x_next[4x9]) */
+static int casadi_f3(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_int i;
+  casadi_real **res1=res+1, *w1=w+9, *w2=w+11, *w3=w+29, w4, *w5=w+47, *w6=w+56;
+  const casadi_real **arg1=arg+4, *wr0;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  casadi_copy(arg[1], 2, w1);
+  /* #2: @2 = repmat(@1, 9) */
+  for (i=0;i<9;++i) {
+    casadi_copy(w1, 2, w2+ i*2);
+  }
+  /* #3: @1 = input[2][0] */
+  casadi_copy(arg[2], 2, w1);
+  /* #4: @3 = repmat(@1, 9) */
+  for (i=0;i<9;++i) {
+    casadi_copy(w1, 2, w3+ i*2);
+  }
+  /* #5: @4 = input[3][0] */
+  w4 = arg[3] ? arg[3][0] : 0;
+  /* #6: @5 = repmat(@4, 9) */
+  for (i=0;i<9;++i) {
+    casadi_copy((&w4), 1, w5+ i*1);
+  }
+  /* #7: @6 = map9_linear_cv_step(@0, @2, @3, @5) */
+  arg1[0]=wr0;
+  arg1[1]=w2;
+  arg1[2]=w3;
+  arg1[3]=w5;
+  res1[0]=w6;
+  if (casadi_f4(arg1, res1, iw, w, 0)) return 1;
+  /* #8: output[0][0] = @6 */
+  casadi_copy(w6, 36, res[0]);
+  return 0;
+}
+
+/* linear_cv_ukf_outer:(y[4],mean[4])->(ddT[4x4]) */
+static int casadi_f7(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a0, a1, a2, a3, a4, a5, a6;
+  a0=arg[0]? arg[0][0] : 0;
+  a1=arg[1]? arg[1][0] : 0;
+  a0=(a0-a1);
+  a1=casadi_sq(a0);
+  if (res[0]!=0) res[0][0]=a1;
+  a1=arg[0]? arg[0][1] : 0;
+  a2=arg[1]? arg[1][1] : 0;
+  a1=(a1-a2);
+  a2=(a0*a1);
+  if (res[0]!=0) res[0][1]=a2;
+  a3=arg[0]? arg[0][2] : 0;
+  a4=arg[1]? arg[1][2] : 0;
+  a3=(a3-a4);
+  a4=(a0*a3);
+  if (res[0]!=0) res[0][2]=a4;
+  a5=arg[0]? arg[0][3] : 0;
+  a6=arg[1]? arg[1][3] : 0;
+  a5=(a5-a6);
+  a0=(a0*a5);
+  if (res[0]!=0) res[0][3]=a0;
+  if (res[0]!=0) res[0][4]=a2;
+  a2=casadi_sq(a1);
+  if (res[0]!=0) res[0][5]=a2;
+  a2=(a1*a3);
+  if (res[0]!=0) res[0][6]=a2;
+  a1=(a1*a5);
+  if (res[0]!=0) res[0][7]=a1;
+  if (res[0]!=0) res[0][8]=a4;
+  if (res[0]!=0) res[0][9]=a2;
+  a2=casadi_sq(a3);
+  if (res[0]!=0) res[0][10]=a2;
+  a3=(a3*a5);
+  if (res[0]!=0) res[0][11]=a3;
+  if (res[0]!=0) res[0][12]=a0;
+  if (res[0]!=0) res[0][13]=a1;
+  if (res[0]!=0) res[0][14]=a3;
+  a5=casadi_sq(a5);
+  if (res[0]!=0) res[0][15]=a5;
+  return 0;
+}
+
+/* linear_cv_ukf_outer_sum_0_1:(y[4],mean[4])->(ddT[4x4]) */
+static int casadi_f6(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_int i, j;
+  casadi_real **res1=res+1, *w0=w+7, *w1=w+11, *w2=w+15, *w3=w+31;
+  const casadi_real **arg1=arg+2;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 4, w0);
+  /* #1: @1 = input[1][0] */
+  casadi_copy(arg[1], 4, w1);
+  /* #2: @2 = linear_cv_ukf_outer(@0, @1) */
+  arg1[0]=w0;
+  arg1[1]=w1;
+  res1[0]=w2;
+  if (casadi_f7(arg1, res1, iw, w, 0)) return 1;
+  /* #3: @3 = repsum(@2, 1) */
+  casadi_clear(w3, 16);
+    for (i=0;i<1;++i) {
+        for (j=0;j<16;++j) {
+            w3[j] += w2[j+i*16];
+          }
+      }
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 16, res[0]);
+  return 0;
+}
+
+/* map8_linear_cv_ukf_outer:(y[4x8],mean[4x8])->(ddT[4x32]) */
+static int casadi_f9(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_int i;
+  casadi_real* *res1;
+  const casadi_real* *arg1;
+  arg1 = arg+2;
+  for (i=0; i<2; ++i) arg1[i]=arg[i];
+  res1 = res+1;
+  for (i=0; i<1; ++i) res1[i]=res[i];
+  for (i=0; i<8; ++i) {
+    if (casadi_f7(arg1, res1, iw, w, 0)) return 1;
+    if (arg1[0]) arg1[0]+=4;
+    if (arg1[1]) arg1[1]+=4;
+    if (res1[0]) res1[0]+=16;
+  }
+  return 0;
+}
+
+/* linear_cv_ukf_outer_sum_1_9:(y[4x8],mean[4])->(ddT[4x4]) */
+static int casadi_f8(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_int i, j;
+  casadi_real **res1=res+1, *w1=w+7, *w2=w+11, *w3=w+43, *w4=w+171;
+  const casadi_real **arg1=arg+2, *wr0;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  casadi_copy(arg[1], 4, w1);
+  /* #2: @2 = repmat(@1, 8) */
+  for (i=0;i<8;++i) {
+    casadi_copy(w1, 4, w2+ i*4);
+  }
+  /* #3: @3 = map8_linear_cv_ukf_outer(@0, @2) */
+  arg1[0]=wr0;
+  arg1[1]=w2;
+  res1[0]=w3;
+  if (casadi_f9(arg1, res1, iw, w, 0)) return 1;
+  /* #4: @4 = repsum(@3, 8) */
+  casadi_clear(w4, 16);
+    for (i=0;i<8;++i) {
+        for (j=0;j<16;++j) {
+            w4[j] += w3[j+i*16];
+          }
+      }
+  /* #5: output[0][0] = @4 */
+  casadi_copy(w4, 16, res[0]);
+  return 0;
+}
+
+/* linear_cv_ukf_predicted:(x_pred[4],C[4x4],Q[4x4])->(P_pred[4x4],ok) */
+static int casadi_f10(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  a00=arg[1]? arg[1][0] : 0;
+  a01=arg[2]? arg[2][0] : 0;
+  a00=(a00+a01);
+  if (res[0]!=0) res[0][0]=a00;
+  a01=arg[1]? arg[1][4] : 0;
+  a02=5.0000000000000000e-01;
+  a03=arg[2]? arg[2][4] : 0;
+  a04=arg[2]? arg[2][1] : 0;
+  a03=(a03+a04);
+  a03=(a02*a03);
+  a01=(a01+a03);
+  if (res[0]!=0) res[0][1]=a01;
+  a03=arg[1]? arg[1][8] : 0;
+  a04=arg[2]? arg[2][8] : 0;
+  a05=arg[2]? arg[2][2] : 0;
+  a04=(a04+a05);
+  a04=(a02*a04);
+  a03=(a03+a04);
+  if (res[0]!=0) res[0][2]=a03;
+  a04=arg[1]? arg[1][12] : 0;
+  a05=arg[2]? arg[2][12] : 0;
+  a06=arg[2]? arg[2][3] : 0;
   a05=(a05+a06);
-  a18=(a18+a26);
-  a05=(a05+a18);
-  a31=(a31+a26);
-  a05=(a05+a31);
-  a38=(a38+a26);
-  a05=(a05+a38);
+  a05=(a02*a05);
+  a04=(a04+a05);
+  if (res[0]!=0) res[0][3]=a04;
+  if (res[0]!=0) res[0][4]=a01;
+  a05=arg[1]? arg[1][5] : 0;
+  a06=arg[2]? arg[2][5] : 0;
   a05=(a05+a06);
-  a05=(a05*a42);
-  a09=(a09+a05);
-  if (res[0]!=0) res[0][2]=a09;
-  a51=(a51*a11);
-  a05=(2.*a11);
-  a51=(a51+a05);
-  a51=(a51+a11);
-  a04=(a04*a51);
-  a02=(a02+a04);
-  a51=(a01*a02);
-  a47=(a47+a04);
-  a25=(a25+a04);
-  a11=(a47+a25);
-  a37=(a37+a04);
-  a11=(a11+a37);
-  a19=(a19+a04);
-  a11=(a11+a19);
-  a23=(a23+a04);
-  a11=(a11+a23);
-  a30=(a30+a04);
-  a11=(a11+a30);
-  a22=(a22+a04);
-  a11=(a11+a22);
-  a17=(a17+a04);
-  a11=(a11+a17);
-  a11=(a11*a42);
-  a51=(a51+a11);
-  if (res[0]!=0) res[0][3]=a51;
-  a11=1.;
-  a01=(a01+a11);
-  a01=(a01-a00);
-  a00=arg[6]? arg[6][1] : 0;
-  a01=(a01+a00);
-  a12=(a12-a13);
-  a00=casadi_sq(a12);
-  a11=(a01*a00);
-  a21=(a21-a13);
-  a04=casadi_sq(a21);
-  a34=(a34-a13);
-  a05=casadi_sq(a34);
-  a04=(a04+a05);
-  a41=(a41-a13);
-  a05=casadi_sq(a41);
-  a04=(a04+a05);
-  a04=(a04+a00);
-  a20=(a20-a13);
-  a05=casadi_sq(a20);
-  a04=(a04+a05);
-  a40=(a40-a13);
-  a05=casadi_sq(a40);
-  a04=(a04+a05);
-  a03=(a03-a13);
-  a05=casadi_sq(a03);
-  a04=(a04+a05);
-  a04=(a04+a00);
-  a04=(a04*a42);
-  a11=(a11+a04);
-  a04=arg[5]? arg[5][0] : 0;
-  a11=(a11+a04);
-  if (res[1]!=0) res[1][0]=a11;
-  a43=(a43-a10);
-  a04=(a12*a43);
-  a04=(a01*a04);
-  a45=(a45-a10);
-  a00=(a21*a45);
-  a49=(a49-a10);
-  a05=(a34*a49);
-  a00=(a00+a05);
-  a52=(a52-a10);
-  a05=(a41*a52);
-  a00=(a00+a05);
-  a50=(a50-a10);
-  a05=(a12*a50);
-  a00=(a00+a05);
-  a44=(a44-a10);
-  a05=(a20*a44);
-  a00=(a00+a05);
-  a29=(a29-a10);
-  a05=(a40*a29);
-  a00=(a00+a05);
-  a48=(a48-a10);
-  a05=(a03*a48);
-  a00=(a00+a05);
-  a33=(a33-a10);
-  a05=(a12*a33);
-  a00=(a00+a05);
-  a00=(a00*a42);
-  a04=(a04+a00);
-  a00=arg[5]? arg[5][4] : 0;
-  a05=arg[5]? arg[5][1] : 0;
-  a00=(a00+a05);
-  a00=(a07*a00);
-  a04=(a04+a00);
-  if (res[1]!=0) res[1][1]=a04;
-  a06=(a06-a09);
-  a00=(a12*a06);
-  a05=(a01*a00);
-  a24=(a24-a09);
-  a26=(a21*a24);
-  a32=(a32-a09);
-  a08=(a34*a32);
-  a26=(a26+a08);
-  a39=(a39-a09);
-  a08=(a41*a39);
-  a26=(a26+a08);
-  a26=(a26+a00);
-  a18=(a18-a09);
-  a08=(a20*a18);
-  a26=(a26+a08);
-  a31=(a31-a09);
-  a08=(a40*a31);
-  a26=(a26+a08);
-  a38=(a38-a09);
-  a08=(a03*a38);
-  a26=(a26+a08);
-  a26=(a26+a00);
-  a26=(a26*a42);
-  a05=(a05+a26);
-  a26=arg[5]? arg[5][8] : 0;
-  a00=arg[5]? arg[5][2] : 0;
-  a26=(a26+a00);
-  a26=(a07*a26);
-  a05=(a05+a26);
-  if (res[1]!=0) res[1][2]=a05;
-  a02=(a02-a51);
-  a26=(a12*a02);
-  a26=(a01*a26);
-  a47=(a47-a51);
-  a21=(a21*a47);
-  a25=(a25-a51);
-  a34=(a34*a25);
-  a21=(a21+a34);
-  a37=(a37-a51);
-  a41=(a41*a37);
-  a21=(a21+a41);
-  a19=(a19-a51);
-  a41=(a12*a19);
-  a21=(a21+a41);
-  a23=(a23-a51);
-  a20=(a20*a23);
-  a21=(a21+a20);
-  a30=(a30-a51);
-  a40=(a40*a30);
-  a21=(a21+a40);
-  a22=(a22-a51);
-  a03=(a03*a22);
-  a21=(a21+a03);
-  a17=(a17-a51);
-  a12=(a12*a17);
-  a21=(a21+a12);
-  a21=(a21*a42);
-  a26=(a26+a21);
-  a21=arg[5]? arg[5][12] : 0;
-  a12=arg[5]? arg[5][3] : 0;
-  a21=(a21+a12);
-  a21=(a07*a21);
-  a26=(a26+a21);
-  if (res[1]!=0) res[1][3]=a26;
-  if (res[1]!=0) res[1][4]=a04;
-  a21=casadi_sq(a43);
-  a21=(a01*a21);
-  a12=casadi_sq(a45);
-  a03=casadi_sq(a49);
-  a12=(a12+a03);
-  a03=casadi_sq(a52);
-  a12=(a12+a03);
-  a03=casadi_sq(a50);
-  a12=(a12+a03);
-  a03=casadi_sq(a44);
-  a12=(a12+a03);
-  a03=casadi_sq(a29);
-  a12=(a12+a03);
-  a03=casadi_sq(a48);
-  a12=(a12+a03);
-  a03=casadi_sq(a33);
-  a12=(a12+a03);
-  a12=(a12*a42);
-  a21=(a21+a12);
-  a12=arg[5]? arg[5][5] : 0;
-  a21=(a21+a12);
-  if (res[1]!=0) res[1][5]=a21;
-  a12=(a43*a06);
-  a12=(a01*a12);
-  a03=(a45*a24);
-  a40=(a49*a32);
-  a03=(a03+a40);
-  a40=(a52*a39);
-  a03=(a03+a40);
-  a40=(a50*a06);
-  a03=(a03+a40);
-  a40=(a44*a18);
-  a03=(a03+a40);
-  a40=(a29*a31);
-  a03=(a03+a40);
-  a40=(a48*a38);
-  a03=(a03+a40);
-  a40=(a33*a06);
-  a03=(a03+a40);
-  a03=(a03*a42);
-  a12=(a12+a03);
-  a03=arg[5]? arg[5][9] : 0;
-  a40=arg[5]? arg[5][6] : 0;
-  a03=(a03+a40);
-  a03=(a07*a03);
-  a12=(a12+a03);
-  if (res[1]!=0) res[1][6]=a12;
-  a43=(a43*a02);
-  a43=(a01*a43);
-  a45=(a45*a47);
-  a49=(a49*a25);
-  a45=(a45+a49);
-  a52=(a52*a37);
-  a45=(a45+a52);
-  a50=(a50*a19);
-  a45=(a45+a50);
-  a44=(a44*a23);
-  a45=(a45+a44);
-  a29=(a29*a30);
-  a45=(a45+a29);
-  a48=(a48*a22);
-  a45=(a45+a48);
-  a33=(a33*a17);
-  a45=(a45+a33);
-  a45=(a45*a42);
-  a43=(a43+a45);
-  a45=arg[5]? arg[5][13] : 0;
-  a33=arg[5]? arg[5][7] : 0;
-  a45=(a45+a33);
-  a45=(a07*a45);
-  a43=(a43+a45);
-  if (res[1]!=0) res[1][7]=a43;
-  if (res[1]!=0) res[1][8]=a05;
-  if (res[1]!=0) res[1][9]=a12;
-  a45=casadi_sq(a06);
-  a33=(a01*a45);
-  a48=casadi_sq(a24);
-  a29=casadi_sq(a32);
-  a48=(a48+a29);
-  a29=casadi_sq(a39);
-  a48=(a48+a29);
-  a48=(a48+a45);
-  a29=casadi_sq(a18);
-  a48=(a48+a29);
-  a29=casadi_sq(a31);
-  a48=(a48+a29);
-  a29=casadi_sq(a38);
-  a48=(a48+a29);
-  a48=(a48+a45);
-  a48=(a48*a42);
-  a33=(a33+a48);
-  a48=arg[5]? arg[5][10] : 0;
-  a33=(a33+a48);
-  if (res[1]!=0) res[1][10]=a33;
-  a48=(a06*a02);
-  a48=(a01*a48);
-  a24=(a24*a47);
-  a32=(a32*a25);
-  a24=(a24+a32);
-  a39=(a39*a37);
-  a24=(a24+a39);
-  a39=(a06*a19);
-  a24=(a24+a39);
-  a18=(a18*a23);
-  a24=(a24+a18);
-  a31=(a31*a30);
-  a24=(a24+a31);
-  a38=(a38*a22);
-  a24=(a24+a38);
-  a06=(a06*a17);
-  a24=(a24+a06);
-  a24=(a24*a42);
-  a48=(a48+a24);
-  a24=arg[5]? arg[5][14] : 0;
-  a06=arg[5]? arg[5][11] : 0;
-  a24=(a24+a06);
-  a07=(a07*a24);
-  a48=(a48+a07);
-  if (res[1]!=0) res[1][11]=a48;
-  if (res[1]!=0) res[1][12]=a26;
-  if (res[1]!=0) res[1][13]=a43;
-  if (res[1]!=0) res[1][14]=a48;
-  a02=casadi_sq(a02);
-  a01=(a01*a02);
-  a47=casadi_sq(a47);
-  a25=casadi_sq(a25);
-  a47=(a47+a25);
-  a37=casadi_sq(a37);
-  a47=(a47+a37);
-  a19=casadi_sq(a19);
-  a47=(a47+a19);
-  a23=casadi_sq(a23);
-  a47=(a47+a23);
-  a30=casadi_sq(a30);
-  a47=(a47+a30);
-  a22=casadi_sq(a22);
-  a47=(a47+a22);
-  a17=casadi_sq(a17);
-  a47=(a47+a17);
-  a47=(a47*a42);
-  a01=(a01+a47);
-  a47=arg[5]? arg[5][15] : 0;
-  a01=(a01+a47);
-  if (res[1]!=0) res[1][15]=a01;
-  a16=(a16<a14);
-  a27=(a27<a28);
-  a16=(a16*a27);
-  a35=(a35<a36);
-  a16=(a16*a35);
-  a15=(a15<a46);
-  a16=(a16*a15);
-  a13=(a13+a10);
-  a13=(a13+a09);
-  a13=(a13+a51);
-  a13=(a13+a11);
-  a13=(a13+a04);
-  a13=(a13+a05);
-  a13=(a13+a26);
-  a13=(a13+a04);
-  a13=(a13+a21);
-  a13=(a13+a12);
-  a13=(a13+a43);
-  a13=(a13+a05);
-  a13=(a13+a12);
-  a13=(a13+a33);
-  a13=(a13+a48);
-  a13=(a13+a26);
-  a13=(a13+a43);
-  a13=(a13+a48);
-  a13=(a13+a01);
-  a13=casadi_fabs(a13);
-  a01=casadi_inf;
-  a13=(a13<a01);
-  a16=(a16*a13);
-  if (res[2]!=0) res[2][0]=a16;
+  if (res[0]!=0) res[0][5]=a05;
+  a06=arg[1]? arg[1][9] : 0;
+  a07=arg[2]? arg[2][9] : 0;
+  a08=arg[2]? arg[2][6] : 0;
+  a07=(a07+a08);
+  a07=(a02*a07);
+  a06=(a06+a07);
+  if (res[0]!=0) res[0][6]=a06;
+  a07=arg[1]? arg[1][13] : 0;
+  a08=arg[2]? arg[2][13] : 0;
+  a09=arg[2]? arg[2][7] : 0;
+  a08=(a08+a09);
+  a08=(a02*a08);
+  a07=(a07+a08);
+  if (res[0]!=0) res[0][7]=a07;
+  if (res[0]!=0) res[0][8]=a03;
+  if (res[0]!=0) res[0][9]=a06;
+  a08=arg[1]? arg[1][10] : 0;
+  a09=arg[2]? arg[2][10] : 0;
+  a08=(a08+a09);
+  if (res[0]!=0) res[0][10]=a08;
+  a09=arg[1]? arg[1][14] : 0;
+  a10=arg[2]? arg[2][14] : 0;
+  a11=arg[2]? arg[2][11] : 0;
+  a10=(a10+a11);
+  a02=(a02*a10);
+  a09=(a09+a02);
+  if (res[0]!=0) res[0][11]=a09;
+  if (res[0]!=0) res[0][12]=a04;
+  if (res[0]!=0) res[0][13]=a07;
+  if (res[0]!=0) res[0][14]=a09;
+  a02=arg[1]? arg[1][15] : 0;
+  a10=arg[2]? arg[2][15] : 0;
+  a02=(a02+a10);
+  if (res[0]!=0) res[0][15]=a02;
+  a10=arg[0]? arg[0][0] : 0;
+  a11=arg[0]? arg[0][1] : 0;
+  a10=(a10+a11);
+  a11=arg[0]? arg[0][2] : 0;
+  a10=(a10+a11);
+  a11=arg[0]? arg[0][3] : 0;
+  a10=(a10+a11);
+  a10=(a10+a00);
+  a10=(a10+a01);
+  a10=(a10+a03);
+  a10=(a10+a04);
+  a10=(a10+a05);
+  a10=(a10+a06);
+  a10=(a10+a07);
+  a10=(a10+a08);
+  a10=(a10+a09);
+  a10=(a10+a02);
+  a10=casadi_fabs(a10);
+  a02=casadi_inf;
+  a10=(a10<a02);
+  if (res[1]!=0) res[1][0]=a10;
+  return 0;
+}
+
+/* linear_cv_ukf_predict:(x[4],P[4x4],u[2],p[2],dt,Q[4x4],abk[3])->(x_pred[4],P_pred[4x4],ok) */
+static int casadi_f0(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_int i;
+  casadi_real **res1=res+3, *rr, *w00=w+219, *w01=w+222, *w02=w+224, w03, *w04=w+226, *w05=w+230, *w06=w+246, w07, *w08=w+282, *w09=w+284;
+  casadi_real w10, *w11=w+286, *w12=w+322, *w13=w+326, *w14=w+330, *w15=w+362, *w16=w+370, *w17=w+386;
+  const casadi_real **arg1=arg+7, *cs, *wr05, *wr16;
+  /* #0: @0 = input[6][0] */
+  casadi_copy(arg[6], 3, w00);
+  /* #1: {@1, @2} = linear_cv_ukf_weights(@0) */
+  arg1[0]=w00;
+  res1[0]=w01;
+  res1[1]=w02;
+  if (casadi_f1(arg1, res1, iw, w, 0)) return 1;
+  /* #2: @3 = @1[0] */
+  for (rr=(&w03), cs=w01+0; cs!=w01+1; cs+=1) *rr++ = *cs;
+  /* #3: @4 = input[0][0] */
+  casadi_copy(arg[0], 4, w04);
+  /* #4: @5 = input[1][0] */
+  wr05 = arg[1] ? arg[1] : casadi_zeros;
+  /* #5: {@6, NULL, @7} = linear_cv_ukf_points(@4, @5, @0) */
+  arg1[0]=w04;
+  arg1[1]=wr05;
+  arg1[2]=w00;
+  res1[0]=w06;
+  res1[1]=0;
+  res1[2]=(&w07);
+  if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
+  /* #6: @8 = input[2][0] */
+  casadi_copy(arg[2], 2, w08);
+  /* #7: @9 = input[3][0] */
+  casadi_copy(arg[3], 2, w09);
+  /* #8: @10 = input[4][0] */
+  w10 = arg[4] ? arg[4][0] : 0;
+  /* #9: @11 = linear_cv_step_columns(@6, @8, @9, @10) */
+  arg1[0]=w06;
+  arg1[1]=w08;
+  arg1[2]=w09;
+  arg1[3]=(&w10);
+  res1[0]=w11;
+  if (casadi_f3(arg1, res1, iw, w, 0)) return 1;
+  /* #10: @4 = @11[:4] */
+  for (rr=w04, cs=w11+0; cs!=w11+4; cs+=1) *rr++ = *cs;
+  /* #11: @12 = (@3*@4) */
+  for (i=0, rr=w12, cs=w04; i<4; ++i) (*rr++)  = (w03*(*cs++));
+  /* #12: @3 = @1[1] */
+  for (rr=(&w03), cs=w01+1; cs!=w01+2; cs+=1) *rr++ = *cs;
+  /* #13: @13 = zeros(4x1) */
+  casadi_clear(w13, 4);
+  /* #14: @14 = @11[4:36] */
+  for (rr=w14, cs=w11+4; cs!=w11+36; cs+=1) *rr++ = *cs;
+  /* #15: @15 = ones(8x1) */
+  casadi_fill(w15, 8, 1.);
+  /* #16: @13 = mac(@14,@15,@13) */
+  casadi_mtimes_dense(w14, 4, 8, w15, 1, w13, 0);
+  /* #17: @13 = (@3*@13) */
+  for (i=0, rr=w13, cs=w13; i<4; ++i) (*rr++)  = (w03*(*cs++));
+  /* #18: @12 = (@12+@13) */
+  for (i=0, rr=w12, cs=w13; i<4; ++i) (*rr++) += (*cs++);
+  /* #19: output[0][0] = @12 */
+  casadi_copy(w12, 4, res[0]);
+  /* #20: @3 = @2[0] */
+  for (rr=(&w03), cs=w02+0; cs!=w02+1; cs+=1) *rr++ = *cs;
+  /* #21: @5 = linear_cv_ukf_outer_sum_0_1(@4, @12) */
+  arg1[0]=w04;
+  arg1[1]=w12;
+  res1[0]=w05;
+  if (casadi_f6(arg1, res1, iw, w, 0)) return 1;
+  /* #22: @5 = (@3*@5) */
+  for (i=0, rr=w05, cs=w05; i<16; ++i) (*rr++)  = (w03*(*cs++));
+  /* #23: @3 = @2[1] */
+  for (rr=(&w03), cs=w02+1; cs!=w02+2; cs+=1) *rr++ = *cs;
+  /* #24: @16 = linear_cv_ukf_outer_sum_1_9(@14, @12) */
+  arg1[0]=w14;
+  arg1[1]=w12;
+  res1[0]=w16;
+  if (casadi_f8(arg1, res1, iw, w, 0)) return 1;
+  /* #25: @16 = (@3*@16) */
+  for (i=0, rr=w16, cs=w16; i<16; ++i) (*rr++)  = (w03*(*cs++));
+  /* #26: @5 = (@5+@16) */
+  for (i=0, rr=w05, cs=w16; i<16; ++i) (*rr++) += (*cs++);
+  /* #27: @16 = input[5][0] */
+  wr16 = arg[5] ? arg[5] : casadi_zeros;
+  /* #28: {@17, @3} = linear_cv_ukf_predicted(@12, @5, @16) */
+  arg1[0]=w12;
+  arg1[1]=w05;
+  arg1[2]=wr16;
+  res1[0]=w17;
+  res1[1]=(&w03);
+  if (casadi_f10(arg1, res1, iw, w, 0)) return 1;
+  /* #29: output[1][0] = @17 */
+  casadi_copy(w17, 16, res[1]);
+  /* #30: @7 = (@7*@3) */
+  w07 *= w03;
+  /* #31: output[2][0] = @7 */
+  if (res[2]) res[2][0] = w07;
   return 0;
 }
 
@@ -821,522 +894,654 @@ CASADI_SYMBOL_EXPORT const casadi_int* linear_cv_ukf_predict_sparsity_out(casadi
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_ukf_predict_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 7;
-  if (sz_res) *sz_res = 3;
+  if (sz_arg) *sz_arg = 19;
+  if (sz_res) *sz_res = 6;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 0;
+  if (sz_w) *sz_w = 402;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_ukf_predict_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 7*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 3*sizeof(casadi_real*);
+  if (sz_arg) *sz_arg = 19*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 6*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  if (sz_w) *sz_w = 402*sizeof(casadi_real);
+  return 0;
+}
+
+/* linear_cv_measurement:(x[4],p[2])->(y[2]) */
+static int casadi_f14(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a0, a1;
+  a0=arg[0]? arg[0][0] : 0;
+  a1=arg[1]? arg[1][0] : 0;
+  a0=(a0-a1);
+  if (res[0]!=0) res[0][0]=a0;
+  a0=arg[0]? arg[0][1] : 0;
+  a1=arg[1]? arg[1][1] : 0;
+  a0=(a0-a1);
+  if (res[0]!=0) res[0][1]=a0;
+  return 0;
+}
+
+/* map9_linear_cv_measurement:(x[4x9],p[2x9])->(y[2x9]) */
+static int casadi_f13(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_int i;
+  casadi_real* *res1;
+  const casadi_real* *arg1;
+  arg1 = arg+2;
+  for (i=0; i<2; ++i) arg1[i]=arg[i];
+  res1 = res+1;
+  for (i=0; i<1; ++i) res1[i]=res[i];
+  for (i=0; i<9; ++i) {
+    if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
+    if (arg1[0]) arg1[0]+=4;
+    if (arg1[1]) arg1[1]+=2;
+    if (res1[0]) res1[0]+=2;
+  }
+  return 0;
+}
+
+/* linear_cv_measurement_columns:(x[4x9],p[2])->(y[2x9]) */
+static int casadi_f12(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_int i;
+  casadi_real **res1=res+1, *w1=w+2, *w2=w+4, *w3=w+22;
+  const casadi_real **arg1=arg+2, *wr0;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  casadi_copy(arg[1], 2, w1);
+  /* #2: @2 = repmat(@1, 9) */
+  for (i=0;i<9;++i) {
+    casadi_copy(w1, 2, w2+ i*2);
+  }
+  /* #3: @3 = map9_linear_cv_measurement(@0, @2) */
+  arg1[0]=wr0;
+  arg1[1]=w2;
+  res1[0]=w3;
+  if (casadi_f13(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 18, res[0]);
+  return 0;
+}
+
+/* linear_cv_ukf_moments:(L[4x4],Z[2x9],z[2],mask[2],abk[3])->(innovation[2],Pzz[2x2],Pxz[4x2]) */
+static int casadi_f15(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
+  casadi_real a24, a25, a26, a27, a28;
+  a00=arg[3]? arg[3][0] : 0;
+  a01=0.;
+  a00=(a00!=a01);
+  a02=arg[2]? arg[2][0] : 0;
+  a03=arg[4]? arg[4][0] : 0;
+  a03=casadi_sq(a03);
+  a04=4.;
+  a05=arg[4]? arg[4][2] : 0;
+  a05=(a04+a05);
+  a05=(a03*a05);
+  a04=(a05-a04);
+  a06=(1./a05);
+  a06=copysign(a06,a05);
+  a04=(a04*a06);
+  a06=arg[1]? arg[1][0] : 0;
+  a07=(a04*a06);
+  a08=arg[1]? arg[1][2] : 0;
+  a09=arg[1]? arg[1][4] : 0;
+  a10=(a08+a09);
+  a11=arg[1]? arg[1][6] : 0;
+  a10=(a10+a11);
+  a12=arg[1]? arg[1][8] : 0;
+  a10=(a10+a12);
+  a13=arg[1]? arg[1][10] : 0;
+  a10=(a10+a13);
+  a14=arg[1]? arg[1][12] : 0;
+  a10=(a10+a14);
+  a15=arg[1]? arg[1][14] : 0;
+  a10=(a10+a15);
+  a16=arg[1]? arg[1][16] : 0;
+  a10=(a10+a16);
+  a17=(2.*a05);
+  a18=(1./a17);
+  a18=copysign(a18,a17);
+  a10=(a10*a18);
+  a07=(a07+a10);
+  a02=(a02-a07);
+  a02=(a00?a02:0);
+  if (res[0]!=0) res[0][0]=a02;
+  a02=arg[3]? arg[3][1] : 0;
+  a02=(a02!=a01);
+  a01=arg[2]? arg[2][1] : 0;
+  a10=arg[1]? arg[1][1] : 0;
+  a17=(a04*a10);
+  a19=arg[1]? arg[1][3] : 0;
+  a20=arg[1]? arg[1][5] : 0;
+  a21=(a19+a20);
+  a22=arg[1]? arg[1][7] : 0;
+  a21=(a21+a22);
+  a23=arg[1]? arg[1][9] : 0;
+  a21=(a21+a23);
+  a24=arg[1]? arg[1][11] : 0;
+  a21=(a21+a24);
+  a25=arg[1]? arg[1][13] : 0;
+  a21=(a21+a25);
+  a26=arg[1]? arg[1][15] : 0;
+  a21=(a21+a26);
+  a27=arg[1]? arg[1][17] : 0;
+  a21=(a21+a27);
+  a21=(a21*a18);
+  a17=(a17+a21);
+  a01=(a01-a17);
+  a01=(a02?a01:0);
+  if (res[0]!=0) res[0][1]=a01;
+  a01=casadi_sq(a00);
+  a21=1.;
+  a04=(a04+a21);
+  a04=(a04-a03);
+  a03=arg[4]? arg[4][1] : 0;
+  a04=(a04+a03);
+  a06=(a06-a07);
+  a03=casadi_sq(a06);
+  a03=(a04*a03);
+  a08=(a08-a07);
+  a21=casadi_sq(a08);
+  a09=(a09-a07);
+  a28=casadi_sq(a09);
+  a21=(a21+a28);
+  a11=(a11-a07);
+  a28=casadi_sq(a11);
+  a21=(a21+a28);
+  a12=(a12-a07);
+  a28=casadi_sq(a12);
+  a21=(a21+a28);
+  a13=(a13-a07);
+  a28=casadi_sq(a13);
+  a21=(a21+a28);
+  a14=(a14-a07);
+  a28=casadi_sq(a14);
+  a21=(a21+a28);
+  a15=(a15-a07);
+  a28=casadi_sq(a15);
+  a21=(a21+a28);
+  a16=(a16-a07);
+  a07=casadi_sq(a16);
+  a21=(a21+a07);
+  a21=(a21*a18);
+  a03=(a03+a21);
+  a01=(a01*a03);
+  if (res[1]!=0) res[1][0]=a01;
+  a01=(a00*a02);
+  a10=(a10-a17);
+  a06=(a06*a10);
+  a06=(a04*a06);
+  a19=(a19-a17);
+  a03=(a08*a19);
+  a20=(a20-a17);
+  a21=(a09*a20);
+  a03=(a03+a21);
+  a22=(a22-a17);
+  a21=(a11*a22);
+  a03=(a03+a21);
+  a23=(a23-a17);
+  a21=(a12*a23);
+  a03=(a03+a21);
+  a24=(a24-a17);
+  a21=(a13*a24);
+  a03=(a03+a21);
+  a25=(a25-a17);
+  a21=(a14*a25);
+  a03=(a03+a21);
+  a26=(a26-a17);
+  a21=(a15*a26);
+  a03=(a03+a21);
+  a27=(a27-a17);
+  a17=(a16*a27);
+  a03=(a03+a17);
+  a03=(a03*a18);
+  a06=(a06+a03);
+  a01=(a01*a06);
+  if (res[1]!=0) res[1][1]=a01;
+  if (res[1]!=0) res[1][2]=a01;
+  a01=casadi_sq(a02);
+  a10=casadi_sq(a10);
+  a04=(a04*a10);
+  a10=casadi_sq(a19);
+  a06=casadi_sq(a20);
+  a10=(a10+a06);
+  a06=casadi_sq(a22);
+  a10=(a10+a06);
+  a06=casadi_sq(a23);
+  a10=(a10+a06);
+  a06=casadi_sq(a24);
+  a10=(a10+a06);
+  a06=casadi_sq(a25);
+  a10=(a10+a06);
+  a06=casadi_sq(a26);
+  a10=(a10+a06);
+  a06=casadi_sq(a27);
+  a10=(a10+a06);
+  a10=(a10*a18);
+  a04=(a04+a10);
+  a01=(a01*a04);
+  if (res[1]!=0) res[1][3]=a01;
+  a01=arg[0]? arg[0][0] : 0;
+  a05=sqrt(a05);
+  a05=(a05*a18);
+  a08=(a05*a08);
+  a13=(a05*a13);
+  a08=(a08-a13);
+  a13=(a01*a08);
+  a13=(a00*a13);
+  if (res[2]!=0) res[2][0]=a13;
+  a13=arg[0]? arg[0][1] : 0;
+  a18=(a13*a08);
+  a04=arg[0]? arg[0][5] : 0;
+  a09=(a05*a09);
+  a14=(a05*a14);
+  a09=(a09-a14);
+  a14=(a04*a09);
+  a18=(a18+a14);
+  a18=(a00*a18);
+  if (res[2]!=0) res[2][1]=a18;
+  a18=arg[0]? arg[0][2] : 0;
+  a14=(a18*a08);
+  a10=arg[0]? arg[0][6] : 0;
+  a06=(a10*a09);
+  a14=(a14+a06);
+  a06=arg[0]? arg[0][10] : 0;
+  a11=(a05*a11);
+  a15=(a05*a15);
+  a11=(a11-a15);
+  a15=(a06*a11);
+  a14=(a14+a15);
+  a14=(a00*a14);
+  if (res[2]!=0) res[2][2]=a14;
+  a14=arg[0]? arg[0][3] : 0;
+  a08=(a14*a08);
+  a15=arg[0]? arg[0][7] : 0;
+  a09=(a15*a09);
+  a08=(a08+a09);
+  a09=arg[0]? arg[0][11] : 0;
+  a11=(a09*a11);
+  a08=(a08+a11);
+  a11=arg[0]? arg[0][15] : 0;
+  a12=(a05*a12);
+  a16=(a05*a16);
+  a12=(a12-a16);
+  a12=(a11*a12);
+  a08=(a08+a12);
+  a00=(a00*a08);
+  if (res[2]!=0) res[2][3]=a00;
+  a19=(a05*a19);
+  a24=(a05*a24);
+  a19=(a19-a24);
+  a01=(a01*a19);
+  a01=(a02*a01);
+  if (res[2]!=0) res[2][4]=a01;
+  a13=(a13*a19);
+  a20=(a05*a20);
+  a25=(a05*a25);
+  a20=(a20-a25);
+  a04=(a04*a20);
+  a13=(a13+a04);
+  a13=(a02*a13);
+  if (res[2]!=0) res[2][5]=a13;
+  a18=(a18*a19);
+  a10=(a10*a20);
+  a18=(a18+a10);
+  a22=(a05*a22);
+  a26=(a05*a26);
+  a22=(a22-a26);
+  a06=(a06*a22);
+  a18=(a18+a06);
+  a18=(a02*a18);
+  if (res[2]!=0) res[2][6]=a18;
+  a14=(a14*a19);
+  a15=(a15*a20);
+  a14=(a14+a15);
+  a09=(a09*a22);
+  a14=(a14+a09);
+  a23=(a05*a23);
+  a05=(a05*a27);
+  a23=(a23-a05);
+  a11=(a11*a23);
+  a14=(a14+a11);
+  a02=(a02*a14);
+  if (res[2]!=0) res[2][7]=a02;
+  return 0;
+}
+
+/* linear_cv_ukf_noise:(R[2x2],mask[2],Pzz[2x2],innovation[2])->(R_used[2x2],ok) */
+static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a0, a1, a2, a3, a4, a5;
+  a0=arg[1]? arg[1][0] : 0;
+  a1=0.;
+  a0=(a0!=a1);
+  a2=casadi_sq(a0);
+  a3=arg[0]? arg[0][0] : 0;
+  a2=(a2*a3);
+  a3=1.;
+  a4=(a3-a0);
+  a2=(a2+a4);
+  if (res[0]!=0) res[0][0]=a2;
+  a2=arg[1]? arg[1][1] : 0;
+  a2=(a2!=a1);
+  a0=(a0*a2);
+  a1=5.0000000000000000e-01;
+  a4=arg[0]? arg[0][2] : 0;
+  a5=arg[0]? arg[0][1] : 0;
+  a4=(a4+a5);
+  a1=(a1*a4);
+  a0=(a0*a1);
+  if (res[0]!=0) res[0][1]=a0;
+  if (res[0]!=0) res[0][2]=a0;
+  a0=casadi_sq(a2);
+  a1=arg[0]? arg[0][3] : 0;
+  a0=(a0*a1);
+  a2=(a3-a2);
+  a0=(a0+a2);
+  if (res[0]!=0) res[0][3]=a0;
+  if (res[1]!=0) res[1][0]=a3;
+  return 0;
+}
+
+/* linear_cv_ukf_kalman:(x[4],P[4x4],Pzz[2x2],Pxz[4x2],R_used[2x2],innovation[2])->(x_post[4],P_post[4x4],S[2x2],ok) */
+static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
+  casadi_real a24, a25, a26;
+  a00=arg[0]? arg[0][0] : 0;
+  a01=arg[3]? arg[3][0] : 0;
+  a02=arg[2]? arg[2][0] : 0;
+  a03=arg[4]? arg[4][0] : 0;
+  a02=(a02+a03);
+  a03=1.0000000000000000e-13;
+  a04=casadi_fabs(a02);
+  a04=(a03*a04);
+  a05=1.0000000000000000e-300;
+  a04=(a04+a05);
+  a06=casadi_fmax(a02,a04);
+  a06=sqrt(a06);
+  a07=(1./a06);
+  a07=copysign(a07,a06);
+  a01=(a01*a07);
+  a06=arg[2]? arg[2][2] : 0;
+  a08=arg[4]? arg[4][2] : 0;
+  a06=(a06+a08);
+  a08=(a06*a07);
+  a09=arg[3]? arg[3][4] : 0;
+  a10=(a08*a01);
+  a09=(a09-a10);
+  a10=arg[2]? arg[2][3] : 0;
+  a11=arg[4]? arg[4][3] : 0;
+  a10=(a10+a11);
+  a11=casadi_sq(a08);
+  a11=(a10-a11);
+  a12=casadi_fabs(a10);
+  a03=(a03*a12);
+  a03=(a03+a05);
+  a05=casadi_fmax(a11,a03);
+  a05=sqrt(a05);
+  a12=(1./a05);
+  a12=copysign(a12,a05);
+  a09=(a09*a12);
+  a05=(a09*a12);
+  a13=(a08*a05);
+  a13=(a01-a13);
+  a13=(a13*a07);
+  a14=arg[5]? arg[5][0] : 0;
+  a13=(a13*a14);
+  a15=arg[5]? arg[5][1] : 0;
+  a05=(a05*a15);
+  a13=(a13+a05);
+  a00=(a00+a13);
+  if (res[0]!=0) res[0][0]=a00;
+  a13=arg[0]? arg[0][1] : 0;
+  a05=arg[3]? arg[3][1] : 0;
+  a05=(a05*a07);
+  a16=arg[3]? arg[3][5] : 0;
+  a17=(a08*a05);
+  a16=(a16-a17);
+  a16=(a16*a12);
+  a17=(a16*a12);
+  a18=(a08*a17);
+  a18=(a05-a18);
+  a18=(a18*a07);
+  a18=(a18*a14);
+  a17=(a17*a15);
+  a18=(a18+a17);
+  a13=(a13+a18);
+  if (res[0]!=0) res[0][1]=a13;
+  a18=arg[0]? arg[0][2] : 0;
+  a17=arg[3]? arg[3][2] : 0;
+  a17=(a17*a07);
+  a19=arg[3]? arg[3][6] : 0;
+  a20=(a08*a17);
+  a19=(a19-a20);
+  a19=(a19*a12);
+  a20=(a19*a12);
+  a21=(a08*a20);
+  a21=(a17-a21);
+  a21=(a21*a07);
+  a21=(a21*a14);
+  a20=(a20*a15);
+  a21=(a21+a20);
+  a18=(a18+a21);
+  if (res[0]!=0) res[0][2]=a18;
+  a21=arg[0]? arg[0][3] : 0;
+  a20=arg[3]? arg[3][3] : 0;
+  a20=(a20*a07);
+  a22=arg[3]? arg[3][7] : 0;
+  a23=(a08*a20);
+  a22=(a22-a23);
+  a22=(a22*a12);
+  a12=(a22*a12);
+  a08=(a08*a12);
+  a08=(a20-a08);
+  a08=(a08*a07);
+  a08=(a08*a14);
+  a12=(a12*a15);
+  a08=(a08+a12);
+  a21=(a21+a08);
+  if (res[0]!=0) res[0][3]=a21;
+  a08=arg[1]? arg[1][0] : 0;
+  a12=casadi_sq(a01);
+  a07=casadi_sq(a09);
+  a12=(a12+a07);
+  a08=(a08-a12);
+  if (res[1]!=0) res[1][0]=a08;
+  a12=5.0000000000000000e-01;
+  a07=arg[1]? arg[1][4] : 0;
+  a23=arg[1]? arg[1][1] : 0;
+  a07=(a07+a23);
+  a07=(a12*a07);
+  a23=(a01*a05);
+  a24=(a09*a16);
+  a23=(a23+a24);
+  a07=(a07-a23);
+  if (res[1]!=0) res[1][1]=a07;
+  a23=arg[1]? arg[1][8] : 0;
+  a24=arg[1]? arg[1][2] : 0;
+  a23=(a23+a24);
+  a23=(a12*a23);
+  a24=(a01*a17);
+  a25=(a09*a19);
+  a24=(a24+a25);
+  a23=(a23-a24);
+  if (res[1]!=0) res[1][2]=a23;
+  a24=arg[1]? arg[1][12] : 0;
+  a25=arg[1]? arg[1][3] : 0;
+  a24=(a24+a25);
+  a24=(a12*a24);
+  a01=(a01*a20);
+  a09=(a09*a22);
+  a01=(a01+a09);
+  a24=(a24-a01);
+  if (res[1]!=0) res[1][3]=a24;
+  if (res[1]!=0) res[1][4]=a07;
+  a01=arg[1]? arg[1][5] : 0;
+  a09=casadi_sq(a05);
+  a25=casadi_sq(a16);
+  a09=(a09+a25);
+  a01=(a01-a09);
+  if (res[1]!=0) res[1][5]=a01;
+  a09=arg[1]? arg[1][9] : 0;
+  a25=arg[1]? arg[1][6] : 0;
+  a09=(a09+a25);
+  a09=(a12*a09);
+  a25=(a05*a17);
+  a26=(a16*a19);
+  a25=(a25+a26);
+  a09=(a09-a25);
+  if (res[1]!=0) res[1][6]=a09;
+  a25=arg[1]? arg[1][13] : 0;
+  a26=arg[1]? arg[1][7] : 0;
+  a25=(a25+a26);
+  a25=(a12*a25);
+  a05=(a05*a20);
+  a16=(a16*a22);
+  a05=(a05+a16);
+  a25=(a25-a05);
+  if (res[1]!=0) res[1][7]=a25;
+  if (res[1]!=0) res[1][8]=a23;
+  if (res[1]!=0) res[1][9]=a09;
+  a05=arg[1]? arg[1][10] : 0;
+  a16=casadi_sq(a17);
+  a26=casadi_sq(a19);
+  a16=(a16+a26);
+  a05=(a05-a16);
+  if (res[1]!=0) res[1][10]=a05;
+  a16=arg[1]? arg[1][14] : 0;
+  a26=arg[1]? arg[1][11] : 0;
+  a16=(a16+a26);
+  a12=(a12*a16);
+  a17=(a17*a20);
+  a19=(a19*a22);
+  a17=(a17+a19);
+  a12=(a12-a17);
+  if (res[1]!=0) res[1][11]=a12;
+  if (res[1]!=0) res[1][12]=a24;
+  if (res[1]!=0) res[1][13]=a25;
+  if (res[1]!=0) res[1][14]=a12;
+  a17=arg[1]? arg[1][15] : 0;
+  a20=casadi_sq(a20);
+  a22=casadi_sq(a22);
+  a20=(a20+a22);
+  a17=(a17-a20);
+  if (res[1]!=0) res[1][15]=a17;
+  if (res[2]!=0) res[2][0]=a02;
+  if (res[2]!=0) res[2][1]=a06;
+  if (res[2]!=0) res[2][2]=a06;
+  if (res[2]!=0) res[2][3]=a10;
+  a04=(a04<a02);
+  a03=(a03<a11);
+  a04=(a04*a03);
+  a00=(a00+a13);
+  a00=(a00+a18);
+  a00=(a00+a21);
+  a00=(a00+a08);
+  a00=(a00+a07);
+  a00=(a00+a23);
+  a00=(a00+a24);
+  a00=(a00+a01);
+  a00=(a00+a09);
+  a00=(a00+a25);
+  a00=(a00+a05);
+  a00=(a00+a12);
+  a00=(a00+a17);
+  a00=(a00+a14);
+  a00=(a00+a15);
+  a00=(a00+a02);
+  a00=(a00+a06);
+  a00=(a00+a10);
+  a00=casadi_fabs(a00);
+  a10=casadi_inf;
+  a00=(a00<a10);
+  a04=(a04*a00);
+  if (res[3]!=0) res[3][0]=a04;
   return 0;
 }
 
 /* linear_cv_ukf_update:(x[4],P[4x4],z[2],p[2],R[2x2],mask[2],abk[3])->(x_post[4],P_post[4x4],innovation[2],S[2x2],ok) */
-static int casadi_f1(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
-  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
-  casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
-  casadi_real a36, a37, a38, a39, a40, a41, a42, a43, a44, a45, a46, a47;
-  casadi_real a48, a49, a50, a51, a52, a53, a54, a55, a56, a57, a58;
-  a00=arg[0]? arg[0][0] : 0;
-  a01=arg[5]? arg[5][0] : 0;
-  a02=0.;
-  a01=(a01!=a02);
-  a03=arg[1]? arg[1][0] : 0;
-  a04=1.0000000000000000e-13;
-  a05=casadi_fabs(a03);
-  a05=(a04*a05);
-  a06=1.0000000000000000e-300;
-  a05=(a05+a06);
-  a07=casadi_fmax(a03,a05);
-  a07=sqrt(a07);
-  a08=arg[6]? arg[6][0] : 0;
-  a08=casadi_sq(a08);
-  a09=4.;
-  a10=arg[6]? arg[6][2] : 0;
-  a10=(a09+a10);
-  a10=(a08*a10);
-  a11=sqrt(a10);
-  a12=(a07*a11);
-  a13=(a00+a12);
-  a14=arg[3]? arg[3][0] : 0;
-  a13=(a13-a14);
-  a09=(a10-a09);
-  a15=(1./a10);
-  a15=copysign(a15,a10);
-  a09=(a09*a15);
-  a15=(a00-a14);
-  a16=(a09*a15);
-  a17=(a13+a15);
-  a17=(a17+a15);
-  a17=(a17+a15);
-  a18=(a00-a12);
-  a18=(a18-a14);
-  a17=(a17+a18);
-  a17=(a17+a15);
-  a17=(a17+a15);
-  a17=(a17+a15);
-  a10=(2.*a10);
-  a14=(1./a10);
-  a14=copysign(a14,a10);
-  a17=(a17*a14);
-  a16=(a16+a17);
-  a13=(a13-a16);
-  a17=(a12*a13);
-  a18=(a18-a16);
-  a10=(a12*a18);
-  a17=(a17-a10);
-  a17=(a17*a14);
-  a17=(a01*a17);
-  a10=casadi_sq(a01);
-  a19=1.;
-  a20=(a09+a19);
-  a20=(a20-a08);
-  a08=arg[6]? arg[6][1] : 0;
-  a20=(a20+a08);
-  a15=(a15-a16);
-  a08=casadi_sq(a15);
-  a21=(a20*a08);
-  a22=casadi_sq(a13);
-  a22=(a22+a08);
-  a22=(a22+a08);
-  a22=(a22+a08);
-  a23=casadi_sq(a18);
-  a22=(a22+a23);
-  a22=(a22+a08);
-  a22=(a22+a08);
-  a22=(a22+a08);
-  a22=(a22*a14);
-  a21=(a21+a22);
-  a21=(a10*a21);
-  a22=arg[4]? arg[4][0] : 0;
-  a10=(a10*a22);
-  a22=(a19-a01);
-  a10=(a10+a22);
-  a21=(a21+a10);
-  a10=casadi_fabs(a21);
-  a10=(a04*a10);
-  a10=(a10+a06);
-  a22=casadi_fmax(a21,a10);
-  a22=sqrt(a22);
-  a08=(1./a22);
-  a08=copysign(a08,a22);
-  a17=(a17*a08);
-  a22=arg[5]? arg[5][1] : 0;
-  a22=(a22!=a02);
-  a02=(a01*a22);
-  a23=arg[0]? arg[0][1] : 0;
-  a24=arg[3]? arg[3][1] : 0;
-  a25=(a23-a24);
-  a09=(a09*a25);
-  a26=5.0000000000000000e-01;
-  a27=arg[1]? arg[1][4] : 0;
-  a28=arg[1]? arg[1][1] : 0;
-  a27=(a27+a28);
-  a27=(a26*a27);
-  a28=(1./a07);
-  a28=copysign(a28,a07);
-  a07=(a27*a28);
-  a29=(a07*a11);
-  a30=(a23+a29);
-  a30=(a30-a24);
-  a31=arg[1]? arg[1][5] : 0;
-  a32=casadi_sq(a07);
-  a32=(a31-a32);
-  a33=casadi_fabs(a31);
-  a33=(a04*a33);
-  a33=(a33+a06);
-  a34=casadi_fmax(a32,a33);
-  a34=sqrt(a34);
-  a35=(a34*a11);
-  a36=(a23+a35);
-  a36=(a36-a24);
-  a37=(a30+a36);
-  a37=(a37+a25);
-  a37=(a37+a25);
-  a38=(a23-a29);
-  a38=(a38-a24);
-  a37=(a37+a38);
-  a39=(a23-a35);
-  a39=(a39-a24);
-  a37=(a37+a39);
-  a37=(a37+a25);
-  a37=(a37+a25);
-  a37=(a37*a14);
-  a09=(a09+a37);
-  a25=(a25-a09);
-  a37=(a15*a25);
-  a24=(a20*a37);
-  a30=(a30-a09);
-  a40=(a13*a30);
-  a36=(a36-a09);
-  a41=(a15*a36);
-  a40=(a40+a41);
-  a40=(a40+a37);
-  a40=(a40+a37);
-  a38=(a38-a09);
-  a41=(a18*a38);
-  a40=(a40+a41);
-  a39=(a39-a09);
-  a41=(a15*a39);
-  a40=(a40+a41);
-  a40=(a40+a37);
-  a40=(a40+a37);
-  a40=(a40*a14);
-  a24=(a24+a40);
-  a24=(a02*a24);
-  a40=arg[4]? arg[4][2] : 0;
-  a37=arg[4]? arg[4][1] : 0;
-  a40=(a40+a37);
-  a40=(a26*a40);
-  a02=(a02*a40);
-  a24=(a24+a02);
-  a02=(a24*a08);
-  a40=(a12*a30);
-  a12=(a12*a38);
-  a40=(a40-a12);
-  a40=(a40*a14);
-  a40=(a22*a40);
-  a12=(a02*a17);
-  a40=(a40-a12);
-  a12=casadi_sq(a22);
-  a37=casadi_sq(a25);
-  a20=(a20*a37);
-  a41=casadi_sq(a30);
-  a42=casadi_sq(a36);
-  a41=(a41+a42);
-  a41=(a41+a37);
-  a41=(a41+a37);
-  a42=casadi_sq(a38);
-  a41=(a41+a42);
-  a42=casadi_sq(a39);
-  a41=(a41+a42);
-  a41=(a41+a37);
-  a41=(a41+a37);
-  a41=(a41*a14);
-  a20=(a20+a41);
-  a20=(a12*a20);
-  a41=arg[4]? arg[4][3] : 0;
-  a12=(a12*a41);
-  a19=(a19-a22);
-  a12=(a12+a19);
-  a20=(a20+a12);
-  a12=casadi_sq(a02);
-  a12=(a20-a12);
-  a19=casadi_fabs(a20);
-  a19=(a04*a19);
-  a19=(a19+a06);
-  a41=casadi_fmax(a12,a19);
-  a41=sqrt(a41);
-  a37=(1./a41);
-  a37=copysign(a37,a41);
-  a40=(a40*a37);
-  a41=(a40*a37);
-  a42=(a02*a41);
-  a42=(a17-a42);
-  a42=(a42*a08);
-  a43=arg[2]? arg[2][0] : 0;
-  a43=(a43-a16);
-  a42=(a42*a43);
-  a42=(a01?a42:0);
-  a16=arg[2]? arg[2][1] : 0;
-  a16=(a16-a09);
-  a41=(a41*a16);
-  a41=(a22?a41:0);
-  a42=(a42+a41);
-  a00=(a00+a42);
-  if (res[0]!=0) res[0][0]=a00;
-  a42=(a29*a13);
-  a41=(a35*a15);
-  a42=(a42+a41);
-  a09=(a29*a18);
-  a42=(a42-a09);
-  a42=(a42-a41);
-  a42=(a42*a14);
-  a42=(a01*a42);
-  a42=(a42*a08);
-  a41=(a29*a30);
-  a09=(a35*a36);
-  a41=(a41+a09);
-  a29=(a29*a38);
-  a41=(a41-a29);
-  a35=(a35*a39);
-  a41=(a41-a35);
-  a41=(a41*a14);
-  a41=(a22*a41);
-  a35=(a02*a42);
-  a41=(a41-a35);
-  a41=(a41*a37);
-  a35=(a41*a37);
-  a29=(a02*a35);
-  a29=(a42-a29);
-  a29=(a29*a08);
-  a29=(a29*a43);
-  a29=(a01?a29:0);
-  a35=(a35*a16);
-  a35=(a22?a35:0);
-  a29=(a29+a35);
-  a23=(a23+a29);
-  if (res[0]!=0) res[0][1]=a23;
-  a29=arg[0]? arg[0][2] : 0;
-  a35=arg[1]? arg[1][8] : 0;
-  a09=arg[1]? arg[1][2] : 0;
-  a35=(a35+a09);
-  a35=(a26*a35);
-  a09=(a35*a28);
-  a44=(a09*a11);
-  a45=(a44*a13);
-  a46=arg[1]? arg[1][9] : 0;
-  a47=arg[1]? arg[1][6] : 0;
-  a46=(a46+a47);
-  a46=(a26*a46);
-  a47=(a09*a07);
-  a47=(a46-a47);
-  a48=(1./a34);
-  a48=copysign(a48,a34);
-  a47=(a47*a48);
-  a34=(a47*a11);
-  a49=(a34*a15);
-  a45=(a45+a49);
-  a50=arg[1]? arg[1][10] : 0;
-  a51=casadi_sq(a09);
-  a52=casadi_sq(a47);
-  a51=(a51+a52);
-  a51=(a50-a51);
-  a52=casadi_fabs(a50);
-  a52=(a04*a52);
-  a52=(a52+a06);
-  a53=casadi_fmax(a51,a52);
-  a53=sqrt(a53);
-  a54=(a53*a11);
-  a55=(a54*a15);
-  a45=(a45+a55);
-  a56=(a44*a18);
-  a45=(a45-a56);
-  a45=(a45-a49);
-  a45=(a45-a55);
-  a45=(a45*a14);
-  a45=(a01*a45);
-  a45=(a45*a08);
-  a55=(a44*a30);
-  a49=(a34*a36);
-  a55=(a55+a49);
-  a54=(a54*a25);
-  a55=(a55+a54);
-  a44=(a44*a38);
-  a55=(a55-a44);
-  a34=(a34*a39);
-  a55=(a55-a34);
-  a55=(a55-a54);
-  a55=(a55*a14);
-  a55=(a22*a55);
-  a54=(a02*a45);
-  a55=(a55-a54);
-  a55=(a55*a37);
-  a54=(a55*a37);
-  a34=(a02*a54);
-  a34=(a45-a34);
-  a34=(a34*a08);
-  a34=(a34*a43);
-  a34=(a01?a34:0);
-  a54=(a54*a16);
-  a54=(a22?a54:0);
-  a34=(a34+a54);
-  a29=(a29+a34);
-  if (res[0]!=0) res[0][2]=a29;
-  a34=arg[0]? arg[0][3] : 0;
-  a54=arg[1]? arg[1][12] : 0;
-  a44=arg[1]? arg[1][3] : 0;
-  a54=(a54+a44);
-  a54=(a26*a54);
-  a28=(a54*a28);
-  a44=(a28*a11);
-  a13=(a44*a13);
-  a49=arg[1]? arg[1][13] : 0;
-  a56=arg[1]? arg[1][7] : 0;
-  a49=(a49+a56);
-  a49=(a26*a49);
-  a07=(a28*a07);
-  a07=(a49-a07);
-  a07=(a07*a48);
-  a48=(a07*a11);
-  a56=(a48*a15);
-  a13=(a13+a56);
-  a57=arg[1]? arg[1][14] : 0;
-  a58=arg[1]? arg[1][11] : 0;
-  a57=(a57+a58);
-  a26=(a26*a57);
-  a09=(a28*a09);
-  a47=(a07*a47);
-  a09=(a09+a47);
-  a09=(a26-a09);
-  a47=(1./a53);
-  a47=copysign(a47,a53);
-  a09=(a09*a47);
-  a47=(a09*a11);
-  a53=(a47*a15);
-  a13=(a13+a53);
-  a57=arg[1]? arg[1][15] : 0;
-  a28=casadi_sq(a28);
-  a07=casadi_sq(a07);
-  a28=(a28+a07);
-  a09=casadi_sq(a09);
-  a28=(a28+a09);
-  a28=(a57-a28);
-  a09=casadi_fabs(a57);
-  a04=(a04*a09);
-  a04=(a04+a06);
-  a06=casadi_fmax(a28,a04);
-  a06=sqrt(a06);
-  a06=(a06*a11);
-  a15=(a06*a15);
-  a13=(a13+a15);
-  a18=(a44*a18);
-  a13=(a13-a18);
-  a13=(a13-a56);
-  a13=(a13-a53);
-  a13=(a13-a15);
-  a13=(a13*a14);
-  a13=(a01*a13);
-  a13=(a13*a08);
-  a30=(a44*a30);
-  a36=(a48*a36);
-  a30=(a30+a36);
-  a47=(a47*a25);
-  a30=(a30+a47);
-  a06=(a06*a25);
-  a30=(a30+a06);
-  a44=(a44*a38);
-  a30=(a30-a44);
-  a48=(a48*a39);
-  a30=(a30-a48);
-  a30=(a30-a47);
-  a30=(a30-a06);
-  a30=(a30*a14);
-  a30=(a22*a30);
-  a14=(a02*a13);
-  a30=(a30-a14);
-  a30=(a30*a37);
-  a37=(a30*a37);
-  a02=(a02*a37);
-  a02=(a13-a02);
-  a02=(a02*a08);
-  a02=(a02*a43);
-  a02=(a01?a02:0);
-  a37=(a37*a16);
-  a37=(a22?a37:0);
-  a02=(a02+a37);
-  a34=(a34+a02);
-  if (res[0]!=0) res[0][3]=a34;
-  a02=casadi_sq(a17);
-  a37=casadi_sq(a40);
-  a02=(a02+a37);
-  a02=(a03-a02);
-  if (res[1]!=0) res[1][0]=a02;
-  a37=(a17*a42);
-  a08=(a40*a41);
-  a37=(a37+a08);
-  a27=(a27-a37);
-  if (res[1]!=0) res[1][1]=a27;
-  a37=(a17*a45);
-  a08=(a40*a55);
-  a37=(a37+a08);
-  a35=(a35-a37);
-  if (res[1]!=0) res[1][2]=a35;
-  a17=(a17*a13);
-  a40=(a40*a30);
-  a17=(a17+a40);
-  a54=(a54-a17);
-  if (res[1]!=0) res[1][3]=a54;
-  if (res[1]!=0) res[1][4]=a27;
-  a17=casadi_sq(a42);
-  a40=casadi_sq(a41);
-  a17=(a17+a40);
-  a31=(a31-a17);
-  if (res[1]!=0) res[1][5]=a31;
-  a17=(a42*a45);
-  a40=(a41*a55);
-  a17=(a17+a40);
-  a46=(a46-a17);
-  if (res[1]!=0) res[1][6]=a46;
-  a42=(a42*a13);
-  a41=(a41*a30);
-  a42=(a42+a41);
-  a49=(a49-a42);
-  if (res[1]!=0) res[1][7]=a49;
-  if (res[1]!=0) res[1][8]=a35;
-  if (res[1]!=0) res[1][9]=a46;
-  a42=casadi_sq(a45);
-  a41=casadi_sq(a55);
-  a42=(a42+a41);
-  a50=(a50-a42);
-  if (res[1]!=0) res[1][10]=a50;
-  a45=(a45*a13);
-  a55=(a55*a30);
-  a45=(a45+a55);
-  a26=(a26-a45);
-  if (res[1]!=0) res[1][11]=a26;
-  if (res[1]!=0) res[1][12]=a54;
-  if (res[1]!=0) res[1][13]=a49;
-  if (res[1]!=0) res[1][14]=a26;
-  a13=casadi_sq(a13);
-  a30=casadi_sq(a30);
-  a13=(a13+a30);
-  a57=(a57-a13);
-  if (res[1]!=0) res[1][15]=a57;
-  a01=(a01?a43:0);
-  if (res[2]!=0) res[2][0]=a01;
-  a22=(a22?a16:0);
-  if (res[2]!=0) res[2][1]=a22;
-  if (res[3]!=0) res[3][0]=a21;
-  if (res[3]!=0) res[3][1]=a24;
-  if (res[3]!=0) res[3][2]=a24;
-  if (res[3]!=0) res[3][3]=a20;
-  a05=(a05<a03);
-  a33=(a33<a32);
-  a05=(a05*a33);
-  a52=(a52<a51);
-  a05=(a05*a52);
-  a04=(a04<a28);
-  a05=(a05*a04);
-  a10=(a10<a21);
-  a19=(a19<a12);
-  a10=(a10*a19);
-  a05=(a05*a10);
-  a00=(a00+a23);
-  a00=(a00+a29);
-  a00=(a00+a34);
-  a00=(a00+a02);
-  a00=(a00+a27);
-  a00=(a00+a35);
-  a00=(a00+a54);
-  a00=(a00+a31);
-  a00=(a00+a46);
-  a00=(a00+a49);
-  a00=(a00+a50);
-  a00=(a00+a26);
-  a00=(a00+a57);
-  a00=(a00+a01);
-  a00=(a00+a22);
-  a00=(a00+a21);
-  a00=(a00+a24);
-  a00=(a00+a24);
-  a00=(a00+a20);
-  a00=casadi_fabs(a00);
-  a20=casadi_inf;
-  a00=(a00<a20);
-  a05=(a05*a00);
-  if (res[4]!=0) res[4][0]=a05;
+static int casadi_f11(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+5, *w00=w+76, *w02=w+80, *w03=w+83, *w04=w+119, w05, *w06=w+135, *w07=w+137, *w08=w+155, *w09=w+157, *w10=w+159, *w11=w+163;
+  casadi_real *w12=w+171, *w13=w+175, w14, *w15=w+179, w16;
+  const casadi_real **arg1=arg+7, *wr01;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 4, w00);
+  /* #1: @1 = input[1][0] */
+  wr01 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[6][0] */
+  casadi_copy(arg[6], 3, w02);
+  /* #3: {@3, @4, @5} = linear_cv_ukf_points(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=w02;
+  res1[0]=w03;
+  res1[1]=w04;
+  res1[2]=(&w05);
+  if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
+  /* #4: @6 = input[3][0] */
+  casadi_copy(arg[3], 2, w06);
+  /* #5: @7 = linear_cv_measurement_columns(@3, @6) */
+  arg1[0]=w03;
+  arg1[1]=w06;
+  res1[0]=w07;
+  if (casadi_f12(arg1, res1, iw, w, 0)) return 1;
+  /* #6: @6 = input[2][0] */
+  casadi_copy(arg[2], 2, w06);
+  /* #7: @8 = input[5][0] */
+  casadi_copy(arg[5], 2, w08);
+  /* #8: {@9, @10, @11} = linear_cv_ukf_moments(@4, @7, @6, @8, @2) */
+  arg1[0]=w04;
+  arg1[1]=w07;
+  arg1[2]=w06;
+  arg1[3]=w08;
+  arg1[4]=w02;
+  res1[0]=w09;
+  res1[1]=w10;
+  res1[2]=w11;
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #9: @12 = input[4][0] */
+  casadi_copy(arg[4], 4, w12);
+  /* #10: {@13, @14} = linear_cv_ukf_noise(@12, @8, @10, @9) */
+  arg1[0]=w12;
+  arg1[1]=w08;
+  arg1[2]=w10;
+  arg1[3]=w09;
+  res1[0]=w13;
+  res1[1]=(&w14);
+  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
+  /* #11: {@12, @4, @15, @16} = linear_cv_ukf_kalman(@0, @1, @10, @11, @13, @9) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=w10;
+  arg1[3]=w11;
+  arg1[4]=w13;
+  arg1[5]=w09;
+  res1[0]=w12;
+  res1[1]=w04;
+  res1[2]=w15;
+  res1[3]=(&w16);
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  /* #12: output[0][0] = @12 */
+  casadi_copy(w12, 4, res[0]);
+  /* #13: output[1][0] = @4 */
+  casadi_copy(w04, 16, res[1]);
+  /* #14: output[2][0] = @9 */
+  casadi_copy(w09, 2, res[2]);
+  /* #15: output[3][0] = @15 */
+  casadi_copy(w15, 4, res[3]);
+  /* #16: @5 = (@5*@14) */
+  w05 *= w14;
+  /* #17: @5 = (@5*@16) */
+  w05 *= w16;
+  /* #18: output[4][0] = @5 */
+  if (res[4]) res[4][0] = w05;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_ukf_update(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f1(arg, res, iw, w, mem);
+  return casadi_f11(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_ukf_update_checkout(void) {
@@ -1411,18 +1616,691 @@ CASADI_SYMBOL_EXPORT const casadi_int* linear_cv_ukf_update_sparsity_out(casadi_
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_ukf_update_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 7;
-  if (sz_res) *sz_res = 5;
+  if (sz_arg) *sz_arg = 13;
+  if (sz_res) *sz_res = 9;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 0;
+  if (sz_w) *sz_w = 183;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_ukf_update_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 7*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 5*sizeof(casadi_real*);
+  if (sz_arg) *sz_arg = 13*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 9*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  if (sz_w) *sz_w = 183*sizeof(casadi_real);
+  return 0;
+}
+
+/* linear_cv_measurement_columns:(x[4x9],p[2])->(y[2x9]) */
+static int casadi_f19(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_int i;
+  casadi_real **res1=res+1, *w1=w+2, *w2=w+4, *w3=w+22;
+  const casadi_real **arg1=arg+2, *wr0;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  casadi_copy(arg[1], 2, w1);
+  /* #2: @2 = repmat(@1, 9) */
+  for (i=0;i<9;++i) {
+    casadi_copy(w1, 2, w2+ i*2);
+  }
+  /* #3: @3 = map9_linear_cv_measurement(@0, @2) */
+  arg1[0]=wr0;
+  arg1[1]=w2;
+  res1[0]=w3;
+  if (casadi_f13(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 18, res[0]);
+  return 0;
+}
+
+/* linear_cv_mcc_noise:(R[2x2],mask[2],Pzz[2x2],innovation[2],sigma)->(R_used[2x2],ok) */
+static int casadi_f20(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15, a16;
+  a00=arg[1]? arg[1][0] : 0;
+  a01=0.;
+  a00=(a00!=a01);
+  a02=casadi_sq(a00);
+  a03=arg[0]? arg[0][0] : 0;
+  a02=(a02*a03);
+  a03=1.;
+  a04=(a03-a00);
+  a02=(a02+a04);
+  a04=1.0000000000000000e-13;
+  a05=casadi_fabs(a02);
+  a05=(a04*a05);
+  a06=1.0000000000000000e-300;
+  a05=(a05+a06);
+  a07=casadi_fmax(a02,a05);
+  a07=sqrt(a07);
+  a08=arg[3]? arg[3][0] : 0;
+  a09=(1./a07);
+  a09=copysign(a09,a07);
+  a08=(a08*a09);
+  a10=casadi_sq(a08);
+  a11=arg[4]? arg[4][0] : 0;
+  a11=casadi_sq(a11);
+  a11=(2.*a11);
+  a12=(1./a11);
+  a12=copysign(a12,a11);
+  a10=(a10*a12);
+  a11=50.;
+  a10=casadi_fmin(a10,a11);
+  a10=exp(a10);
+  a13=(a07*a10);
+  a14=(a13*a07);
+  if (res[0]!=0) res[0][0]=a14;
+  a14=arg[1]? arg[1][1] : 0;
+  a14=(a14!=a01);
+  a00=(a00*a14);
+  a01=5.0000000000000000e-01;
+  a15=arg[0]? arg[0][2] : 0;
+  a16=arg[0]? arg[0][1] : 0;
+  a15=(a15+a16);
+  a01=(a01*a15);
+  a00=(a00*a01);
+  a00=(a00*a09);
+  a10=(a00*a10);
+  a07=(a10*a07);
+  if (res[0]!=0) res[0][1]=a07;
+  a13=(a13*a00);
+  if (res[0]!=0) res[0][2]=a13;
+  a10=(a10*a00);
+  a13=casadi_sq(a14);
+  a07=arg[0]? arg[0][3] : 0;
+  a13=(a13*a07);
+  a03=(a03-a14);
+  a13=(a13+a03);
+  a03=casadi_sq(a00);
+  a03=(a13-a03);
+  a13=casadi_fabs(a13);
+  a04=(a04*a13);
+  a04=(a04+a06);
+  a06=casadi_fmax(a03,a04);
+  a06=sqrt(a06);
+  a13=arg[3]? arg[3][1] : 0;
+  a00=(a00*a08);
+  a13=(a13-a00);
+  a00=(1./a06);
+  a00=copysign(a00,a06);
+  a13=(a13*a00);
+  a13=casadi_sq(a13);
+  a13=(a13*a12);
+  a13=casadi_fmin(a13,a11);
+  a13=exp(a13);
+  a13=(a06*a13);
+  a13=(a13*a06);
+  a10=(a10+a13);
+  if (res[0]!=0) res[0][3]=a10;
+  a05=(a05<a02);
+  a04=(a04<a03);
+  a05=(a05*a04);
+  if (res[1]!=0) res[1][0]=a05;
+  return 0;
+}
+
+/* linear_cv_mcukf_update:(x[4],P[4x4],z[2],p[2],R[2x2],mask[2],abk[3],sigma)->(x_post[4],P_post[4x4],innovation[2],S[2x2],ok) */
+static int casadi_f18(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+5, *w00=w+76, *w02=w+80, *w03=w+83, *w04=w+119, w05, *w06=w+135, *w07=w+137, *w08=w+155, *w09=w+157, *w10=w+159, *w11=w+163;
+  casadi_real *w12=w+171, w13, *w14=w+175, w15, *w16=w+179;
+  const casadi_real **arg1=arg+8, *wr01;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 4, w00);
+  /* #1: @1 = input[1][0] */
+  wr01 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[6][0] */
+  casadi_copy(arg[6], 3, w02);
+  /* #3: {@3, @4, @5} = linear_cv_ukf_points(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=w02;
+  res1[0]=w03;
+  res1[1]=w04;
+  res1[2]=(&w05);
+  if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
+  /* #4: @6 = input[3][0] */
+  casadi_copy(arg[3], 2, w06);
+  /* #5: @7 = linear_cv_measurement_columns(@3, @6) */
+  arg1[0]=w03;
+  arg1[1]=w06;
+  res1[0]=w07;
+  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
+  /* #6: @6 = input[2][0] */
+  casadi_copy(arg[2], 2, w06);
+  /* #7: @8 = input[5][0] */
+  casadi_copy(arg[5], 2, w08);
+  /* #8: {@9, @10, @11} = linear_cv_ukf_moments(@4, @7, @6, @8, @2) */
+  arg1[0]=w04;
+  arg1[1]=w07;
+  arg1[2]=w06;
+  arg1[3]=w08;
+  arg1[4]=w02;
+  res1[0]=w09;
+  res1[1]=w10;
+  res1[2]=w11;
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #9: @12 = input[4][0] */
+  casadi_copy(arg[4], 4, w12);
+  /* #10: @13 = input[7][0] */
+  w13 = arg[7] ? arg[7][0] : 0;
+  /* #11: {@14, @15} = linear_cv_mcc_noise(@12, @8, @10, @9, @13) */
+  arg1[0]=w12;
+  arg1[1]=w08;
+  arg1[2]=w10;
+  arg1[3]=w09;
+  arg1[4]=(&w13);
+  res1[0]=w14;
+  res1[1]=(&w15);
+  if (casadi_f20(arg1, res1, iw, w, 0)) return 1;
+  /* #12: {@12, @4, @16, @13} = linear_cv_ukf_kalman(@0, @1, @10, @11, @14, @9) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=w10;
+  arg1[3]=w11;
+  arg1[4]=w14;
+  arg1[5]=w09;
+  res1[0]=w12;
+  res1[1]=w04;
+  res1[2]=w16;
+  res1[3]=(&w13);
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  /* #13: output[0][0] = @12 */
+  casadi_copy(w12, 4, res[0]);
+  /* #14: output[1][0] = @4 */
+  casadi_copy(w04, 16, res[1]);
+  /* #15: output[2][0] = @9 */
+  casadi_copy(w09, 2, res[2]);
+  /* #16: output[3][0] = @16 */
+  casadi_copy(w16, 4, res[3]);
+  /* #17: @5 = (@5*@15) */
+  w05 *= w15;
+  /* #18: @5 = (@5*@13) */
+  w05 *= w13;
+  /* #19: output[4][0] = @5 */
+  if (res[4]) res[4][0] = w05;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int linear_cv_mcukf_update(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f18(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int linear_cv_mcukf_update_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void linear_cv_mcukf_update_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void linear_cv_mcukf_update_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void linear_cv_mcukf_update_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int linear_cv_mcukf_update_n_in(void) { return 8;}
+
+CASADI_SYMBOL_EXPORT casadi_int linear_cv_mcukf_update_n_out(void) { return 5;}
+
+CASADI_SYMBOL_EXPORT casadi_real linear_cv_mcukf_update_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* linear_cv_mcukf_update_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "x";
+    case 1: return "P";
+    case 2: return "z";
+    case 3: return "p";
+    case 4: return "R";
+    case 5: return "mask";
+    case 6: return "abk";
+    case 7: return "sigma";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* linear_cv_mcukf_update_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "x_post";
+    case 1: return "P_post";
+    case 2: return "innovation";
+    case 3: return "S";
+    case 4: return "ok";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* linear_cv_mcukf_update_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s0;
+    case 1: return casadi_s1;
+    case 2: return casadi_s2;
+    case 3: return casadi_s2;
+    case 4: return casadi_s5;
+    case 5: return casadi_s2;
+    case 6: return casadi_s4;
+    case 7: return casadi_s3;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* linear_cv_mcukf_update_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s0;
+    case 1: return casadi_s1;
+    case 2: return casadi_s2;
+    case 3: return casadi_s5;
+    case 4: return casadi_s3;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int linear_cv_mcukf_update_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 14;
+  if (sz_res) *sz_res = 9;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 183;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int linear_cv_mcukf_update_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 14*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 9*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 183*sizeof(casadi_real);
+  return 0;
+}
+
+/* linear_cv_measurement_columns:(x[4x9],p[2])->(y[2x9]) */
+static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_int i;
+  casadi_real **res1=res+1, *w1=w+2, *w2=w+4, *w3=w+22;
+  const casadi_real **arg1=arg+2, *wr0;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  casadi_copy(arg[1], 2, w1);
+  /* #2: @2 = repmat(@1, 9) */
+  for (i=0;i<9;++i) {
+    casadi_copy(w1, 2, w2+ i*2);
+  }
+  /* #3: @3 = map9_linear_cv_measurement(@0, @2) */
+  arg1[0]=wr0;
+  arg1[1]=w2;
+  res1[0]=w3;
+  if (casadi_f13(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 18, res[0]);
+  return 0;
+}
+
+/* linear_cv_huber_noise:(R[2x2],mask[2],Pzz[2x2],innovation[2],gamma)->(R_used[2x2],ok) */
+static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
+  casadi_real a24, a25, a26, a27;
+  a00=arg[1]? arg[1][0] : 0;
+  a01=0.;
+  a00=(a00!=a01);
+  a02=casadi_sq(a00);
+  a03=arg[0]? arg[0][0] : 0;
+  a02=(a02*a03);
+  a03=1.;
+  a04=(a03-a00);
+  a02=(a02+a04);
+  a04=1.0000000000000000e-13;
+  a05=casadi_fabs(a02);
+  a05=(a04*a05);
+  a06=1.0000000000000000e-300;
+  a05=(a05+a06);
+  a07=casadi_fmax(a02,a05);
+  a07=sqrt(a07);
+  a08=arg[3]? arg[3][0] : 0;
+  a09=(1./a07);
+  a09=copysign(a09,a07);
+  a10=(a08*a09);
+  a11=casadi_fabs(a10);
+  a12=arg[4]? arg[4][0] : 0;
+  a13=(1./a12);
+  a13=copysign(a13,a12);
+  a11=(a11*a13);
+  a11=casadi_fmax(a03,a11);
+  a12=(a07*a11);
+  a14=(a12*a07);
+  a15=arg[2]? arg[2][0] : 0;
+  a16=(a15+a14);
+  a17=casadi_fabs(a16);
+  a17=(a04*a17);
+  a17=(a17+a06);
+  a16=casadi_fmax(a16,a17);
+  a16=sqrt(a16);
+  a17=(1./a16);
+  a17=copysign(a17,a16);
+  a16=(a08*a17);
+  a18=arg[2]? arg[2][2] : 0;
+  a19=arg[1]? arg[1][1] : 0;
+  a19=(a19!=a01);
+  a00=(a00*a19);
+  a01=5.0000000000000000e-01;
+  a20=arg[0]? arg[0][2] : 0;
+  a21=arg[0]? arg[0][1] : 0;
+  a20=(a20+a21);
+  a01=(a01*a20);
+  a00=(a00*a01);
+  a00=(a00*a09);
+  a11=(a00*a11);
+  a01=(a11*a07);
+  a20=(a18+a01);
+  a20=(a20*a17);
+  a21=arg[3]? arg[3][1] : 0;
+  a22=(a20*a16);
+  a22=(a21-a22);
+  a23=arg[2]? arg[2][3] : 0;
+  a11=(a11*a00);
+  a24=casadi_sq(a19);
+  a25=arg[0]? arg[0][3] : 0;
+  a24=(a24*a25);
+  a19=(a03-a19);
+  a24=(a24+a19);
+  a19=casadi_sq(a00);
+  a19=(a24-a19);
+  a24=casadi_fabs(a24);
+  a24=(a04*a24);
+  a24=(a24+a06);
+  a25=casadi_fmax(a19,a24);
+  a25=sqrt(a25);
+  a10=(a00*a10);
+  a10=(a21-a10);
+  a26=(1./a25);
+  a26=copysign(a26,a25);
+  a10=(a10*a26);
+  a10=casadi_fabs(a10);
+  a10=(a10*a13);
+  a10=casadi_fmax(a03,a10);
+  a10=(a25*a10);
+  a10=(a10*a25);
+  a11=(a11+a10);
+  a10=(a23+a11);
+  a27=casadi_sq(a20);
+  a27=(a10-a27);
+  a10=casadi_fabs(a10);
+  a10=(a04*a10);
+  a10=(a10+a06);
+  a27=casadi_fmax(a27,a10);
+  a27=sqrt(a27);
+  a10=(1./a27);
+  a10=copysign(a10,a27);
+  a22=(a22*a10);
+  a22=(a22*a10);
+  a20=(a20*a22);
+  a16=(a16-a20);
+  a16=(a16*a17);
+  a14=(a14*a16);
+  a12=(a12*a00);
+  a12=(a12*a22);
+  a14=(a14+a12);
+  a14=(a14*a09);
+  a12=casadi_fabs(a14);
+  a12=(a12*a13);
+  a12=casadi_fmax(a03,a12);
+  a17=(a07*a12);
+  a20=(a17*a07);
+  a15=(a15+a20);
+  a10=casadi_fabs(a15);
+  a10=(a04*a10);
+  a10=(a10+a06);
+  a15=casadi_fmax(a15,a10);
+  a15=sqrt(a15);
+  a10=(1./a15);
+  a10=copysign(a10,a15);
+  a08=(a08*a10);
+  a12=(a00*a12);
+  a15=(a12*a07);
+  a18=(a18+a15);
+  a18=(a18*a10);
+  a27=(a18*a08);
+  a21=(a21-a27);
+  a12=(a12*a00);
+  a01=(a01*a16);
+  a11=(a11*a22);
+  a01=(a01+a11);
+  a14=(a00*a14);
+  a01=(a01-a14);
+  a01=(a01*a26);
+  a01=casadi_fabs(a01);
+  a01=(a01*a13);
+  a01=casadi_fmax(a03,a01);
+  a01=(a25*a01);
+  a01=(a01*a25);
+  a12=(a12+a01);
+  a23=(a23+a12);
+  a01=casadi_sq(a18);
+  a01=(a23-a01);
+  a23=casadi_fabs(a23);
+  a04=(a04*a23);
+  a04=(a04+a06);
+  a01=casadi_fmax(a01,a04);
+  a01=sqrt(a01);
+  a04=(1./a01);
+  a04=copysign(a04,a01);
+  a21=(a21*a04);
+  a21=(a21*a04);
+  a18=(a18*a21);
+  a08=(a08-a18);
+  a08=(a08*a10);
+  a20=(a20*a08);
+  a17=(a17*a00);
+  a17=(a17*a21);
+  a20=(a20+a17);
+  a20=(a20*a09);
+  a09=casadi_fabs(a20);
+  a09=(a09*a13);
+  a09=casadi_fmax(a03,a09);
+  a17=(a07*a09);
+  a10=(a17*a07);
+  if (res[0]!=0) res[0][0]=a10;
+  a09=(a00*a09);
+  a07=(a09*a07);
+  if (res[0]!=0) res[0][1]=a07;
+  a17=(a17*a00);
+  if (res[0]!=0) res[0][2]=a17;
+  a09=(a09*a00);
+  a15=(a15*a08);
+  a12=(a12*a21);
+  a15=(a15+a12);
+  a00=(a00*a20);
+  a15=(a15-a00);
+  a15=(a15*a26);
+  a15=casadi_fabs(a15);
+  a15=(a15*a13);
+  a03=casadi_fmax(a03,a15);
+  a03=(a25*a03);
+  a03=(a03*a25);
+  a09=(a09+a03);
+  if (res[0]!=0) res[0][3]=a09;
+  a05=(a05<a02);
+  a24=(a24<a19);
+  a05=(a05*a24);
+  if (res[1]!=0) res[1][0]=a05;
+  return 0;
+}
+
+/* linear_cv_huber_ukf_update:(x[4],P[4x4],z[2],p[2],R[2x2],mask[2],abk[3],gamma)->(x_post[4],P_post[4x4],innovation[2],S[2x2],ok) */
+static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+5, *w00=w+76, *w02=w+80, *w03=w+83, *w04=w+119, w05, *w06=w+135, *w07=w+137, *w08=w+155, *w09=w+157, *w10=w+159, *w11=w+163;
+  casadi_real *w12=w+171, w13, *w14=w+175, w15, *w16=w+179;
+  const casadi_real **arg1=arg+8, *wr01;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 4, w00);
+  /* #1: @1 = input[1][0] */
+  wr01 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[6][0] */
+  casadi_copy(arg[6], 3, w02);
+  /* #3: {@3, @4, @5} = linear_cv_ukf_points(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=w02;
+  res1[0]=w03;
+  res1[1]=w04;
+  res1[2]=(&w05);
+  if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
+  /* #4: @6 = input[3][0] */
+  casadi_copy(arg[3], 2, w06);
+  /* #5: @7 = linear_cv_measurement_columns(@3, @6) */
+  arg1[0]=w03;
+  arg1[1]=w06;
+  res1[0]=w07;
+  if (casadi_f22(arg1, res1, iw, w, 0)) return 1;
+  /* #6: @6 = input[2][0] */
+  casadi_copy(arg[2], 2, w06);
+  /* #7: @8 = input[5][0] */
+  casadi_copy(arg[5], 2, w08);
+  /* #8: {@9, @10, @11} = linear_cv_ukf_moments(@4, @7, @6, @8, @2) */
+  arg1[0]=w04;
+  arg1[1]=w07;
+  arg1[2]=w06;
+  arg1[3]=w08;
+  arg1[4]=w02;
+  res1[0]=w09;
+  res1[1]=w10;
+  res1[2]=w11;
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #9: @12 = input[4][0] */
+  casadi_copy(arg[4], 4, w12);
+  /* #10: @13 = input[7][0] */
+  w13 = arg[7] ? arg[7][0] : 0;
+  /* #11: {@14, @15} = linear_cv_huber_noise(@12, @8, @10, @9, @13) */
+  arg1[0]=w12;
+  arg1[1]=w08;
+  arg1[2]=w10;
+  arg1[3]=w09;
+  arg1[4]=(&w13);
+  res1[0]=w14;
+  res1[1]=(&w15);
+  if (casadi_f23(arg1, res1, iw, w, 0)) return 1;
+  /* #12: {@12, @4, @16, @13} = linear_cv_ukf_kalman(@0, @1, @10, @11, @14, @9) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=w10;
+  arg1[3]=w11;
+  arg1[4]=w14;
+  arg1[5]=w09;
+  res1[0]=w12;
+  res1[1]=w04;
+  res1[2]=w16;
+  res1[3]=(&w13);
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  /* #13: output[0][0] = @12 */
+  casadi_copy(w12, 4, res[0]);
+  /* #14: output[1][0] = @4 */
+  casadi_copy(w04, 16, res[1]);
+  /* #15: output[2][0] = @9 */
+  casadi_copy(w09, 2, res[2]);
+  /* #16: output[3][0] = @16 */
+  casadi_copy(w16, 4, res[3]);
+  /* #17: @5 = (@5*@15) */
+  w05 *= w15;
+  /* #18: @5 = (@5*@13) */
+  w05 *= w13;
+  /* #19: output[4][0] = @5 */
+  if (res[4]) res[4][0] = w05;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int linear_cv_huber_ukf_update(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f21(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int linear_cv_huber_ukf_update_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void linear_cv_huber_ukf_update_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void linear_cv_huber_ukf_update_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void linear_cv_huber_ukf_update_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int linear_cv_huber_ukf_update_n_in(void) { return 8;}
+
+CASADI_SYMBOL_EXPORT casadi_int linear_cv_huber_ukf_update_n_out(void) { return 5;}
+
+CASADI_SYMBOL_EXPORT casadi_real linear_cv_huber_ukf_update_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* linear_cv_huber_ukf_update_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "x";
+    case 1: return "P";
+    case 2: return "z";
+    case 3: return "p";
+    case 4: return "R";
+    case 5: return "mask";
+    case 6: return "abk";
+    case 7: return "gamma";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* linear_cv_huber_ukf_update_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "x_post";
+    case 1: return "P_post";
+    case 2: return "innovation";
+    case 3: return "S";
+    case 4: return "ok";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* linear_cv_huber_ukf_update_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s0;
+    case 1: return casadi_s1;
+    case 2: return casadi_s2;
+    case 3: return casadi_s2;
+    case 4: return casadi_s5;
+    case 5: return casadi_s2;
+    case 6: return casadi_s4;
+    case 7: return casadi_s3;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* linear_cv_huber_ukf_update_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s0;
+    case 1: return casadi_s1;
+    case 2: return casadi_s2;
+    case 3: return casadi_s5;
+    case 4: return casadi_s3;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int linear_cv_huber_ukf_update_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 14;
+  if (sz_res) *sz_res = 9;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 183;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int linear_cv_huber_ukf_update_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 14*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 9*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 183*sizeof(casadi_real);
   return 0;
 }
 
@@ -1433,13 +2311,13 @@ CASADI_SYMBOL_EXPORT int linear_cv_ukf_update_work_bytes(casadi_int *sz_arg, cas
  * failing evaluation. */
 CASADI_SYMBOL_EXPORT int linear_cv_ukf_predict_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
-  const casadi_real* a[7];
-  casadi_real* r[3];
+  const casadi_real* a[19];
+  casadi_real* r[6];
   casadi_int iw[1];
-  casadi_real w[53];
+  casadi_real w[405];
   casadi_int j, k;
-  for (k = 0; k < 7; ++k) a[k] = 0;
-  for (k = 0; k < 3; ++k) r[k] = 0;
+  for (k = 0; k < 19; ++k) a[k] = 0;
+  for (k = 0; k < 6; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
     for (k = 0; k < 7; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
     for (k = 0; k < 3; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
@@ -1453,17 +2331,57 @@ CASADI_SYMBOL_EXPORT int linear_cv_ukf_predict_batch(casadi_int N, const casadi_
  * failing evaluation. */
 CASADI_SYMBOL_EXPORT int linear_cv_ukf_update_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
-  const casadi_real* a[7];
-  casadi_real* r[5];
+  const casadi_real* a[13];
+  casadi_real* r[9];
   casadi_int iw[1];
-  casadi_real w[59];
+  casadi_real w[202];
   casadi_int j, k;
-  for (k = 0; k < 7; ++k) a[k] = 0;
-  for (k = 0; k < 5; ++k) r[k] = 0;
+  for (k = 0; k < 13; ++k) a[k] = 0;
+  for (k = 0; k < 9; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
     for (k = 0; k < 7; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
     for (k = 0; k < 5; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
     if (linear_cv_ukf_update(a, r, iw, w, 0)) return (int)(1 + j);
+  }
+  return 0;
+}
+
+/* linear_cv_mcukf_update_batch: evaluate linear_cv_mcukf_update for j = 0..N-1 on slices arg[k] + j*arg_step[k] and
+ * res[k] + j*res_step[k] (a step of 0 shares the argument). Returns 0, or 1 + j of the first
+ * failing evaluation. */
+CASADI_SYMBOL_EXPORT int linear_cv_mcukf_update_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
+                                  casadi_real** res, const casadi_int* res_step) {
+  const casadi_real* a[14];
+  casadi_real* r[9];
+  casadi_int iw[1];
+  casadi_real w[202];
+  casadi_int j, k;
+  for (k = 0; k < 14; ++k) a[k] = 0;
+  for (k = 0; k < 9; ++k) r[k] = 0;
+  for (j = 0; j < N; ++j) {
+    for (k = 0; k < 8; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
+    for (k = 0; k < 5; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
+    if (linear_cv_mcukf_update(a, r, iw, w, 0)) return (int)(1 + j);
+  }
+  return 0;
+}
+
+/* linear_cv_huber_ukf_update_batch: evaluate linear_cv_huber_ukf_update for j = 0..N-1 on slices arg[k] + j*arg_step[k] and
+ * res[k] + j*res_step[k] (a step of 0 shares the argument). Returns 0, or 1 + j of the first
+ * failing evaluation. */
+CASADI_SYMBOL_EXPORT int linear_cv_huber_ukf_update_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
+                                  casadi_real** res, const casadi_int* res_step) {
+  const casadi_real* a[14];
+  casadi_real* r[9];
+  casadi_int iw[1];
+  casadi_real w[202];
+  casadi_int j, k;
+  for (k = 0; k < 14; ++k) a[k] = 0;
+  for (k = 0; k < 9; ++k) r[k] = 0;
+  for (j = 0; j < N; ++j) {
+    for (k = 0; k < 8; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
+    for (k = 0; k < 5; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
+    if (linear_cv_huber_ukf_update(a, r, iw, w, 0)) return (int)(1 + j);
   }
   return 0;
 }

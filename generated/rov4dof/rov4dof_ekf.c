@@ -2,9 +2,11 @@
  * Model rov4dof, equations sha256 c687c75178b1065274dc66a2d9596e8af2764573a0c2dd815d9554468baf28c8, CasADi 3.8.2.
  * Edit the equations and run `abyssal regenerate`; `abyssal regenerate --check` fails on drift.
  *
- * Functions (CasADi SX instructions after common-subexpression elimination):
- *   rov4dof_ekf_predict              5833 instructions
- *   rov4dof_ekf_update               2940 instructions
+ * Functions (operations per call: CasADi SX instructions after common-subexpression elimination,
+ * of the function itself or of the leaves it calls, times the calls):
+ *   rov4dof_ekf_predict              5833 operations
+ *   rov4dof_ekf_update               2940 operations
+ *   rov4dof_ekf_step                 8774 operations
  */
 /* How to prefix internal symbols */
 #ifdef CASADI_CODEGEN_PREFIX
@@ -26,8 +28,10 @@
 #endif
 
 /* Add prefix to internal symbols */
+#define casadi_copy CASADI_PREFIX(copy)
 #define casadi_f0 CASADI_PREFIX(f0)
 #define casadi_f1 CASADI_PREFIX(f1)
+#define casadi_f2 CASADI_PREFIX(f2)
 #define casadi_fabs CASADI_PREFIX(fabs)
 #define casadi_fmax CASADI_PREFIX(fmax)
 #define casadi_s0 CASADI_PREFIX(s0)
@@ -38,6 +42,7 @@
 #define casadi_s5 CASADI_PREFIX(s5)
 #define casadi_sign CASADI_PREFIX(sign)
 #define casadi_sq CASADI_PREFIX(sq)
+#define casadi_zeros CASADI_PREFIX(zeros)
 
 /* Symbol visibility in DLLs */
 #ifndef CASADI_SYMBOL_EXPORT
@@ -80,6 +85,17 @@ casadi_real casadi_fmax(casadi_real x, casadi_real y) {
 #endif
 }
 
+void casadi_copy(const casadi_real* x, casadi_int n, casadi_real* y) {
+  casadi_int i;
+  if (y) {
+    if (x) {
+      for (i=0; i<n; ++i) *y++ = *x++;
+    } else {
+      for (i=0; i<n; ++i) *y++ = 0.;
+    }
+  }
+}
+
 /* Configuration this file was compiled with */
 CASADI_SYMBOL_EXPORT void rov4dof_ekf_casadi_version(int* major, int* minor, int* patch) {
   *major = 3;
@@ -95,6 +111,9 @@ static const casadi_int casadi_s2[3] = {4, 1, 1};
 static const casadi_int casadi_s3[3] = {17, 1, 1};
 static const casadi_int casadi_s4[3] = {1, 1, 1};
 static const casadi_int casadi_s5[3] = {4, 4, 1};
+
+static const casadi_real casadi_zeros[144] = 
+  {0.};
 
 /* rov4dof_ekf_predict:(x[12],P[12x12],u[4],p[17],dt,Q[12x12])->(x_pred[12],P_pred[12x12],ok) */
 static int casadi_f0(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
@@ -9100,6 +9119,162 @@ CASADI_SYMBOL_EXPORT int rov4dof_ekf_update_work_bytes(casadi_int *sz_arg, casad
   return 0;
 }
 
+/* rov4dof_ekf_step:(x[12],P[12x12],u[4],p[17],dt,Q[12x12],z[4],R[4x4],mask[4])->(x_post[12],P_post[12x12],innovation[4],S[4x4],ok) */
+static int casadi_f2(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+5, *w00=w+370, *w01=w+382, *w02=w+526, w04, *w06=w+530, *w07=w+542, w08, *w10=w+686, *w11=w+690, *w12=w+694;
+  const casadi_real **arg1=arg+9, *wr00, *wr01, *wr03, *wr05, *wr09;
+  /* #0: @0 = input[0][0] */
+  wr00 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr01 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  casadi_copy(arg[2], 4, w02);
+  /* #3: @3 = input[3][0] */
+  wr03 = arg[3] ? arg[3] : casadi_zeros;
+  /* #4: @4 = input[4][0] */
+  w04 = arg[4] ? arg[4][0] : 0;
+  /* #5: @5 = input[5][0] */
+  wr05 = arg[5] ? arg[5] : casadi_zeros;
+  /* #6: {@6, @7, @8} = rov4dof_ekf_predict(@0, @1, @2, @3, @4, @5) */
+  arg1[0]=wr00;
+  arg1[1]=wr01;
+  arg1[2]=w02;
+  arg1[3]=wr03;
+  arg1[4]=(&w04);
+  arg1[5]=wr05;
+  res1[0]=w06;
+  res1[1]=w07;
+  res1[2]=(&w08);
+  if (casadi_f0(arg1, res1, iw, w, 0)) return 1;
+  /* #7: @2 = input[6][0] */
+  casadi_copy(arg[6], 4, w02);
+  /* #8: @9 = input[7][0] */
+  wr09 = arg[7] ? arg[7] : casadi_zeros;
+  /* #9: @10 = input[8][0] */
+  casadi_copy(arg[8], 4, w10);
+  /* #10: {@0, @1, @11, @12, @4} = rov4dof_ekf_update(@6, @7, @2, @3, @9, @10) */
+  arg1[0]=w06;
+  arg1[1]=w07;
+  arg1[2]=w02;
+  arg1[3]=wr03;
+  arg1[4]=wr09;
+  arg1[5]=w10;
+  res1[0]=w00;
+  res1[1]=w01;
+  res1[2]=w11;
+  res1[3]=w12;
+  res1[4]=(&w04);
+  if (casadi_f1(arg1, res1, iw, w, 0)) return 1;
+  /* #11: output[0][0] = @0 */
+  casadi_copy(w00, 12, res[0]);
+  /* #12: output[1][0] = @1 */
+  casadi_copy(w01, 144, res[1]);
+  /* #13: output[2][0] = @11 */
+  casadi_copy(w11, 4, res[2]);
+  /* #14: output[3][0] = @12 */
+  casadi_copy(w12, 16, res[3]);
+  /* #15: @8 = (@8*@4) */
+  w08 *= w04;
+  /* #16: output[4][0] = @8 */
+  if (res[4]) res[4][0] = w08;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int rov4dof_ekf_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f2(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int rov4dof_ekf_step_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void rov4dof_ekf_step_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void rov4dof_ekf_step_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void rov4dof_ekf_step_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int rov4dof_ekf_step_n_in(void) { return 9;}
+
+CASADI_SYMBOL_EXPORT casadi_int rov4dof_ekf_step_n_out(void) { return 5;}
+
+CASADI_SYMBOL_EXPORT casadi_real rov4dof_ekf_step_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* rov4dof_ekf_step_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "x";
+    case 1: return "P";
+    case 2: return "u";
+    case 3: return "p";
+    case 4: return "dt";
+    case 5: return "Q";
+    case 6: return "z";
+    case 7: return "R";
+    case 8: return "mask";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* rov4dof_ekf_step_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "x_post";
+    case 1: return "P_post";
+    case 2: return "innovation";
+    case 3: return "S";
+    case 4: return "ok";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* rov4dof_ekf_step_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s0;
+    case 1: return casadi_s1;
+    case 2: return casadi_s2;
+    case 3: return casadi_s3;
+    case 4: return casadi_s4;
+    case 5: return casadi_s1;
+    case 6: return casadi_s2;
+    case 7: return casadi_s5;
+    case 8: return casadi_s2;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* rov4dof_ekf_step_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s0;
+    case 1: return casadi_s1;
+    case 2: return casadi_s2;
+    case 3: return casadi_s5;
+    case 4: return casadi_s4;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int rov4dof_ekf_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 15;
+  if (sz_res) *sz_res = 10;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 710;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int rov4dof_ekf_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 15*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 10*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 710*sizeof(casadi_real);
+  return 0;
+}
+
 
 
 /* rov4dof_ekf_predict_batch: evaluate rov4dof_ekf_predict for j = 0..N-1 on slices arg[k] + j*arg_step[k] and
@@ -9138,6 +9313,26 @@ CASADI_SYMBOL_EXPORT int rov4dof_ekf_update_batch(casadi_int N, const casadi_rea
     for (k = 0; k < 6; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
     for (k = 0; k < 5; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
     if (rov4dof_ekf_update(a, r, iw, w, 0)) return (int)(1 + j);
+  }
+  return 0;
+}
+
+/* rov4dof_ekf_step_batch: evaluate rov4dof_ekf_step for j = 0..N-1 on slices arg[k] + j*arg_step[k] and
+ * res[k] + j*res_step[k] (a step of 0 shares the argument). Returns 0, or 1 + j of the first
+ * failing evaluation. */
+CASADI_SYMBOL_EXPORT int rov4dof_ekf_step_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
+                                  casadi_real** res, const casadi_int* res_step) {
+  const casadi_real* a[15];
+  casadi_real* r[10];
+  casadi_int iw[1];
+  casadi_real w[889];
+  casadi_int j, k;
+  for (k = 0; k < 15; ++k) a[k] = 0;
+  for (k = 0; k < 10; ++k) r[k] = 0;
+  for (j = 0; j < N; ++j) {
+    for (k = 0; k < 9; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
+    for (k = 0; k < 5; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
+    if (rov4dof_ekf_step(a, r, iw, w, 0)) return (int)(1 + j);
   }
   return 0;
 }

@@ -2,8 +2,9 @@
  * Model tan3dof, equations sha256 33f6a2c7119f26365ee38d26d3abe944db850de4374e9895804cd0ad76799607, CasADi 3.8.2.
  * Edit the equations and run `abyssal regenerate`; `abyssal regenerate --check` fails on drift.
  *
- * Functions (CasADi SX instructions after common-subexpression elimination):
- *   tan3dof_fuzzy_sigma               319 instructions
+ * Functions (operations per call: CasADi SX instructions after common-subexpression elimination,
+ * of the function itself or of the leaves it calls, times the calls):
+ *   tan3dof_fuzzy_sigma               319 operations
  */
 /* How to prefix internal symbols */
 #ifdef CASADI_CODEGEN_PREFIX

@@ -2,13 +2,14 @@
  * Model tan3dof, equations sha256 33f6a2c7119f26365ee38d26d3abe944db850de4374e9895804cd0ad76799607, CasADi 3.8.2.
  * Edit the equations and run `abyssal regenerate`; `abyssal regenerate --check` fails on drift.
  *
- * Functions (CasADi SX instructions after common-subexpression elimination):
- *   tan3dof_f                          52 instructions
- *   tan3dof_F                          49 instructions
- *   tan3dof_G                          87 instructions
- *   tan3dof_h                           2 instructions
- *   tan3dof_H                           5 instructions
- *   tan3dof_x_next                     60 instructions
+ * Functions (operations per call: CasADi SX instructions after common-subexpression elimination,
+ * of the function itself or of the leaves it calls, times the calls):
+ *   tan3dof_f                          52 operations
+ *   tan3dof_F                          49 operations
+ *   tan3dof_G                          87 operations
+ *   tan3dof_h                           2 operations
+ *   tan3dof_H                           5 operations
+ *   tan3dof_x_next                     60 operations
  */
 /* How to prefix internal symbols */
 #ifdef CASADI_CODEGEN_PREFIX

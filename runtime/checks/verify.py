@@ -39,6 +39,11 @@ class Check:
     detail: str = ""
     #: why the check could not run ("" when it ran); a skipped check is neither passed nor failed
     skipped: str = ""
+    #: where it was worst: the point (x, u, p, dt), the entry (e.g. F[3,7]), both values and the tolerance,
+    #: or "diverged at <point>: ..." for a step that blew up (printed on its FAIL line)
+    worst: str = ""
+    #: something the report says once about how the check ran (e.g. that no envelope was declared)
+    note: str = ""
 
     @classmethod
     def skip(cls, model: str, name: str, reference: str, because: str) -> "Check":
@@ -98,11 +103,14 @@ class Report:
         lines = ["  ".join(cell.ljust(w) for cell, w in zip(r, widths)).rstrip() for r in rows]
         lines.insert(1, "  ".join("-" * w for w in widths))
         for c in self.checks:
+            if c.note:
+                lines.append(f"NOTE {c.model}: {c.note}")
+        for c in self.checks:
             if c.skipped:
                 lines.append(f"SKIPPED {c.model} {c.name}: skipped, because {c.skipped}")
         for c in self.checks:
-            if not c.ok and c.detail:
-                lines.append(f"FAIL {c.model} {c.name}: {c.detail}")
+            if not c.ok and (c.worst or c.detail):
+                lines.append(f"FAIL {c.model} {c.name}: " + "; ".join(t for t in (c.worst, c.detail) if t))
         lines.extend(f"ERROR {msg}" for msg in self.failures)
         ran = [c for c in self.checks if not c.skipped]
         skipped = len(self.checks) - len(ran)

@@ -81,6 +81,19 @@ def scenario(bundle, steps: int = STEPS, seed: int = 7) -> Scenario:
     R = 0.02 * np.eye(m)
     dt = 0.1
     U = rng.normal(size=(steps, bundle.n_u))
+    envelope = getattr(bundle, "envelope", None) or {}
+    if envelope.get("declared") and not _builtin(bundle):
+        # a user's model that declares where it is meant to be used: start in the middle half of each state's
+        # range, inputs in the middle half of theirs, dt inside [min_dt, max_dt]
+        from .verify_models import Envelope
+
+        box = Envelope(bundle)
+        mid, half = (box.x_low + box.x_high) / 2, (box.x_high - box.x_low) / 2
+        x0 = mid + half * rng.uniform(-0.5, 0.5, n)
+        P0 = np.diag((0.05 * half) ** 2) + (0.05 * half[:, None]) * (A @ A.T) * (0.05 * half[None, :])
+        u_mid, u_half = (box.u_low + box.u_high) / 2, (box.u_high - box.u_low) / 2
+        U = u_mid + u_half * rng.uniform(-0.5, 0.5, (steps, bundle.n_u))
+        dt = box.clip_dt(dt)
     if bundle.name == "remus100":  # Euler angles: keep the points far from theta = +-90 deg; cruise at ~1500 rpm
         x0 = np.array([1.4, 0.05, 0.02, 0.01, 0.01, 0.05, 60.0, 3.0, 5.0, 0.02, 0.05, 2.0]) + 0.01 * rng.normal(size=n)
         P0 = 0.01 * np.eye(n) + 0.01 * A @ A.T
@@ -91,6 +104,12 @@ def scenario(bundle, steps: int = STEPS, seed: int = 7) -> Scenario:
         x = bundle.f(x, U[k], p, dt) + np.linalg.cholesky(Q) @ rng.normal(size=n)
         Z[k] = bundle.h(x, p) + np.sqrt(0.02) * rng.normal(size=m)
     return Scenario(x0, P0, Q, R, p, dt, U, Z)
+
+
+def _builtin(bundle) -> bool:
+    from .verify_models import _builtin_bundle
+
+    return _builtin_bundle(bundle)
 
 
 def run_ours(flt, sc: Scenario, mask_entries=None):
@@ -213,7 +232,7 @@ def linearised_copy(model, x_star, u_star, p_star, dt: float):
         xdot=rate, discretisation=model.discretisation, substeps=model.substeps)
     return Model(name=f"{model.name}_lin", states=model.states, inputs=model.inputs, parameters=model.parameters,
                  noises=model.noises, outputs=model.outputs, x=model.x, u=model.u, p=model.p, w=model.w, y=y,
-                 angle_outputs=model.angle_outputs, angle_states=model.angle_states,
+                 angle_outputs=model.angle_outputs, angle_states=model.angle_states, envelope=model.envelope,
                  notes=(f"{model.name} linearised for `abyssal verify`",), **kind)
 
 

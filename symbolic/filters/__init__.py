@@ -2,12 +2,15 @@
 
 One module per family, one generated C file (codegen.Unit) per family:
 
-    ekf.py        unit "ekf":    <m>_ekf_predict, <m>_ekf_update (Joseph form)
+    ekf.py        unit "ekf":    <m>_ekf_predict, <m>_ekf_update (Joseph form), <m>_ekf_step
     unscented.py  unit "ukf":    <m>_ukf_predict, <m>_ukf_update (alpha, beta, kappa at run time)
-                  unit "ckf":    <m>_ckf_predict, <m>_ckf_update (third-degree cubature)
-    robust.py     unit "robust": <m>_mcukf_update (maximum correntropy), <m>_huber_ukf_update
-    ekf.py, unscented.py  unit "steps": <m>_ekf_step, <m>_ckf_step (predict + update fused, one call
-                  per step for the runtime; a file of its own so the compiler builds it in parallel)
+                  unit "ckf":    <m>_ckf_predict, <m>_ckf_update (third-degree cubature), <m>_ckf_step
+    robust.py     family "robust": <m>_mcukf_update (maximum correntropy), <m>_huber_ukf_update, in
+                  unit "ukf" (they share its sigma points and h)
+
+The fused steps (<m>_ekf_step, <m>_ckf_step: one C call per step for the runtime) call their
+family's predict and update, so they live in that family's file. Every step is built from leaves
+(common.py): the model's f and h are emitted once per file and called per sigma point.
 
 Which families a model gets is a choice (``filter_units(model, families)``): the built-ins declare
 theirs in ``abyssal.symbolic.models.FILTER_FAMILIES`` (default: all), a user passes
@@ -16,16 +19,15 @@ run on the model's own f/h kernels, which every model gets.
 
 Shared pieces: sigma_points.py (rules as data), measurement.py (masks, angle residuals, gain),
 linalg.py (guarded Cholesky: a non-PD matrix gives ok = 0, never NaN), reciprocals.py (every
-generated step has its divisions by a shared divisor turned into one reciprocal + products).
+leaf has its divisions by a shared divisor turned into one reciprocal + products).
 """
 from __future__ import annotations
 
 from ..codegen import Unit
 from ..model import Model
-from .ekf import ekf_functions, ekf_step_function
-from .reciprocals import share_reciprocals
+from .ekf import ekf_functions
 from .robust import robust_functions
-from .unscented import ckf_functions, ckf_step_function, ukf_functions
+from .unscented import ckf_functions, ukf_functions, unscented_family
 
 #: every filter family, in the order of the generated units
 FAMILIES = ("ekf", "ukf", "ckf", "robust")
@@ -49,15 +51,20 @@ def check_families(families) -> tuple[str, ...]:
 
 
 def filter_units(model: Model, families=FAMILIES) -> list[Unit]:
-    """The generated filter units of a model for the chosen families, one C file each."""
+    """The generated filter units of a model for the chosen families, one C file each (robust: in "ukf")."""
     families = check_families(families)
-    builders = {"ekf": ekf_functions, "ukf": ukf_functions, "ckf": ckf_functions, "robust": robust_functions}
-    units = {family: builders[family](model) for family in families}
-    fused = tuple(make(model) for family, make in (("ekf", ekf_step_function), ("ckf", ckf_step_function))
-                  if family in families)
-    if fused:
-        units["steps"] = fused  # own file: compiles in parallel
-    return [Unit(name, tuple(share_reciprocals(fn) for fn in functions)) for name, functions in units.items()]
+    units = []
+    if "ekf" in families:
+        units.append(Unit("ekf", ekf_functions(model)))
+    if "ukf" in families:
+        family = unscented_family(model)
+        functions = ukf_functions(model, family)
+        if "robust" in families:
+            functions += robust_functions(model, family)
+        units.append(Unit("ukf", functions))
+    if "ckf" in families:
+        units.append(Unit("ckf", ckf_functions(model)))
+    return units
 
 
 __all__ = ["FAMILIES", "check_families", "filter_units"]

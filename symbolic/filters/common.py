@@ -1,12 +1,26 @@
-"""Symbols and model callables shared by the filter families."""
+"""Symbols, model callables and the call structure shared by the filter families.
+
+Generated filter steps are built from *leaves*: plain SX Functions (the model's step f, its
+measurement h, the sigma points of (x, P), the moments of the propagated points, an update's
+algebra) that are emitted once per C file and called, never inlined (``leaf``). A step that
+evaluates f at 2n points holds one copy of f and 2n calls to it, so the generated C grows with
+the model plus the O(n^3) dense algebra, not with (points x model); a fused step calls its
+family's predict and update instead of repeating them. Each leaf has its divisions by a shared
+divisor turned into one reciprocal (reciprocals.share_reciprocals).
+"""
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import casadi as ca
 
+from ..codegen import FUNCTION_OPTIONS
 from ..discretise import discrete_step, step_and_jacobian
 from ..model import Model
+from .reciprocals import share_reciprocals
+
+#: options of a Function that is called from generated steps: emitted once, called, never inlined
+LEAF_OPTIONS = {**FUNCTION_OPTIONS, "never_inline": True}
 
 
 @dataclass(frozen=True)
@@ -33,13 +47,44 @@ def filter_symbols(model: Model) -> FilterSymbols:
     )
 
 
+def leaf(name: str, inputs, outputs, names_in, names_out) -> ca.Function:
+    """A plain SX Function, divisions shared, that generated steps call instead of inlining."""
+    fn = ca.Function(name, list(inputs), [ca.densify(e) for e in outputs], list(names_in), list(names_out),
+                     FUNCTION_OPTIONS)
+    return share_reciprocals(fn, LEAF_OPTIONS)
+
+
+def step_inputs(model: Model, names, extra: dict[str, tuple[int, int]] | None = None) -> dict[str, ca.MX]:
+    """MX symbols of an exported step's inputs, by name, in order: the FilterSymbols names in their
+    shapes, then `extra` (name -> shape, e.g. a rule's abk)."""
+    n, m = model.n_x, model.n_y
+    shapes = {"x": (n, 1), "P": (n, n), "u": (model.n_u, 1), "p": (model.n_p, 1), "dt": (1, 1), "Q": (n, n),
+              "z": (m, 1), "R": (m, m), "mask": (m, 1)}
+    inputs = {name: ca.MX.sym(name, *shapes[name]) for name in names}
+    inputs.update({name: ca.MX.sym(name, *shape) for name, shape in (extra or {}).items()})
+    return inputs
+
+
+def exported(name: str, inputs: dict[str, ca.MX], outputs: dict[str, ca.MX]) -> ca.Function:
+    """A generated entry point: an MX graph of calls to leaves, their buffers passed without copies."""
+    return ca.Function(name, list(inputs.values()), [ca.densify(e) for e in outputs.values()], list(inputs),
+                       list(outputs), FUNCTION_OPTIONS)
+
+
+def call_columns(fn: ca.Function, X: ca.MX, *shared: ca.MX) -> ca.MX:
+    """[fn(X[:, 0], *shared), fn(X[:, 1], *shared), ...] as one serial loop (Function.map), shared inputs not copied."""
+    n_shared = len(shared)
+    mapped = fn.map(f"{fn.name()}_columns", "serial", X.size2(), list(range(1, 1 + n_shared)), [])
+    return mapped(X, *shared)
+
+
 def transition(model: Model) -> ca.Function:
-    """f(x, u, p, dt): one discrete step at zero noise input (the model's <m>_f)."""
+    """f(x, u, p, dt): one discrete step at zero noise input (the model's <m>_f), as a leaf."""
     x, u, p, w, dt = model.x, model.u, model.p, model.w, ca.SX.sym("dt")
     x_next = discrete_step(model, x, u, p, w, dt)
     if model.n_w:
         x_next = ca.substitute(x_next, w, ca.DM.zeros(w.shape))
-    return ca.Function("f", [x, u, p, dt], [x_next])
+    return leaf(f"{model.name}_step", [x, u, p, dt], [x_next], ["x", "u", "p", "dt"], ["x_next"])
 
 
 def transition_with_jacobian(model: Model) -> ca.Function:
@@ -49,5 +94,5 @@ def transition_with_jacobian(model: Model) -> ca.Function:
 
 
 def measurement(model: Model) -> ca.Function:
-    """h(x, p)."""
-    return ca.Function("h", [model.x, model.p], [model.y])
+    """h(x, p), as a leaf."""
+    return leaf(f"{model.name}_measurement", [model.x, model.p], [model.y], ["x", "p"], ["y"])

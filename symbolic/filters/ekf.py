@@ -2,7 +2,7 @@
 
     <m>_ekf_predict(x, P, u, p, dt, Q)    -> (x_pred, P_pred, ok)
     <m>_ekf_update(x, P, z, p, R, mask)   -> (x_post, P_post, innovation, S, ok)
-    <m>_ekf_step(x, P, u, p, dt, Q, z, R, mask) -> (x_post, P_post, innovation, S, ok)   predict + update
+    <m>_ekf_step(x, P, u, p, dt, Q, z, R, mask) -> (x_post, P_post, innovation, S, ok)   calls predict, update
 
 Predict: x_pred = f(x, u, p, dt), P_pred = F P F^T + Q with F = df/dx at x.
 Update: nu = z - h(x) (angles wrapped), S = H P H^T + R, K = P H^T S^-1 (guarded Cholesky of S),
@@ -20,19 +20,18 @@ from __future__ import annotations
 
 import casadi as ca
 
-from ..codegen import FUNCTION_OPTIONS
 from ..model import Model
-from .common import filter_symbols, measurement, transition_with_jacobian
+from .common import filter_symbols, leaf, transition_with_jacobian
 from .linalg import all_finite, congruence, symmetric_from_upper, symmetrise
 from .measurement import gain_update, masked_columns, masked_covariance, masked_innovation
-from .unscented import PREDICT_OUT, STEP_IN, UPDATE_OUT
+from .unscented import PREDICT_IN, PREDICT_OUT, UPDATE_IN, UPDATE_OUT, fused_step
 
 
-def ekf_predict(model: Model, x, P, u, p, dt, Q, check_finite: bool = True):
-    """(x_pred, P_pred, ok). check_finite=False leaves the finiteness test to the caller (ok = 1)."""
+def ekf_predict(model: Model, x, P, u, p, dt, Q):
+    """(x_pred, P_pred, ok)."""
     x_pred, F = transition_with_jacobian(model)(x, u, p, dt)
     P_pred = congruence(F, symmetrise(P)) + symmetrise(Q)  # both mirrored: P_pred is symmetric by construction
-    return x_pred, P_pred, all_finite(x_pred, P_pred) if check_finite else ca.SX(1)
+    return x_pred, P_pred, all_finite(x_pred, P_pred)
 
 
 def joseph_covariance(P: ca.SX, K: ca.SX, PHt: ca.SX, S: ca.SX) -> ca.SX:
@@ -64,8 +63,8 @@ def ekf_update(model: Model, x, P, z, p, R, mask):
     below equals the masked one. H keeps its structural sparsity and constant entries (rov4dof:
     H = [I 0], so P H^T and H P H^T are just entries of P).
     """
-    z_pred = measurement(model)(x, p)
-    H = ca.Function("H", [model.x, model.p], [ca.jacobian(model.y, model.x)])(x, p)  # x may be an expression
+    h_and_H = ca.Function("h_and_H", [model.x, model.p], [model.y, ca.jacobian(model.y, model.x)])
+    z_pred, H = h_and_H(x, p)  # inlined: H keeps its structural sparsity and constant entries
     P = symmetrise(P)
     PHt = ca.mtimes(P, H.T)
     S = masked_covariance(congruence(H, P, PHt) + symmetrise(R), mask)
@@ -77,34 +76,11 @@ def ekf_update(model: Model, x, P, z, p, R, mask):
 
 
 def ekf_functions(model: Model) -> tuple[ca.Function, ...]:
+    """<m>_ekf_predict and <m>_ekf_update (each one leaf: f and F are evaluated once) and the fused <m>_ekf_step."""
     s = filter_symbols(model)
     m = model.name
-    predict = ca.Function(
-        f"{m}_ekf_predict", [s.x, s.P, s.u, s.p, s.dt, s.Q],
-        [ca.densify(e) for e in ekf_predict(model, s.x, s.P, s.u, s.p, s.dt, s.Q)],
-        ["x", "P", "u", "p", "dt", "Q"], PREDICT_OUT, FUNCTION_OPTIONS)
-    update = ca.Function(
-        f"{m}_ekf_update", [s.x, s.P, s.z, s.p, s.R, s.mask],
-        [ca.densify(e) for e in ekf_update(model, s.x, s.P, s.z, s.p, s.R, s.mask)],
-        ["x", "P", "z", "p", "R", "mask"], UPDATE_OUT, FUNCTION_OPTIONS)
-    return predict, update
-
-
-def ekf_step_function(model: Model) -> ca.Function:
-    """<m>_ekf_step: predict then update in one function (what the runtime's step() calls).
-
-    Its ok is the predict's times the update's, except that the predict's finiteness test is
-    left out: it is implied by the update's. x_post = x_pred + K nu and every entry of P_post
-    is P_pred[i, j] plus further terms (joseph_covariance, P_pred mirrored), and an IEEE sum
-    with a NaN or infinite term is never finite, so a non-finite x_pred or P_pred always makes
-    the update's all_finite 0: the flag is the same, 156 additions cheaper.
-    """
-    s = filter_symbols(model)
-    m = model.name
-    x_pred, P_pred, ok_pred = ekf_predict(model, s.x, s.P, s.u, s.p, s.dt, s.Q, check_finite=False)
-    x_post, P_post, innovation, S, ok_update = ekf_update(model, x_pred, P_pred, s.z, s.p, s.R, s.mask)
-    step = ca.Function(
-        f"{m}_ekf_step", [s.x, s.P, s.u, s.p, s.dt, s.Q, s.z, s.R, s.mask],
-        [ca.densify(e) for e in (x_post, P_post, innovation, S, ok_pred * ok_update)],
-        STEP_IN, UPDATE_OUT, FUNCTION_OPTIONS)
-    return step
+    predict = leaf(f"{m}_ekf_predict", [s.x, s.P, s.u, s.p, s.dt, s.Q], ekf_predict(model, s.x, s.P, s.u, s.p, s.dt, s.Q),
+                   PREDICT_IN, PREDICT_OUT)
+    update = leaf(f"{m}_ekf_update", [s.x, s.P, s.z, s.p, s.R, s.mask],
+                  ekf_update(model, s.x, s.P, s.z, s.p, s.R, s.mask), UPDATE_IN, UPDATE_OUT)
+    return predict, update, fused_step(f"{m}_ekf_step", model, predict, update)

@@ -55,7 +55,7 @@ def symmetric_from_upper(entries: dict[tuple[int, int], ca.SX], n: int) -> ca.SX
     return A
 
 
-def _weight_groups(weights) -> list[tuple[ca.SX, list[int]]]:
+def weight_groups(weights) -> list[tuple[ca.SX, list[int]]]:
     """(weight, [k, ...]) for each distinct weight (the same expression), in order of first use."""
     groups: list[tuple[ca.SX, list[int]]] = []
     for k, w in enumerate(weights):
@@ -78,7 +78,7 @@ def _grouped_sum(weights, term) -> ca.SX:
     rounding; only the overflow threshold moves (the unweighted sum of a group overflows when
     its terms approach 1e308 / (number of points), which then gives ok = 0).
     """
-    return sum((w * ca.sum1(ca.vertcat(*[term(k) for k in ks])) for w, ks in _weight_groups(weights)), ca.SX(0))
+    return sum((w * ca.sum1(ca.vertcat(*[term(k) for k in ks])) for w, ks in weight_groups(weights)), ca.SX(0))
 
 
 def weighted_sum(Y: ca.SX, weights) -> ca.SX:

@@ -15,8 +15,12 @@ import casadi as ca
 from ..codegen import FUNCTION_OPTIONS
 
 
-def share_reciprocals(fn: ca.Function) -> ca.Function:
-    """The same Function (names, shapes) with one reciprocal per distinct divisor."""
+def share_reciprocals(fn: ca.Function, options: dict | None = None) -> ca.Function:
+    """The same Function (names, shapes) with one reciprocal per distinct divisor.
+
+    fn must not call other Functions (no OP_CALL): the pass works on the leaves of a step
+    (common.leaf), which are plain SX. `options` are the new Function's (default FUNCTION_OPTIONS).
+    """
     inputs = fn.sx_in()
     outputs = [ca.SX.zeros(fn.sparsity_out(i)) for i in range(fn.n_out())]
     work: dict[int, ca.SX] = {}
@@ -41,10 +45,12 @@ def share_reciprocals(fn: ca.Function) -> ca.Function:
                 # simplifying a * (1/b) straight back to a / b
                 reciprocals[divisor] = ca.copysign(1 / work[ins[1]], work[ins[1]])
             value = work[ins[0]] * reciprocals[divisor]
+        elif op == ca.OP_CALL:
+            raise ValueError(f"share_reciprocals: {fn.name()} calls another Function; apply it to the callee instead")
         elif len(ins) == 2:
             value = ca.SX.binary(op, work[ins[0]], work[ins[1]])
         else:
             value = ca.SX.unary(op, work[ins[0]])
         work[outs[0]] = value
         defined_by[outs[0]] = k
-    return ca.Function(fn.name(), inputs, outputs, fn.name_in(), fn.name_out(), FUNCTION_OPTIONS)
+    return ca.Function(fn.name(), inputs, outputs, fn.name_in(), fn.name_out(), options or FUNCTION_OPTIONS)

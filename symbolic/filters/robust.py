@@ -26,12 +26,9 @@ from __future__ import annotations
 
 import casadi as ca
 
-from ..codegen import FUNCTION_OPTIONS
 from ..model import Model
-from .common import filter_symbols
-from .linalg import all_finite, cholesky_solve, forward_substitute, guarded_cholesky, symmetrise
-from .measurement import gain_update, masked_covariance, masked_innovation
-from .unscented import UPDATE_OUT, sigma_point_moments, unscented_rule_of
+from .linalg import cholesky_solve, forward_substitute, guarded_cholesky
+from .unscented import SigmaPointFamily, unscented_family
 
 MCC_MAX_EXPONENT = 50.0
 HUBER_ITERATIONS = 3
@@ -40,17 +37,6 @@ HUBER_ITERATIONS = 3
 def _inflated(a: ca.SX, inflation: list) -> ca.SX:
     """a diag(inflation) a^T."""
     return ca.mtimes(ca.mtimes(a, ca.diag(ca.vertcat(*inflation))), a.T)
-
-
-def robust_update(model: Model, rule_of, x, P, z, p, R, mask, inflated_noise):
-    """A sigma-point update with R~ = inflated_noise(a, Pzz, nu) (a: Cholesky factor of R)."""
-    P, z_pred, Pzz, Pxz, ok_p = sigma_point_moments(model, rule_of, x, P, p, mask)
-    innovation = masked_innovation(z, z_pred, mask, model.angle_outputs)
-    a, ok_r = guarded_cholesky(masked_covariance(symmetrise(R), mask))
-    R_tilde = inflated_noise(a, Pzz, innovation)
-    S = Pzz + R_tilde
-    x_post, P_post, _, ok_s = gain_update(x, P, Pxz, S, innovation)
-    return x_post, P_post, innovation, S, ok_p * ok_r * ok_s * all_finite(x_post, P_post, innovation, S)
 
 
 def correntropy_noise(sigma):
@@ -75,19 +61,14 @@ def huber_noise(gamma, iterations: int = HUBER_ITERATIONS):
     return inflated
 
 
-def robust_functions(model: Model, huber_iterations: int = HUBER_ITERATIONS) -> tuple[ca.Function, ...]:
-    s = filter_symbols(model)
-    abk, sigma, gamma = ca.SX.sym("abk", 3), ca.SX.sym("sigma"), ca.SX.sym("gamma")
-    rule_of = unscented_rule_of(abk)
+def robust_functions(model: Model, family: SigmaPointFamily | None = None,
+                     huber_iterations: int = HUBER_ITERATIONS) -> tuple[ca.Function, ...]:
+    """<m>_mcukf_update and <m>_huber_ukf_update: the UKF's points and h (`family`, shared with the UKF's
+    functions when they go into the same file, with its moments and Kalman gain), each with its own noise leaf."""
+    family = family or unscented_family(model)
+    sigma, gamma = ca.SX.sym("sigma"), ca.SX.sym("gamma")
     m = model.name
-    args = [s.x, s.P, s.z, s.p, s.R, s.mask, abk]
-    names = ["x", "P", "z", "p", "R", "mask", "abk"]
-    mcc = ca.Function(
-        f"{m}_mcukf_update", args + [sigma],
-        list(robust_update(model, rule_of, s.x, s.P, s.z, s.p, s.R, s.mask, correntropy_noise(sigma))),
-        names + ["sigma"], UPDATE_OUT, FUNCTION_OPTIONS)
-    huber = ca.Function(
-        f"{m}_huber_ukf_update", args + [gamma],
-        list(robust_update(model, rule_of, s.x, s.P, s.z, s.p, s.R, s.mask, huber_noise(gamma, huber_iterations))),
-        names + ["gamma"], UPDATE_OUT, FUNCTION_OPTIONS)
-    return mcc, huber
+    mcc = family.noise_leaf(f"{m}_mcc_noise", correntropy_noise(sigma), [sigma], ["sigma"])
+    huber = family.noise_leaf(f"{m}_huber_noise", huber_noise(gamma, huber_iterations), [gamma], ["gamma"])
+    return (family.update_function(f"{m}_mcukf_update", mcc, [sigma], ["sigma"]),
+            family.update_function(f"{m}_huber_ukf_update", huber, [gamma], ["gamma"]))

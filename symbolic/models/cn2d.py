@@ -15,9 +15,11 @@ the right of the forward axis); we keep the paper's convention rather than the N
 """
 from __future__ import annotations
 
+import math
+
 import casadi as ca
 
-from ..model import Model, Parameter, Quantity, symbols
+from ..model import Envelope, Model, Parameter, Quantity, symbols
 
 STATES = (Quantity("x", "m", "east position"), Quantity("y", "m", "north position"))
 INPUTS = (
@@ -53,5 +55,8 @@ def cn2d() -> Model:
         y=rng,
         discretisation="euler",
         substeps=1,
+        # reference_models.cn2d_state/input (a 4 km square, DVL 0.5-2 m/s); the flow is exact for any dt, pings every 5 s
+        envelope=Envelope(states={"x": (-2000.0, 2000.0), "y": (-2000.0, 2000.0)},
+                          inputs={"c": (0.5, 2.0), "s": (-0.6, 0.6), "theta": (-math.pi, math.pi)}, max_dt=10.0),
         notes=("heading convention of eq. 2 kept (counter-clockwise from east)",),
     )

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import casadi as ca
 
-from ..model import Model, Parameter, Quantity, symbols
+from ..model import Envelope, Model, Parameter, Quantity, symbols
 
 STATES = (
     Quantity("p_x", "m", "east position"),
@@ -45,5 +45,8 @@ def linear_cv() -> Model:
         y=x[0:2] - p,
         discretisation="rk4",
         substeps=1,
+        # +-3 sigma of reference_models.linear_cv_state/input; RK4 is exact for this flow at any dt
+        envelope=Envelope(states={"p_x": (-300.0, 300.0), "p_y": (-300.0, 300.0), "v_x": (-6.0, 6.0), "v_y": (-6.0, 6.0)},
+                          inputs={"a_x": (-1.5, 1.5), "a_y": (-1.5, 1.5)}),
         notes=("linear-Gaussian reference model (not from a seed paper)",),
     )

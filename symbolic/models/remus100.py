@@ -33,7 +33,7 @@ import math
 import casadi as ca
 
 from .. import fossen
-from ..model import Model, Parameter, Quantity, symbols
+from ..model import Envelope, Model, Parameter, Quantity, symbols
 
 S, P = "[S] REMUS_CONTROL_helix.slx", "[P] Prestero 2001 App. C"
 
@@ -125,6 +125,13 @@ OUTPUTS = (
 )
 ANGLE_STATES = (9, 10, 11)
 ANGLE_OUTPUTS = (7, 8, 9)
+#: Operating envelope (used in remus100() below): a small-angle cruise, far from the Euler-angle singularity.
+ENVELOPE_STATES = {"u": (0.3, 2.0), "v": (-0.15, 0.15), "w": (-0.15, 0.15), "p": (-0.15, 0.15), "q": (-0.15, 0.15),
+                   "r": (-0.15, 0.15), "x": (-60.0, 60.0), "y": (-60.0, 60.0), "z": (0.0, 10.0),
+                   "phi": (-0.3, 0.3), "theta": (-0.3, 0.3), "psi": (-math.pi, math.pi)}
+ENVELOPE_INPUTS = {"n_rpm": (1000.0, 2400.0), "X_prop": (1.7, 9.9), "tau_M": (-3.0, 3.0), "tau_N": (-15.0, 15.0),
+                   "delta_s": (-0.35, 0.35), "delta_r": (-0.35, 0.35)}
+
 #: RK4 substeps per call, measured (one call at dt = 0.2 s vs 20 RK4 steps of 0.01 s, random cruise states):
 #: 1 substep errs up to 1.1e-3 rad/s in r and 6e-4 in p (the gyro sigma is 1e-3 and 3e-4), 2 substeps <= 6e-5.
 SUBSTEPS = 2
@@ -227,5 +234,7 @@ def remus100(surge_input: str = "rpm", fins: bool = False, name: str = "remus100
             "D2: propeller torque off (parameter prop_torque); D4: Zww = -131 kg/m as printed, -1310 consistent",
             "tau_M, tau_N are moments in N m added to M and N (no fin forces); process noise w: body forces",
         ),
+        # the helix of reference_models.remus100_state/input (+-3 sigma; 1000-2400 rpm = 1.7-9.9 N), fins +-20 deg
+        envelope=Envelope(states=ENVELOPE_STATES, inputs={q.name: ENVELOPE_INPUTS[q.name] for q in inputs}),
         **extra,
     )

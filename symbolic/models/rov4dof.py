@@ -41,10 +41,12 @@ measured above); each substep costs one more RK4 in every generated function. te
 """
 from __future__ import annotations
 
+import math
+
 import casadi as ca
 
 from .. import fossen
-from ..model import Model, Parameter, Quantity, symbols
+from ..model import Envelope, Model, Parameter, Quantity, symbols
 
 DOF = [0, 1, 2, 5]  # surge, sway, heave, yaw inside Fossen's 6-DOF ordering
 SUBSTEPS = 2  # RK4 substeps per step: see the module docstring (stability of the quadratic damping)
@@ -153,6 +155,13 @@ def rov4dof() -> Model:
         substeps=SUBSTEPS,
         angle_outputs=(3,),
         angle_states=(3,),  # psi
+        # +-3 sigma of reference_models.rov4dof_state/input (cleaning a chain, < 1.5 m/s); R(psi) is regular for all psi
+        envelope=Envelope(
+            states={"x": (-50.0, 50.0), "y": (-50.0, 50.0), "z": (0.0, 30.0), "psi": (-math.pi, math.pi),
+                    "u": (-1.5, 1.5), "v": (-0.9, 0.9), "w": (-0.6, 0.6), "r": (-0.9, 0.9),
+                    "b_x": (-30.0, 30.0), "b_y": (-30.0, 30.0), "b_z": (-15.0, 15.0), "b_psi": (-3.0, 3.0)},
+            inputs={"tau_X": (-90.0, 90.0), "tau_Y": (-60.0, 60.0), "tau_Z": (-60.0, 60.0), "tau_N": (-6.0, 6.0)},
+            max_dt=0.5, min_dt=0.01),
         notes=(
             "M_A, D_L, D_NL printed negative: read as Fossen's derivatives, M and D positive definite",
             "C_RB, C_A derived from M (printed heave `m` and `-N_rdot` entries dropped)",

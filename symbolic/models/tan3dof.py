@@ -34,10 +34,12 @@ The bundle also carries the fuzzy process-noise logic of section 3.2 as the gene
 """
 from __future__ import annotations
 
+import math
+
 import casadi as ca
 
 from ..fuzzy import fuzzy_sigma_function
-from ..model import Model, Parameter, Quantity, symbols
+from ..model import Envelope, Model, Parameter, Quantity, symbols
 
 #: Table 2 and section 4.1: body-noise coefficients (a1, a2, a3, a4) of eq. 2.
 BODY_NOISE_COEFFICIENTS = (0.1, 0.1, 0.001, 0.1)
@@ -102,6 +104,9 @@ def tan3dof() -> Model:
         dt=dt,
         angle_states=(2,),
         angle_outputs=(0,),
+        # section 4: tracks from the [20, 20] and [60, 10] km start postures at 0.5 m/s, an autopilot's turn rates, 1 Hz steps
+        envelope=Envelope(states={"x": (0.0, 100_000.0), "y": (0.0, 100_000.0), "theta": (-math.pi, math.pi)},
+                          inputs={"v": (0.0, 2.0), "omega": (-0.3, 0.3)}, max_dt=2.0),
         functions=(fuzzy_sigma_function("tan3dof_fuzzy_sigma"),),  # section 3.2
         notes=(
             "eq. 1's y row printed with sin(theta + w dt); the arc has -cos(theta + w dt): written as the exact "

@@ -13,6 +13,7 @@ import importlib
 import json
 import multiprocessing
 import os
+import re
 import shutil
 import stat
 import time
@@ -296,7 +297,8 @@ def test_hanging_compiler_times_out_releases_the_lock_and_cleans_up(monkeypatch,
                                  'sleep 60 & echo $! >> "$LOG"\nwait')
     monkeypatch.setenv("ABYSSAL_CC", str(cc))
     monkeypatch.setenv("ABYSSAL_BUILD_TIMEOUT", "1")
-    with pytest.raises(BuildError, match=r"did not finish within 1 s \(ABYSSAL_BUILD_TIMEOUT\)"):
+    with pytest.raises(BuildError, match=r"did not finish within 1 s \(ABYSSAL_BUILD_TIMEOUT\) and was stopped while "
+                                         r"compiling tiny\.c"):
         build("tiny", tiny())
     assert_all_dead(tmp_path / "pids")  # the compiler and its child
     assert_no_leftovers(isolated_cache)  # no temporary folder, no lock file, nothing published
@@ -500,3 +502,15 @@ def test_the_smoke_test_checks_symbols_the_caller_names(isolated_cache):
     with pytest.raises(BuildError, match="lacks the symbol 'tiny_g'"):
         build("tiny", tiny(), symbols=("tiny_f", "tiny_g"))
     assert build("tiny", tiny(), symbols=("tiny_f",)).is_file()
+
+
+def test_a_slow_build_prints_one_progress_line_and_a_quick_one_none(monkeypatch, tmp_path, isolated_cache, capfd):
+    slow = fake_compiler(tmp_path, '[ "$1" = "--version" ] && { echo fakecc; exit 0; }\nsleep 0.6\nexec "$REAL" "$@"')
+    monkeypatch.setattr(build_mod, "PROGRESS_AFTER", 0.3)
+    monkeypatch.setenv("ABYSSAL_CC", str(slow))
+    build("tiny", tiny(3))
+    err = capfd.readouterr().err
+    assert re.fullmatch(r"abyssal: compiling tiny: 1 files, 0\.00 MB of C \.\.\. done in \d+\.\d s\n", err), err
+    monkeypatch.setattr(build_mod, "PROGRESS_AFTER", 30.0)
+    build("tiny", tiny(4))
+    assert capfd.readouterr().err == ""

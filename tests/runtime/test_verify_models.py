@@ -139,3 +139,165 @@ def test_reference_step_is_fourth_order_on_its_own(rov):
             x = reference_models.step(ref, x, u, p, 1.0 / n, "rk4")
         errors.append(np.max(np.abs(x - exact)))
     assert 12 < errors[0] / errors[1] < 20
+
+
+# ----------------------------------------------------------------- a user's model inside its envelope
+ATTITUDE = '''
+"""A user's vehicle: Euler-angle attitude kinematics (singular at theta = +-pi/2) with |w| w damping."""
+import casadi as ca
+
+from abyssal import Envelope, Model, Parameter, Quantity, symbols
+
+STATES = (Quantity("phi", "rad"), Quantity("theta", "rad"), Quantity("psi", "rad"),
+          Quantity("p", "rad/s"), Quantity("q", "rad/s"), Quantity("r", "rad/s"))
+INPUTS = (Quantity("K", "N m"), Quantity("M", "N m"), Quantity("N", "N m"))
+PARAMS = (Parameter("I", "kg m^2", 2.0), Parameter("d_lin", "N m s", 0.5), Parameter("d_quad", "N m s^2", 1.0))
+NOISES = (Quantity("w_K", "N m"), Quantity("w_M", "N m"), Quantity("w_N", "N m"))
+OUTPUTS = (Quantity("phi", "rad"), Quantity("theta", "rad"), Quantity("psi", "rad"))
+
+
+def attitude():
+    x, u, p, w = symbols("x", STATES), symbols("u", INPUTS), symbols("p", PARAMS), symbols("w", NOISES)
+    phi, theta = x[0], x[1]
+    rates = x[3:6]
+    sf, cf, ct, tt = ca.sin(phi), ca.cos(phi), ca.cos(theta), ca.tan(theta)
+    euler_rates = ca.vertcat(rates[0] + (rates[1] * sf + rates[2] * cf) * tt,
+                             rates[1] * cf - rates[2] * sf,
+                             (rates[1] * sf + rates[2] * cf) / ct)
+    rates_dot = (u + w - p[1] * rates - p[2] * ca.fabs(rates) * rates) / p[0]
+    return Model(name="attitude", states=STATES, inputs=INPUTS, parameters=PARAMS, noises=NOISES, outputs=OUTPUTS,
+                 x=x, u=u, p=p, w=w, xdot=ca.vertcat(euler_rates, rates_dot), y=x[0:3],
+                 angle_states=(0, 1, 2), angle_outputs=(0, 1, 2),
+                 # phi not listed: the default [-1, 1]
+                 envelope=Envelope(states={"theta": (-1.4, 1.4), "psi": (-3.14, 3.14), "p": (-1.0, 1.0),
+                                           "q": (-1.0, 1.0), "r": (-1.0, 1.0)},
+                                   inputs={"K": (-2.0, 2.0), "M": (-2.0, 2.0), "N": (-2.0, 2.0)}, max_dt=0.2))
+'''
+
+
+@pytest.fixture(scope="module")
+def attitude_folder(tmp_path_factory):
+    """The user's model file and gen/attitude, written by the CLI (one compile per session via the cache)."""
+    from abyssal.runtime import cli
+
+    folder = tmp_path_factory.mktemp("attitude-project")
+    (folder / "attitude.py").write_text(ATTITUDE)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.chdir(folder)
+        assert cli.main(["regenerate", "--model", "attitude.py:attitude", "--out", "gen", "--filters", "ekf"]) == 0
+    return folder / "gen" / "attitude"
+
+
+@pytest.fixture(scope="module")
+def attitude(attitude_folder):
+    from abyssal.runtime.checks import verify
+
+    return verify.folder_target(attitude_folder)
+
+
+class WithEnvelope:
+    """The same compiled bundle with another manifest envelope (what verify samples from)."""
+
+    def __init__(self, bundle, envelope):
+        self._bundle, self.envelope = bundle, envelope
+
+    def __getattr__(self, name):
+        return getattr(self._bundle, name)
+
+
+def test_manifest_records_the_envelope_with_defaults_resolved(attitude):
+    bundle = attitude.bundle
+    env = bundle.envelope
+    assert env["declared"] is True and env["max_dt"] == 0.2 and env["min_dt"] == 0.01
+    assert env["states"]["theta"] == [-1.4, 1.4] and env["states"]["phi"] == [-1.0, 1.0]  # phi: the default
+    assert set(env["states"]) == set(bundle.state_names) and set(env["inputs"]) == set(bundle.input_names)
+
+
+def test_user_model_is_sampled_inside_its_envelope(attitude):
+    points = verify_models._Points(attitude.bundle, None, np.random.default_rng(1))
+    X = np.array([points.state() for _ in range(2000)])
+    U = np.array([points.inputs() for _ in range(2000)])
+    dts = np.array([points.dt() for _ in range(2000)])
+    assert np.all(np.abs(X[:, 1]) <= 1.4) and np.max(np.abs(X[:, 1])) > 1.3  # theta fills [-1.4, 1.4]
+    assert np.all(np.abs(X[:, 0]) <= 1.0) and np.all(np.abs(U) <= 2.0) and np.max(np.abs(U)) > 1.9
+    assert dts.min() >= 0.01 and dts.max() <= 0.2 and dts.max() > 0.19
+    batch = points.state(500)
+    assert batch.shape == (6, 500) and np.all(np.abs(batch[1]) <= 1.4)
+
+
+def test_euler_angle_model_passes_every_check_inside_its_envelope(attitude_folder):
+    from abyssal.runtime.checks import verify
+
+    report = verify.run_all(folders=[attitude_folder])
+    assert report.ok, report.table()
+    assert {c.name for c in report.checks if c.skipped} == {"ukf filter steps", "ckf filter steps", "robust filter steps"}
+    names = " | ".join(c.name for c in report.checks)
+    for fragment in ("f: compiled C vs CasADi", "f vs rk4 of compiled xdot", "F vs central differences (compiled f in x)",
+                     "G vs central differences", "one step vs solve_ivp", "order 4", "f_batch", "ekf step (Joseph)"):
+        assert fragment in names
+    assert "NOTE" not in report.table()  # it declares an envelope: nothing to say about defaults
+
+
+def test_envelope_matters_the_same_model_fails_far_outside_it(attitude):
+    """Sampled like the old N(0,1) draws at their tails (theta to +-3, dt to 0.5 s) the correct model fails."""
+    wide = dict(attitude.bundle.envelope, states={n: [-3.0, 3.0] for n in attitude.bundle.state_names}, max_dt=0.5)
+    checks = verify_models.checks(WithEnvelope(attitude.bundle, wide), target=attitude)
+    assert failing(checks)
+
+
+def test_fail_line_names_point_entry_both_values_and_tolerance(attitude):
+    eps = 1e-4
+    checks = verify_models.checks(PerturbedBundle(attitude.bundle, eps, {"F"}), target=attitude)
+    (bad,) = [c for c in checks if not c.ok]
+    assert bad.name == "F vs central differences (compiled f in x)"
+    match = re.fullmatch(r"derivative disagrees at x=\[(.*?)\], u=\[(.*?)\], p=\[(.*?)\], dt=([0-9.e-]+): "
+                         r"F\[(\d),(\d)\] = (\S+) vs (\S+), error (\S+), tolerance 1e-06", bad.worst)
+    assert match, bad.worst
+    x = np.array(match.group(1).split(", "), dtype=float)
+    assert x.shape == (6,) and abs(x[1]) <= 1.4 and 0.01 <= float(match.group(4)) <= 0.2  # inside the envelope
+    got, expected = float(match.group(7)), float(match.group(8))
+    assert got / expected == pytest.approx(1 + eps, rel=1e-6)  # the perturbed entry and its reference value
+    assert float(match.group(9)) == pytest.approx(bad.error, rel=1e-2) and bad.error > bad.tolerance
+    from abyssal.runtime.checks import verify
+
+    table = verify.Report(checks).table()
+    assert f"FAIL attitude {bad.name}: {bad.worst}; " in table
+
+
+def test_a_diverging_step_is_reported_as_diverged(attitude):
+    """dt up to 5 s and rates to +-20 rad/s: RK4 on |w| w damping blows up; that is divergence, not disagreement."""
+    env = attitude.bundle.envelope
+    wild = dict(env, states=dict(env["states"], p=[-20.0, 20.0], q=[-20.0, 20.0], r=[-20.0, 20.0]),
+                min_dt=4.0, max_dt=5.0)
+    checks = verify_models.checks(WithEnvelope(attitude.bundle, wild), target=attitude)
+    by = {c.name: c for c in checks}
+    for name in ("f vs rk4 of compiled xdot", "F vs central differences (compiled f in x)", "f: compiled C vs CasADi"):
+        c = by[name]
+        assert not c.ok and c.error == float("inf")
+        assert c.worst.startswith("diverged at x=[") and "dt=" in c.worst, c.worst
+        assert "left 10x its envelope" in c.worst and "disagrees" not in c.worst
+    assert by["H vs central differences (compiled h)"].ok  # the measurement did not diverge
+
+
+def test_no_envelope_declared_is_said_once_with_the_defaults(attitude):
+    from abyssal.runtime.checks import verify
+    from abyssal.symbolic.model import envelope_record
+
+    undeclared = envelope_record(None, attitude.bundle.state_names, attitude.bundle.input_names)
+    for envelope, why in ((undeclared, "no envelope declared: "), (None, "none recorded in its manifest")):
+        checks = verify_models.checks(WithEnvelope(attitude.bundle, envelope), target=attitude)
+        notes = [c.note for c in checks if c.note]
+        assert len(notes) == 1 and why in notes[0]
+        assert "states and inputs in [-1, 1], dt in [0.01, 0.5] s" in notes[0]
+        assert verify.Report(checks).table().count("NOTE attitude: no envelope declared") == 1
+    points = verify_models._Points(WithEnvelope(attitude.bundle, undeclared), None, np.random.default_rng(2))
+    X = np.array([points.state() for _ in range(500)])
+    assert np.all(np.abs(X) <= 1.0) and 0.01 <= min(points.dt() for _ in range(200))
+
+
+def test_builtins_with_a_twin_keep_their_draws(rov):
+    """A NumPy twin's plausible states still drive the built-ins' checks (not the envelope box)."""
+    points = verify_models._Points(rov, REFERENCES["rov4dof"], np.random.default_rng(3))
+    assert points.bounds is None
+    x = np.array([points.state() for _ in range(200)])
+    assert np.max(np.abs(x[:, 8])) > 20  # the twin's bias draws N(0, 10), not the unit box

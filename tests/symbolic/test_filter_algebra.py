@@ -122,7 +122,7 @@ def test_huber_keeps_inliers_and_inflates_outliers():
 def test_filter_units_follow_the_naming_contract():
     model = REGISTRY["cn2d"]()
     units = {u.name: u for u in filter_units(model)}
-    assert set(units) == {"ekf", "ukf", "ckf", "robust", "steps"}
+    assert set(units) == {"ekf", "ukf", "ckf"}  # a fused step lives in its family's file, robust updates in the UKF's
     functions = {fn.name(): fn for u in units.values() for fn in u.functions}
     predict_in = ["x", "P", "u", "p", "dt", "Q"]
     update_in = ["x", "P", "z", "p", "R", "mask"]

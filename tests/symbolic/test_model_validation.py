@@ -178,3 +178,66 @@ def test_subset_kinematics_and_6dof_coriolis_need_no_embedding():
                                evaluate(fossen.coriolis_from_mass(M6, nu6), (nu6, v6)), rtol=1e-15)
     with pytest.raises(ValueError, match="DOFs"):
         fossen.embed(ca.SX.zeros(2, 2), fossen.HORIZONTAL)
+
+
+# ----------------------------------------------------------------- operating envelope
+from abyssal.symbolic import Envelope  # noqa: E402
+from abyssal.symbolic.model import DEFAULT_RANGE  # noqa: E402
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(states={"a": (1.0, -1.0)}), r"Envelope states\['a'\] = \(1.0, -1.0\): low must be < high"),
+    (dict(states={"a": (1.0, 1.0)}), r"states\['a'\].*low must be < high"),
+    (dict(inputs={"c": (0.0, float("inf"))}), r"Envelope inputs\['c'\].*must be finite"),
+    (dict(inputs={"c": (float("nan"), 1.0)}), r"inputs\['c'\].*must be finite"),
+    (dict(states={"a": (0.0,)}), r"states\['a'\] must be a pair \(low, high\)"),
+    (dict(states={"a": ("x", 1.0)}), r"states\['a'\] must be a pair"),
+    (dict(max_dt=0.0), r"max_dt = 0.0 s: must be positive and finite"),
+    (dict(max_dt=-1.0), r"max_dt = -1.0 s: must be positive"),
+    (dict(min_dt=0.2, max_dt=0.1), r"min_dt = 0.2 s is larger than max_dt = 0.1 s"),
+    (dict(min_dt=0.0), r"min_dt = 0.0 s: must be positive"),
+])
+def test_envelope_refuses_bad_ranges_naming_the_entry(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        Envelope(**kwargs)
+
+
+@pytest.mark.parametrize("envelope, message", [
+    (Envelope(states={"theta": (-1.4, 1.4)}), r"envelope states: \['theta'\] is not a state name of the model; "
+                                              r"its states: \['a', 'b'\]"),
+    (Envelope(inputs={"c": (-1, 1), "d": (0, 1), "e": (0, 1)}), r"envelope inputs: \['d', 'e'\] are not input names"),
+    ({"states": {}}, r"envelope must be an abyssal Envelope"),
+])
+def test_model_refuses_an_envelope_naming_unknown_quantities(envelope, message):
+    with pytest.raises(ValueError, match=message):
+        make_model(envelope=envelope)
+
+
+def test_envelope_is_recorded_with_defaults_and_does_not_change_the_equations_hash():
+    plain = make_model()
+    enveloped = make_model(envelope=Envelope(states={"a": (-2, 3)}, max_dt=0.2))
+    assert enveloped.equations_hash() == plain.equations_hash()
+    record = enveloped.envelope_record()
+    assert record == {"declared": True, "states": {"a": [-2.0, 3.0], "b": list(DEFAULT_RANGE)},
+                      "inputs": {"c": list(DEFAULT_RANGE)}, "max_dt": 0.2, "min_dt": 0.01, "default_range": [-1.0, 1.0]}
+    assert plain.envelope_record()["declared"] is False and plain.envelope_record()["max_dt"] == 0.5
+    assert codegen.generate_model(enveloped, [], codegen.BUILTIN)["manifest.json"].count('"envelope"') == 1
+
+
+def test_envelope_copies_its_ranges_and_is_hashable():
+    ranges = {"a": (0, 1)}
+    env = Envelope(states=ranges)
+    ranges["a"] = (5, 6)
+    assert env.states == {"a": (0.0, 1.0)} and hash(env) == hash(Envelope(states={"a": (0.0, 1.0)}))
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        env.max_dt = 1.0
+
+
+def test_builtin_models_declare_envelopes_covering_every_state_and_input():
+    from abyssal.symbolic.models import REGISTRY
+
+    for name, build in REGISTRY.items():
+        model = build()
+        assert model.envelope is not None, name
+        assert set(model.envelope.states) == {q.name for q in model.states}, name
+        assert set(model.envelope.inputs) == {q.name for q in model.inputs}, name
