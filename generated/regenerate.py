@@ -60,7 +60,11 @@ def model_files(model, families=DEFAULT_FILTERS, origin=None) -> dict[str, str]:
     families = check_families(families)
     origin = origin or codegen.Origin(command="abyssal.generate()", check="abyssal.check_generated()",
                                       source=f"a Model object named {model.name!r}")
-    units = [codegen.Unit("model", codegen.model_functions(model)), *filter_units(model, families)]
+    filters = filter_units(model, families)
+    # a filter unit may carry a model function that shares its leaves (the EKF's file holds F)
+    carried = {fn.name() for unit in filters for fn in unit.functions}
+    units = [codegen.Unit("model", tuple(fn for fn in codegen.model_functions(model) if fn.name() not in carried)),
+             *filters]
     generated = {fn.name() for unit in units for fn in unit.functions}
     clashes = sorted(fn.name() for fn in model.functions if fn.name() in generated)
     if clashes:

@@ -4,9 +4,10 @@
  *
  * Functions (operations per call: CasADi SX instructions after common-subexpression elimination,
  * of the function itself or of the leaves it calls, times the calls):
- *   cn2d_ekf_predict                   49 operations
+ *   cn2d_F                             27 operations
+ *   cn2d_ekf_predict                   62 operations
  *   cn2d_ekf_update                   100 operations
- *   cn2d_ekf_step                     150 operations
+ *   cn2d_ekf_step                     163 operations
  */
 /* How to prefix internal symbols */
 #ifdef CASADI_CODEGEN_PREFIX
@@ -28,16 +29,22 @@
 #endif
 
 /* Add prefix to internal symbols */
+#define casadi_clear CASADI_PREFIX(clear)
 #define casadi_copy CASADI_PREFIX(copy)
+#define casadi_densify CASADI_PREFIX(densify)
 #define casadi_f0 CASADI_PREFIX(f0)
 #define casadi_f1 CASADI_PREFIX(f1)
 #define casadi_f2 CASADI_PREFIX(f2)
+#define casadi_f3 CASADI_PREFIX(f3)
+#define casadi_f4 CASADI_PREFIX(f4)
+#define casadi_f5 CASADI_PREFIX(f5)
 #define casadi_fabs CASADI_PREFIX(fabs)
 #define casadi_fmax CASADI_PREFIX(fmax)
 #define casadi_s0 CASADI_PREFIX(s0)
 #define casadi_s1 CASADI_PREFIX(s1)
 #define casadi_s2 CASADI_PREFIX(s2)
 #define casadi_s3 CASADI_PREFIX(s3)
+#define casadi_s4 CASADI_PREFIX(s4)
 #define casadi_sq CASADI_PREFIX(sq)
 
 /* Symbol visibility in DLLs */
@@ -54,6 +61,50 @@
     #define CASADI_SYMBOL_EXPORT
   #endif
 #endif
+
+void casadi_copy(const casadi_real* x, casadi_int n, casadi_real* y) {
+  casadi_int i;
+  if (y) {
+    if (x) {
+      for (i=0; i<n; ++i) *y++ = *x++;
+    } else {
+      for (i=0; i<n; ++i) *y++ = 0.;
+    }
+  }
+}
+
+void casadi_clear(casadi_real* x, casadi_int n) {
+  casadi_int i;
+  if (x) {
+    for (i=0; i<n; ++i) *x++ = 0;
+  }
+}
+
+#define CASADI_CAST(x,y) ((x) y)
+
+void casadi_densify(const casadi_real* x, const casadi_int* sp_x, casadi_real* y, casadi_int tr) {
+  casadi_int nrow_x, ncol_x, i, el;
+  const casadi_int *colind_x, *row_x;
+  if (!y) return;
+  nrow_x = sp_x[0]; ncol_x = sp_x[1];
+  colind_x = sp_x+2; row_x = sp_x+ncol_x+3;
+  casadi_clear(y, nrow_x*ncol_x);
+  if (!x) return;
+  if (tr) {
+    for (i=0; i<ncol_x; ++i) {
+      for (el=colind_x[i]; el!=colind_x[i+1]; ++el) {
+        y[i + row_x[el]*ncol_x] = CASADI_CAST(casadi_real, *x++);
+      }
+    }
+  } else {
+    for (i=0; i<ncol_x; ++i) {
+      for (el=colind_x[i]; el!=colind_x[i+1]; ++el) {
+        y[row_x[el]] = CASADI_CAST(casadi_real, *x++);
+      }
+      y += nrow_x;
+    }
+  }
+}
 
 casadi_real casadi_fabs(casadi_real x) {
 /* Pre-c99 compatibility */
@@ -79,17 +130,6 @@ casadi_real casadi_fmax(casadi_real x, casadi_real y) {
 #endif
 }
 
-void casadi_copy(const casadi_real* x, casadi_int n, casadi_real* y) {
-  casadi_int i;
-  if (y) {
-    if (x) {
-      for (i=0; i<n; ++i) *y++ = *x++;
-    } else {
-      for (i=0; i<n; ++i) *y++ = 0.;
-    }
-  }
-}
-
 /* Configuration this file was compiled with */
 CASADI_SYMBOL_EXPORT void cn2d_ekf_casadi_version(int* major, int* minor, int* patch) {
   *major = 3;
@@ -99,68 +139,233 @@ CASADI_SYMBOL_EXPORT void cn2d_ekf_casadi_version(int* major, int* minor, int* p
 CASADI_SYMBOL_EXPORT int cn2d_ekf_casadi_int_size(void) { return (int) sizeof(casadi_int); }
 CASADI_SYMBOL_EXPORT int cn2d_ekf_casadi_real_size(void) { return (int) sizeof(casadi_real); }
 
-static const casadi_int casadi_s0[3] = {2, 1, 1};
-static const casadi_int casadi_s1[3] = {2, 2, 1};
+static const casadi_int casadi_s0[7] = {2, 2, 0, 1, 2, 0, 1};
+static const casadi_int casadi_s1[3] = {2, 1, 1};
 static const casadi_int casadi_s2[3] = {3, 1, 1};
 static const casadi_int casadi_s3[3] = {1, 1, 1};
+static const casadi_int casadi_s4[3] = {2, 2, 1};
 
-/* cn2d_ekf_predict:(x[2],P[2x2],u[3],p[2],dt,Q[2x2])->(x_pred[2],P_pred[2x2],ok) */
-static int casadi_f0(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+/* cn2d_step_and_jacobian:(x[2],u[3],p[2],dt)->(x_next[2],F[2x2,2nz]) */
+static int casadi_f1(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a0, a1, a2, a3, a4, a5, a6, a7;
   a0=arg[0]? arg[0][0] : 0;
-  a1=arg[4]? arg[4][0] : 0;
-  a2=arg[2]? arg[2][0] : 0;
-  a3=arg[2]? arg[2][2] : 0;
+  a1=arg[3]? arg[3][0] : 0;
+  a2=arg[1]? arg[1][0] : 0;
+  a3=arg[1]? arg[1][2] : 0;
   a4=cos(a3);
   a5=(a2*a4);
-  a6=arg[2]? arg[2][1] : 0;
+  a6=arg[1]? arg[1][1] : 0;
   a3=sin(a3);
   a7=(a6*a3);
   a5=(a5+a7);
   a5=(a1*a5);
   a0=(a0+a5);
   if (res[0]!=0) res[0][0]=a0;
-  a5=arg[0]? arg[0][1] : 0;
+  a0=arg[0]? arg[0][1] : 0;
   a2=(a2*a3);
   a6=(a6*a4);
   a2=(a2-a6);
   a1=(a1*a2);
-  a5=(a5+a1);
-  if (res[0]!=0) res[0][1]=a5;
-  a1=arg[1]? arg[1][0] : 0;
-  a2=arg[5]? arg[5][0] : 0;
-  a1=(a1+a2);
-  if (res[1]!=0) res[1][0]=a1;
-  a2=5.0000000000000000e-01;
-  a6=arg[1]? arg[1][2] : 0;
-  a4=arg[1]? arg[1][1] : 0;
-  a6=(a6+a4);
-  a6=(a2*a6);
-  a4=arg[5]? arg[5][2] : 0;
-  a3=arg[5]? arg[5][1] : 0;
-  a4=(a4+a3);
-  a2=(a2*a4);
-  a6=(a6+a2);
-  if (res[1]!=0) res[1][1]=a6;
-  if (res[1]!=0) res[1][2]=a6;
-  a2=arg[1]? arg[1][3] : 0;
-  a4=arg[5]? arg[5][3] : 0;
-  a2=(a2+a4);
-  if (res[1]!=0) res[1][3]=a2;
-  a0=(a0+a5);
   a0=(a0+a1);
-  a0=(a0+a6);
-  a0=(a0+a6);
+  if (res[0]!=0) res[0][1]=a0;
+  a0=1.;
+  if (res[1]!=0) res[1][0]=a0;
+  if (res[1]!=0) res[1][1]=a0;
+  return 0;
+}
+
+/* cn2d_F:(x[2],u[3],p[2],dt)->(dfdx[2x2]) */
+static int casadi_f0(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+1, *w0=w+8, *w1=w+10, *w2=w+13, w3, *w4=w+15, *w5=w+17;
+  const casadi_real **arg1=arg+4;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 2, w0);
+  /* #1: @1 = input[1][0] */
+  casadi_copy(arg[1], 3, w1);
+  /* #2: @2 = input[2][0] */
+  casadi_copy(arg[2], 2, w2);
+  /* #3: @3 = input[3][0] */
+  w3 = arg[3] ? arg[3][0] : 0;
+  /* #4: {NULL, @4} = cn2d_step_and_jacobian(@0, @1, @2, @3) */
+  arg1[0]=w0;
+  arg1[1]=w1;
+  arg1[2]=w2;
+  arg1[3]=(&w3);
+  res1[0]=0;
+  res1[1]=w4;
+  if (casadi_f1(arg1, res1, iw, w, 0)) return 1;
+  /* #5: @5 = dense(@4) */
+  casadi_densify(w4, casadi_s0, w5, 0);
+  /* #6: output[0][0] = @5 */
+  casadi_copy(w5, 4, res[0]);
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int cn2d_F(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f0(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int cn2d_F_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void cn2d_F_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void cn2d_F_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void cn2d_F_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int cn2d_F_n_in(void) { return 4;}
+
+CASADI_SYMBOL_EXPORT casadi_int cn2d_F_n_out(void) { return 1;}
+
+CASADI_SYMBOL_EXPORT casadi_real cn2d_F_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* cn2d_F_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "x";
+    case 1: return "u";
+    case 2: return "p";
+    case 3: return "dt";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* cn2d_F_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "dfdx";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* cn2d_F_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s1;
+    case 1: return casadi_s2;
+    case 2: return casadi_s1;
+    case 3: return casadi_s3;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* cn2d_F_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s4;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int cn2d_F_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 8;
+  if (sz_res) *sz_res = 3;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 21;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int cn2d_F_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 8*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 3*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 21*sizeof(casadi_real);
+  return 0;
+}
+
+/* cn2d_ekf_covariance:(x_pred[2],F[2x2,2nz],P[2x2],Q[2x2])->(P_pred[2x2],ok) */
+static int casadi_f3(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a0, a1, a2, a3, a4, a5;
+  a0=arg[1]? arg[1][0] : 0;
+  a1=arg[2]? arg[2][0] : 0;
+  a1=(a1*a0);
+  a1=(a0*a1);
+  a2=arg[3]? arg[3][0] : 0;
+  a1=(a1+a2);
+  if (res[0]!=0) res[0][0]=a1;
+  a2=5.0000000000000000e-01;
+  a3=arg[2]? arg[2][2] : 0;
+  a4=arg[2]? arg[2][1] : 0;
+  a3=(a3+a4);
+  a3=(a2*a3);
+  a4=arg[1]? arg[1][1] : 0;
+  a3=(a3*a4);
+  a0=(a0*a3);
+  a3=arg[3]? arg[3][2] : 0;
+  a5=arg[3]? arg[3][1] : 0;
+  a3=(a3+a5);
+  a2=(a2*a3);
   a0=(a0+a2);
-  a0=casadi_fabs(a0);
-  a2=casadi_inf;
-  a0=(a0<a2);
-  if (res[2]!=0) res[2][0]=a0;
+  if (res[0]!=0) res[0][1]=a0;
+  if (res[0]!=0) res[0][2]=a0;
+  a2=arg[2]? arg[2][3] : 0;
+  a2=(a2*a4);
+  a4=(a4*a2);
+  a2=arg[3]? arg[3][3] : 0;
+  a4=(a4+a2);
+  if (res[0]!=0) res[0][3]=a4;
+  a2=arg[0]? arg[0][0] : 0;
+  a3=arg[0]? arg[0][1] : 0;
+  a2=(a2+a3);
+  a2=(a2+a1);
+  a2=(a2+a0);
+  a2=(a2+a0);
+  a2=(a2+a4);
+  a2=casadi_fabs(a2);
+  a4=casadi_inf;
+  a2=(a2<a4);
+  if (res[1]!=0) res[1][0]=a2;
+  return 0;
+}
+
+/* cn2d_ekf_predict:(x[2],P[2x2],u[3],p[2],dt,Q[2x2])->(x_pred[2],P_pred[2x2],ok) */
+static int casadi_f2(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+3, *w0=w+8, *w1=w+10, *w2=w+13, w3, *w4=w+15, *w5=w+17, *w6=w+19, *w7=w+23, *w8=w+27;
+  const casadi_real **arg1=arg+6;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 2, w0);
+  /* #1: @1 = input[2][0] */
+  casadi_copy(arg[2], 3, w1);
+  /* #2: @2 = input[3][0] */
+  casadi_copy(arg[3], 2, w2);
+  /* #3: @3 = input[4][0] */
+  w3 = arg[4] ? arg[4][0] : 0;
+  /* #4: {@4, @5} = cn2d_step_and_jacobian(@0, @1, @2, @3) */
+  arg1[0]=w0;
+  arg1[1]=w1;
+  arg1[2]=w2;
+  arg1[3]=(&w3);
+  res1[0]=w4;
+  res1[1]=w5;
+  if (casadi_f1(arg1, res1, iw, w, 0)) return 1;
+  /* #5: output[0][0] = @4 */
+  casadi_copy(w4, 2, res[0]);
+  /* #6: @6 = input[1][0] */
+  casadi_copy(arg[1], 4, w6);
+  /* #7: @7 = input[5][0] */
+  casadi_copy(arg[5], 4, w7);
+  /* #8: {@8, @3} = cn2d_ekf_covariance(@4, @5, @6, @7) */
+  arg1[0]=w4;
+  arg1[1]=w5;
+  arg1[2]=w6;
+  arg1[3]=w7;
+  res1[0]=w8;
+  res1[1]=(&w3);
+  if (casadi_f3(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[1][0] = @8 */
+  casadi_copy(w8, 4, res[1]);
+  /* #10: output[2][0] = @3 */
+  if (res[2]) res[2][0] = w3;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ekf_predict(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f0(arg, res, iw, w, mem);
+  return casadi_f2(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ekf_predict_checkout(void) {
@@ -209,43 +414,43 @@ CASADI_SYMBOL_EXPORT const char* cn2d_ekf_predict_name_out(casadi_int i) {
 
 CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ekf_predict_sparsity_in(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s0;
-    case 1: return casadi_s1;
+    case 0: return casadi_s1;
+    case 1: return casadi_s4;
     case 2: return casadi_s2;
-    case 3: return casadi_s0;
+    case 3: return casadi_s1;
     case 4: return casadi_s3;
-    case 5: return casadi_s1;
+    case 5: return casadi_s4;
     default: return 0;
   }
 }
 
 CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ekf_predict_sparsity_out(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s0;
-    case 1: return casadi_s1;
+    case 0: return casadi_s1;
+    case 1: return casadi_s4;
     case 2: return casadi_s3;
     default: return 0;
   }
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ekf_predict_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 6;
-  if (sz_res) *sz_res = 3;
+  if (sz_arg) *sz_arg = 10;
+  if (sz_res) *sz_res = 5;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 0;
+  if (sz_w) *sz_w = 31;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ekf_predict_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 6*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 3*sizeof(casadi_real*);
+  if (sz_arg) *sz_arg = 10*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 5*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  if (sz_w) *sz_w = 31*sizeof(casadi_real);
   return 0;
 }
 
 /* cn2d_ekf_update:(x[2],P[2x2],z,p[2],R,mask)->(x_post[2],P_post[2x2],innovation,S,ok) */
-static int casadi_f1(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f4(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13;
   a00=arg[0]? arg[0][0] : 0;
@@ -352,7 +557,7 @@ static int casadi_f1(const casadi_real** arg, casadi_real** res, casadi_int* iw,
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ekf_update(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f1(arg, res, iw, w, mem);
+  return casadi_f4(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ekf_update_checkout(void) {
@@ -403,10 +608,10 @@ CASADI_SYMBOL_EXPORT const char* cn2d_ekf_update_name_out(casadi_int i) {
 
 CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ekf_update_sparsity_in(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s0;
-    case 1: return casadi_s1;
+    case 0: return casadi_s1;
+    case 1: return casadi_s4;
     case 2: return casadi_s3;
-    case 3: return casadi_s0;
+    case 3: return casadi_s1;
     case 4: return casadi_s3;
     case 5: return casadi_s3;
     default: return 0;
@@ -415,8 +620,8 @@ CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ekf_update_sparsity_in(casadi_int i)
 
 CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ekf_update_sparsity_out(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s0;
-    case 1: return casadi_s1;
+    case 0: return casadi_s1;
+    case 1: return casadi_s4;
     case 2: return casadi_s3;
     case 3: return casadi_s3;
     case 4: return casadi_s3;
@@ -441,8 +646,8 @@ CASADI_SYMBOL_EXPORT int cn2d_ekf_update_work_bytes(casadi_int *sz_arg, casadi_i
 }
 
 /* cn2d_ekf_step:(x[2],P[2x2],u[3],p[2],dt,Q[2x2],z,R,mask)->(x_post[2],P_post[2x2],innovation,S,ok) */
-static int casadi_f2(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+5, *w00=w+14, *w01=w+16, *w02=w+20, *w03=w+23, w04, *w05=w+25, *w06=w+29, *w07=w+31, w08, w09, w10;
+static int casadi_f5(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+5, *w00=w+32, *w01=w+34, *w02=w+38, *w03=w+41, w04, *w05=w+43, *w06=w+47, *w07=w+49, w08, w09, w10;
   casadi_real w11, w12, w13;
   const casadi_real **arg1=arg+9;
   /* #0: @0 = input[0][0] */
@@ -467,7 +672,7 @@ static int casadi_f2(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   res1[0]=w06;
   res1[1]=w07;
   res1[2]=(&w08);
-  if (casadi_f0(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
   /* #7: @4 = input[6][0] */
   w04 = arg[6] ? arg[6][0] : 0;
   /* #8: @9 = input[7][0] */
@@ -486,7 +691,7 @@ static int casadi_f2(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   res1[2]=(&w11);
   res1[3]=(&w12);
   res1[4]=(&w13);
-  if (casadi_f1(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f4(arg1, res1, iw, w, 0)) return 1;
   /* #11: output[0][0] = @0 */
   casadi_copy(w00, 2, res[0]);
   /* #12: output[1][0] = @1 */
@@ -503,7 +708,7 @@ static int casadi_f2(const casadi_real** arg, casadi_real** res, casadi_int* iw,
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ekf_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f2(arg, res, iw, w, mem);
+  return casadi_f5(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ekf_step_checkout(void) {
@@ -557,12 +762,12 @@ CASADI_SYMBOL_EXPORT const char* cn2d_ekf_step_name_out(casadi_int i) {
 
 CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ekf_step_sparsity_in(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s0;
-    case 1: return casadi_s1;
+    case 0: return casadi_s1;
+    case 1: return casadi_s4;
     case 2: return casadi_s2;
-    case 3: return casadi_s0;
+    case 3: return casadi_s1;
     case 4: return casadi_s3;
-    case 5: return casadi_s1;
+    case 5: return casadi_s4;
     case 6: return casadi_s3;
     case 7: return casadi_s3;
     case 8: return casadi_s3;
@@ -572,8 +777,8 @@ CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ekf_step_sparsity_in(casadi_int i) {
 
 CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ekf_step_sparsity_out(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s0;
-    case 1: return casadi_s1;
+    case 0: return casadi_s1;
+    case 1: return casadi_s4;
     case 2: return casadi_s3;
     case 3: return casadi_s3;
     case 4: return casadi_s3;
@@ -582,35 +787,55 @@ CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ekf_step_sparsity_out(casadi_int i) 
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ekf_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 15;
+  if (sz_arg) *sz_arg = 19;
   if (sz_res) *sz_res = 10;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 35;
+  if (sz_w) *sz_w = 53;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ekf_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 15*sizeof(const casadi_real*);
+  if (sz_arg) *sz_arg = 19*sizeof(const casadi_real*);
   if (sz_res) *sz_res = 10*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 35*sizeof(casadi_real);
+  if (sz_w) *sz_w = 53*sizeof(casadi_real);
   return 0;
 }
 
 
+
+/* cn2d_F_batch: evaluate cn2d_F for j = 0..N-1 on slices arg[k] + j*arg_step[k] and
+ * res[k] + j*res_step[k] (a step of 0 shares the argument). Returns 0, or 1 + j of the first
+ * failing evaluation. */
+CASADI_SYMBOL_EXPORT int cn2d_F_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
+                                  casadi_real** res, const casadi_int* res_step) {
+  const casadi_real* a[8];
+  casadi_real* r[3];
+  casadi_int iw[1];
+  casadi_real w[22];
+  casadi_int j, k;
+  for (k = 0; k < 8; ++k) a[k] = 0;
+  for (k = 0; k < 3; ++k) r[k] = 0;
+  for (j = 0; j < N; ++j) {
+    for (k = 0; k < 4; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
+    for (k = 0; k < 1; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
+    if (cn2d_F(a, r, iw, w, 0)) return (int)(1 + j);
+  }
+  return 0;
+}
 
 /* cn2d_ekf_predict_batch: evaluate cn2d_ekf_predict for j = 0..N-1 on slices arg[k] + j*arg_step[k] and
  * res[k] + j*res_step[k] (a step of 0 shares the argument). Returns 0, or 1 + j of the first
  * failing evaluation. */
 CASADI_SYMBOL_EXPORT int cn2d_ekf_predict_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
-  const casadi_real* a[6];
-  casadi_real* r[3];
+  const casadi_real* a[10];
+  casadi_real* r[5];
   casadi_int iw[1];
-  casadi_real w[8];
+  casadi_real w[32];
   casadi_int j, k;
-  for (k = 0; k < 6; ++k) a[k] = 0;
-  for (k = 0; k < 3; ++k) r[k] = 0;
+  for (k = 0; k < 10; ++k) a[k] = 0;
+  for (k = 0; k < 5; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
     for (k = 0; k < 6; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
     for (k = 0; k < 3; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
@@ -644,12 +869,12 @@ CASADI_SYMBOL_EXPORT int cn2d_ekf_update_batch(casadi_int N, const casadi_real**
  * failing evaluation. */
 CASADI_SYMBOL_EXPORT int cn2d_ekf_step_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
-  const casadi_real* a[15];
+  const casadi_real* a[19];
   casadi_real* r[10];
   casadi_int iw[1];
-  casadi_real w[42];
+  casadi_real w[60];
   casadi_int j, k;
-  for (k = 0; k < 15; ++k) a[k] = 0;
+  for (k = 0; k < 19; ++k) a[k] = 0;
   for (k = 0; k < 10; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
     for (k = 0; k < 9; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;

@@ -2,11 +2,15 @@
 
 One module per family, one generated C file (codegen.Unit) per family:
 
-    ekf.py        unit "ekf":    <m>_ekf_predict, <m>_ekf_update (Joseph form), <m>_ekf_step
-    unscented.py  unit "ukf":    <m>_ukf_predict, <m>_ukf_update (alpha, beta, kappa at run time)
-                  unit "ckf":    <m>_ckf_predict, <m>_ckf_update (third-degree cubature), <m>_ckf_step
-    robust.py     family "robust": <m>_mcukf_update (maximum correntropy), <m>_huber_ukf_update, in
-                  unit "ukf" (they share its sigma points and h)
+    ekf.py        unit "ekf":          <m>_ekf_predict, <m>_ekf_update (Joseph form), <m>_ekf_step
+    unscented.py  unit "sigma_points": family "ukf": <m>_ukf_predict, <m>_ukf_update (alpha, beta,
+                                       kappa at run time); family "ckf": <m>_ckf_predict,
+                                       <m>_ckf_update (third-degree cubature), <m>_ckf_step
+    robust.py     unit "sigma_points": family "robust": <m>_mcukf_update (maximum correntropy),
+                                       <m>_huber_ukf_update (on the UKF's points)
+
+The sigma-point families share one file: the model's step and measurement, the Kalman gain and
+the other leaves that no rule changes are emitted once for all of them.
 
 The fused steps (<m>_ekf_step, <m>_ckf_step: one C call per step for the runtime) call their
 family's predict and update, so they live in that family's file. Every step is built from leaves
@@ -27,7 +31,7 @@ from ..codegen import Unit
 from ..model import Model
 from .ekf import ekf_functions
 from .robust import robust_functions
-from .unscented import ckf_functions, ukf_functions, unscented_family
+from .unscented import SharedLeaves, ckf_functions, ukf_functions, unscented_family
 
 #: every filter family, in the order of the generated units
 FAMILIES = ("ekf", "ukf", "ckf", "robust")
@@ -51,19 +55,24 @@ def check_families(families) -> tuple[str, ...]:
 
 
 def filter_units(model: Model, families=FAMILIES) -> list[Unit]:
-    """The generated filter units of a model for the chosen families, one C file each (robust: in "ukf")."""
+    """The generated filter units of a model for the chosen families: "ekf", and "sigma_points" for the
+    UKF, CKF and robust updates together (one file: they share the model's step, measurement, moments'
+    and Kalman gain leaves, SharedLeaves)."""
     families = check_families(families)
     units = []
     if "ekf" in families:
         units.append(Unit("ekf", ekf_functions(model)))
+    sigma_points: tuple = ()
+    shared = SharedLeaves(model)
     if "ukf" in families:
-        family = unscented_family(model)
-        functions = ukf_functions(model, family)
+        family = unscented_family(model, shared)
+        sigma_points += ukf_functions(model, family)
         if "robust" in families:
-            functions += robust_functions(model, family)
-        units.append(Unit("ukf", functions))
+            sigma_points += robust_functions(model, family)
     if "ckf" in families:
-        units.append(Unit("ckf", ckf_functions(model)))
+        sigma_points += ckf_functions(model, shared)
+    if sigma_points:
+        units.append(Unit("sigma_points", sigma_points))
     return units
 
 

@@ -47,10 +47,14 @@ def filter_symbols(model: Model) -> FilterSymbols:
     )
 
 
-def leaf(name: str, inputs, outputs, names_in, names_out) -> ca.Function:
-    """A plain SX Function, divisions shared, that generated steps call instead of inlining."""
-    fn = ca.Function(name, list(inputs), [ca.densify(e) for e in outputs], list(names_in), list(names_out),
-                     FUNCTION_OPTIONS)
+def leaf(name: str, inputs, outputs, names_in, names_out, dense: bool = True) -> ca.Function:
+    """A plain SX Function, divisions shared, that generated steps call instead of inlining.
+
+    dense=False keeps the outputs' structural sparsity (a Jacobian passed on to another leaf, which
+    then skips its structural zeros); exported entry points always densify.
+    """
+    fn = ca.Function(name, list(inputs), [ca.densify(e) if dense else e for e in outputs], list(names_in),
+                     list(names_out), FUNCTION_OPTIONS)
     return share_reciprocals(fn, LEAF_OPTIONS)
 
 
@@ -88,9 +92,11 @@ def transition(model: Model) -> ca.Function:
 
 
 def transition_with_jacobian(model: Model) -> ca.Function:
-    """f(x, u, p, dt) -> (x_next, F): the step and its state Jacobian (discretise.step_and_jacobian)."""
+    """f(x, u, p, dt) -> (x_next, F): the step and its state Jacobian (discretise.step_and_jacobian), as a
+    leaf; F keeps its structural sparsity."""
     x, u, p, dt = model.x, model.u, model.p, ca.SX.sym("dt")
-    return ca.Function("f_and_F", [x, u, p, dt], list(step_and_jacobian(model, x, u, p, dt)))
+    return leaf(f"{model.name}_step_and_jacobian", [x, u, p, dt], list(step_and_jacobian(model, x, u, p, dt)),
+                ["x", "u", "p", "dt"], ["x_next", "F"], dense=False)
 
 
 def measurement(model: Model) -> ca.Function:

@@ -21,17 +21,19 @@ from __future__ import annotations
 import casadi as ca
 
 from ..model import Model
-from .common import filter_symbols, leaf, transition_with_jacobian
+from .common import exported, filter_symbols, leaf, step_inputs, transition_with_jacobian
 from .linalg import all_finite, congruence, symmetric_from_upper, symmetrise
 from .measurement import gain_update, masked_columns, masked_covariance, masked_innovation
-from .unscented import PREDICT_IN, PREDICT_OUT, UPDATE_IN, UPDATE_OUT, fused_step
+from .unscented import PREDICT_IN, UPDATE_IN, UPDATE_OUT, fused_step
 
 
-def ekf_predict(model: Model, x, P, u, p, dt, Q):
-    """(x_pred, P_pred, ok)."""
-    x_pred, F = transition_with_jacobian(model)(x, u, p, dt)
+def covariance_leaf(model: Model, F_sparsity: ca.Sparsity) -> ca.Function:
+    """<m>_ekf_covariance(x_pred, F, P, Q) -> (P_pred, ok): F P F^T + Q on F's structural nonzeros, finiteness."""
+    n = model.n_x
+    x, F, P, Q = ca.SX.sym("x_pred", n), ca.SX.sym("F", F_sparsity), ca.SX.sym("P", n, n), ca.SX.sym("Q", n, n)
     P_pred = congruence(F, symmetrise(P)) + symmetrise(Q)  # both mirrored: P_pred is symmetric by construction
-    return x_pred, P_pred, all_finite(x_pred, P_pred)
+    return leaf(f"{model.name}_ekf_covariance", [x, F, P, Q], [P_pred, all_finite(x, P_pred)],
+                ["x_pred", "F", "P", "Q"], ["P_pred", "ok"])
 
 
 def joseph_covariance(P: ca.SX, K: ca.SX, PHt: ca.SX, S: ca.SX) -> ca.SX:
@@ -70,17 +72,27 @@ def ekf_update(model: Model, x, P, z, p, R, mask):
     S = masked_covariance(congruence(H, P, PHt) + symmetrise(R), mask)
     PHt = masked_columns(PHt, mask)
     innovation = masked_innovation(z, z_pred, mask, model.angle_outputs)
-    x_post, _, K, ok = gain_update(x, P, PHt, S, innovation)
+    _, _, K, ok = gain_update(x, P, PHt, S, innovation, with_gain=True)
+    x_post = x + ca.mtimes(K, innovation)
     P_post = joseph_covariance(P, K, PHt, S)
     return x_post, P_post, innovation, S, ok * all_finite(x_post, P_post, innovation, S)
 
 
 def ekf_functions(model: Model) -> tuple[ca.Function, ...]:
-    """<m>_ekf_predict and <m>_ekf_update (each one leaf: f and F are evaluated once) and the fused <m>_ekf_step."""
-    s = filter_symbols(model)
+    """<m>_F, <m>_ekf_predict, <m>_ekf_update and the fused <m>_ekf_step.
+
+    The model's F lives here (not in the model's file) so that it and the predict call one copy of
+    the step-and-Jacobian leaf (the variational equation, usually the largest piece of a model).
+    """
     m = model.name
-    predict = leaf(f"{m}_ekf_predict", [s.x, s.P, s.u, s.p, s.dt, s.Q], ekf_predict(model, s.x, s.P, s.u, s.p, s.dt, s.Q),
-                   PREDICT_IN, PREDICT_OUT)
-    update = leaf(f"{m}_ekf_update", [s.x, s.P, s.z, s.p, s.R, s.mask],
-                  ekf_update(model, s.x, s.P, s.z, s.p, s.R, s.mask), UPDATE_IN, UPDATE_OUT)
-    return predict, update, fused_step(f"{m}_ekf_step", model, predict, update)
+    step_and_F = transition_with_jacobian(model)
+    covariance = covariance_leaf(model, step_and_F.sparsity_out(1))
+    s = step_inputs(model, PREDICT_IN)
+    x_pred, F = step_and_F(s["x"], s["u"], s["p"], s["dt"])
+    P_pred, ok = covariance(x_pred, F, s["P"], s["Q"])
+    predict = exported(f"{m}_ekf_predict", s, {"x_pred": x_pred, "P_pred": P_pred, "ok": ok})
+    jacobian = exported(f"{m}_F", {name: s[name] for name in ("x", "u", "p", "dt")}, {"dfdx": F})
+    u = filter_symbols(model)
+    update = leaf(f"{m}_ekf_update", [u.x, u.P, u.z, u.p, u.R, u.mask],
+                  ekf_update(model, u.x, u.P, u.z, u.p, u.R, u.mask), UPDATE_IN, UPDATE_OUT)
+    return jacobian, predict, update, fused_step(f"{m}_ekf_step", model, predict, update)

@@ -56,19 +56,21 @@ def masked_columns(C: ca.SX, mask: ca.SX) -> ca.SX:
     return ca.horzcat(*[u * C[:, j] for j, u in enumerate(used(mask))])
 
 
-def gain_update(x: ca.SX, P: ca.SX, Pxz: ca.SX, S: ca.SX, innovation: ca.SX):
+def gain_update(x: ca.SX, P: ca.SX, Pxz: ca.SX, S: ca.SX, innovation: ca.SX, with_gain: bool = False):
     """x + K nu and P - K S K^T with K = Pxz S^-1 (seed 000 eq. 29, seed 002 eqs. 16-18).
 
-    With S = L L^T and W = L^-1 Pxz^T: K = (L^-T W)^T and K S K^T = W^T W (symmetric by
-    construction). Returns (x_post, P_post, K, ok) with ok the Cholesky guard of S.
+    With S = L L^T and W = L^-1 Pxz^T: K = W^T L^-1, so K nu = W^T (L^-1 nu) and K S K^T = W^T W
+    (symmetric by construction); K itself (L^-T W, transposed) is formed only when asked for.
+    Returns (x_post, P_post, K or None, ok) with ok the Cholesky guard of S.
     """
     L, ok = guarded_cholesky(S)
     W = forward_substitute(L, Pxz.T)
-    K = backward_substitute_transposed(L, W).T
+    x_post = x + ca.mtimes(W.T, forward_substitute(L, innovation))
+    K = backward_substitute_transposed(L, W).T if with_gain else None
     n = P.size1()
     P_post = ca.SX.zeros(n, n)
     for i in range(n):
         for j in range(i, n):
             P_post[i, j] = P[i, j] - ca.dot(W[:, i], W[:, j])
             P_post[j, i] = P_post[i, j]
-    return x + ca.mtimes(K, innovation), P_post, K, ok
+    return x_post, P_post, K, ok

@@ -28,7 +28,7 @@ import casadi as ca
 
 from ..model import Model
 from .linalg import cholesky_solve, forward_substitute, guarded_cholesky
-from .unscented import SigmaPointFamily, unscented_family
+from .unscented import SigmaPointFamily, noise_leaf, unscented_family
 
 MCC_MAX_EXPONENT = 50.0
 HUBER_ITERATIONS = 3
@@ -68,7 +68,7 @@ def robust_functions(model: Model, family: SigmaPointFamily | None = None,
     family = family or unscented_family(model)
     sigma, gamma = ca.SX.sym("sigma"), ca.SX.sym("gamma")
     m = model.name
-    mcc = family.noise_leaf(f"{m}_mcc_noise", correntropy_noise(sigma), [sigma], ["sigma"])
-    huber = family.noise_leaf(f"{m}_huber_noise", huber_noise(gamma, huber_iterations), [gamma], ["gamma"])
+    mcc = noise_leaf(model, f"{m}_mcc_noise", correntropy_noise(sigma), [sigma], ["sigma"])
+    huber = noise_leaf(model, f"{m}_huber_noise", huber_noise(gamma, huber_iterations), [gamma], ["gamma"])
     return (family.update_function(f"{m}_mcukf_update", mcc, [sigma], ["sigma"]),
             family.update_function(f"{m}_huber_ukf_update", huber, [gamma], ["gamma"]))

@@ -27,7 +27,7 @@ import casadi as ca
 from ..model import Model
 from .common import call_columns, exported, leaf, measurement, step_inputs, transition
 from .linalg import (
-    all_finite, guarded_cholesky, symmetric_from_upper, symmetrise, weight_groups, weighted_outer, weighted_sum,
+    all_finite, guarded_cholesky, symmetric_from_upper, symmetrise, weight_groups, weighted_outer,
 )
 from .measurement import gain_update, masked_columns, masked_covariance, masked_innovation, residual
 from .sigma_points import SigmaPointRule, cubature_rule, scaled_unscented_rule
@@ -38,12 +38,68 @@ PREDICT_OUT = ["x_pred", "P_pred", "ok"]
 UPDATE_OUT = ["x_post", "P_post", "innovation", "S", "ok"]
 #: fused predict + update (one C call per step for the runtime's step()); same outputs as an update
 STEP_IN = PREDICT_IN + ["z", "R", "mask"]
+#: a measurement of at most this many SX instructions (a selection of states, a range) is inlined at every
+#: point of an update instead of called in a loop: the loop's copies would cost more than h (benchmarks/README.md)
+INLINE_MEASUREMENT = 64
 
 
 def upper_mirrored(A: ca.SX) -> ca.SX:
     """A's upper triangle mirrored below the diagonal (exactly symmetric output for any input)."""
     n = A.size1()
     return symmetric_from_upper({(i, j): A[i, j] for i in range(n) for j in range(i, n)}, n)
+
+
+def noise_leaf(model: Model, name: str, measurement_noise, extra_args=(), extra_names=()) -> ca.Function:
+    """R_used: sym(R) masked (identity on unused entries), or measurement_noise(a, Pzz, innovation) -> R~
+    (robust.py; a is the guarded Cholesky factor of the masked R); ok is that factor's guard."""
+    m = model.n_y
+    R, mask, Pzz, innovation = ca.SX.sym("R", m, m), ca.SX.sym("mask", m), ca.SX.sym("Pzz", m, m), ca.SX.sym("nu", m)
+    R_used, ok = masked_covariance(symmetrise(R), mask), ca.SX(1)
+    if measurement_noise is not None:
+        a, ok = guarded_cholesky(R_used)
+        R_used = measurement_noise(a, upper_mirrored(Pzz), innovation)
+    return leaf(name, [R, mask, Pzz, innovation, *extra_args], [R_used, ok],
+                ["R", "mask", "Pzz", "innovation", *extra_names], ["R_used", "ok"])
+
+
+class SharedLeaves:
+    """The leaves of a model that no sigma-point rule changes; one copy serves every family in a C file.
+
+        <m>_step, <m>_measurement                        f and h (common.transition, common.measurement)
+        <m>_cholesky(P) -> (L, ok)                       guarded Cholesky factor of sym(P) (linalg.py)
+        <m>_outer(y, mean) -> (y - mean)(y - mean)^T     its upper triangle, summed over a weight group
+        <m>_residual(z_k, z_pred) -> (dz, dz dz^T)       dz = z_k - z_pred (angles wrapped); dz dz^T summed
+        <m>_predicted(x_pred, C, Q) -> (P_pred, ok)      P_pred = C (upper, mirrored) + sym(Q), finiteness
+        <m>_noise(R, mask, Pzz, innovation) -> (R_used, ok)   sym(R) masked (robust.py: inflated)
+        <m>_kalman(x, P, Pzz, Pxz, R_used, innovation) -> (x_post, P_post, S, ok)
+    """
+
+    def __init__(self, model: Model):
+        m, n, n_y = model.name, model.n_x, model.n_y
+        self.f, self.h = transition(model), measurement(model)
+        P = ca.SX.sym("P", n, n)
+        self.cholesky = leaf(f"{m}_cholesky", [P], list(guarded_cholesky(symmetrise(P))), ["P"], ["L", "ok"])
+        y, mean = ca.SX.sym("y", n), ca.SX.sym("mean", n)
+        # the upper triangle only (structurally sparse output): the loop sums n(n+1)/2 entries per point, not n^2
+        self.outer = leaf(f"{m}_outer", [y, mean], [ca.triu(weighted_outer(y - mean, (1,)))], ["y", "mean"], ["ddT"],
+                          dense=False)
+        zk, z_pred = ca.SX.sym("z_k", n_y), ca.SX.sym("z_pred", n_y)
+        dz = residual(zk, z_pred, model.angle_outputs)
+        self.residual = leaf(f"{m}_residual", [zk, z_pred], [dz, weighted_outer(dz, (1,))], ["z_k", "z_pred"],
+                             ["dz", "dzdzT"])
+        x, C, Q = ca.SX.sym("x", n), ca.SX.sym("C", ca.Sparsity.upper(n)), ca.SX.sym("Q", n, n)
+        P_pred = upper_mirrored(C + symmetrise(Q))
+        self.predicted = leaf(f"{m}_predicted", [x, C, Q], [P_pred, all_finite(x, P_pred)],
+                              ["x_pred", "C", "Q"], ["P_pred", "ok"])
+        self.noise = noise_leaf(model, f"{m}_noise", measurement_noise=None)
+        # x + K nu and P - K S K^T with S = Pzz + R_used (measurement.gain_update), and finiteness
+        Pzz, Pxz = ca.SX.sym("Pzz", n_y, n_y), ca.SX.sym("Pxz", n, n_y)
+        R_used, innovation = ca.SX.sym("R_used", n_y, n_y), ca.SX.sym("nu", n_y)
+        S = upper_mirrored(Pzz + R_used)
+        x_post, P_post, _, ok = gain_update(x, symmetrise(P), Pxz, S, innovation)
+        self.kalman = leaf(f"{m}_kalman", [x, P, Pzz, Pxz, R_used, innovation],
+                           [x_post, P_post, S, ok * all_finite(x_post, P_post, innovation, S)],
+                           ["x", "P", "Pzz", "Pxz", "R_used", "innovation"], ["x_post", "P_post", "S", "ok"])
 
 
 class SigmaPointFamily:
@@ -53,17 +109,16 @@ class SigmaPointFamily:
     {"abk": abk} for the scaled unscented rule); leaves and steps take them after their own
     inputs. Leaves (plain SX, emitted once per C file, see common.leaf):
 
-        <prefix>_points(x, P, *rule_args) -> (X, L, ok)    X = x + L xi_k, L the guarded
-                                                           Cholesky factor of sym(P)
+        <prefix>_points(x, L, *rule_args) -> X             X = x + L xi_k
+        <prefix>_measured_points(x, L, p, *rule_args) -> Z h at every point, inlined (a measurement of
+                                                           at most INLINE_MEASUREMENT instructions;
+                                                           a costlier h is called in a loop instead)
         <prefix>_weights(*rule_args) -> (wm, wc)           one mean and one covariance weight per
                                                            group of points with equal weights
-        <prefix>_outer(y, mean) -> (y - mean)(y - mean)^T  summed over the points of a group
-        <prefix>_predicted(x_pred, C, Q) -> (P_pred, ok)   P_pred = C + sym(Q), finiteness
-        <prefix>_moments(L, Z, z, mask, *rule_args) -> (innovation, Pzz, Pxz)   masked, Pzz without R
-        <prefix>_noise(R, mask, Pzz, innovation) -> (R_used, ok)   sym(R) masked (robust.py: inflated)
-        <prefix>_kalman(x, P, Pzz, Pxz, R_used, innovation) -> (x_post, P_post, S, ok)
+        <prefix>_moments(L, DZ, Czz, z_pred, z, mask, *rule_args) -> (innovation, Pzz, Pxz)   masked,
+                                                           Pzz = Czz without R
 
-    and the model's f and h (common.transition, common.measurement). A step is an MX graph
+    and the rule-independent SharedLeaves (`shared`, one per C file). A step is an MX graph
     over them: f or h in a loop over the points (Function.map), and the predicted covariance
     a loop over the points (map with a summed output), so the C holds each piece once whatever
     the number of points. Each weighted sum is w_g * (sum of the group's terms), the grouping of
@@ -72,16 +127,23 @@ class SigmaPointFamily:
     Pxz = sum_k wc_k L xi_k dz_k^T = L (Xi diag(wc) DZ^T), and Xi has one entry per column.
     """
 
-    def __init__(self, model: Model, prefix: str, rule_of, rule_args: dict[str, ca.SX]):
+    def __init__(self, model: Model, prefix: str, rule_of, rule_args: dict[str, ca.SX],
+                 shared: SharedLeaves | None = None):
         self.model, self.prefix = model, prefix
+        self.shared = shared or SharedLeaves(model)
         self.rule_names, self.rule_args = list(rule_args), list(rule_args.values())
         n = model.n_x
         self.rule: SigmaPointRule = rule_of(n)
-        self.f, self.h = transition(model), measurement(model)
-        x, P = ca.SX.sym("x", n), ca.SX.sym("P", n, n)
-        L, ok = guarded_cholesky(symmetrise(P))
-        self.points = leaf(f"{prefix}_points", [x, P, *self.rule_args], [self.rule.points(x, L), L, ok],
-                           ["x", "P", *self.rule_names], ["X", "L", "ok"])
+        x, L = ca.SX.sym("x", n), ca.SX.sym("L", n, n)
+        X = self.rule.points(x, ca.tril(L))
+        self.points = leaf(f"{prefix}_points", [x, L, *self.rule_args], [X], ["x", "L", *self.rule_names], ["X"])
+        self.measured_points = None
+        if self.shared.h.n_instructions() <= INLINE_MEASUREMENT:
+            p = ca.SX.sym("p", model.n_p)
+            h = ca.Function("h", [model.x, model.p], [model.y])  # inlined at each point
+            Z = ca.horzcat(*[h(X[:, k], p) for k in range(self.rule.n_points)])
+            self.measured_points = leaf(f"{prefix}_measured_points", [x, L, p, *self.rule_args], [Z],
+                                        ["x", "L", "p", *self.rule_names], ["Z"])
         groups_m, groups_c = weight_groups(self.rule.wm), weight_groups(self.rule.wc)
         self.ranges = [(ks[0], ks[-1] + 1) for _, ks in groups_m]
         if [list(range(a, b)) for a, b in self.ranges] != [ks for _, ks in groups_m] or \
@@ -91,57 +153,22 @@ class SigmaPointFamily:
         self.weights = leaf(f"{prefix}_weights", self.rule_args,
                             [ca.vertcat(*[w for w, _ in groups_m]), ca.vertcat(*[w for w, _ in groups_c])],
                             self.rule_names, ["wm", "wc"])
-        y, mean = ca.SX.sym("y", n), ca.SX.sym("mean", n)
-        d = y - mean
-        self.outer = leaf(f"{prefix}_outer", [y, mean], [weighted_outer(d, (1,))], ["y", "mean"], ["ddT"])
-        C, Q = ca.SX.sym("C", n, n), ca.SX.sym("Q", n, n)
-        P_pred = upper_mirrored(C + symmetrise(Q))
-        self.predicted = leaf(f"{prefix}_predicted", [x, C, Q], [P_pred, all_finite(x, P_pred)],
-                              ["x_pred", "C", "Q"], ["P_pred", "ok"])
         self.measurement_moments = self._measurement_moments_leaf()
-        self.noise = self.noise_leaf(f"{prefix}_noise", measurement_noise=None)
-        self.kalman = self._kalman_leaf()
 
     def _measurement_moments_leaf(self) -> ca.Function:
-        """innovation, Pzz (without R) and Pxz of the points' measurements Z, masked (measurement.py).
-
-        z_pred and Pzz = sum_k wc_k dz_k dz_k^T (grouped weights); Pxz = L (Xi diag(wc) DZ^T): the
-        points' offsets are L xi_k, and L enters by its lower triangle.
-        """
+        """innovation, Pzz (without R) and Pxz from the points' residuals DZ and Czz = sum_k wc_k dz_k dz_k^T,
+        masked (measurement.py). Pxz = L (Xi diag(wc) DZ^T): the points' offsets are L xi_k, and L enters
+        by its lower triangle."""
         model, rule = self.model, self.rule
         n, m, k = model.n_x, model.n_y, rule.n_points
-        L, Z, z, mask = ca.SX.sym("L", n, n), ca.SX.sym("Z", m, k), ca.SX.sym("z", m), ca.SX.sym("mask", m)
-        z_pred = weighted_sum(Z, rule.wm)
-        DZ = ca.horzcat(*[residual(Z[:, j], z_pred, model.angle_outputs) for j in range(k)])
-        Pzz = masked_covariance(weighted_outer(DZ, rule.wc), mask, fill_identity=False)  # identity comes with R
+        L, DZ, Czz = ca.SX.sym("L", n, n), ca.SX.sym("DZ", m, k), ca.SX.sym("Czz", m, m)
+        z_pred, z, mask = ca.SX.sym("z_pred", m), ca.SX.sym("z", m), ca.SX.sym("mask", m)
+        Pzz = masked_covariance(upper_mirrored(Czz), mask, fill_identity=False)  # identity comes with R
         weighted_xi = ca.horzcat(*[rule.xi[:, j] * rule.wc[j] for j in range(k)])  # one entry per column
         Pxz = masked_columns(ca.mtimes(ca.tril(L), ca.mtimes(weighted_xi, DZ.T)), mask)
         innovation = masked_innovation(z, z_pred, mask, model.angle_outputs)
-        return leaf(f"{self.prefix}_moments", [L, Z, z, mask, *self.rule_args], [innovation, Pzz, Pxz],
-                    ["L", "Z", "z", "mask", *self.rule_names], ["innovation", "Pzz", "Pxz"])
-
-    def noise_leaf(self, name: str, measurement_noise, extra_args=(), extra_names=()) -> ca.Function:
-        """R_used: sym(R) masked (identity on unused entries), or measurement_noise(a, Pzz, innovation) -> R~
-        (robust.py; a is the guarded Cholesky factor of the masked R); ok is that factor's guard."""
-        m = self.model.n_y
-        R, mask, Pzz, innovation = ca.SX.sym("R", m, m), ca.SX.sym("mask", m), ca.SX.sym("Pzz", m, m), ca.SX.sym("nu", m)
-        R_used, ok = masked_covariance(symmetrise(R), mask), ca.SX(1)
-        if measurement_noise is not None:
-            a, ok = guarded_cholesky(R_used)
-            R_used = measurement_noise(a, upper_mirrored(Pzz), innovation)
-        return leaf(name, [R, mask, Pzz, innovation, *extra_args], [R_used, ok],
-                    ["R", "mask", "Pzz", "innovation", *extra_names], ["R_used", "ok"])
-
-    def _kalman_leaf(self) -> ca.Function:
-        """x + K nu and P - K S K^T with S = Pzz + R_used (measurement.gain_update), and finiteness."""
-        n, m = self.model.n_x, self.model.n_y
-        x, P, Pzz, Pxz = ca.SX.sym("x", n), ca.SX.sym("P", n, n), ca.SX.sym("Pzz", m, m), ca.SX.sym("Pxz", n, m)
-        R_used, innovation = ca.SX.sym("R_used", m, m), ca.SX.sym("nu", m)
-        S = upper_mirrored(Pzz + R_used)
-        x_post, P_post, _, ok = gain_update(x, symmetrise(P), Pxz, S, innovation)
-        return leaf(f"{self.prefix}_kalman", [x, P, Pzz, Pxz, R_used, innovation],
-                    [x_post, P_post, S, ok * all_finite(x_post, P_post, innovation, S)],
-                    ["x", "P", "Pzz", "Pxz", "R_used", "innovation"], ["x_post", "P_post", "S", "ok"])
+        return leaf(f"{self.prefix}_moments", [L, DZ, Czz, z_pred, z, mask, *self.rule_args], [innovation, Pzz, Pxz],
+                    ["L", "DZ", "Czz", "z_pred", "z", "mask", *self.rule_names], ["innovation", "Pzz", "Pxz"])
 
     # ------------------------------------------------------------------ sums over points (MX)
     def _group_weights(self, rule: list[ca.MX]) -> tuple[ca.MX, ca.MX]:
@@ -155,6 +182,18 @@ class SigmaPointFamily:
         """sum_g w_g sum_{k in g} Y[:, k]."""
         terms = [w[g] * ca.sum2(Y[:, a:b] if b - a < Y.size2() else Y) for g, (a, b) in enumerate(self.ranges)]
         return sum(terms[1:], terms[0])
+
+    def _residuals(self, wm: ca.MX, wc: ca.MX, Z: ca.MX) -> tuple[ca.MX, ca.MX, ca.MX]:
+        """(z_pred, DZ, Czz): the weighted mean of the points' measurements, their residuals (one loop per
+        weight group) and sum_g wc_g sum_{k in g} dz_k dz_k^T."""
+        z_pred = self._mean(wm, Z)
+        residuals, Czz = [], None
+        for g, (a, b) in enumerate(self.ranges):
+            looped = self.shared.residual.map(f"{self.shared.residual.name()}_{a}_{b}", "serial", b - a, [1], [1])
+            DZ_g, C_g = looped(Z[:, a:b] if b - a < Z.size2() else Z, z_pred)
+            residuals.append(DZ_g)
+            Czz = wc[g] * C_g if Czz is None else Czz + wc[g] * C_g
+        return z_pred, ca.horzcat(*residuals), Czz
 
     def _weighted_terms(self, w: ca.MX, term: ca.Function, columns, shared) -> list[ca.MX]:
         """sum_g w_g sum_{k in g} term(columns[:, k]..., shared...) per output of term, as loops."""
@@ -178,26 +217,31 @@ class SigmaPointFamily:
     def predict_function(self, name: str) -> ca.Function:
         """(x, P, u, p, dt, Q, *rule_args) -> (x_pred, P_pred, ok): points, f per point, moments."""
         s, rule, _ = self._inputs(PREDICT_IN)
-        X, _, ok_points = self.points(s["x"], s["P"], *rule)
-        Y = call_columns(self.f, X, s["u"], s["p"], s["dt"])
+        L, ok_points = self.shared.cholesky(s["P"])
+        X = self.points(s["x"], L, *rule)
+        Y = call_columns(self.shared.f, X, s["u"], s["p"], s["dt"])
         wm, wc = self._group_weights(rule)
         x_pred = self._mean(wm, Y)
-        C, = self._weighted_terms(wc, self.outer, [Y], [x_pred])
-        P_pred, ok_moments = self.predicted(x_pred, C, s["Q"])
+        C, = self._weighted_terms(wc, self.shared.outer, [Y], [x_pred])
+        P_pred, ok_moments = self.shared.predicted(x_pred, C, s["Q"])
         return exported(name, s, {"x_pred": x_pred, "P_pred": P_pred, "ok": ok_points * ok_moments})
 
     def update_function(self, name: str, noise: ca.Function | None = None, extra_args=(), extra_names=()) -> ca.Function:
         """(x, P, z, p, R, mask, *rule_args, *extra) -> (x_post, P_post, innovation, S, ok).
 
         Points redrawn from the given (predicted) x and P, h per point, their moments, the noise used
-        (`noise`, a noise_leaf; default self.noise: R itself), the Kalman gain.
+        (`noise`, a noise_leaf; default: R itself), the Kalman gain.
         """
         s, rule, extra = self._inputs(UPDATE_IN, extra_args, extra_names)
-        X, L, ok_points = self.points(s["x"], s["P"], *rule)
-        Z = call_columns(self.h, X, s["p"])
-        innovation, Pzz, Pxz = self.measurement_moments(L, Z, s["z"], s["mask"], *rule)
-        R_used, ok_noise = (noise or self.noise)(s["R"], s["mask"], Pzz, innovation, *extra)
-        x_post, P_post, S, ok = self.kalman(s["x"], s["P"], Pzz, Pxz, R_used, innovation)
+        L, ok_points = self.shared.cholesky(s["P"])
+        if self.measured_points is not None:
+            Z = self.measured_points(s["x"], L, s["p"], *rule)
+        else:
+            Z = call_columns(self.shared.h, self.points(s["x"], L, *rule), s["p"])
+        z_pred, DZ, Czz = self._residuals(*self._group_weights(rule), Z)
+        innovation, Pzz, Pxz = self.measurement_moments(L, DZ, Czz, z_pred, s["z"], s["mask"], *rule)
+        R_used, ok_noise = (noise or self.shared.noise)(s["R"], s["mask"], Pzz, innovation, *extra)
+        x_post, P_post, S, ok = self.shared.kalman(s["x"], s["P"], Pzz, Pxz, R_used, innovation)
         return exported(name, s, {"x_post": x_post, "P_post": P_post, "innovation": innovation, "S": S,
                                   "ok": ok_points * ok_noise * ok})
 
@@ -211,20 +255,20 @@ def fused_step(name: str, model: Model, predict: ca.Function, update: ca.Functio
                               "ok": ok_pred * ok_update})
 
 
-def ckf_functions(model: Model) -> tuple[ca.Function, ...]:
-    """<m>_ckf_predict, <m>_ckf_update and the fused <m>_ckf_step (one C file)."""
+def ckf_functions(model: Model, shared: SharedLeaves | None = None) -> tuple[ca.Function, ...]:
+    """<m>_ckf_predict, <m>_ckf_update and the fused <m>_ckf_step."""
     m = model.name
-    family = SigmaPointFamily(model, f"{m}_ckf", cubature_rule, {})
+    family = SigmaPointFamily(model, f"{m}_ckf", cubature_rule, {}, shared)
     predict = family.predict_function(f"{m}_ckf_predict")
     update = family.update_function(f"{m}_ckf_update")
     return predict, update, fused_step(f"{m}_ckf_step", model, predict, update)
 
 
-def unscented_family(model: Model) -> SigmaPointFamily:
+def unscented_family(model: Model, shared: SharedLeaves | None = None) -> SigmaPointFamily:
     """The scaled unscented rule with alpha, beta, kappa = abk at run time."""
     abk = ca.SX.sym("abk", 3)
     return SigmaPointFamily(model, f"{model.name}_ukf", lambda n: scaled_unscented_rule(n, abk[0], abk[1], abk[2]),
-                            {"abk": abk})
+                            {"abk": abk}, shared)
 
 
 def ukf_functions(model: Model, family: SigmaPointFamily | None = None) -> tuple[ca.Function, ...]:

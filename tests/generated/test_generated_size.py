@@ -41,26 +41,30 @@ def chain_files():
     return model_files(pendulum_chain(3), families=("ekf", "ukf", "ckf", "robust"))
 
 
-def test_the_model_step_is_emitted_once_per_filter_file(chain_files):
-    for family in ("ukf", "ckf"):
-        text = chain_files[f"chain3_{family}.c"]
-        assert leaf_definitions(text, "chain3_step") == 1, family
-        assert leaf_definitions(text, "chain3_measurement") == 1, family
-        # the points' loop calls the step: a map over the 2n (+1) points, not 2n copies
-        points = 13 if family == "ukf" else 12  # 2n (+1) points of n = 6 states
-        assert leaf_definitions(text, f"map{points}_chain3_step") == 1, family
+def test_the_model_step_is_emitted_once_for_every_sigma_point_family(chain_files):
+    text = chain_files["chain3_sigma_points.c"]
+    for shared in ("chain3_step", "chain3_cholesky", "chain3_kalman", "chain3_predicted", "chain3_outer"):
+        assert leaf_definitions(text, shared) == 1, shared
+    # the points' loop calls the step: a map over the 2n (+1) points of n = 6 states, not 2n copies
+    for points in (12, 13):
+        assert leaf_definitions(text, f"map{points}_chain3_step") == 1, points
 
 
-def test_fused_steps_call_predict_and_update_in_their_family_file(chain_files):
-    assert "chain3_steps.c" not in chain_files
-    for family in ("ekf", "ckf"):
-        text = chain_files[f"chain3_{family}.c"]
+def test_fused_steps_call_predict_and_update_in_the_same_file(chain_files):
+    assert set(chain_files) == {"chain3_model.c", "chain3_ekf.c", "chain3_sigma_points.c", "chain3_soa.c", "manifest.json"}
+    for family, file in (("ekf", "chain3_ekf.c"), ("ckf", "chain3_sigma_points.c")):
         for part in ("predict", "update", "step"):
-            assert leaf_definitions(text, f"chain3_{family}_{part}") == 1, (family, part)
+            assert leaf_definitions(chain_files[file], f"chain3_{family}_{part}") == 1, (family, part)
+
+
+def test_the_ekf_and_the_model_jacobian_share_one_step_and_jacobian(chain_files):
+    assert leaf_definitions(chain_files["chain3_ekf.c"], "chain3_step_and_jacobian") == 1
+    assert leaf_definitions(chain_files["chain3_ekf.c"], "chain3_F") == 1
+    assert leaf_definitions(chain_files["chain3_model.c"], "chain3_F") == 0
 
 
 def test_robust_updates_share_the_unscented_points(chain_files):
-    text = chain_files["chain3_ukf.c"]
+    text = chain_files["chain3_sigma_points.c"]
     assert leaf_definitions(text, "chain3_ukf_points") == 1
     for name in ("chain3_ukf_update", "chain3_mcukf_update", "chain3_huber_ukf_update"):
         assert leaf_definitions(text, name) == 1, name
@@ -69,7 +73,7 @@ def test_robust_updates_share_the_unscented_points(chain_files):
 def test_a_bigger_step_adds_its_size_once_not_once_per_point():
     small, big = (model_files(pendulum_chain(4, substeps), families=("ckf",)) for substeps in (1, 8))
     grown_model = len(big["chain4_model.c"]) - len(small["chain4_model.c"])
-    grown_ckf = len(big["chain4_ckf.c"]) - len(small["chain4_ckf.c"])
+    grown_ckf = len(big["chain4_sigma_points.c"]) - len(small["chain4_sigma_points.c"])
     assert grown_model > 20_000  # eight RK4 substeps are much more code than one (f, F and xdot)
     # the CKF file holds one more copy of the bigger step (f alone is about a third of what the model file gained);
     # an inlined step would add it once per point: 8 points, several times the model file's growth

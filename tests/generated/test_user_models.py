@@ -129,8 +129,8 @@ def test_drift_check_of_a_user_folder_fails_when_the_model_file_changes(project,
 
 
 @pytest.mark.parametrize("damage, message", [
-    (lambda f: (f / "cybership_ckf.c").write_text((f / "cybership_ckf.c").read_text().replace("a0", "a0 ", 1)),
-     r"cybership_ckf.c does not match its manifest \(edited by hand or truncated"),
+    (lambda f: (f / "cybership_sigma_points.c").write_text((f / "cybership_sigma_points.c").read_text().replace("a0", "a0 ", 1)),
+     r"cybership_sigma_points.c does not match its manifest \(edited by hand or truncated"),
     (lambda f: (f / "cybership_soa.c").write_bytes((f / "cybership_soa.c").read_bytes()[:100]),
      "cybership_soa.c does not match its manifest .*100 bytes"),
     (lambda f: (f / "cybership_ekf.c").unlink(), "cybership_ekf.c is listed in the manifest but missing"),

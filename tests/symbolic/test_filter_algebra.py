@@ -122,7 +122,7 @@ def test_huber_keeps_inliers_and_inflates_outliers():
 def test_filter_units_follow_the_naming_contract():
     model = REGISTRY["cn2d"]()
     units = {u.name: u for u in filter_units(model)}
-    assert set(units) == {"ekf", "ukf", "ckf"}  # a fused step lives in its family's file, robust updates in the UKF's
+    assert set(units) == {"ekf", "sigma_points"}  # fused steps beside their predict and update; the EKF's file holds F
     functions = {fn.name(): fn for u in units.values() for fn in u.functions}
     predict_in = ["x", "P", "u", "p", "dt", "Q"]
     update_in = ["x", "P", "z", "p", "R", "mask"]
@@ -135,12 +135,16 @@ def test_filter_units_follow_the_naming_contract():
         "cn2d_mcukf_update": (update_in + ["abk", "sigma"], update_out),
         "cn2d_huber_ukf_update": (update_in + ["abk", "gamma"], update_out),
         "cn2d_ekf_step": (predict_in + ["z", "R", "mask"], update_out),
+        "cn2d_F": (["x", "u", "p", "dt"], ["dfdx"]),
         "cn2d_ckf_step": (predict_in + ["z", "R", "mask"], update_out),
     }
     assert set(functions) == set(expected)
     for name, (ins, outs) in expected.items():
         fn = functions[name]
         assert fn.name_in() == ins and fn.name_out() == outs, name
+        if name == "cn2d_F":
+            assert fn.size_out(0) == (model.n_x, model.n_x)
+            continue
         assert fn.size_out("ok") == (1, 1)
         assert fn.size_out(1) == (model.n_x, model.n_x)
 
