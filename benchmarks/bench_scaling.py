@@ -326,8 +326,8 @@ def main(argv=None) -> int:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="n = 6, 12 only, fewer timed steps")
     parser.add_argument("--sizes", help="comma-separated state counts (even), instead of 6..36 ('' for none)")
-    parser.add_argument("--families", default="ckf", help="filter families to generate: ckf (default, as issue 18 "
-                        "measured), a comma list (ekf,ckf), or all")
+    parser.add_argument("--families", default="ckf", help="filter families to generate: ckf (default: the CKF "
+                        "alone), a comma list (ekf,ckf), or all")
     parser.add_argument("--bluerov2", action="store_true", help="also measure examples/bluerov2/bluerov2.py")
     parser.add_argument("--timeout", type=float, default=300.0,
                         help="seconds per model: generate, build and timing (default 300)")

@@ -44,8 +44,7 @@ BANNER = """\
  * Model {model}, equations sha256 {eq_hash}, CasADi {casadi}.
  * Edit the equations and run `{command}`; `{check}` fails on drift.
  *
- * Functions (operations per call: CasADi SX instructions after common-subexpression elimination,
- * of the function itself or of the leaves it calls, times the calls):
+ * Functions ({what}):
 {listing}
  */
 """
@@ -265,9 +264,13 @@ def describe_function(fn: ca.Function, file: str) -> dict:
     }
 
 
-def _banner(model: Model, origin: Origin, listing: str) -> str:
+OPERATIONS = ("operations per call: CasADi SX instructions after common-subexpression elimination,\n"
+              " * of the function itself or of the leaves it calls, times the calls")
+
+
+def _banner(model: Model, origin: Origin, listing: str, what: str = OPERATIONS) -> str:
     return BANNER.format(command=origin.command, check=origin.check, source=origin.source, model=model.name,
-                         eq_hash=model.equations_hash(), casadi=ca.__version__, listing=listing)
+                         eq_hash=model.equations_hash(), casadi=ca.__version__, listing=listing, what=what)
 
 
 def unit_source(model: Model, unit: Unit, origin: Origin) -> str:
@@ -303,8 +306,7 @@ def soa_source(model: Model, functions: list[ca.Function], origin: Origin) -> tu
         kernels.append(soa_kernel(fn, batched))
         entries[fn.name()] = [fn.name_in(k) for k in range(fn.n_in()) if batched[k]]
     listing = "\n".join(f" *   {name}_soa" for name in entries)
-    banner = _banner(model, origin, listing).replace("CasADi SX instructions after common-subexpression elimination",
-                                                    "structure-of-arrays kernels, one SX instruction per line")
+    banner = _banner(model, origin, listing, "structure-of-arrays kernels, one SX instruction per line")
     return banner + SOA_PREAMBLE + "".join(kernels), entries
 
 

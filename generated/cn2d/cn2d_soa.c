@@ -2,8 +2,7 @@
  * Model cn2d, equations sha256 d18b0bc949beb8eb544358aabafbf037a41dce14bc5bbbcfe95e0dfce4cc76e1, CasADi 3.8.2.
  * Edit the equations and run `abyssal regenerate`; `abyssal regenerate --check` fails on drift.
  *
- * Functions (operations per call: structure-of-arrays kernels, one SX instruction per line,
- * of the function itself or of the leaves it calls, times the calls):
+ * Functions (structure-of-arrays kernels, one SX instruction per line):
  *   cn2d_f_soa
  *   cn2d_h_soa
  */

@@ -2,8 +2,7 @@
  * Model linear_cv, equations sha256 3921f0ab22d488004fdefa145e4b141b16744c444661c4aeba43cc1d339cf976, CasADi 3.8.2.
  * Edit the equations and run `abyssal regenerate`; `abyssal regenerate --check` fails on drift.
  *
- * Functions (operations per call: structure-of-arrays kernels, one SX instruction per line,
- * of the function itself or of the leaves it calls, times the calls):
+ * Functions (structure-of-arrays kernels, one SX instruction per line):
  *   linear_cv_f_soa
  *   linear_cv_h_soa
  */

@@ -2,8 +2,7 @@
  * Model remus100, equations sha256 40d32319e15c7abb04bc62e34791fdd9a3a408bb868007f65dff4db7f5b792a4, CasADi 3.8.2.
  * Edit the equations and run `abyssal regenerate`; `abyssal regenerate --check` fails on drift.
  *
- * Functions (operations per call: structure-of-arrays kernels, one SX instruction per line,
- * of the function itself or of the leaves it calls, times the calls):
+ * Functions (structure-of-arrays kernels, one SX instruction per line):
  *   remus100_f_soa
  *   remus100_h_soa
  */

@@ -2,8 +2,7 @@
  * Model rov4dof, equations sha256 c687c75178b1065274dc66a2d9596e8af2764573a0c2dd815d9554468baf28c8, CasADi 3.8.2.
  * Edit the equations and run `abyssal regenerate`; `abyssal regenerate --check` fails on drift.
  *
- * Functions (operations per call: structure-of-arrays kernels, one SX instruction per line,
- * of the function itself or of the leaves it calls, times the calls):
+ * Functions (structure-of-arrays kernels, one SX instruction per line):
  *   rov4dof_f_soa
  *   rov4dof_h_soa
  */

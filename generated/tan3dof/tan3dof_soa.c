@@ -2,8 +2,7 @@
  * Model tan3dof, equations sha256 33f6a2c7119f26365ee38d26d3abe944db850de4374e9895804cd0ad76799607, CasADi 3.8.2.
  * Edit the equations and run `abyssal regenerate`; `abyssal regenerate --check` fails on drift.
  *
- * Functions (operations per call: structure-of-arrays kernels, one SX instruction per line,
- * of the function itself or of the leaves it calls, times the calls):
+ * Functions (structure-of-arrays kernels, one SX instruction per line):
  *   tan3dof_f_soa
  *   tan3dof_h_soa
  */

@@ -1,0 +1,52 @@
+"""Per-step times of the runtime's filters on rov4dof, as JSON: for before/after comparisons of two
+checkouts. It uses only the public API, so the same file runs against an older installed abyssal:
+
+    for r in 1 2 3 4 5; do OLD_VENV/bin/python benchmarks/step_times.py; .venv/bin/python benchmarks/step_times.py; done
+
+(give each checkout its own ABYSSAL_CACHE_DIR if their generated C differs), then compare the min and
+median of each filter over the runs. Each value: the best of 7 repetitions of step(u, dt, z) over a
+simulated trajectory, in µs per step.
+"""
+import json
+import time
+
+import numpy as np
+
+import abyssal.generated
+from abyssal.runtime import CKF, EKF, UKF
+from abyssal.runtime.checks.bench_filters import trajectory
+from abyssal.runtime.filters.particle import CubatureParticleFilter, ParticleFilter, UnscentedParticleFilter
+from abyssal.runtime.noise.mixtures import GaussianMixture
+
+REPETITIONS = 7
+
+
+def per_step(make, U, Z, steps: int) -> float:
+    best = float("inf")
+    for _ in range(REPETITIONS):
+        f = make()
+        t = time.perf_counter()
+        for k in range(steps):
+            f.step(U[k], 0.1, Z[k])
+        best = min(best, (time.perf_counter() - t) / steps * 1e6)
+    return best
+
+
+def main():
+    rov = abyssal.generated.load("rov4dof")
+    _, _, Q, R, U, Z = trajectory(rov, 400)
+    x0, P0 = np.zeros(12), 0.3 * np.eye(12)
+    Qm, Rm = GaussianMixture.gaussian(np.zeros(12), Q), GaussianMixture.gaussian(np.zeros(4), R)
+    out = {
+        "EKF": per_step(lambda: EKF(rov, x0, P0, Q, R), U, Z, 400),
+        "UKF": per_step(lambda: UKF(rov, x0, P0, Q, R), U, Z, 400),
+        "CKF": per_step(lambda: CKF(rov, x0, P0, Q, R), U, Z, 400),
+        "PF N=1000": per_step(lambda: ParticleFilter(rov, x0, P0, Qm, Rm, 1000, np.random.default_rng(0)), U, Z, 100),
+        "CPF N=100": per_step(lambda: CubatureParticleFilter(rov, x0, P0, Qm, Rm, 100, np.random.default_rng(0)), U, Z, 60),
+        "UPF N=100": per_step(lambda: UnscentedParticleFilter(rov, x0, P0, Q, R, 100, np.random.default_rng(0)), U, Z, 60),
+    }
+    print(json.dumps(out))
+
+
+if __name__ == "__main__":
+    main()
