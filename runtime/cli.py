@@ -5,6 +5,8 @@ import argparse
 import json
 import sys
 
+from .extras import MissingExtraError
+
 
 def _regenerate(args) -> int:
     from abyssal.generated import regenerate
@@ -206,7 +208,7 @@ def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return args.run(args)
-    except (KeyError, ValueError, RuntimeError, OSError) as exc:
+    except (KeyError, ValueError, RuntimeError, OSError, MissingExtraError) as exc:
         print(f"abyssal {args.command}: {exc}", file=sys.stderr)
         return 2
 

@@ -3,11 +3,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+from .extras import require
+
+require("matplotlib", "the experiment figures").use("Agg")
+plt = require("matplotlib.pyplot", "the experiment figures")
 
 FILTER_COLOURS = {"PF": "tab:gray", "CKF": "tab:blue", "CPF": "tab:orange", "MOGCPF": "tab:purple",
                   "EM-MOGCPF": "tab:red", "GS-CKF": "tab:green"}

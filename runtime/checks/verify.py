@@ -24,6 +24,8 @@ import traceback
 from pathlib import Path
 from dataclasses import asdict, dataclass, field
 
+from ..extras import missing_optional
+
 SECTIONS = ("abyssal.runtime.checks.verify_models", "abyssal.runtime.checks.verify_filters",
             "abyssal.runtime.checks.verify_remus", "abyssal.runtime.checks.verify_tan",
             "abyssal.runtime.checks.verify_cn")
@@ -180,8 +182,13 @@ def verify_targets(targets, strict: bool = False) -> Report:
         for section, module in _sections():
             try:
                 report.checks.extend(module.checks(target.bundle, target=target))
-            except Exception:  # a crashing check is a failure, reported, never hidden
-                report.failures.append(f"{section} on {name}:\n{traceback.format_exc()}")
+            except Exception as exc:  # a crashing check is a failure, reported, never hidden
+                missing = missing_optional(exc)
+                if missing:  # an absent optional reference: the section is reported as skipped, with why
+                    report.checks.append(Check.skip(name, f"{section.rsplit('.', 1)[-1]} checks", "optional reference",
+                                                    missing))
+                else:
+                    report.failures.append(f"{section} on {name}:\n{traceback.format_exc()}")
     return report
 
 

@@ -53,6 +53,8 @@ from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 
+from ..extras import require
+
 TIDY_COLUMNS = ("run", "case", "filter", "metric", "value")
 #: metric names that are wall-clock measurements: kept in the rows, never in a compared table
 TIMING_METRICS = frozenset({"step_ms", "step_us", "run_seconds"})
@@ -196,7 +198,7 @@ class _Progress:
         self.stream = stream or sys.stderr
         self.bar = None
         if total and self.stream.isatty():
-            from tqdm import tqdm
+            tqdm = require("tqdm", "the campaign progress bar").tqdm
 
             self.bar = tqdm(total=total, desc=label, unit="run", file=self.stream, leave=False)
 
@@ -302,8 +304,9 @@ def run_campaign(run_one: RunOne, config, runs: int, seed: int = 0, *, workers: 
 
 
 def _run_on_dask(run_one, config, todo, columns, workers, scheduler, rows, failures, progress, checkpoint) -> str:
-    import dask
-    from distributed import Client, LocalCluster, as_completed
+    dask = require("dask", "a Monte-Carlo campaign on Dask")
+    distributed = require("distributed", "a Monte-Carlo campaign on Dask")
+    Client, LocalCluster, as_completed = distributed.Client, distributed.LocalCluster, distributed.as_completed
 
     with dask.config.set({"distributed.scheduler.allowed-failures": 1}):
         if scheduler is not None:

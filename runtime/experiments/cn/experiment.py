@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ...extras import require
 from ..campaign import derive, run_index
 from . import paper
 from .scenario import NOISE_CASES, CnScenario, ape, position_errors, simulate
@@ -224,10 +225,8 @@ def json_document(rows) -> dict:
 def figures(config: CnConfig, seed: int, out) -> list:
     """Figs. 7-9 analogues (paths, positions, position errors) and MCUPF's particle count, for run 0 of each
     case (re-run here from the same seed, so they show a run that is in the table)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    require("matplotlib", "the experiment figures").use("Agg")
+    plt = require("matplotlib.pyplot", "the experiment figures")
 
     from ..campaign import run_seeds
 

@@ -33,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ...extras import require
 from . import truth
 
 STATE_NAMES = truth.STATE_NAMES
@@ -240,10 +241,8 @@ def per_state_json(rows) -> dict:
 # ------------------------------------------------------------------------------------------ figures
 def figures(out: Path, details: dict, first_run) -> list[Path]:
     """Figs. 3, 5-8 of the paper from run 1 (training/evaluation data, surge, x(t), y(t), 3-D path)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    require("matplotlib", "the experiment figures").use("Agg")
+    plt = require("matplotlib.pyplot", "the experiment figures")
 
     out.mkdir(parents=True, exist_ok=True)
     log, traces = first_run

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ...extras import require
 from .truth import HelixLog, wrap
 
 POOL_FRACTION = 0.4
@@ -92,9 +93,10 @@ def training_subset(times: np.ndarray, n_train: int, seed: int = 4,
 def fit(log: HelixLog, n_train: int = 100, seed: int = 4, features: str = "paper",
         density_at_end: float = DENSITY_AT_END) -> GPProcessModel:
     """Fit the 12 GPs on run `log` (run 1 in the paper)."""
-    from sklearn.exceptions import ConvergenceWarning
-    from sklearn.gaussian_process import GaussianProcessRegressor
-    from sklearn.gaussian_process.kernels import RBF, ConstantKernel, WhiteKernel
+    ConvergenceWarning = require("sklearn.exceptions", "the GP process model").ConvergenceWarning
+    GaussianProcessRegressor = require("sklearn.gaussian_process", "the GP process model").GaussianProcessRegressor
+    kernels = require("sklearn.gaussian_process.kernels", "the GP process model")
+    RBF, ConstantKernel, WhiteKernel = kernels.RBF, kernels.ConstantKernel, kernels.WhiteKernel
 
     inputs, targets, times = narx_data(log, features)
     pool, idx = training_subset(times, n_train, seed, density_at_end)

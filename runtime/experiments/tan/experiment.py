@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ...extras import require
 from . import paper
 from .scenario import ORACLE, TanConfig, case_name, run_case
 
@@ -88,10 +89,8 @@ def figure_runs(config: TanConfig, seed: int = 0):
 
 
 def figures(rows, out: Path, config: TanConfig, seed: int = 0) -> list[Path]:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    require("matplotlib", "the experiment figures").use("Agg")
+    plt = require("matplotlib.pyplot", "the experiment figures")
 
     from .scenario import get_map
 

@@ -1,0 +1,48 @@
+"""abyssal's optional dependencies: the experiments extra, and one message when it is missing.
+
+The core install (casadi, numpy, scipy) builds, loads, verifies and runs every filter; what a vehicle
+computer runs needs nothing else. `abyssal reproduce` and the experiments need the extra:
+
+    pip install 'abyssal[experiments]'     Dask (campaigns), tqdm (progress), scikit-learn (GP models),
+                                           matplotlib (figures); part of '.[test]'
+
+Modules that need one of them import it through ``require`` at the point of use, never at import
+time, so ``import abyssal`` works without the extra.
+"""
+from __future__ import annotations
+
+import importlib
+from types import ModuleType
+
+EXTRA = "experiments"
+INSTALL = f"pip install 'abyssal[{EXTRA}]'"
+#: top-level module -> the package that provides it
+PROVIDERS = {"dask": "dask", "distributed": "dask[distributed]", "tqdm": "tqdm", "sklearn": "scikit-learn",
+             "matplotlib": "matplotlib"}
+#: the independent references of `abyssal verify` that come with '.[test]' (beside the experiments extra's
+#: scikit-learn, and matplotlib's offline bathymetry sample)
+ORACLES = {"filterpy": "filterpy", "skfuzzy": "scikit-fuzzy", **PROVIDERS}
+
+
+class MissingExtraError(ImportError):
+    """A feature needs a package of the experiments extra that is not installed."""
+
+
+def missing_optional(exc: BaseException) -> str | None:
+    """The optional package (experiments extra or a verify reference) whose absence raised exc, else None."""
+    if isinstance(exc, MissingExtraError):
+        return str(exc)
+    if isinstance(exc, ModuleNotFoundError) and exc.name and exc.name.split(".")[0] in ORACLES:
+        return f"{ORACLES[exc.name.split('.')[0]]} is not installed (pip install 'abyssal[test]')"
+    return None
+
+
+def require(module: str, purpose: str) -> ModuleType:
+    """`module`, imported; MissingExtraError (one line: what needs it and the pip command) if it is absent."""
+    try:
+        return importlib.import_module(module)
+    except ModuleNotFoundError as exc:
+        top = (exc.name or module).split(".")[0]
+        if top not in PROVIDERS:
+            raise
+        raise MissingExtraError(f"{purpose} needs {PROVIDERS[top]}, part of abyssal's {EXTRA} extra: {INSTALL}") from None
