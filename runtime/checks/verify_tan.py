@@ -56,7 +56,6 @@ def _fuzzy_points() -> np.ndarray:
 
 
 def fuzzy_checks(bundle) -> list[Check]:
-    import casadi as ca
 
     from abyssal.symbolic import fuzzy
 

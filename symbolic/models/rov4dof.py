@@ -37,7 +37,8 @@ zero thrust (the speed above which one step no longer shrinks |nu|, i.e. the ite
 against a Radau reference (rtol 1e-10) over the box |u|,|v|,|w| <= 10 m/s, |r| <= 5 rad/s with
 thrust at 0 and +-limits is <= 2.6 % of the speed (94 % with 1 substep, 0.4 % with 3). Two substeps
 is the smallest count with a margin of 2x over the box (and 2.2x over the sigma-point reach
-measured above); each substep costs one more RK4 in every generated function. tests/scenarios/test_rov_scenario.py checks the margin on the generated C.
+measured above); each substep costs one more RK4 in every generated function.
+tests/scenarios/test_rov_scenario.py checks the margin on the generated C.
 """
 from __future__ import annotations
 

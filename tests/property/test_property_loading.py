@@ -8,7 +8,6 @@ import json
 import pytest
 from hypothesis import assume, example, given, strategies as st
 
-import abyssal.generated
 from abyssal.generated import GeneratedFolderError, available, load
 
 #: what load may raise for something that is not a generated model

@@ -63,7 +63,9 @@ def test_the_two_maps_have_the_papers_size_and_terrain_types(arctic):
     for m in (arctic, real):
         assert m.shape == (121, 281) and m.resolution == 500.0 and m.extent == (0.0, 140e3, 0.0, 60e3)
         assert (m.depth >= 0).all()
-    slope = lambda m, x0, y0: np.median(np.hypot(*m.lookup(x0 + np.arange(0, 15e3, 100.0), np.full(150, y0))[1:3]))
+    def slope(m, x0, y0):
+        return np.median(np.hypot(*m.lookup(x0 + np.arange(0, 15e3, 100.0), np.full(150, y0))[1:3]))
+
     assert slope(arctic, 20e3, 20e3) > 0.05       # rough: > 5 % median slope along the paper's first track
     assert slope(arctic, 60e3, 10e3) < 0.001      # flat plain: < 0.1 %
     assert synthetic_arctic(0).depth.tobytes() == arctic.depth.tobytes()  # seeded

@@ -10,7 +10,7 @@ import pytest
 import abyssal.generated
 from abyssal.runtime.experiments import campaign, reproduce
 from abyssal.runtime.experiments.rov import experiment
-from abyssal.runtime.experiments.rov.scenario import SEA_STATES, RovScenario, make_filter, mass_diagonal, simulate
+from abyssal.runtime.experiments.rov.scenario import SEA_STATES, RovScenario, mass_diagonal, simulate
 
 
 @pytest.fixture(scope="module")

@@ -217,7 +217,7 @@ LABEL_ORDER = tuple(f.label for f in MAIN_FILTERS + N_SWEEP)
 
 def _labels(rows) -> list[str]:
     present = set(_order(rows, lambda r: r["filter"]))
-    return [l for l in LABEL_ORDER if l in present] + sorted(present - set(LABEL_ORDER))
+    return [label for label in LABEL_ORDER if label in present] + sorted(present - set(LABEL_ORDER))
 
 
 def _fmt(value: float, width: int, spec: str = ".4f") -> str:

@@ -15,7 +15,6 @@ particles only add Monte-Carlo noise to the EM refit (issue 10).
 """
 from __future__ import annotations
 
-import math
 from types import SimpleNamespace
 
 import numpy as np
