@@ -301,3 +301,14 @@ def test_builtins_with_a_twin_keep_their_draws(rov):
     assert points.bounds is None
     x = np.array([points.state() for _ in range(200)])
     assert np.max(np.abs(x[:, 8])) > 20  # the twin's bias draws N(0, 10), not the unit box
+
+
+def test_a_missing_or_renamed_section_is_an_error_not_a_silent_skip(monkeypatch):
+    from abyssal.runtime.checks import bench, verify
+
+    monkeypatch.setattr(verify, "SECTIONS", verify.SECTIONS + ("abyssal.runtime.checks.verify_renamed",))
+    with pytest.raises(ModuleNotFoundError, match="verify_renamed"):
+        list(verify._sections())
+    monkeypatch.setattr(bench, "SECTIONS", ("abyssal.runtime.checks.bench_renamed",))
+    with pytest.raises(ModuleNotFoundError, match="bench_renamed"):
+        bench.main(json_output=True, out=None, quick=True)
