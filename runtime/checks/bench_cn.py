@@ -3,7 +3,7 @@
 Per-step wall-clock time of every CN filter on the simulated lake trial (gaussian noise case,
 printed tuning Q = diag(10^2, 10^2), R = 0.1), median over loops of steps cycling through the
 trial, each beside the paper's Table 7 time (MATLAB on a 2.9 GHz Pentium: a different machine
-and language, quoted for scale only). Targets (issue 11): MCUPF <= 1 ms per step at its adaptive
+and language, quoted for scale only). Targets: MCUPF <= 1 ms per step at its adaptive
 particle number, UPF and HRUPF at N = 5000 <= 5 ms per step.
 """
 from __future__ import annotations

@@ -3,7 +3,7 @@ the GP-UKF predict's generated C size, generation and compile time, at a few tra
 
 Per N: fit the 12 GPs on run 1 (timed), generate the GP-UKF predict C (size, seconds) and compile it
 in a fresh cache folder (so the compile is really timed), then time one predict + update of each
-filter on run 2 (median of repeated loops). Targets (issue 13): generated file <= 2 MB, compile <= 60 s.
+filter on run 2 (median of repeated loops). Targets: generated file <= 2 MB, compile <= 60 s.
 """
 from __future__ import annotations
 

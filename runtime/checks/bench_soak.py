@@ -42,7 +42,7 @@ KALMAN_STEPS, KALMAN_STEPS_QUICK = 100_000, 5_000
 PARTICLE_STEPS, PARTICLE_STEPS_QUICK = 5_000, 300
 #: RSS growth over a soak after its warm-up that counts as growth (allocator noise is ~0.3 MiB)
 RSS_GROWTH_LIMIT_MIB = 1.0
-LONG_DT = 5.0  # s: one step of this length at 70 % of the run (issue 9: dt >= 5 s overflowed the integration)
+LONG_DT = 5.0  # s: one step of this length at 70 % of the run (dt >= 5 s overflowed the integration)
 N_PARTICLES = 100
 ERRORS = (ValueError, TypeError, FloatingPointError, np.linalg.LinAlgError)
 

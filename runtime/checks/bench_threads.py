@@ -1,5 +1,5 @@
 """Threads section of `abyssal bench`: OpenMP in the ``<name>_batch`` entry points vs the
-``concurrent.futures`` split of ``runtime/compiled/batches.py::ParallelBatch`` (issue 8).
+``concurrent.futures`` split of ``runtime/compiled/batches.py::ParallelBatch``.
 
 The shipped code runs the generated ``<name>_batch`` (a serial C loop over N column-major
 slices, one stack work array) in contiguous chunks, one per core, on a process-wide

@@ -193,7 +193,7 @@ def test_eval_outlives_its_binding():
     assert res.returncode == 0 and res.stdout.strip() == "ok", res.stderr[-2000:]
 
 
-# ------------------------------------------------------------------ issue 9: batch outputs, complex, buffers
+# ------------------------------------------------------------------ batch outputs, complex, buffers
 def overflowing_batch(rov, rng, n=6, bad=(1, 4)):
     """States whose step overflows at the columns `bad` (a surge speed of 1e200: quadratic damping)."""
     X = REFERENCES["rov4dof"].sample_state(rng, n)

@@ -97,7 +97,7 @@ def all_finite(*arrays) -> bool:
 
 
 # ---------------------------------------------------------------------------------------------
-# Known bugs in code owned by others (issue 9), still open. Each is pinned by a strict xfail test
+# Known bugs in code owned by others, still open. Each is pinned by a strict xfail test
 # in test_property_regressions.py (marked with its key) and avoided by the property tests (a class
 # in CLASS_BUGS is xfail there; other keys are avoided where `known_bug(key)` is used), so they keep
 # checking everything else. When the owner fixes one, its xfail test passes and strict xfail fails

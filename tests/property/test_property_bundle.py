@@ -1,4 +1,4 @@
-"""Property-based tests of the model bundle's entry points (issue 9, item 7).
+"""Property-based tests of the model bundle's entry points.
 
 For every call: a refusal is a ValueError/TypeError naming an argument that is at fault; a call
 whose arguments are all acceptable returns finite arrays of the documented shape or raises
@@ -78,7 +78,7 @@ def state_batches(draw, bundle, rows: int, name: str):
     N = draw(st.integers(1, 5))
     A = np.array(draw(st.lists(st.floats(-10, 10), min_size=rows * N, max_size=rows * N))).reshape(rows, N)
     kind = draw(st.sampled_from(["plain", "plain", "huge", "nonfinite", "shape", "complex", "fortran"]))
-    if kind == "huge":  # finite: the model may overflow there (issue 9: X[4, 1] = 1e200)
+    if kind == "huge":  # finite: the model may overflow there (X[4, 1] = 1e200)
         A[draw(st.integers(0, rows - 1)), draw(st.integers(0, N - 1))] = draw(st.sampled_from([1e200, -1e300, 1e308]))
     elif kind == "nonfinite":
         A[draw(st.integers(0, rows - 1)), draw(st.integers(0, N - 1))] = draw(st.sampled_from([np.nan, np.inf]))

@@ -1,4 +1,4 @@
-"""Property-based tests of every registered filter's predict / update / step / run (issue 9, item 7).
+"""Property-based tests of every registered filter's predict / update / step / run.
 
 The filters come from the contract's registry (``abyssal.runtime.contract.registered_filters``),
 so a filter registered tomorrow is fuzzed the day it is added. For every call:

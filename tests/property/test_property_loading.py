@@ -1,4 +1,4 @@
-"""Property-based tests of loading (issue 9, item 7): a name or path that is not a generated model,
+"""Property-based tests of loading: a name or path that is not a generated model,
 and a model folder with a garbage manifest, give a clear error naming what was asked for; never a
 crash, a hang, or a bundle."""
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Deterministic reproducers of the bugs the property tests found (issue 9), one per finding.
+"""Deterministic reproducers of the bugs the property tests found, one per finding.
 
 Found in code owned by other helpers while this folder was written; most were fixed the same
 day and these tests now guard against their return. A test of a bug still open is marked
@@ -63,7 +63,7 @@ def test_bundle_refuses_strings_and_bool_naming_them(rov):
 @known("bundle_batch_nonfinite")
 def test_batch_entry_points_check_their_outputs(rov):
     X = np.zeros((12, 2))
-    X[4, 1] = 1e200  # the single call raises FloatingPointError here (issue 9)
+    X[4, 1] = 1e200  # the single call raises FloatingPointError here
     with pytest.raises(FloatingPointError):
         rov.f(X[:, 1], np.zeros(4), None, 0.1)
     with pytest.raises(FloatingPointError):

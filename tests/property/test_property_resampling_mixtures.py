@@ -1,5 +1,5 @@
 """Property-based tests of the resamplers, the log-weight normalisation and GaussianMixture
-(issue 9, items 6-7): every input is either refused with an error naming the argument, or gives
+every input is either refused with an error naming the argument, or gives
 finite, well-formed output."""
 from __future__ import annotations
 

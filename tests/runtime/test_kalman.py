@@ -262,7 +262,7 @@ def test_example_script_runs():
     assert "RMSE" in out.stdout
 
 
-# ------------------------------------------------------------------ reliability (issue 9)
+# ------------------------------------------------------------------ reliability
 
 
 def _rov_track(rov, steps, seed=0, Q=1e-3, R=(0.1, 0.1, 0.05, 0.01)):

@@ -73,7 +73,7 @@ def test_weighted_em_never_returns_singular_covariances():
     assert np.all(np.isfinite(fit.mixture.means)) and np.all(fit.mixture.weights > 0)
 
 
-# ---------------------------------------------------------------- input checks (issue 9, item 6)
+# ---------------------------------------------------------------- input checks
 
 GOOD_W, GOOD_MEANS, GOOD_COVS = np.array([0.3, 0.7]), np.zeros((2, 2)), np.array([np.eye(2)] * 2)
 

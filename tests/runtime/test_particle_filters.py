@@ -153,7 +153,7 @@ def test_resampling_every_step_keeps_uniform_weights(rov):
 
 @pytest.mark.parametrize("sea_name", list(SEA_STATES))
 def test_locally_optimal_cpf_keeps_its_particles_in_every_sea_state(rov, sea_name):
-    # issue 10: the carried-P^i CPF collapses (ESS ~ 1); the locally optimal proposal must keep ESS > N/10
+    # the carried-P^i CPF collapses (ESS ~ 1); the locally optimal proposal must keep ESS > N/10
     scenario = RovScenario(duration=20.0)  # the default (plain) reading: Q singular on the pose
     sea = SEA_STATES[sea_name]
     truth = simulate(rov, scenario, sea, np.random.default_rng(3))

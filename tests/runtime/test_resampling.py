@@ -66,7 +66,7 @@ def test_policy_thresholds():
         ResamplingPolicy(scheme="bogus")
 
 
-# ---------------------------------------------------------------- input checks (issue 9, item 6)
+# ---------------------------------------------------------------- input checks
 
 BAD_WEIGHTS = {
     "all zero": np.zeros(4),  # was: every ancestor the last particle

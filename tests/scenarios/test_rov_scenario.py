@@ -139,7 +139,7 @@ def test_run_one_gives_tidy_rows_for_every_case_and_filter():
 
 
 def test_cpf_keeps_its_particles_alive_in_every_sea_state_at_the_default_reading():
-    """Mean ESS above N/10 (issue: the carried-P^i CPF had ESS ~ 1 everywhere)."""
+    """Mean ESS above N/10 (the carried-P^i CPF once had ESS ~ 1 everywhere)."""
     cpf = next(f for f in experiment.MAIN_FILTERS if f.label == "CPF")
     config = experiment.RovConfig(scenario=RovScenario(duration=10.0), n_particles=100, readings=("plain",), filters=(cpf,))
     stats = experiment.summary(experiment.run_one(config, campaign.run_seeds(1, 1)[0]))

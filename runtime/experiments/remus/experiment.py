@@ -45,7 +45,7 @@ PREDICTION_HORIZON = 10.0                       # s
 LOG_DT = 0.2
 #: GP regressors per state. The generated predict holds N(N+1)/2 numbers per GP: N = 100 keeps the
 #: file under ~2 MB and its compile well under 60 s; N = 200 halves the GP-UKF's position RMSE but
-#: writes ~4.7 MB (measured: `abyssal bench`, section remus, and the report of issue 13).
+#: writes ~4.7 MB (measured: `abyssal bench`, section remus).
 N_TRAIN = 100
 N_TRAIN_QUICK = 60
 QUICK_DURATION = 300.0

@@ -11,7 +11,7 @@ predicted covariances F P F^T + Q stay positive definite).
 
 EM-MOGCPF, a property worth knowing: with a linear measurement the G'' cubature mixture is the
 exact posterior of the predicted mixture, so its importance weights are uniform and the
-particles only add Monte-Carlo noise to the EM refit (issue 10).
+particles only add Monte-Carlo noise to the EM refit.
 """
 from __future__ import annotations
 

@@ -5,7 +5,7 @@
   (x^i_{k-1}, P^i_{k-1}) gives N(m^i, P^i_{k|k}), the particle is drawn from it and P^i_{k|k} is
   kept (and follows its particle through resampling). P^i converges to the CKF posterior, which
   is much wider than the one-step process noise, so the importance ratio p(x|x_prev)/q is often
-  degenerate (ESS near 1): see issue 10.
+  degenerate (ESS near 1): see tests/runtime/test_particle_filters.py.
 * ``OptimalCubatureProposal`` -- the locally optimal form: each particle's cubature step starts
   from P^i = 0, so its predicted density is N(f(x^i_{k-1}), Q_k) and the cubature update with z
   approximates p(x_k | x^i_{k-1}, z) (exact for a linear measurement, where the weight becomes
