@@ -1,4 +1,4 @@
-"""Property-based tests of the resamplers, the log-weight normalisation and GaussianMixture
+"""Property-based tests of the resamplers, the log-weight normalisation and GaussianMixture:
 every input is either refused with an error naming the argument, or gives
 finite, well-formed output."""
 from __future__ import annotations
