@@ -102,11 +102,17 @@ def test_every_filter_stays_finite_over_ten_thousand_steps(rov):
     sea = SEA_STATES["3"]
     truth = simulate(rov, scenario, sea, np.random.default_rng(5))
     assert truth.states.shape[0] == 10_000
+    raw = np.sqrt(np.mean((truth.measurements[:, :3] - truth.states[:, :3]) ** 2, axis=0))  # x y z of the sensor
     for i, name in enumerate(("PF", "CKF", "CPF", "CPF-optimal", "MOGCPF", "EM-MOGCPF", "GS-CKF")):
         filt = make_filter(name, rov, scenario, sea, 24, np.random.default_rng(i))
         result = run_filter(filt, truth, scenario.dt)
         assert np.all(np.isfinite(result.estimates)), name
         assert np.all(np.isfinite(result.covariances)), name
+        rmse = np.sqrt(np.mean((result.estimates[:, :3] - truth.states[:, :3]) ** 2, axis=0))
+        if name == "CPF":  # the carried-P^i proposal degenerates (ESS ~ 1, see below): finite, not accurate
+            continue
+        # filtering must beat the raw position fixes it is given (measured here: 0.2-0.7 of them at N = 24)
+        assert np.all(rmse < 0.9 * raw), (name, rmse, raw)
 
 
 @pytest.mark.parametrize("name", ["PF", "CPF", "CPF-optimal", "MOGCPF", "EM-MOGCPF", "GS-CKF", "CKF"])
@@ -124,7 +130,8 @@ def test_outlier_beyond_every_particle_recovers_without_nan(rov, name):
             filt.step(truth.inputs[k], scenario.dt, z)
             assert np.all(np.isfinite(filt.x)) and np.all(np.isfinite(filt.P)), (name, k)
         final_errors.append(np.sqrt(np.mean((filt.x[:3] - truth.states[-1, :3]) ** 2)))
-    assert final_errors[1] < 2 * final_errors[0] + 1.0, (name, final_errors)
+    # recovered: within half again (+ 0.1 m) of the untouched run 20 s later (measured: 0.39-1.21 m both ways)
+    assert final_errors[1] < 1.5 * final_errors[0] + 0.1, (name, final_errors)
 
 
 @pytest.mark.parametrize("name", ["PF", "CPF", "CPF-optimal", "MOGCPF", "EM-MOGCPF"])

@@ -43,7 +43,10 @@ def test_sensors_quantise_clip_wrap_and_hold(helix):
     assert np.all(np.abs(z[:, 7:10]) <= np.pi)
     noise = truth.sensor_noise(1, truth.HelixSetup())
     x = helix.x[100]
-    assert np.array_equal(truth.measure(x, noise[3]), truth.measure(x, noise[3]))  # a held sample is reused
+    z, lsb = truth.measure(x, noise[3]), truth.SENSOR_LSB
+    # the gyro rates p, q, r (no clip, no wrap): the noisy value rounded to its 12-bit step
+    assert np.all(np.abs(z[3:6] - (x[3:6] + noise[3][3:6])) <= np.where(lsb[3:6] > 0, lsb[3:6] / 2, 0) + 1e-15)
+    assert not np.array_equal(z, truth.measure(x, noise[4]))  # another noise sample, another reading
     assert truth.measure(np.r_[5.0, np.zeros(11)], np.zeros(10))[0] == 3.0         # u clipped to 3 m/s
     # run index = seed: another run has other noise, the same helix
     other = truth.simulate(2, truth.HelixSetup(duration=20.0))

@@ -57,8 +57,18 @@ def test_discrete_step_uses_the_models_scheme_and_holds_inputs():
         np.testing.assert_allclose(np.array(fn(x, u, p, w, h)).ravel(), x + h * np.array(rhs(x, u, p, w)).ravel(), rtol=1e-15)
 
 
-def test_schemes_registry():
-    assert set(discretise.SCHEMES) == {"euler", "rk4"}
+@pytest.mark.parametrize("name, order", [("euler", 1), ("rk4", 4)])
+def test_each_scheme_has_its_order_on_exponential_decay(name, order):
+    """x' = -x over 1 s: halving the step divides the global error by 2^order."""
+    scheme = discretise.SCHEMES[name]
+
+    def error(steps):
+        x = 1.0
+        for _ in range(steps):
+            x = float(scheme(lambda s: -s, ca.DM(x), 1.0 / steps))
+        return abs(x - np.exp(-1.0))
+
+    assert error(16) / error(32) == pytest.approx(2.0 ** order, rel=0.1)
 
 
 @pytest.mark.parametrize("name", sorted(REGISTRY))
