@@ -58,7 +58,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from .numerics import angle_indices, wrap_angles
+from .numerics import SYMMETRY_TOLERANCE, angle_indices, nees, wrap_angles
 
 __all__ = [
     "ConcurrencyGuard", "Filter", "FilterBase", "FilterResult", "as_generator", "check_count", "check_covariance",
@@ -66,7 +66,6 @@ __all__ = [
     "run_filter",
 ]
 
-SYMMETRY_TOLERANCE = 1e-9  # relative: |A - A^T| <= tol * max|A|
 
 
 # ---------------------------------------------------------------------------------------------
@@ -434,9 +433,5 @@ def run_filter(filt, U, Z, dt, params=None, truth=None) -> FilterResult:
 
 
 def _nees(truth: np.ndarray, xs: np.ndarray, Ps: np.ndarray, angle_states) -> np.ndarray:
-    """e^T P^+ e per step, e = truth - x with angle states wrapped; a singular P uses its pseudo-inverse."""
-    error = wrap_angles(truth - xs, angle_states)
-    try:
-        return np.einsum("ti,ti->t", error, np.linalg.solve(Ps, error[..., None])[..., 0])
-    except np.linalg.LinAlgError:
-        return np.einsum("ti,ti->t", error, (np.linalg.pinv(Ps, hermitian=True) @ error[..., None])[..., 0])
+    """e^T P^-1 e per step, e = truth - x with angle states wrapped (numerics.nees: floored eigenvalues)."""
+    return nees(wrap_angles(truth - xs, angle_states), Ps)

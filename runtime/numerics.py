@@ -8,6 +8,10 @@
   ``REPAIR_FLOOR`` times the largest |eigenvalue|); works on one (n, n) matrix or a stack
   (K, n, n).
 * ``relative_error(a, b)``: max |a - b| / max(1, max |b|), the single definition used by checks.
+* ``nees(errors, covariances)``: e^T P^-1 e per step, by eigen-decomposition with the eigenvalues
+  floored at ``NEES_FLOOR`` times the largest: never negative, finite for a singular P (an error along
+  a collapsed direction counts as the overconfidence it is). Every consistency number uses it.
+* ``SYMMETRY_TOLERANCE``: the relative asymmetry a covariance given to abyssal may have.
 * ``kalman_filter(A, B, H, Q, R, x0, P0, U, Z)``: the exact (linear) Kalman filter, an oracle;
   NaN entries of Z are left out entry by entry, as every runtime filter does.
 * ``simulate_truth(model, x0, U, dt, Q, R, rng, p=None)``: truth and measurements of a model
@@ -17,12 +21,16 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["REPAIR_FLOOR", "angle_indices", "kalman_filter", "relative_error", "repair_covariance",
-           "simulate_truth", "wrap_angles", "wrap_to_pi"]
+__all__ = ["NEES_FLOOR", "REPAIR_FLOOR", "SYMMETRY_TOLERANCE", "angle_indices", "kalman_filter", "nees",
+           "relative_error", "repair_covariance", "simulate_truth", "wrap_angles", "wrap_to_pi"]
 
 #: eigenvalue floor of ``repair_covariance``, relative to the largest |eigenvalue|. 1e-10 makes
 #: every pivot of the generated Cholesky factorisations pass their guard (1e-13).
 REPAIR_FLOOR = 1e-10
+#: eigenvalue floor of ``nees``, relative to each covariance's largest eigenvalue
+NEES_FLOOR = 1e-12
+#: relative asymmetry allowed in a covariance: |A - A^T| <= tol * max|A|
+SYMMETRY_TOLERANCE = 1e-9
 
 
 def angle_indices(model, which: str = "states") -> tuple[int, ...]:
@@ -44,6 +52,26 @@ def wrap_angles(values: np.ndarray, indices, axis: int = -1) -> np.ndarray:
         moved = np.moveaxis(out, axis, 0)
         for i in indices:
             moved[i] = wrap_to_pi(moved[i])
+    return out
+
+
+def nees(errors: np.ndarray, covariances: np.ndarray, floor: float = NEES_FLOOR) -> np.ndarray:
+    """e_t^T P_t^-1 e_t for errors (T, n) and covariances (T, n, n) (angles already wrapped by the caller).
+
+    P_t = V diag(l) V^T (symmetrised), l clipped from below at floor * max(l) (and the smallest
+    normal double), so the value is >= 0 for every input and finite for a singular or near-singular
+    P; a non-finite error or covariance gives NaN for that step.
+    """
+    e = np.asarray(errors, dtype=np.float64)
+    P = np.asarray(covariances, dtype=np.float64)
+    out = np.full(e.shape[0], np.nan)
+    ok = np.isfinite(e).all(axis=1) & np.isfinite(P).all(axis=(1, 2))
+    if ok.any():
+        values, vectors = np.linalg.eigh(0.5 * (P[ok] + np.swapaxes(P[ok], 1, 2)))
+        largest = np.max(np.abs(values), axis=1, keepdims=True)
+        values = np.maximum(values, np.maximum(floor * largest, np.finfo(np.float64).tiny))
+        projected = np.einsum("tij,ti->tj", vectors, e[ok])
+        out[ok] = np.sum(projected ** 2 / values, axis=1)
     return out
 
 

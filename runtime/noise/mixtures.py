@@ -23,6 +23,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from ..numerics import SYMMETRY_TOLERANCE
 LOG_2PI = float(np.log(2.0 * np.pi))
 
 
@@ -47,7 +49,6 @@ def cholesky_precision(covariances: np.ndarray) -> tuple[np.ndarray, np.ndarray]
 
 
 #: relative symmetry tolerance of a covariance: max |C - C^T| <= tol * max |C| (as the Kalman filters)
-SYMMETRY_TOLERANCE = 1e-9
 
 
 def _real_array(value, name: str) -> np.ndarray:

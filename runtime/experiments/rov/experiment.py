@@ -45,9 +45,8 @@ from pathlib import Path
 import numpy as np
 
 from ..campaign import TIMING_METRICS, derive, run_index
-from .scenario import PROCESS_NOISE_READINGS, SEA_STATES, RovScenario, make_filter, simulate
+from .scenario import POSE_AXES, PROCESS_NOISE_READINGS, SEA_STATES, RovScenario, make_filter, simulate
 
-POSE_AXES = ("x", "y", "z", "psi")
 METRICS = tuple(f"mse_{a}" for a in POSE_AXES) + ("anees", "ess_mean", "step_ms")
 EXTRA_COLUMNS = ("reading",)
 
@@ -125,9 +124,9 @@ class RovConfig:
 
 
 def filter_output(filt, truth, dt: float):
-    """(estimates (T, n), covariances (T, n, n), ess (T,), seconds per step) of a filter over a truth."""
-    result = filt.run(truth.inputs, truth.measurements, dt)  # the one filter contract (runtime/contract.py)
-    return result.x, result.P, np.asarray(result.ess, dtype=np.float64), float(np.mean(result.step_time))
+    """(estimates (T, n), covariances (T, n, n), NEES (T,), ess (T,), seconds per step) of a filter over a truth."""
+    result = filt.run(truth.inputs, truth.measurements, dt, truth=truth.states)  # the one contract (runtime/contract.py)
+    return result.x, result.P, result.nees, np.asarray(result.ess, dtype=np.float64), float(np.mean(result.step_time))
 
 
 def pose_errors(bundle, estimates: np.ndarray, states: np.ndarray) -> np.ndarray:
@@ -135,14 +134,6 @@ def pose_errors(bundle, estimates: np.ndarray, states: np.ndarray) -> np.ndarray
     from ...numerics import angle_indices, wrap_angles
 
     return wrap_angles(estimates - states, angle_indices(bundle, "states"), axis=1)
-
-
-def nees(errors: np.ndarray, covariances: np.ndarray) -> np.ndarray:
-    """e^T P^-1 e per step (a tiny relative ridge keeps a collapsed particle covariance invertible)."""
-    n = errors.shape[1]
-    scale = np.trace(covariances, axis1=1, axis2=2)[:, None, None] / n
-    P = covariances + np.maximum(1e-12 * scale, 1e-12) * np.eye(n)
-    return np.einsum("ti,ti->t", errors, np.linalg.solve(P, errors[:, :, None])[:, :, 0])
 
 
 def run_one(config: RovConfig, seed: np.random.SeedSequence) -> list[dict]:
@@ -164,7 +155,7 @@ def run_one(config: RovConfig, seed: np.random.SeedSequence) -> list[dict]:
             filt = make_filter(spec.kind, bundle, filter_scenario, sea, spec.n_particles or config.n_particles, rng,
                                **dict(spec.options))
             try:
-                est, cov, ess, step_s = filter_output(filt, truth, truth_scenario.dt)
+                est, cov, nees, ess, step_s = filter_output(filt, truth, truth_scenario.dt)
             except (ValueError, ArithmeticError, np.linalg.LinAlgError):
                 # the filter refused a step: an outcome of this filter on this truth, not of the run
                 rows += [{"run": run, "case": sea_name, "filter": spec.label, "metric": m, "reading": reading,
@@ -176,7 +167,7 @@ def run_one(config: RovConfig, seed: np.random.SeedSequence) -> list[dict]:
             finite = np.all(np.isfinite(errors)) and np.all(np.isfinite(cov))
             metrics = {f"mse_{axis}": float(np.mean(errors[:, i] ** 2)) if finite else math.inf
                        for i, axis in enumerate(POSE_AXES)}
-            metrics["anees"] = float(np.mean(nees(errors, cov)) / bundle.n_x) if finite else math.inf
+            metrics["anees"] = float(np.mean(nees) / bundle.n_x) if finite else math.inf  # FilterResult.nees
             metrics["ess_mean"] = float(np.mean(ess))
             metrics["step_ms"] = 1e3 * step_s
             metrics["refused"] = 0.0

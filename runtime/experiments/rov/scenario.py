@@ -249,19 +249,6 @@ class FilterRun:
     step_seconds: float       # mean wall time of one step
     ess: np.ndarray | None = None  # (T,) effective sample size per step (NaN for Kalman filters)
 
-    def errors(self, truth: Trajectory) -> np.ndarray:
-        """estimate - truth, (T, n), with the yaw error wrapped to (-pi, pi]."""
-        e = self.estimates - truth.states
-        e[:, 3] = np.angle(np.exp(1j * e[:, 3]))
-        return e
-
-    def nees(self, truth: Trajectory) -> np.ndarray:
-        """e^T P^-1 e per step (a tiny ridge keeps a collapsed particle covariance invertible)."""
-        e = self.errors(truth)
-        scale = np.trace(self.covariances, axis1=1, axis2=2)[:, None, None] / e.shape[1]
-        P = self.covariances + np.maximum(1e-12 * scale, 1e-12) * np.eye(e.shape[1])
-        return np.einsum("ti,ti->t", e, np.linalg.solve(P, e[:, :, None])[:, :, 0])
-
 
 def run_filter(filt, truth: Trajectory, dt: float) -> FilterRun:
     """The filter contract's ``run`` over a simulated trajectory."""
