@@ -14,8 +14,17 @@ FILTER_COLOURS = {"PF": "tab:gray", "CKF": "tab:blue", "CPF": "tab:orange", "MOG
                   "EM-MOGCPF": "tab:red", "GS-CKF": "tab:green"}
 
 
+#: hatches that tell apart the variants of one filter ("CKF (matched model)", "EM-MOGCPF N=1000") in its colour
+VARIANT_HATCHES = ("", "//", "..", "xx", "\\\\", "++")
+
+
+def _family(name: str) -> str:
+    """The filter a labelled variant belongs to: "CKF (mismatched Q)" -> "CKF", "EM-MOGCPF N=1000" -> "EM-MOGCPF"."""
+    return name.split(" (")[0].split(" N=")[0]
+
+
 def _colour(name: str) -> str:
-    return FILTER_COLOURS.get(name, "black")
+    return FILTER_COLOURS.get(_family(name), "black")
 
 
 def _break_at_wraps(values: np.ndarray) -> np.ndarray:
@@ -62,12 +71,15 @@ def rmse_bars(metrics: dict[str, dict], paper: dict[str, dict[str, float]] | Non
     axes_names = ("x", "y", "z", "psi")
     filters = list(metrics)
     width = 0.8 / len(filters)
-    fig, ax = plt.subplots(figsize=(10, 4.8))
+    fig, ax = plt.subplots(figsize=(10, 5.6))
     centres = np.arange(len(axes_names))
+    variants: dict[str, int] = {}
     for j, name in enumerate(filters):
         offsets = centres - 0.4 + width * (j + 0.5)
         values = [metrics[name]["rmse"][a] for a in axes_names]
-        ax.bar(offsets, values, width, color=_colour(name), label=f"{name} (ours)")
+        k = variants[_family(name)] = variants.get(_family(name), -1) + 1
+        ax.bar(offsets, values, width, color=_colour(name), hatch=VARIANT_HATCHES[k % len(VARIANT_HATCHES)],
+               edgecolor="white", linewidth=0, label=f"{name} (ours)")
         if paper and name in paper:
             ax.plot(offsets, [paper[name][a] for a in axes_names], "kD", ms=4,
                     label="paper (Table 3)" if j == 0 or "paper (Table 3)" not in ax.get_legend_handles_labels()[1] else None)
@@ -75,7 +87,7 @@ def rmse_bars(metrics: dict[str, dict], paper: dict[str, dict[str, float]] | Non
     ax.set_yscale("log")
     ax.set_ylabel("RMSE")
     ax.grid(axis="y", alpha=0.3, which="both")
-    ax.legend(ncol=4, fontsize=8)
+    ax.legend(ncol=4, fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.08), frameon=False)
     ax.set_title(title)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
