@@ -15,8 +15,7 @@ from pathlib import Path
 SECTIONS = ("abyssal.runtime.checks.bench_models", "abyssal.runtime.checks.bench_filters", "abyssal.runtime.checks.bench_particles",
             "abyssal.runtime.checks.bench_soak", "abyssal.runtime.checks.bench_campaign",
             "abyssal.runtime.checks.bench_remus", "abyssal.runtime.checks.bench_tan",
-            "abyssal.runtime.checks.bench_cn",
-            "abyssal.runtime.checks.bench_threads")  # last: it loads libgomp into the process
+            "abyssal.runtime.checks.bench_cn")
 
 
 def median_time(fn, repeat: int = 7, min_time: float = 0.05) -> float:

@@ -27,7 +27,7 @@ def _f_zeros(*shape) -> np.ndarray:
 #: batches of at least this many slices may be split over the cores (ctypes releases the GIL) ...
 PARALLEL_MIN_SLICES = 64
 #: ... when their serial work is estimated above this many seconds: a hand-off to the thread pool costs
-#: ~20-90 us per batch (benchmarks/README.md, bench_threads), more than cheap slices save by splitting
+#: ~20-90 us per batch (benchmarks/README.md, the threads measurement), more than cheap slices save by splitting
 SPLIT_MIN_SECONDS = 200e-6
 
 
@@ -64,8 +64,8 @@ class ParallelBatch:
     SPLIT_MIN_SECONDS. Every slice is the same scalar C call whatever the split, so results do not
     depend on it (nor on the timing that chooses it).
 
-    OpenMP in the generated ``_batch`` instead of this pool was measured (bench_threads,
-    benchmarks/README.md): at most ~9 % faster per filter step on two idle cores, and only while
+    OpenMP in the generated ``_batch`` instead of this pool was measured (benchmarks/README.md,
+    "bench_threads"): at most ~9 % faster per filter step on two idle cores, and only while
     libgomp's idle threads spin, which makes two concurrent processes (a 2-worker campaign) 1.7x
     slower or more; a forked child's OpenMP call hangs. So the pool stays.
     """

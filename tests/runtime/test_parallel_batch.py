@@ -5,15 +5,22 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from abyssal.runtime.checks import bench_threads as bt
+from abyssal.generated import load
 from abyssal.runtime.compiled import batches
 from abyssal.runtime.compiled.batches import ParallelBatch
 
 
 def _batch(n=300):
-    fn, inputs, batched = bt.cn_inputs(n)["cn2d_ukf_predict"]
-    outputs = bt._zeros_like_outputs(fn, n)
-    return ParallelBatch(fn, inputs, batched, outputs, n), outputs
+    """cn2d's ukf_predict over a cloud of n particle states and covariances (the UPF's batch)."""
+    fn = load("cn2d").function("ukf_predict")
+    rng = np.random.default_rng(0)
+    x = np.asfortranarray(rng.normal([100.0, -50.0], 20.0, (n, 2)).T)
+    A = rng.normal(0, 3.0, (n, 2, 2))
+    P = np.asfortranarray(np.moveaxis(A @ np.swapaxes(A, 1, 2) + np.eye(2), 0, -1))
+    inputs = [x, P, np.array([1.5, 0.1, 0.3]), np.array([400.0, 300.0]), np.array([5.0]),
+              np.diag([100.0, 100.0]).reshape(-1, order="F"), np.array([1.0, 0.0, 1.0])]
+    outputs = [np.zeros((s.shape[0], n) if s.shape[1] == 1 else (*s.shape, n), order="F") for s in fn.outputs]
+    return ParallelBatch(fn, inputs, [True, True] + [False] * 5, outputs, n), outputs
 
 
 def test_split_and_serial_evaluations_are_bit_identical(monkeypatch):
