@@ -444,11 +444,12 @@ class ModelBundle:
 
     def F(self, x, u, p=None, dt=None) -> np.ndarray:
         """Jacobian of the discrete step in x, shape (n_x, n_x)."""
-        return self.functions["F"](x, u, self.params(p), self._dt(dt))
+        return np.reshape(self.functions["F"](x, u, self.params(p), self._dt(dt)), (self.n_x, self.n_x))
 
     def G(self, x, u, p=None, dt=None) -> np.ndarray:
         """Jacobian of the discrete step in the noise input (held over dt), shape (n_x, n_w)."""
-        return self.function("G")(x, u, self.params(p), self._dt(dt))
+        # a matrix even for one noise input or one state (a one-column output comes back as a vector)
+        return np.reshape(self.function("G")(x, u, self.params(p), self._dt(dt)), (self.n_x, self.n_w))
 
     def h(self, x, p=None) -> np.ndarray:
         """Measurement, shape (n_y,)."""
@@ -456,7 +457,7 @@ class ModelBundle:
 
     def H(self, x, p=None) -> np.ndarray:
         """Jacobian of the measurement, shape (n_y, n_x)."""
-        return self.functions["H"](x, self.params(p))
+        return np.reshape(self.functions["H"](x, self.params(p)), (self.n_y, self.n_x))
 
     def xdot(self, x, u, p=None, w=None) -> np.ndarray:
         """Continuous dynamics, shape (n_x,); w=None means zero noise input."""

@@ -10,6 +10,7 @@ import json
 import shutil
 from pathlib import Path
 
+import casadi as ca
 import numpy as np
 import pytest
 
@@ -209,6 +210,34 @@ def test_discrete_model_every_family_and_verify(tmp_path):
     X = np.tile(np.array([[1.0], [2.0], [0.3]]), (1, 8))
     np.testing.assert_allclose(bundle.f_batch(X, np.array([1.0, 0.1]), None, 0.5)[:, 0],
                                bundle.f(X[:, 0], [1.0, 0.1], None, 0.5), rtol=1e-15)
+
+
+def _one_noise():
+    """A continuous model with exactly one noise input (a gust force on a damped mass)."""
+    states = (abyssal.Quantity("pos", "m"), abyssal.Quantity("vel", "m/s"))
+    params = (abyssal.Parameter("mass", "kg", 2.0), abyssal.Parameter("drag", "1/s", 0.4))
+    x, u = abyssal.symbols("x", states), abyssal.symbols("u", (abyssal.Quantity("force", "N"),))
+    p, w = abyssal.symbols("p", params), abyssal.symbols("w", (abyssal.Quantity("gust", "N"),))
+    return abyssal.Model(name="one_noise", states=states, inputs=(abyssal.Quantity("force", "N"),), parameters=params,
+                         noises=(abyssal.Quantity("gust", "N"),), outputs=(abyssal.Quantity("pos_meas", "m"),),
+                         x=x, u=u, p=p, w=w, xdot=ca.vertcat(x[1], (u[0] + w[0]) / p[0] - p[1] * x[1]), y=x[:1],
+                         envelope=abyssal.Envelope(states={"pos": (-10, 10), "vel": (-2, 2)}, inputs={"force": (-5, 5)},
+                                                   max_dt=0.5))
+
+
+def test_a_model_with_one_noise_input_has_matrix_jacobians_and_verifies(tmp_path):
+    from abyssal.runtime import process_noise
+
+    folder = abyssal.generate(_one_noise(), tmp_path, filters=("ekf",))
+    bundle = abyssal.load(folder)
+    x, u = np.array([1.0, 0.5]), np.array([2.0])
+    G = bundle.G(x, u, None, 0.1)
+    assert G.shape == (2, 1) and bundle.F(x, u, None, 0.1).shape == (2, 2) and bundle.H(x).shape == (1, 2)
+    assert G[1, 0] == pytest.approx(0.1 / 2.0, rel=0.05)  # a gust of 1 N on 2 kg for 0.1 s, less the drag
+    Q = process_noise(bundle, x, u, 0.1, np.array([[0.5]]))
+    np.testing.assert_allclose(Q, 0.5 * G @ G.T, rtol=1e-15)
+    report = abyssal.verify(folder)
+    assert report.ok and not report.failures, report.table()
 
 
 def test_example_script_runs_a_ckf_and_a_particle_filter(project):
