@@ -255,6 +255,9 @@ def run_campaign(run_one: RunOne, config, runs: int, seed: int = 0, *, workers: 
     if resume and csv_path is None:
         raise ValueError("resume needs a csv_path (--out)")
     previous = _read_previous(csv_path, meta, columns) if resume else []
+    # finished runs beyond this call's range stay in the table on disk (never deleted by a smaller --runs);
+    # the result holds the runs asked for
+    beyond = [row for row in previous if row["run"] >= runs]
     previous = [row for row in previous if row["run"] < runs]
     done = {row["run"] for row in previous}
     seeds = run_seeds(seed, runs)
@@ -270,7 +273,7 @@ def run_campaign(run_one: RunOne, config, runs: int, seed: int = 0, *, workers: 
 
     def checkpoint(force: bool = False) -> None:
         if csv_path is not None and (force or time.monotonic() - last_write[0] >= checkpoint_seconds):
-            write_csv(csv_path, sort_rows(rows, columns), columns)
+            write_csv(csv_path, sort_rows(rows + beyond, columns), columns)
             last_write[0] = time.monotonic()
 
     checkpoint(force=True)  # from now on the CSV holds exactly the rows of this configuration

@@ -127,6 +127,19 @@ def test_resume_runs_only_the_missing_runs_and_merges_to_the_fresh_table(tmp_pat
         campaign.run_campaign(toy_run_one, config, 5, seed=10, workers=0, csv_path=csv_path, resume=True)
 
 
+def test_resume_with_fewer_runs_keeps_the_finished_ones_on_disk(tmp_path):
+    csv_path = tmp_path / "out" / "toy.csv"
+    config = Toy(marker_dir=str(tmp_path))
+    both = campaign.run_campaign(toy_run_one, config, 2, seed=9, workers=0, csv_path=csv_path)
+    one = campaign.run_campaign(toy_run_one, config, 1, seed=9, workers=0, csv_path=csv_path, resume=True)
+    assert one.runs_done == 0 and {r["run"] for r in one.rows} == {0}  # the result: the runs asked for
+    on_disk = campaign.read_csv(csv_path, tuple(campaign.TIDY_COLUMNS))
+    assert sorted(map(tuple, (r.values() for r in on_disk))) == sorted(map(tuple, (r.values() for r in both.rows)))
+    executed = _runs_executed(tmp_path)
+    again = campaign.run_campaign(toy_run_one, config, 2, seed=9, workers=0, csv_path=csv_path, resume=True)
+    assert again.runs_done == 0 and again.rows == both.rows and _runs_executed(tmp_path) == executed
+
+
 def test_arguments_are_checked():
     with pytest.raises(ValueError, match="runs"):
         campaign.run_campaign(toy_run_one, Toy(), 0, workers=0)
