@@ -49,56 +49,56 @@ def discrete_step(model, x, u, p, w, dt) -> ca.SX:
     return SCHEMES[model.discretisation](lambda s: rhs_fn(s, u, p, w), x, dt, model.substeps)
 
 
+def _variational_step(model, x, u, p, dt, wrt: str) -> tuple[ca.SX, ca.SX]:
+    """(x_{k+1}, J) at zero noise input, J = d x_{k+1} / d x_k (wrt="x") or d x_{k+1} / d w (wrt="w").
+
+    The model's explicit scheme (Euler or RK4, with its substeps) applied to the augmented state
+    (x, J): differentiating an explicit Runge-Kutta step is the same scheme applied to the
+    variational equation dJ/dt = A(x) J (+ B(x) for w, which enters every stage directly),
+    A = d xdot / dx, B = d xdot / dw, with J(0) = I for x and 0 for w. A discrete model's given
+    step is differentiated by AD instead.
+    """
+    n = model.n_x
+    w0 = ca.DM.zeros(model.w.shape)
+    target = model.x if wrt == "x" else model.w
+    if model.is_discrete:
+        jac = ca.Function("x_next_and_jacobian", [model.x, model.u, model.p, model.w, model.dt],
+                          [model.x_next, ca.jacobian(model.x_next, target)])
+        return jac(x, u, p, w0, dt)
+    cols = target.numel()
+    forcing = [ca.jacobian(model.xdot, model.w)] if wrt == "w" else []
+    rhs = ca.Function("rhs_and_jacobians", [model.x, model.u, model.p, model.w],
+                      [model.xdot, ca.jacobian(model.xdot, model.x), *forcing])
+
+    def variational(s):  # s = (x, vec J)
+        xdot, A, *B = rhs(s[:n], u, p, w0)
+        dJ = ca.mtimes(A, ca.reshape(s[n:], n, cols))
+        return ca.vertcat(xdot, ca.vec(dJ + B[0] if B else dJ))
+
+    J0 = ca.SX.eye(n) if wrt == "x" else ca.SX.zeros(n, cols)
+    s = SCHEMES[model.discretisation](variational, ca.vertcat(x, ca.vec(J0)), dt, model.substeps)
+    return s[:n], ca.reshape(s[n:], n, cols)
+
+
 def step_and_jacobian(model, x, u, p, dt) -> tuple[ca.SX, ca.SX]:
     """(x_{k+1}, F = d x_{k+1} / d x_k) at zero noise input, F by the discrete variational equation.
 
     The explicit scheme of the model (Euler or RK4, with its substeps) is applied to the
-    augmented state (x, J) with J(0) = I and dJ/dt = A(x) J, A = d xdot / dx: differentiating an
-    explicit Runge-Kutta step is the same scheme applied to the variational equation, so J after
-    the step is exactly the Jacobian of x_{k+1} (up to rounding: the products associate
+    augmented state (x, J) with J(0) = I and dJ/dt = A(x) J, A = d xdot / dx (_variational_step):
+    J after the step is exactly the Jacobian of x_{k+1} (up to rounding: the products associate
     differently). Working with the small sparse A at each stage (30 nonzeros on rov4dof) instead
     of differentiating the whole unrolled step takes rov4dof's (f, F) from 2358 to 1664 SX
     instructions; x_{k+1} is the same expression as ``discrete_step``'s, and F keeps its
     structural sparsity.
     """
-    n = model.n_x
-    w0 = ca.DM.zeros(model.w.shape)
-    if model.is_discrete:  # the given step: F is its Jacobian, by AD of a (usually small) expression
-        jac = ca.Function("x_next_and_jacobian", [model.x, model.u, model.p, model.w, model.dt],
-                          [model.x_next, ca.jacobian(model.x_next, model.x)])
-        return jac(x, u, p, w0, dt)
-    rhs = ca.Function("rhs_and_jacobian", [model.x, model.u, model.p, model.w],
-                      [model.xdot, ca.jacobian(model.xdot, model.x)])
-
-    def variational(s):  # s = (x, vec J)
-        xdot, A = rhs(s[:n], u, p, w0)
-        return ca.vertcat(xdot, ca.vec(ca.mtimes(A, ca.reshape(s[n:], n, n))))
-
-    s = SCHEMES[model.discretisation](variational, ca.vertcat(x, ca.vec(ca.SX.eye(n))), dt, model.substeps)
-    return s[:n], ca.reshape(s[n:], n, n)
+    return _variational_step(model, x, u, p, dt, "x")
 
 
 def noise_jacobian(model, x, u, p, dt) -> ca.SX:
     """G = d x_{k+1} / d w at w = 0, the noise input held over the step, by the variational equation.
 
-    As in step_and_jacobian: the model's scheme applied to (x, J_w) with J_w(0) = 0 and
-    dJ_w/dt = A(x) J_w + B(x), A = d xdot / dx and B = d xdot / dw, is exactly the derivative of
-    the scheme's step in w (w enters every stage directly and through the stage's state). It works
-    with the small sparse A and B instead of differentiating the unrolled step (rov4dof's G: 4122 ->
-    2903 SX instructions, remus100's 21520 -> 14925).
+    dJ_w/dt = A(x) J_w + B(x), J_w(0) = 0 (_variational_step) is exactly the derivative of the
+    scheme's step in w. It works with the small sparse A and B instead of differentiating the
+    unrolled step (rov4dof's G: 4122 -> 2903 SX instructions, remus100's 21520 -> 14925).
     """
-    n, n_w = model.n_x, model.n_w
-    w0 = ca.DM.zeros(model.w.shape)
-    if model.is_discrete:
-        jac = ca.Function("x_next_noise_jacobian", [model.x, model.u, model.p, model.w, model.dt],
-                          [ca.jacobian(model.x_next, model.w)])
-        return jac(x, u, p, w0, dt)
-    rhs = ca.Function("rhs_and_noise_jacobians", [model.x, model.u, model.p, model.w],
-                      [model.xdot, ca.jacobian(model.xdot, model.x), ca.jacobian(model.xdot, model.w)])
-
-    def variational(s):  # s = (x, vec J_w)
-        xdot, A, B = rhs(s[:n], u, p, w0)
-        return ca.vertcat(xdot, ca.vec(ca.mtimes(A, ca.reshape(s[n:], n, n_w)) + B))
-
-    s = SCHEMES[model.discretisation](variational, ca.vertcat(x, ca.SX.zeros(n * n_w, 1)), dt, model.substeps)
-    return ca.reshape(s[n:], n, n_w)
+    return _variational_step(model, x, u, p, dt, "w")[1]

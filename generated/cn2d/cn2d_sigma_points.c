@@ -401,7 +401,7 @@ static int casadi_f8(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   return 0;
 }
 
-/* cn2d_outer_sum_0_1:(y[2],mean[2])->(ddT[2x2,3nz]) */
+/* cn2d_outer_0_1:(y[2],mean[2])->(ddT[2x2,3nz]) */
 static int casadi_f7(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i, j;
   casadi_real **res1=res+1, *w0=w+3, *w1=w+5, *w2=w+7, *w3=w+10;
@@ -445,7 +445,7 @@ static int casadi_f10(const casadi_real** arg, casadi_real** res, casadi_int* iw
   return 0;
 }
 
-/* cn2d_outer_sum_1_5:(y[2x4],mean[2])->(ddT[2x2,3nz]) */
+/* cn2d_outer_1_5:(y[2x4],mean[2])->(ddT[2x2,3nz]) */
 static int casadi_f9(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i, j;
   casadi_real **res1=res+1, *w1=w+3, *w2=w+5, *w3=w+13, *w4=w+25;
@@ -573,7 +573,7 @@ static int casadi_f0(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   casadi_copy(w11, 2, res[0]);
   /* #21: @3 = @2[0] */
   for (rr=(&w03), cs=w02+0; cs!=w02+1; cs+=1) *rr++ = *cs;
-  /* #22: @0 = cn2d_outer_sum_0_1(@4, @11) */
+  /* #22: @0 = cn2d_outer_0_1(@4, @11) */
   arg1[0]=w04;
   arg1[1]=w11;
   res1[0]=w00;
@@ -582,7 +582,7 @@ static int casadi_f0(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   for (i=0, rr=w00, cs=w00; i<3; ++i) (*rr++)  = (w03*(*cs++));
   /* #24: @3 = @2[1] */
   for (rr=(&w03), cs=w02+1; cs!=w02+2; cs+=1) *rr++ = *cs;
-  /* #25: @13 = cn2d_outer_sum_1_5(@12, @11) */
+  /* #25: @13 = cn2d_outer_1_5(@12, @11) */
   arg1[0]=w12;
   arg1[1]=w11;
   res1[0]=w13;
@@ -1985,7 +1985,7 @@ static int casadi_f31(const casadi_real** arg, casadi_real** res, casadi_int* iw
   return 0;
 }
 
-/* cn2d_outer_sum_0_4:(y[2x4],mean[2])->(ddT[2x2,3nz]) */
+/* cn2d_outer_0_4:(y[2x4],mean[2])->(ddT[2x2,3nz]) */
 static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i, j;
   casadi_real **res1=res+1, *w1=w+3, *w2=w+5, *w3=w+13, *w4=w+25;
@@ -2059,7 +2059,7 @@ static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw
   for (i=0, rr=w1, cs=w1; i<2; ++i) (*rr++)  = (w0*(*cs++));
   /* #13: output[0][0] = @1 */
   casadi_copy(w1, 2, res[0]);
-  /* #14: @7 = cn2d_outer_sum_0_4(@9, @1) */
+  /* #14: @7 = cn2d_outer_0_4(@9, @1) */
   arg1[0]=w9;
   arg1[1]=w1;
   res1[0]=w7;

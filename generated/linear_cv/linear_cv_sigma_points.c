@@ -586,7 +586,7 @@ static int casadi_f8(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   return 0;
 }
 
-/* linear_cv_outer_sum_0_1:(y[4],mean[4])->(ddT[4x4,10nz]) */
+/* linear_cv_outer_0_1:(y[4],mean[4])->(ddT[4x4,10nz]) */
 static int casadi_f7(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i, j;
   casadi_real **res1=res+1, *w0=w+5, *w1=w+9, *w2=w+13, *w3=w+23;
@@ -630,7 +630,7 @@ static int casadi_f10(const casadi_real** arg, casadi_real** res, casadi_int* iw
   return 0;
 }
 
-/* linear_cv_outer_sum_1_9:(y[4x8],mean[4])->(ddT[4x4,10nz]) */
+/* linear_cv_outer_1_9:(y[4x8],mean[4])->(ddT[4x4,10nz]) */
 static int casadi_f9(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i, j;
   casadi_real **res1=res+1, *w1=w+5, *w2=w+9, *w3=w+41, *w4=w+121;
@@ -817,7 +817,7 @@ static int casadi_f0(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   casadi_copy(w13, 4, res[0]);
   /* #21: @3 = @2[0] */
   for (rr=(&w03), cs=w02+0; cs!=w02+1; cs+=1) *rr++ = *cs;
-  /* #22: @17 = linear_cv_outer_sum_0_1(@4, @13) */
+  /* #22: @17 = linear_cv_outer_0_1(@4, @13) */
   arg1[0]=w04;
   arg1[1]=w13;
   res1[0]=w17;
@@ -826,7 +826,7 @@ static int casadi_f0(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   for (i=0, rr=w17, cs=w17; i<10; ++i) (*rr++)  = (w03*(*cs++));
   /* #24: @3 = @2[1] */
   for (rr=(&w03), cs=w02+1; cs!=w02+2; cs+=1) *rr++ = *cs;
-  /* #25: @18 = linear_cv_outer_sum_1_9(@15, @13) */
+  /* #25: @18 = linear_cv_outer_1_9(@15, @13) */
   arg1[0]=w15;
   arg1[1]=w13;
   res1[0]=w18;
@@ -2711,7 +2711,7 @@ static int casadi_f31(const casadi_real** arg, casadi_real** res, casadi_int* iw
   return 0;
 }
 
-/* linear_cv_outer_sum_0_8:(y[4x8],mean[4])->(ddT[4x4,10nz]) */
+/* linear_cv_outer_0_8:(y[4x8],mean[4])->(ddT[4x4,10nz]) */
 static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i, j;
   casadi_real **res1=res+1, *w1=w+5, *w2=w+9, *w3=w+41, *w4=w+121;
@@ -2786,7 +2786,7 @@ static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw
   for (i=0, rr=w01, cs=w01; i<4; ++i) (*rr++)  = (w00*(*cs++));
   /* #13: output[0][0] = @1 */
   casadi_copy(w01, 4, res[0]);
-  /* #14: @12 = linear_cv_outer_sum_0_8(@10, @1) */
+  /* #14: @12 = linear_cv_outer_0_8(@10, @1) */
   arg1[0]=w10;
   arg1[1]=w01;
   res1[0]=w12;

@@ -5461,7 +5461,7 @@ static int casadi_f8(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   return 0;
 }
 
-/* remus100_outer_sum_0_1:(y[12],mean[12])->(ddT[12x12,78nz]) */
+/* remus100_outer_0_1:(y[12],mean[12])->(ddT[12x12,78nz]) */
 static int casadi_f7(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i, j;
   casadi_real **res1=res+1, *w2=w+13, *w3=w+91;
@@ -5505,7 +5505,7 @@ static int casadi_f10(const casadi_real** arg, casadi_real** res, casadi_int* iw
   return 0;
 }
 
-/* remus100_outer_sum_1_25:(y[12x24],mean[12])->(ddT[12x12,78nz]) */
+/* remus100_outer_1_25:(y[12x24],mean[12])->(ddT[12x12,78nz]) */
 static int casadi_f9(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i, j;
   casadi_real **res1=res+1, *w2=w+13, *w3=w+301, *w4=w+2173;
@@ -6294,7 +6294,7 @@ static int casadi_f0(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   casadi_copy(w12, 12, res[0]);
   /* #21: @3 = @2[0] */
   for (rr=(&w03), cs=w02+0; cs!=w02+1; cs+=1) *rr++ = *cs;
-  /* #22: @16 = remus100_outer_sum_0_1(@4, @12) */
+  /* #22: @16 = remus100_outer_0_1(@4, @12) */
   arg1[0]=w04;
   arg1[1]=w12;
   res1[0]=w16;
@@ -6303,7 +6303,7 @@ static int casadi_f0(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   for (i=0, rr=w16, cs=w16; i<78; ++i) (*rr++)  = (w03*(*cs++));
   /* #24: @3 = @2[1] */
   for (rr=(&w03), cs=w02+1; cs!=w02+2; cs+=1) *rr++ = *cs;
-  /* #25: @17 = remus100_outer_sum_1_25(@14, @12) */
+  /* #25: @17 = remus100_outer_1_25(@14, @12) */
   arg1[0]=w14;
   arg1[1]=w12;
   res1[0]=w17;

@@ -3216,7 +3216,7 @@ static int casadi_f8(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   return 0;
 }
 
-/* rov4dof_outer_sum_0_1:(y[12],mean[12])->(ddT[12x12,78nz]) */
+/* rov4dof_outer_0_1:(y[12],mean[12])->(ddT[12x12,78nz]) */
 static int casadi_f7(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i, j;
   casadi_real **res1=res+1, *w2=w+13, *w3=w+91;
@@ -3260,7 +3260,7 @@ static int casadi_f10(const casadi_real** arg, casadi_real** res, casadi_int* iw
   return 0;
 }
 
-/* rov4dof_outer_sum_1_25:(y[12x24],mean[12])->(ddT[12x12,78nz]) */
+/* rov4dof_outer_1_25:(y[12x24],mean[12])->(ddT[12x12,78nz]) */
 static int casadi_f9(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i, j;
   casadi_real **res1=res+1, *w2=w+13, *w3=w+301, *w4=w+2173;
@@ -4049,7 +4049,7 @@ static int casadi_f0(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   casadi_copy(w13, 12, res[0]);
   /* #21: @3 = @2[0] */
   for (rr=(&w03), cs=w02+0; cs!=w02+1; cs+=1) *rr++ = *cs;
-  /* #22: @17 = rov4dof_outer_sum_0_1(@4, @13) */
+  /* #22: @17 = rov4dof_outer_0_1(@4, @13) */
   arg1[0]=w04;
   arg1[1]=w13;
   res1[0]=w17;
@@ -4058,7 +4058,7 @@ static int casadi_f0(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   for (i=0, rr=w17, cs=w17; i<78; ++i) (*rr++)  = (w03*(*cs++));
   /* #24: @3 = @2[1] */
   for (rr=(&w03), cs=w02+1; cs!=w02+2; cs+=1) *rr++ = *cs;
-  /* #25: @18 = rov4dof_outer_sum_1_25(@15, @13) */
+  /* #25: @18 = rov4dof_outer_1_25(@15, @13) */
   arg1[0]=w15;
   arg1[1]=w13;
   res1[0]=w18;
@@ -9797,7 +9797,7 @@ static int casadi_f31(const casadi_real** arg, casadi_real** res, casadi_int* iw
   return 0;
 }
 
-/* rov4dof_outer_sum_0_24:(y[12x24],mean[12])->(ddT[12x12,78nz]) */
+/* rov4dof_outer_0_24:(y[12x24],mean[12])->(ddT[12x12,78nz]) */
 static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i, j;
   casadi_real **res1=res+1, *w2=w+13, *w3=w+301, *w4=w+2173;
@@ -9872,7 +9872,7 @@ static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw
   for (i=0, rr=w01, cs=w01; i<12; ++i) (*rr++)  = (w00*(*cs++));
   /* #13: output[0][0] = @1 */
   casadi_copy(w01, 12, res[0]);
-  /* #14: @12 = rov4dof_outer_sum_0_24(@10, @1) */
+  /* #14: @12 = rov4dof_outer_0_24(@10, @1) */
   arg1[0]=w10;
   arg1[1]=w01;
   res1[0]=w12;

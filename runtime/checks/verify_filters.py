@@ -85,9 +85,9 @@ def scenario(bundle, steps: int = STEPS, seed: int = 7) -> Scenario:
     if envelope.get("declared") and not _builtin(bundle):
         # a user's model that declares where it is meant to be used: start in the middle half of each state's
         # range, inputs in the middle half of theirs, dt inside [min_dt, max_dt]
-        from .verify_models import Envelope
+        from .verify_models import SamplingBox
 
-        box = Envelope(bundle)
+        box = SamplingBox(bundle)
         mid, half = (box.x_low + box.x_high) / 2, (box.x_high - box.x_low) / 2
         x0 = mid + half * rng.uniform(-0.5, 0.5, n)
         P0 = np.diag((0.05 * half) ** 2) + (0.05 * half[:, None]) * (A @ A.T) * (0.05 * half[None, :])

@@ -87,7 +87,7 @@ def symbolic_functions(name_or_model) -> dict:
     return {fn.name()[len(model.name) + 1:]: fn for fn in (*codegen.model_functions(model), *model.functions)}
 
 
-class Envelope:
+class SamplingBox:
     """The sampling box of a bundle: per state and input (low, high) arrays and the dt range, from the
     manifest's "envelope" (the defaults when the model declared none or the manifest predates envelopes)."""
 
@@ -141,7 +141,7 @@ class _Points:
 
     def __init__(self, bundle, ref, rng: np.random.Generator):
         self.bundle, self.ref, self.rng = bundle, ref, rng
-        self.envelope = Envelope(bundle)
+        self.envelope = SamplingBox(bundle)
         #: steps are checked against the envelope (divergence) for a model sampled inside it
         self.bounds = None if ref else self.envelope
 
@@ -161,7 +161,9 @@ class _Points:
 
     def dt(self) -> float:
         if self.ref:
-            return self.rng.uniform(0.01, 0.5)
+            from abyssal.symbolic.model import DEFAULT_MAX_DT, DEFAULT_MIN_DT
+
+            return self.rng.uniform(DEFAULT_MIN_DT, DEFAULT_MAX_DT)
         return self.rng.uniform(self.envelope.min_dt, self.envelope.max_dt)
 
     @property
@@ -216,7 +218,7 @@ class Worst:
         self.text = ""
         self.diverged = ""
 
-    def guard(self, output: str, values, point: dict, bounds: "Envelope | None" = None, column: int | None = None) -> bool:
+    def guard(self, output: str, values, point: dict, bounds: "SamplingBox | None" = None, column: int | None = None) -> bool:
         """True (and recorded) when `values` of `output` diverged at `point`."""
         if self.diverged:
             return True
@@ -233,7 +235,7 @@ class Worst:
         self.error = math.inf
         return True
 
-    def compare(self, output: str, got, expected, point: dict, bounds: "Envelope | None" = None,
+    def compare(self, output: str, got, expected, point: dict, bounds: "SamplingBox | None" = None,
                 column: int | None = None) -> float:
         got, expected = np.asarray(got, dtype=float), np.asarray(expected, dtype=float)
         if (self.guard(output, got, point, bounds, column)
@@ -355,12 +357,11 @@ def _integrate(ref, x0, u, p, horizon: float) -> np.ndarray:
     return sol.y[:, -1]
 
 
-def _input_inside(twin, points: _Points, p, halvings: int = 12) -> np.ndarray:
-    """A random input in the envelope, halved until the held-input flow from rest stays inside the
+def _input_inside(twin, points: _Points, x0, p, halvings: int = 12) -> np.ndarray:
+    """A random input in the envelope, halved until the held-input flow from x0 stays inside the
     envelope's states over ORDER_HORIZON (a vehicle at full thrust for seconds rolls over, beyond the
     ranges where its kinematics are regular: the order check would then judge the singularity)."""
     env = points.envelope
-    x0 = np.clip(np.zeros(points.bundle.n_x), env.x_low, env.x_high)
     u = points.inputs()
     for _ in range(halvings):
         sol = solve_ivp(lambda t, z: twin.xdot(z, u, p), (0.0, ORDER_HORIZON), x0, method="DOP853", rtol=1e-8, atol=1e-10)
@@ -457,7 +458,7 @@ def compiled_twin(bundle) -> reference_models.ReferenceModel:
     def xdot(x, u, p, w=None):
         return bundle.xdot(x, u, p, w)
 
-    env = Envelope(bundle)
+    env = SamplingBox(bundle)
 
     def sample(low, high):
         return lambda rng, n=None: rng.uniform(low[:, None], high[:, None], (low.size, n)) if n else rng.uniform(low, high)
@@ -502,7 +503,8 @@ def _compiled_checks(bundle, points: _Points) -> list[Check]:
     # Start the order check at rest (the envelope's point nearest to it) with a random input: |v| v damping
     # is then smooth along the whole short horizon (velocities leave zero and keep their signs).
     env = points.envelope
-    start = (np.clip(np.zeros(bundle.n_x), env.x_low, env.x_high), _input_inside(twin, points, bundle.params()))
+    rest = np.clip(np.zeros(bundle.n_x), env.x_low, env.x_high)
+    start = (rest, _input_inside(twin, points, rest, bundle.params()))
     exact = _integrate(twin, *start, bundle.params(), ORDER_HORIZON)
     coarse = relative_error(_repeated_steps(bundle, *start, bundle.params(), points.order_dt, ORDER_HORIZON), exact)
     twin = dataclasses.replace(twin, cruise=start, exact_flow=coarse <= TOL_EXACT_FLOW)

@@ -62,6 +62,8 @@ def filter_units(model: Model, families=FAMILIES) -> list[Unit]:
     units = []
     if "ekf" in families:
         units.append(Unit("ekf", ekf_functions(model)))
+    if not {"ukf", "ckf"} & set(families):
+        return units
     sigma_points: tuple = ()
     shared = SharedLeaves(model)
     if "ukf" in families:
@@ -71,9 +73,7 @@ def filter_units(model: Model, families=FAMILIES) -> list[Unit]:
             sigma_points += robust_functions(model, family)
     if "ckf" in families:
         sigma_points += ckf_functions(model, shared)
-    if sigma_points:
-        units.append(Unit("sigma_points", sigma_points))
-    return units
+    return [*units, Unit("sigma_points", sigma_points)]
 
 
 __all__ = ["FAMILIES", "check_families", "filter_units"]

@@ -59,12 +59,10 @@ def leaf(name: str, inputs, outputs, names_in, names_out, dense: bool = True) ->
 
 
 def step_inputs(model: Model, names, extra: dict[str, tuple[int, int]] | None = None) -> dict[str, ca.MX]:
-    """MX symbols of an exported step's inputs, by name, in order: the FilterSymbols names in their
+    """MX symbols of an exported step's inputs, by name, in order: FilterSymbols fields in their
     shapes, then `extra` (name -> shape, e.g. a rule's abk)."""
-    n, m = model.n_x, model.n_y
-    shapes = {"x": (n, 1), "P": (n, n), "u": (model.n_u, 1), "p": (model.n_p, 1), "dt": (1, 1), "Q": (n, n),
-              "z": (m, 1), "R": (m, m), "mask": (m, 1)}
-    inputs = {name: ca.MX.sym(name, *shapes[name]) for name in names}
+    symbols = filter_symbols(model)
+    inputs = {name: ca.MX.sym(name, *getattr(symbols, name).shape) for name in names}
     inputs.update({name: ca.MX.sym(name, *shape) for name, shape in (extra or {}).items()})
     return inputs
 
@@ -76,7 +74,8 @@ def exported(name: str, inputs: dict[str, ca.MX], outputs: dict[str, ca.MX]) -> 
 
 
 def call_columns(fn: ca.Function, X: ca.MX, *shared: ca.MX) -> ca.MX:
-    """[fn(X[:, 0], *shared), fn(X[:, 1], *shared), ...] as one serial loop (Function.map), shared inputs not copied."""
+    """[fn(X[:, 0], *shared), fn(X[:, 1], *shared), ...] as one serial loop (Function.map); CasADi repeats
+    the shared inputs for the loop (a copy of u, p, dt per point, cheap beside f)."""
     n_shared = len(shared)
     mapped = fn.map(f"{fn.name()}_columns", "serial", X.size2(), list(range(1, 1 + n_shared)), [])
     return mapped(X, *shared)

@@ -92,7 +92,7 @@ def ekf_functions(model: Model) -> tuple[ca.Function, ...]:
     P_pred, ok = covariance(x_pred, F, s["P"], s["Q"])
     predict = exported(f"{m}_ekf_predict", s, {"x_pred": x_pred, "P_pred": P_pred, "ok": ok})
     jacobian = exported(f"{m}_F", {name: s[name] for name in ("x", "u", "p", "dt")}, {"dfdx": F})
-    u = filter_symbols(model)
-    update = leaf(f"{m}_ekf_update", [u.x, u.P, u.z, u.p, u.R, u.mask],
-                  ekf_update(model, u.x, u.P, u.z, u.p, u.R, u.mask), UPDATE_IN, UPDATE_OUT)
+    sx = filter_symbols(model)
+    update = leaf(f"{m}_ekf_update", [sx.x, sx.P, sx.z, sx.p, sx.R, sx.mask],
+                  ekf_update(model, sx.x, sx.P, sx.z, sx.p, sx.R, sx.mask), UPDATE_IN, UPDATE_OUT)
     return jacobian, predict, update, fused_step(f"{m}_ekf_step", model, predict, update)

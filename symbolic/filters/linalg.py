@@ -55,6 +55,12 @@ def symmetric_from_upper(entries: dict[tuple[int, int], ca.SX], n: int) -> ca.SX
     return A
 
 
+def upper_mirrored(A: ca.SX) -> ca.SX:
+    """A's upper triangle mirrored below the diagonal (exactly symmetric output for any input)."""
+    n = A.size1()
+    return symmetric_from_upper({(i, j): A[i, j] for i in range(n) for j in range(i, n)}, n)
+
+
 def weight_groups(weights) -> list[tuple[ca.SX, list[int]]]:
     """(weight, [k, ...]) for each distinct weight (the same expression), in order of first use."""
     groups: list[tuple[ca.SX, list[int]]] = []

@@ -26,9 +26,7 @@ import casadi as ca
 
 from ..model import Model
 from .common import call_columns, exported, leaf, measurement, step_inputs, transition
-from .linalg import (
-    all_finite, guarded_cholesky, symmetric_from_upper, symmetrise, weight_groups, weighted_outer,
-)
+from .linalg import all_finite, guarded_cholesky, symmetrise, upper_mirrored, weight_groups, weighted_outer
 from .measurement import gain_update, masked_columns, masked_covariance, masked_innovation, residual
 from .sigma_points import SigmaPointRule, cubature_rule, scaled_unscented_rule
 
@@ -41,12 +39,6 @@ STEP_IN = PREDICT_IN + ["z", "R", "mask"]
 #: a measurement of at most this many SX instructions (a selection of states, a range) is inlined at every
 #: point of an update instead of called in a loop: the loop's copies would cost more than h (benchmarks/README.md)
 INLINE_MEASUREMENT = 64
-
-
-def upper_mirrored(A: ca.SX) -> ca.SX:
-    """A's upper triangle mirrored below the diagonal (exactly symmetric output for any input)."""
-    n = A.size1()
-    return symmetric_from_upper({(i, j): A[i, j] for i in range(n) for j in range(i, n)}, n)
 
 
 def noise_leaf(model: Model, name: str, measurement_noise, extra_args=(), extra_names=()) -> ca.Function:
@@ -178,35 +170,28 @@ class SigmaPointFamily:
         constant = self.weights()
         return ca.MX(constant["wm"]), ca.MX(constant["wc"])
 
+    def _group(self, M: ca.MX, g: int) -> ca.MX:
+        """The columns (points) of weight group g of M (M itself when the group is every point)."""
+        a, b = self.ranges[g]
+        return M[:, a:b] if b - a < M.size2() else M
+
     def _mean(self, w: ca.MX, Y: ca.MX) -> ca.MX:
         """sum_g w_g sum_{k in g} Y[:, k]."""
-        terms = [w[g] * ca.sum2(Y[:, a:b] if b - a < Y.size2() else Y) for g, (a, b) in enumerate(self.ranges)]
+        terms = [w[g] * ca.sum2(self._group(Y, g)) for g in range(len(self.ranges))]
         return sum(terms[1:], terms[0])
 
-    def _residuals(self, wm: ca.MX, wc: ca.MX, Z: ca.MX) -> tuple[ca.MX, ca.MX, ca.MX]:
-        """(z_pred, DZ, Czz): the weighted mean of the points' measurements, their residuals (one loop per
-        weight group) and sum_g wc_g sum_{k in g} dz_k dz_k^T."""
-        z_pred = self._mean(wm, Z)
-        residuals, Czz = [], None
+    def _looped(self, w: ca.MX, term: ca.Function, columns, shared, summed) -> list[ca.MX]:
+        """term looped over the points (columns[j][:, k], then the shared inputs), one loop per weight group:
+        the outputs in `summed` as sum_g w_g sum_{k in g} (map with a summed output), the others side by side."""
+        n_cols, outputs = len(columns), [[] for _ in range(term.n_out())]
         for g, (a, b) in enumerate(self.ranges):
-            looped = self.shared.residual.map(f"{self.shared.residual.name()}_{a}_{b}", "serial", b - a, [1], [1])
-            DZ_g, C_g = looped(Z[:, a:b] if b - a < Z.size2() else Z, z_pred)
-            residuals.append(DZ_g)
-            Czz = wc[g] * C_g if Czz is None else Czz + wc[g] * C_g
-        return z_pred, ca.horzcat(*residuals), Czz
-
-    def _weighted_terms(self, w: ca.MX, term: ca.Function, columns, shared) -> list[ca.MX]:
-        """sum_g w_g sum_{k in g} term(columns[:, k]..., shared...) per output of term, as loops."""
-        n_cols = len(columns)
-        totals = None
-        for g, (a, b) in enumerate(self.ranges):
-            summed = term.map(f"{term.name()}_sum_{a}_{b}", "serial", b - a,
-                              list(range(n_cols, n_cols + len(shared))), list(range(term.n_out())))
-            parts = summed(*[C[:, a:b] if b - a < C.size2() else C for C in columns], *shared)
-            parts = [parts] if isinstance(parts, ca.MX) else list(parts)
-            scaled = [w[g] * part for part in parts]
-            totals = scaled if totals is None else [t + s for t, s in zip(totals, scaled)]
-        return totals
+            looped = term.map(f"{term.name()}_{a}_{b}", "serial", b - a,
+                              list(range(n_cols, n_cols + len(shared))), list(summed))
+            parts = looped(*[self._group(C, g) for C in columns], *shared)
+            for out, part in zip(outputs, [parts] if isinstance(parts, ca.MX) else parts):
+                out.append(part)
+        return [sum((w[g] * part for g, part in enumerate(out[1:], 1)), w[0] * out[0]) if k in summed
+                else ca.horzcat(*out) for k, out in enumerate(outputs)]
 
     # ------------------------------------------------------------------ exported steps
     def _inputs(self, names, extra_args=(), extra_names=()):
@@ -222,7 +207,7 @@ class SigmaPointFamily:
         Y = call_columns(self.shared.f, X, s["u"], s["p"], s["dt"])
         wm, wc = self._group_weights(rule)
         x_pred = self._mean(wm, Y)
-        C, = self._weighted_terms(wc, self.shared.outer, [Y], [x_pred])
+        C, = self._looped(wc, self.shared.outer, [Y], [x_pred], summed=(0,))
         P_pred, ok_moments = self.shared.predicted(x_pred, C, s["Q"])
         return exported(name, s, {"x_pred": x_pred, "P_pred": P_pred, "ok": ok_points * ok_moments})
 
@@ -238,7 +223,9 @@ class SigmaPointFamily:
             Z = self.measured_points(s["x"], L, s["p"], *rule)
         else:
             Z = call_columns(self.shared.h, self.points(s["x"], L, *rule), s["p"])
-        z_pred, DZ, Czz = self._residuals(*self._group_weights(rule), Z)
+        wm, wc = self._group_weights(rule)
+        z_pred = self._mean(wm, Z)
+        DZ, Czz = self._looped(wc, self.shared.residual, [Z], [z_pred], summed=(1,))
         innovation, Pzz, Pxz = self.measurement_moments(L, DZ, Czz, z_pred, s["z"], s["mask"], *rule)
         R_used, ok_noise = (noise or self.shared.noise)(s["R"], s["mask"], Pzz, innovation, *extra)
         x_post, P_post, S, ok = self.shared.kalman(s["x"], s["P"], Pzz, Pxz, R_used, innovation)
