@@ -78,10 +78,11 @@ def _c_array(name: str, values) -> str:
 
 
 def pure_c_times(bundle, args: dict[str, np.ndarray], names=PER_CALL, quick: bool = False) -> dict[str, float]:
-    """ns per call of <model>_<name> for each name, from a C loop linked with the model's generated C."""
-    _, sources = generated.read_sources(bundle.name)
-    model_file = f"{bundle.name}_model.c"
+    """ns per call of <model>_<name> for each name, from a C loop linked with the generated C files that
+    define them (the manifest says which: F lives in the EKF's file when that family is generated)."""
+    manifest, sources = generated.read_sources(bundle.name)
     fns = [bundle.functions[n] for n in names if n in bundle.functions]
+    files = sorted({manifest["functions"][fn.name]["file"] for fn in fns})
     declarations, buffers, timings = [], [], []
     buffers += [_c_array(f"in_{k}", v) for k, v in args.items()]
     for fn in fns:
@@ -102,9 +103,10 @@ def pure_c_times(bundle, args: dict[str, np.ndarray], names=PER_CALL, quick: boo
     with tempfile.TemporaryDirectory(prefix="abyssal-bench-") as tmp:
         tmp = Path(tmp)
         (tmp / "driver.c").write_text(driver)
-        (tmp / model_file).write_text(sources[model_file])
+        for name in files:
+            (tmp / name).write_text(sources[name])
         exe = tmp / "driver"
-        cmd = [compiler(), *cflags(), str(tmp / "driver.c"), str(tmp / model_file), "-o", str(exe), "-lm"]
+        cmd = [compiler(), *cflags(), str(tmp / "driver.c"), *(str(tmp / name) for name in files), "-o", str(exe), "-lm"]
         res = subprocess.run(cmd, capture_output=True, text=True, check=False)
         if res.returncode != 0:
             raise BuildError(f"compiling the timing driver failed: {' '.join(cmd)}\n{res.stderr[-4000:]}")

@@ -312,3 +312,14 @@ def test_a_missing_or_renamed_section_is_an_error_not_a_silent_skip(monkeypatch)
     monkeypatch.setattr(bench, "SECTIONS", ("abyssal.runtime.checks.bench_renamed",))
     with pytest.raises(ModuleNotFoundError, match="bench_renamed"):
         bench.main(json_output=True, out=None, quick=True)
+
+
+def test_the_bench_timing_driver_links_every_timed_function(rov):
+    """The pure-C driver of `abyssal bench` finds each function in the file the manifest names (F sits in
+    the EKF's file): a timing for every one, not a link error."""
+    from abyssal.runtime.checks import bench_models
+
+    args = {"x": np.zeros(12), "u": np.zeros(4), "p": rov.params(), "dt": np.array([0.1])}
+    times = bench_models.pure_c_times(rov, args, quick=True)
+    assert set(times) == set(bench_models.PER_CALL)
+    assert all(np.isfinite(t) and t > 0 for t in times.values())
