@@ -36,9 +36,13 @@ opaque copy of the whole state and reports; ``restore(checkpoint)`` puts it back
 
 Threads: a filter object is not shared between threads. Every filter detects concurrent use
 and raises RuntimeError instead of silently losing updates: each public call takes the filter's
-lock without blocking (``ConcurrencyGuard``, or the same ``Lock.acquire(False)`` inline on the
-Kalman hot path, ~0.2 us per call); the losing call did nothing. Different filters on one model
-bundle are independent.
+lock without blocking (``Lock.acquire(False)`` in ``FilterBase``; its cost is in
+benchmarks/README.md); the losing call did nothing. Different filters on one model bundle are
+independent.
+
+One implementation: ``FilterBase`` owns the public calls, the checks, the lock, p, the snapshot
+and its restore on any failure, and the translation of numerical failures; a filter implements
+hooks and declares its state (``Stateful._state``), which ``checkpoint``/``restore`` copy.
 
 A new filter class registers itself with ``@register(kind)`` (kind: "kalman", "particle",
 "mixture", "gaussian-sum"; see ``register``) so the contract test (tests/runtime/test_contract.py)
@@ -53,6 +57,7 @@ import math
 import numbers
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
@@ -61,7 +66,7 @@ import numpy as np
 from .numerics import SYMMETRY_TOLERANCE, angle_indices, nees, wrap_angles
 
 __all__ = [
-    "ConcurrencyGuard", "Filter", "FilterBase", "FilterResult", "as_generator", "check_count", "check_covariance",
+    "Filter", "FilterBase", "NUMERICAL_FAILURES", "Stateful", "FilterResult", "as_generator", "check_count", "check_covariance",
     "check_dt", "check_p", "check_state", "check_u", "check_z", "real_array", "register", "registered_filters",
     "run_filter",
 ]
@@ -311,46 +316,108 @@ def as_generator(rng) -> np.random.Generator:
 
 
 # ---------------------------------------------------------------------------------------------
-# threads
+# the transaction and run: one implementation for every filter
 
 
-class ConcurrencyGuard:
-    """Detects a second thread entering a filter while a call is under way, and raises.
+#: numerical failures inside a step that the transaction refuses as ValueError (the state is restored)
+NUMERICAL_FAILURES = (np.linalg.LinAlgError, FloatingPointError, OverflowError)
 
-    ``with self._guard:`` around each public call: a non-blocking ``threading.Lock.acquire`` is
-    atomic, so two threads can never both be inside; the loser gets RuntimeError (its call did
-    nothing) instead of a silently lost update. Not a lock to wait on: share a filter between
-    threads only behind your own lock.
+
+def _copy(value):
+    """A copy of one state entry: arrays and containers copied, a Generator as its bit-generator state, a
+    ``Stateful`` part as its checkpoint; anything else (numbers, strings, immutable objects) as is."""
+    if isinstance(value, np.ndarray):
+        return value.copy()
+    if isinstance(value, np.random.Generator):
+        return value.bit_generator.state
+    if isinstance(value, Stateful):
+        return value.checkpoint()
+    if isinstance(value, (list, tuple, deque)):
+        return type(value)(_copy(v) for v in value)
+    return value
+
+
+def _put(owner, name: str, saved) -> None:
+    """Restore one entry: in place where the current value is a buffer of the same shape (a buffer may be
+    bound to generated C), else by assignment of a copy."""
+    current = getattr(owner, name)
+    if isinstance(current, np.random.Generator):
+        current.bit_generator.state = saved
+    elif isinstance(current, Stateful):
+        current.restore(saved)
+    elif (isinstance(current, np.ndarray) and isinstance(saved, np.ndarray) and current.shape == saved.shape
+          and current.dtype == saved.dtype):
+        current[...] = saved
+    elif isinstance(current, list) and isinstance(saved, list) and len(current) == len(saved) and all(
+            isinstance(c, np.ndarray) for c in current):
+        for c, v in zip(current, saved):
+            c[...] = v
+    else:
+        setattr(owner, name, _copy(saved))
+
+
+class Stateful:
+    """Something whose state is a declared list of attribute names, copied by ``checkpoint`` and put back
+    by ``restore`` (a filter, or a part of one such as a particle proposal or an innovation gate).
+
+    ``_state`` names attributes of self; a name may be a Stateful attribute itself (its own checkpoint
+    is nested). Buffers (numpy arrays, lists of them) are restored in place, so buffers bound to
+    generated C keep their addresses.
     """
 
-    __slots__ = ("_lock", "_owner")
+    _state: tuple[str, ...] = ()
 
-    def __init__(self, owner: str):
-        self._lock = threading.Lock()
-        self._owner = owner
+    def checkpoint(self) -> dict:
+        """An opaque copy of everything the object holds and reports."""
+        return {name: _copy(getattr(self, name)) for name in self._state}
 
-    def __enter__(self):
-        if not self._lock.acquire(False):
-            raise RuntimeError(f"{self._owner} is being used from two threads at once; a filter is not thread-safe "
-                               "(use one filter per thread, or serialise the calls with a lock)")
-        return self
-
-    def __exit__(self, *exc):
-        self._lock.release()
-        return False
+    def restore(self, checkpoint: dict) -> None:
+        """Put a checkpoint back."""
+        for name in self._state:
+            _put(self, name, checkpoint[name])
 
 
-# ---------------------------------------------------------------------------------------------
-# run: one implementation for every filter
+class FilterBase(Stateful):
+    """The contract's transaction, once: predict/update/step/run/checkpoint/restore for every filter.
 
+    A filter implements hooks on checked inputs, with ``self._p`` already set to the call's parameters:
 
-class FilterBase:
-    """Mixin with the shared ``run``; filters provide step, checkpoint/restore and the reports."""
+        _predict(u, dt)                -> None
+        _update(z, present)            -> bool   (z with 0 where missing, present (n_y,) bool)
+        _step(u, dt, measurement)      -> bool   (default: _predict then _update; measurement None or (z, present))
+
+    and declares in ``_state`` the attribute names of everything it holds and reports (``_p`` and
+    ``_p_is_default`` are added here). A public call takes the filter's lock without blocking, checks
+    its inputs (each refusal names the argument), saves the state a hook may change (``_touched``:
+    the names a hook writes before its commit; default every name in ``_state``), sets p, runs the
+    hook, and on any failure restores what it saved and re-raises; a numerical failure (LinAlgError,
+    FloatingPointError, OverflowError) becomes a ValueError saying the state was left unchanged.
+
+    A filter with its own double-buffered fast path (the Kalman engine) overrides the ``_*_call``
+    methods instead, which receive the raw arguments under the lock and must leave the filter
+    unchanged when they raise.
+    """
 
     nis: float = math.nan
     nis_dof: int = 0
     ess: float = math.nan
     n_particles: float = math.nan
+    _touched: tuple[str, ...] | None = None
+
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        own = tuple(name for name in cls._state if name not in ("_p", "_p_is_default"))
+        cls._state = own + ("_p", "_p_is_default")
+        if cls._touched is not None:
+            cls._touched = tuple(name for name in cls._touched if name not in ("_p", "_p_is_default")) + ("_p", "_p_is_default")
+
+    def _init_contract(self, model, p_buffer: np.ndarray | None = None) -> None:
+        """Called by a filter's __init__: the model, the parameter buffer (the model's defaults) and the lock."""
+        self.model = model
+        self._p = np.array(model.p_default, dtype=np.float64) if p_buffer is None else p_buffer
+        self._p[:] = model.p_default
+        self._p_is_default = True
+        self._lock = threading.Lock()
 
     @property
     def x(self) -> np.ndarray:
@@ -362,9 +429,105 @@ class FilterBase:
         """Its covariance (n_x, n_x), a copy (filters keep it in ``_P``)."""
         return self._P.copy()
 
+    @property
+    def p(self) -> np.ndarray:
+        """The model parameters of the current (or last) call: the filter's buffer, bound to its generated
+        calls (read it; a call's p argument is the way to change it)."""
+        return self._p
+
+    # ---------------------------------------------------------------- the public calls
+    def predict(self, u, dt, p=None) -> None:
+        """Move the estimate over dt with input u (and parameters p; None: the model's defaults)."""
+        if not self._lock.acquire(False):
+            raise self._busy()
+        try:
+            self._predict_call(u, dt, p)
+        except NUMERICAL_FAILURES as error:
+            raise self._numerical_failure(error) from error
+        finally:
+            self._lock.release()
+
+    def update(self, z, p=None) -> bool:
+        """Correct the estimate with the present (finite) entries of z; False (nothing changed) when z is
+        None or all NaN, or when every entry was left out (an innovation gate)."""
+        if not self._lock.acquire(False):
+            raise self._busy()
+        try:
+            return self._update_call(z, p)
+        except NUMERICAL_FAILURES as error:
+            raise self._numerical_failure(error) from error
+        finally:
+            self._lock.release()
+
+    def step(self, u, dt, z=None, p=None) -> bool:
+        """predict(u, dt, p) then update(z, p) as one transaction; returns whether an update happened."""
+        if not self._lock.acquire(False):
+            raise self._busy()
+        try:
+            return self._step_call(u, dt, z, p)
+        except NUMERICAL_FAILURES as error:
+            raise self._numerical_failure(error) from error
+        finally:
+            self._lock.release()
+
     def run(self, U, Z, dt, params=None, truth=None) -> FilterResult:
         """Filter a whole sequence (see ``run_filter``)."""
         return run_filter(self, U, Z, dt, params, truth)
+
+    # ---------------------------------------------------------------- the transaction
+    def _predict_call(self, u, dt, p) -> None:
+        u, dt, p = check_u(u, self.model.n_u), check_dt(dt), check_p(p, self.model)
+        self._transaction(self._predict, (u, dt), p)
+
+    def _update_call(self, z, p) -> bool:
+        measurement, p = check_z(z, self.model.n_y), check_p(p, self.model)
+        if measurement is None:
+            return False
+        return self._transaction(self._update, measurement, p)
+
+    def _step_call(self, u, dt, z, p) -> bool:
+        u, dt = check_u(u, self.model.n_u), check_dt(dt)
+        measurement, p = check_z(z, self.model.n_y), check_p(p, self.model)
+        return self._transaction(self._step, (u, dt, measurement), p)
+
+    def _transaction(self, hook, args, p):
+        names = self._state if self._touched is None else self._touched
+        saved = {name: _copy(getattr(self, name)) for name in names}
+        try:
+            self._set_p(p)
+            return hook(*args)
+        except BaseException:
+            for name in names:
+                _put(self, name, saved[name])
+            raise
+
+    def _set_p(self, p) -> None:
+        """p (checked) into the parameter buffer; None: the model's defaults (copied only when they changed)."""
+        if p is None:
+            if not self._p_is_default:
+                self._p[:] = self.model.p_default
+                self._p_is_default = True
+        else:
+            self._p[:] = p
+            self._p_is_default = False
+
+    def _predict(self, u, dt) -> None:
+        raise NotImplementedError
+
+    def _update(self, z, present) -> bool:
+        raise NotImplementedError
+
+    def _step(self, u, dt, measurement) -> bool:
+        self._predict(u, dt)
+        return False if measurement is None else self._update(*measurement)
+
+    def _busy(self) -> RuntimeError:
+        return RuntimeError(f"{type(self).__name__} is being used from two threads at once; a filter is not thread-safe "
+                            "(use one filter per thread, or serialise the calls with your own lock)")
+
+    def _numerical_failure(self, error) -> ValueError:
+        return ValueError(f"{type(self).__name__}: the step failed numerically ({error}): u, dt, z or p drive the model "
+                          "out of its finite range; state left unchanged")
 
 
 def _rows(value, T: int, n: int, name: str, *, allow_nan: bool = False) -> np.ndarray:

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["NEES_FLOOR", "REPAIR_FLOOR", "SYMMETRY_TOLERANCE", "angle_indices", "kalman_filter", "nees",
+__all__ = ["NEES_FLOOR", "REPAIR_FLOOR", "SYMMETRY_TOLERANCE", "angle_indices", "factorable_covariance", "grew_beyond", "kalman_filter", "nees",
            "relative_error", "repair_covariance", "simulate_truth", "wrap_angles", "wrap_to_pi"]
 
 #: eigenvalue floor of ``repair_covariance``, relative to the largest |eigenvalue|. 1e-10 makes
@@ -93,6 +93,14 @@ def repair_covariance(P: np.ndarray, floor: float = REPAIR_FLOOR) -> np.ndarray:
     return np.asfortranarray(B) if B.ndim == 2 else B
 
 
+def factorable_covariance(P: np.ndarray, noise: np.ndarray, floor: float = REPAIR_FLOOR) -> np.ndarray:
+    """The nearest covariance a sigma-point or cubature rule can factor: ``repair_covariance(P)``, and for
+    P = 0 (a known state, the Dirac) floor * max(max |noise|, 1) * I, the Dirac's nearest Gaussian."""
+    if np.any(P):
+        return repair_covariance(P, floor)
+    return np.asfortranarray(floor * max(float(np.max(np.abs(noise))), 1.0) * np.eye(P.shape[-1]))
+
+
 def relative_error(a, b) -> float:
     """max |a - b| / max(1, max |b|): absolute near zero, relative for large values."""
     a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
@@ -154,3 +162,13 @@ def _square_root(C, name: str) -> np.ndarray:
     if values.size and values[0] < -1e-9 * max(abs(values[-1]), 1e-300):
         raise ValueError(f"{name} must be positive semi-definite; smallest eigenvalue {values[0]:.3g}")
     return vectors * np.sqrt(np.maximum(values, 0.0))
+
+
+def grew_beyond(limit: float, before: np.ndarray, after: np.ndarray, noise: np.ndarray) -> bool:
+    """Whether a predicted covariance (or a stack of them) grew more than `limit` times (largest prior variance +
+    largest noise variance) in one predict, or stopped being finite: a dt beyond the model's stable range gives
+    finite but absurd covariances that would poison every later step (every Kalman-type filter's growth test)."""
+    def largest(A):
+        return float(np.max(np.diagonal(A, axis1=-2, axis2=-1)))
+    base = largest(before) + largest(noise)
+    return not largest(after) <= limit * max(base, np.finfo(float).tiny)

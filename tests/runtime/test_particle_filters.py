@@ -204,3 +204,26 @@ def test_dt_beyond_the_stable_range_is_subdivided_or_refused(rov):
     carried = pf.CubatureParticleFilter(rov, np.zeros(12), 0.3 * np.eye(12), Q, R, 100, 1)
     with pytest.raises(ValueError, match="cannot be subdivided"):
         carried.step(np.zeros(4), 5.0, np.zeros(4))
+
+
+@pytest.mark.parametrize("refused", ["dt beyond the stable range", "overflowing input", "NaN input"])
+def test_refused_cpf_predict_leaves_the_next_step_bit_identical(rov, refused):
+    """The carried-P^i CPF: a predict refused after its generated cubature step ran (an overflow, whose failed
+    guard repairs the carried covariances in place) or before it leaves particles, weights, carried
+    covariances and the generator as an untouched twin's, and the following steps bit-identical."""
+    R = GaussianMixture.gaussian(np.zeros(4), np.diag([0.3, 0.2, 0.3, 0.05]))
+    Q = np.diag([1e-3] * 8 + [1e-2] * 4)
+    u, z = np.array([20.0, 5.0, 10.0, 0.5]), np.array([0.1, -0.1, 0.2, 0.05])
+    bad_u, bad_dt = {"dt beyond the stable range": (u, 5.0), "overflowing input": (np.full(4, 1e308), 0.1),
+                     "NaN input": (np.array([np.nan, 0, 0, 0]), 0.1)}[refused]
+    filt, twin = (pf.CubatureParticleFilter(rov, np.zeros(12), 0.3 * np.eye(12), Q, R, 50, 3) for _ in range(2))
+    for f in (filt, twin):
+        f.step(u, 0.1, z)
+    with pytest.raises(ValueError):
+        filt.predict(bad_u, bad_dt)
+    for f in (filt, twin):
+        f.step(u, 0.1, z)
+        f.predict(u, 0.1)
+        f.step(u, 0.1, z)
+    for a, b in zip(filt.checkpoint().values(), twin.checkpoint().values()):
+        assert repr(a) == repr(b) if isinstance(a, dict) else np.array_equal(np.asarray(a), np.asarray(b))

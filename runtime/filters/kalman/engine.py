@@ -34,21 +34,11 @@ Contract
   ``repairs``; a failed one raises and leaves the state untouched.
 * ``x`` and ``P`` are copies: the filter state cannot be changed from outside except by
   ``reset``.
-* Innovation gate (on by default): after an update, the NIS of the present entries is
-  compared with the chi-square quantile of tail probability ``gate_probability`` (default
-  1e-10: a consistent filter gates a measurement once in 10^10 updates, so never in a 10^6-step
-  soak; 0 turns the gate off). When it fails, the entries whose own normalised innovation
-  nu_i^2 / S_ii exceeds the one-degree quantile are left out and the update is redone with the
-  rest (which must pass the gate too); when no single entry is to blame, the whole measurement
-  is left out. Gated entries are counted in ``gated``; an update with every entry gated returns
-  False (the predict stands). The hot path pays one bound, nu^T R^-1 nu >= nu^T S^-1 nu (S >= R
-  for the EKF and CKF), before any exact NIS is computed.
-* Recovery from repeated gating: an entry gated in ``gate_patience`` (default 5) consecutive
-  updates means the filter, not the sensor, is probably wrong (a jump it cannot follow): each
-  further update that gates it multiplies P by ``gate_inflation`` (default 4), until the entry
-  passes the gate; counted in ``inflations``. (Inflation was chosen over a reset from the last
-  accepted state: a reset returns to the state the filter could not follow. Measured on rov4dof,
-  CKF, a permanent 25 m jump of the x fix: re-acquired within 5 + 5 updates; see
+* Innovation gate (on by default) and recovery from repeated gating: ``InnovationGate``
+  (gate.py), the same for every Kalman-type filter: options ``gate_probability`` (default 1e-10;
+  0 turns it off), ``gate_patience`` (5) and ``gate_inflation`` (4); an update with every entry
+  gated returns False (the predict stands). Counted in ``gated`` and ``inflations``. (Measured on
+  rov4dof, CKF, a permanent 25 m jump of the x fix: re-acquired within 5 + 5 updates; see
   tests/runtime/test_kalman.py.)
 * dt beyond the model's stable range: the first predict with a dt larger than any seen so far
   is checked for a covariance that grows more than ``growth_limit`` (default 1e3) times
@@ -58,11 +48,9 @@ Contract
   that dt (``substeps`` counts the subdivided predicts). If even max_substeps fails, the call is
   refused with a message naming the smallest dt tried.
 * Everything a refused call would report is restored (x, P, innovation, S, NIS, counters).
-* Threads: a filter detects concurrent use and raises RuntimeError (the contract's rule): every
-  public call takes the filter's lock without blocking (``acquire(False)``, atomic; ~0.2 us per
-  call, measured in benchmarks/README.md), so a second thread entering while a call is under way
-  is refused (its call did nothing) instead of silently losing an update. Different filters on
-  one bundle share nothing mutable and run independently.
+* Threads: FilterBase's rule (contract.py): a second thread entering while a call is under way
+  is refused with RuntimeError (its call did nothing). Different filters on one bundle share
+  nothing mutable and run independently.
 * Singular or zero P0: accepted. The EKF runs it as is; the sigma-point filters (no factor of
   a singular matrix) repair it on the first call that fails its Cholesky guard: P0 = 0 becomes
   ``repair_floor`` x max(max |Q|, tiny) x I, the Dirac's nearest Gaussian.
@@ -76,19 +64,17 @@ iterations fixed at generation). The robust filters predict with the UKF step.
 from __future__ import annotations
 
 import math
-import threading
 
 import numpy as np
-from scipy.stats import chi2
 
 from ...contract import FilterBase, FilterResult, check_covariance, check_dt, check_state, real_array, register
-from ...numerics import REPAIR_FLOOR, repair_covariance
+from ...numerics import REPAIR_FLOOR, factorable_covariance, grew_beyond, repair_covariance
+from .gate import InnovationGate
 
 __all__ = [
     "CKF", "EKF", "FilterResult", "HuberUKF", "KalmanFilter", "MCUKF", "UKF", "process_noise", "repair_covariance",
 ]
 
-_INF = math.inf  # hot path: one global lookup instead of a global and an attribute lookup
 #: dt types the hot path takes without check_dt (anything else, a bool included, is checked)
 _PLAIN_NUMBERS = frozenset({float, int, np.float64})
 
@@ -124,6 +110,7 @@ class KalmanFilter(FilterBase):
     #: S = (predicted measurement covariance) + R with a positive semi-definite first term, so
     #: nu^T R^-1 nu bounds the NIS from above (true for the EKF and the CKF's positive weights)
     S_dominates_R: bool = False
+    _state = ("_cur", "_x", "_P", "_last_update", "_last_dof", "_innovation", "_S", "repairs", "substeps", "gate")
 
     def __init__(self, model, x0, P0, Q, R, *, repair_floor: float = REPAIR_FLOOR, gate_probability: float = 1e-10,
                  gate_patience: int = 5, gate_inflation: float = 4.0, growth_limit: float = 1e3, max_substeps: int = 64):
@@ -132,29 +119,16 @@ class KalmanFilter(FilterBase):
                 f"{type(self).__name__} needs a model bundle from abyssal.generated.load() with generated "
                 f"{self.predict_function!r}; got {model!r}"
             )
-        if not 0.0 <= gate_probability < 1.0:
-            raise ValueError(f"gate_probability must be in [0, 1) (0: no gate), got {gate_probability!r}")
-        if not (gate_inflation >= 1.0 and growth_limit > 1.0 and int(gate_patience) >= 1 and int(max_substeps) >= 1):
-            raise ValueError("gate_inflation >= 1, growth_limit > 1, gate_patience >= 1 and max_substeps >= 1 are required")
-        self.model = model
+        if not (growth_limit > 1.0 and int(max_substeps) >= 1):
+            raise ValueError(f"growth_limit > 1 and max_substeps >= 1 are required, got {growth_limit!r}, {max_substeps!r}")
+        self._init_contract(model)
         n, m = model.n_x, model.n_y
         self.repair_floor = float(repair_floor)
         #: number of covariance repairs (eigenvalue clipping) performed so far
         self.repairs = 0
-        #: measurement entries left out by the innovation gate so far
-        self.gated = 0
-        #: covariance inflations after gate_patience consecutive fully gated measurements
-        self.inflations = 0
         #: predicts subdivided because dt was beyond the model's stable range
         self.substeps = 0
-        self._streak = np.zeros(model.n_y, dtype=int)  # consecutive gated updates of each entry
-        self._streaking = False  # any streak > 0 (a bool keeps the hot path free of array work)
-        self.gate_probability, self.gate_patience, self.gate_inflation = gate_probability, int(gate_patience), gate_inflation
         self.growth_limit, self.max_substeps = float(growth_limit), int(max_substeps)
-        # chi-square quantiles of the gate, index = degrees of freedom (inf: gate off)
-        self._gate = np.full(m + 1, _INF) if gate_probability == 0 else np.concatenate(
-            [[_INF], chi2.isf(gate_probability, np.arange(1, m + 1))])
-        self._gate_full = float(self._gate[m])
         self._checked_dt = 0.0  # predicts with dt up to this passed the stability check
         self._dt_pieces: dict[float, int] = {}  # dt -> number of substeps found stable
         x0 = check_state(x0, n, "x0")
@@ -164,13 +138,11 @@ class KalmanFilter(FilterBase):
         self._P = [np.asfortranarray(P0), np.zeros((n, n), order="F")]
         self._cur = 0
         self._u = np.zeros(model.n_u)
-        self._p = np.array(model.p_default)
-        self._p_is_default = True
         self._dt = np.zeros(1)
         self._Q = _matrix(Q, (n, n), "Q", definite=False)
         self._R = _matrix(R, (m, m), "R", definite=True)
-        self._R_inv = np.linalg.inv(self._R)
-        self._R_inv_norm = 1.0 / float(np.linalg.eigvalsh(self._R)[0])  # 1 / lambda_min(R)
+        self.gate = InnovationGate(self._R, probability=gate_probability, patience=gate_patience, inflation=gate_inflation,
+                                   S_dominates_R=self.S_dominates_R)
         self._z = np.zeros(m)
         self._mask = np.ones(m)
         self._ok = np.zeros(1)
@@ -179,7 +151,6 @@ class KalmanFilter(FilterBase):
         self._last_update = -1  # which innovation/S buffer holds the last accepted update, -1: none
         self._last_dof = 0
         self._n_y = m
-        self._lock = threading.Lock()
         predict_fn = model.function(self.predict_function)
         update_fn = model.function(self.update_function)
         pe, ue = self._predict_extra(), self._update_extra()
@@ -194,9 +165,9 @@ class KalmanFilter(FilterBase):
                            [self._x[1 - k], self._P[1 - k], self._innovation[1 - k], self._S[1 - k], self._ok])
             for k in (0, 1)
         ]
-        self._predict = [b.eval for b in self._bindings[:2]]
-        self._update = [b.eval for b in self._bindings[2:]]
-        self._step = None
+        self._c_predict = [b.eval for b in self._bindings[:2]]
+        self._c_update = [b.eval for b in self._bindings[2:]]
+        self._c_step = None
         if self.step_function in model.functions:
             step_fn = model.function(self.step_function)
             self._bindings += [
@@ -204,7 +175,7 @@ class KalmanFilter(FilterBase):
                              [self._x[1 - k], self._P[1 - k], self._innovation[1 - k], self._S[1 - k], self._ok])
                 for k in (0, 1)
             ]
-            self._step = [b.eval for b in self._bindings[4:]]
+            self._c_step = [b.eval for b in self._bindings[4:]]
         # memoryviews: the cheapest way to move a few floats in and out on the hot path. The slice
         # assignment view[:] = u takes u's buffer directly (no memoryview(u) object to build: about
         # half the cost) and checks that u is exactly a float64 vector of the right length: another
@@ -246,12 +217,10 @@ class KalmanFilter(FilterBase):
     @R.setter
     def R(self, value) -> None:
         R = _matrix(value, self._R.shape, "R", definite=True)
-        R_inv, R_inv_norm = np.linalg.inv(R), 1.0 / float(np.linalg.eigvalsh(R)[0])
 
         def change():
             self._R[...] = R
-            self._R_inv[...] = R_inv
-            self._R_inv_norm = R_inv_norm
+            self.gate.set_R(R)
         self._with_lock(change)
 
     def reset(self, x, P) -> None:
@@ -293,76 +262,28 @@ class KalmanFilter(FilterBase):
         """Measurement entries used by the last accepted update (0 if none)."""
         return 0 if self._last_update < 0 else self._last_dof
 
-    def checkpoint(self):
-        """Everything the filter holds and reports, copied (see contract.py)."""
-        return (self._cur, self._x[self._cur].copy(), self._P[self._cur].copy(), self._last_update, self._last_dof,
-                [a.copy() for a in self._innovation], [a.copy() for a in self._S], self._counters(),
-                self._p.copy(), self._p_is_default)
+    @property
+    def gated(self) -> int:
+        """Measurement entries left out by the innovation gate so far."""
+        return self.gate.gated
 
-    def restore(self, state) -> None:
-        cur, x, P, self._last_update, self._last_dof, innovation, S, counters, p, self._p_is_default = state
-        self._cur = cur
-        self._x[cur][:] = x
-        self._P[cur][...] = P
-        for k in (0, 1):
-            self._innovation[k][:] = innovation[k]
-            self._S[k][...] = S[k]
-        self._set_counters(counters)
-        self._p[:] = p
+    @property
+    def inflations(self) -> int:
+        """Covariance inflations after gate_patience consecutive gated updates of an entry."""
+        return self.gate.inflations
 
     def _counters(self):
-        return (self.repairs, self.gated, self.inflations, self.substeps, self._streak.copy() if self._streaking else None)
+        return self.repairs, self.substeps, self.gate.checkpoint()
 
     def _set_counters(self, counters) -> None:
-        self.repairs, self.gated, self.inflations, self.substeps, streak = counters
-        self._streak[:] = 0 if streak is None else streak
-        self._streaking = streak is not None
+        self.repairs, self.substeps, gate = counters
+        self.gate.restore(gate)
 
-    # -------------------------------------------------------------- public calls (each holds the lock)
-    def _busy(self) -> RuntimeError:
-        return RuntimeError(f"{type(self).__name__} is being used from two threads at once; a filter is not "
-                            "thread-safe (use one filter per thread, or serialise the calls with your own lock)")
-
-    def predict(self, u, dt: float, p=None) -> None:
-        """x, P <- the generated predict step over dt with input u (and parameters p)."""
-        if not self._lock.acquire(False):
-            raise self._busy()
-        try:
-            self._predict_checked(u, dt, p)
-        finally:
-            self._lock.release()
-
-    def update(self, z, p=None) -> bool:
-        """x, P <- the generated update with measurement z; NaN entries are left out.
-
-        Returns False (and changes nothing) when z is None or has no finite entry, or when the
-        innovation gate leaves every entry out (counted in ``gated``).
-        """
-        if not self._lock.acquire(False):
-            raise self._busy()
-        try:
-            return self._update_checked(z, p)
-        finally:
-            self._lock.release()
-
-    def step(self, u, dt: float, z=None, p=None) -> bool:
-        """predict(u, dt, p) then update(z, p) as one transaction; returns whether an update happened.
-
-        With a generated fused step (EKF, CKF) and a complete finite z this is one C call; any
-        other case (missing entries, a repair, a gate, an error) runs predict and update, and a
-        rejected update also undoes the predict.
-        """
-        if not self._lock.acquire(False):
-            raise self._busy()
-        try:
-            return self._step_checked(u, dt, z, p)
-        finally:
-            self._lock.release()
-
-    def _step_checked(self, u, dt, z, p) -> bool:
-        fused = self._step  # hot path: every attribute is read once (each read costs ~15-20 ns)
+    # -------------------------------------------------------------- the contract's calls (FilterBase holds the lock)
+    def _step_call(self, u, dt, z, p) -> bool:
+        fused = self._c_step  # hot path: every attribute is read once (each read costs ~15-20 ns)
         if z is None:
-            self._predict_checked(u, dt, p)
+            self._predict_call(u, dt, p)
             return False
         if fused is None:
             return self._predict_then_update(u, dt, z, p)
@@ -381,28 +302,23 @@ class KalmanFilter(FilterBase):
         cur = self._cur
         saved = None if self._last_update != 1 - cur else self._save_report(cur)
         fused[cur]()
-        if self._ok_view[0] != 1.0 or not self._passes_gate(1 - cur, self._n_y):
+        if self._ok_view[0] != 1.0 or not self.gate.passes(self._innovation[1 - cur], self._S[1 - cur], self._n_y):
             self._restore_report(cur, saved)
             return self._predict_then_update(u, dt, z, p)
         self._cur = self._last_update = 1 - cur
         self._last_dof = self._n_y
-        if self._streaking:
-            self._clear_streak()
+        self.gate.accepted_all()
         return True
 
     # -------------------------------------------------------------- steps
     def _set_p(self, p) -> None:
-        if p is None:
-            if not self._p_is_default:
-                self._p[:] = self.model.p_default
-                self._p_is_default = True
-            return
-        if type(p) is not np.ndarray or p.shape != self._p.shape or p.dtype != np.float64:
-            p = _vector(p, self.model.n_p, "p")
-        if not np.isfinite(p).all():
-            raise ValueError(f"p has non-finite entries {p}")
-        self._p[:] = p
-        self._p_is_default = False
+        """FilterBase's, on an unchecked p (the hot path checks it here)."""
+        if p is not None:
+            if type(p) is not np.ndarray or p.shape != self._p.shape or p.dtype != np.float64:
+                p = _vector(p, self.model.n_p, "p")
+            if not np.isfinite(p).all():
+                raise ValueError(f"p has non-finite entries {p}")
+        FilterBase._set_p(self, p)
 
     def _save_report(self, cur: int):
         """The reported innovation/S when the next evaluation would overwrite them (else None)."""
@@ -415,7 +331,7 @@ class KalmanFilter(FilterBase):
             self._innovation[1 - cur][:] = saved[0]
             self._S[1 - cur][...] = saved[1]
 
-    def _predict_checked(self, u, dt, p) -> None:
+    def _predict_call(self, u, dt, p) -> None:
         """Checks, then the predict (subdivided when dt is beyond the stable range)."""
         try:  # memoryview assignment: an exact (n_u,) float64 match, else the checked slow path
             self._u_view[:] = u
@@ -441,17 +357,14 @@ class KalmanFilter(FilterBase):
     def _predict_once(self, dt: float) -> None:
         self._dt_view[0] = dt
         cur = self._cur
-        self._predict[cur]()
+        self._c_predict[cur]()
         if self._ok_view[0] != 1.0:
-            self._recover(self._predict[cur], "predict", {"u": self._u, "p": self._p})
+            self._recover(self._c_predict[cur], "predict", {"u": self._u, "p": self._p})
         self._cur = 1 - cur
 
     def _stable(self, cur: int) -> bool:
         """The predict just written to set 1 - cur did not blow up (see the module docstring)."""
-        if self._ok[0] != 1.0:
-            return False
-        base = float(np.max(np.diag(self._P[cur]))) + float(np.max(np.diag(self._Q)))
-        return float(np.max(np.diag(self._P[1 - cur]))) <= self.growth_limit * max(base, np.finfo(float).tiny)
+        return self._ok[0] == 1.0 and not grew_beyond(self.growth_limit, self._P[cur], self._P[1 - cur], self._Q)
 
     def _predict_checking_stability(self, dt: float) -> None:
         """A dt larger than any checked: predict in k = 1, 2, 4, ... pieces until every piece is stable."""
@@ -465,14 +378,14 @@ class KalmanFilter(FilterBase):
                 for _ in range(pieces):
                     self._dt_view[0] = dt / pieces
                     cur = self._cur
-                    self._predict[cur]()
+                    self._c_predict[cur]()
                     if self._ok[0] != 1.0:
                         for name, value in (("u", self._u), ("p", self._p)):
                             if not np.all(np.isfinite(value)):
                                 raise ValueError(f"{type(self).__name__}.predict: {name} has non-finite entries {value}")
                         if pieces == 1:  # maybe only a covariance to repair
                             try:
-                                self._recover(self._predict[cur], "predict", {})
+                                self._recover(self._c_predict[cur], "predict", {})
                             except ValueError:
                                 pass
                     if not self._stable(cur):
@@ -498,7 +411,7 @@ class KalmanFilter(FilterBase):
             "integration overflowed): either the filter diverged, or dt is beyond the model's stable range at this "
             "state (the stable limit is below that substep). State left unchanged.")
 
-    def _update_checked(self, z, p) -> bool:
+    def _update_call(self, z, p) -> bool:
         if z is None:
             if p is not None:  # nothing to update, but a bad p is still refused
                 p = _vector(p, self.model.n_p, "p")
@@ -517,12 +430,11 @@ class KalmanFilter(FilterBase):
         saved = self._save_report(cur)
         counters = self._counters()
         try:
-            self._update[cur]()
-            if self._ok_view[0] == 1.0 and self._passes_gate(1 - cur, self._n_y):
+            self._c_update[cur]()
+            if self._ok_view[0] == 1.0 and self.gate.passes(self._innovation[1 - cur], self._S[1 - cur], self._n_y):
                 self._cur = self._last_update = 1 - cur
                 self._last_dof = self._n_y
-                if self._streaking:
-                    self._clear_streak()
+                self.gate.accepted_all()
                 return True
             if self._update_slow_path(cur):
                 return True
@@ -536,81 +448,44 @@ class KalmanFilter(FilterBase):
                 self._p[:], self._p_is_default = p_saved
             raise
 
-    def _passes_gate(self, k: int, dof: int) -> bool:
-        """Whether the update written to set k passes the innovation gate. Cheap bounds first (S >= R):
-        NIS <= |nu|^2 / lambda_min(R) (one reduction), then NIS <= nu^T R^-1 nu, then the exact NIS."""
-        threshold = self._gate[dof]
-        if threshold == _INF:
-            return True
-        nu = self._innovation[k]
-        if self.S_dominates_R and dof == self._n_y:
-            bound = nu.dot(nu) * self._R_inv_norm  # >= nu^T R^-1 nu, so the next line cannot overflow below 1e300
-            if bound <= threshold or (bound < 1e300 and nu.dot(self._R_inv).dot(nu) <= threshold):
-                return True
-        with np.errstate(over="ignore", invalid="ignore"):  # a huge innovation: inf/NaN fail the gate
-            nis = float(nu @ np.linalg.solve(self._S[k], nu))
-        return math.isfinite(nis) and nis <= threshold
-
     def _update_slow_path(self, cur: int) -> bool:
         """ok was 0 or the gate failed: leave out NaN entries, refuse infinite ones, repair P if needed,
-        gate entry by entry (see the module docstring)."""
+        gate entry by entry (gate.py)."""
         if np.any(np.isinf(self._z)):
             raise ValueError(f"z has infinite entries {self._z}; use NaN for a missing entry")
         present = np.isfinite(self._z)
         if not present.any():
             return False
         z = self._z.copy()
-        finite, gated = present.copy(), np.zeros_like(present)
+
+        def evaluate(entries):
+            self._mask[:] = entries
+            self._z[~entries] = 0.0
+            self._c_update[cur]()
+            if self._ok[0] != 1.0:
+                self._recover(self._c_update[cur], "update", {"z": self._z, "p": self._p})
+            return self._innovation[1 - cur], self._S[1 - cur]
+
         try:
-            for _ in range(2):  # the update, then at most one gated retry
-                self._mask[:] = present
-                self._z[~present] = 0.0
-                self._update[cur]()
-                if self._ok[0] != 1.0:
-                    self._recover(self._update[cur], "update", {"z": self._z, "p": self._p})
-                dof = int(present.sum())
-                if self._passes_gate(1 - cur, dof):
-                    self._cur = self._last_update = 1 - cur
-                    self._last_dof = dof
-                    self._note_gated(gated, finite)
-                    return True
-                nu, S = self._innovation[1 - cur], self._S[1 - cur]
-                with np.errstate(over="ignore", invalid="ignore"):
-                    outliers = present & ~(nu * nu <= self._gate[1] * np.diag(S))  # NaN/inf count as outliers
-                if not outliers.any() or outliers.sum() == present.sum():
-                    break
-                gated |= outliers
-                present = present & ~outliers
-            gated |= present  # nothing usable is left: the whole measurement is gated (nothing committed)
-            self._note_gated(gated, finite)
-            return False
+            accepted, gated = self.gate.select(evaluate, present)
         finally:
             self._mask[:] = 1.0
             self._z[:] = z
-
-    def _clear_streak(self) -> None:
-        self._streak[:] = 0
-        self._streaking = False
-
-    def _note_gated(self, gated: np.ndarray, present: np.ndarray) -> None:
-        """Count gated entries; an entry gated gate_patience times in a row inflates P (module docstring)."""
-        self.gated += int(gated.sum())
-        streak = self._streak
-        streak[present & ~gated] = 0
-        streak[gated] += 1
-        self._streaking = bool(streak.any())
-        if gated.any() and streak.max() >= self.gate_patience:
-            self._P[self._cur] *= self.gate_inflation
-            self.inflations += 1
+        if accepted is not None:
+            self._cur = self._last_update = 1 - cur
+            self._last_dof = int(accepted.sum())
+        if self.gate.note(gated, present):
+            self._P[self._cur] *= self.gate.inflation
+        return accepted is not None
 
     def _predict_then_update(self, u, dt, z, p) -> bool:
         """predict then update; a refused update (which restores its own reports, counters and p)
         also undoes the predict."""
         cur, x, P = self._cur, self._x[self._cur].copy(), self._P[self._cur].copy()
         counters = self._counters()
-        self._predict_checked(u, dt, p)
+        self._predict_call(u, dt, p)
         try:
-            return self._update_checked(z, p)
+            return self._update_call(z, p)
         except BaseException:
             self._cur = cur
             self._x[cur][:] = x
@@ -627,10 +502,7 @@ class KalmanFilter(FilterBase):
         if not np.all(np.isfinite(P)) or not np.all(np.isfinite(self._x[self._cur])):
             raise ValueError(f"{type(self).__name__}.{what}: the filter state is not finite")
         saved = P.copy()
-        if not np.any(P):  # P = 0 (a known state): the nearest Gaussian a sigma-point set can factor
-            P[...] = self.repair_floor * max(float(np.max(np.abs(self._Q))), 1.0) * np.eye(P.shape[0])
-        else:
-            P[...] = repair_covariance(saved, self.repair_floor)
+        P[...] = factorable_covariance(saved, self._Q, self.repair_floor)
         evaluate()
         if self._ok[0] != 1.0:
             P[...] = saved

@@ -13,9 +13,10 @@ is the generated ``remus100_ukf_update`` of the model bundle with R from the sen
 noise plus quantisation, LSB^2/12). This is a choice: an observation GP would only relearn the
 identity plus the same noise.
 
-On the filter contract (abyssal.runtime.contract): checked inputs, NaN entries of z left out,
-refusals leave the filter unchanged; dt must equal the step the GPs were trained on (their
-increments are over that step), anything else is refused.
+On the filter contract (abyssal.runtime.contract, FilterBase): checked inputs, NaN entries of z
+left out, ``step`` one transaction, refusals leave the filter unchanged; the innovation gate and
+the growth limit of every Kalman-type filter (gate.py, numerics.grew_beyond); dt must equal the
+step the GPs were trained on (their increments are over that step), anything else is refused.
 """
 from __future__ import annotations
 
@@ -25,7 +26,9 @@ import math
 import casadi as ca
 import numpy as np
 
-from ...contract import ConcurrencyGuard, FilterBase, register, check_covariance, check_dt, check_p, check_state, check_u, check_z
+from ...contract import FilterBase, check_covariance, check_dt, check_state, register
+from ...numerics import factorable_covariance, grew_beyond
+from .gate import InnovationGate
 
 __all__ = ["GPUKF"]
 
@@ -35,27 +38,40 @@ class GPUKF(FilterBase):
     """GP-UKF on a compiled GP predict step and a model bundle's UKF update (see module docstring).
 
     alpha, beta, kappa: the scaled unscented rule of both predict and update (default 1, 2, 0, as UKF).
+    gate_probability, gate_patience, gate_inflation: the innovation gate of every Kalman-type filter
+    (gate.py); growth_limit: a predict whose covariance grows more than this (numerics.grew_beyond) is refused.
     """
 
+    _state = ("_x", "_P", "nis", "nis_dof", "last_Q", "gate")
+
     @classmethod
-    def contract_example(cls, model, seed):
+    def contract_example(cls, model, *, x0=None, P0=None, n_particles=None, rng=0):
         """For the contract test: GPs of `model`'s own one-step increments (a small, quickly compiled predict)."""
         library, name, dt = _example_predict(model.name)
         n = model.n_x
-        return cls(model, library, name, np.zeros(n), np.eye(n), 0.5 * np.eye(model.n_y), gp_dt=dt)
+        return cls(model, library, name, np.zeros(n) if x0 is None else x0, np.eye(n) if P0 is None else P0,
+                   0.5 * np.eye(model.n_y), gp_dt=dt)
 
     def __init__(self, model, predict_library, predict_name: str, x0, P0, R, *, gp_dt: float,
-                 alpha: float = 1.0, beta: float = 2.0, kappa: float = 0.0):
+                 alpha: float = 1.0, beta: float = 2.0, kappa: float = 0.0, gate_probability: float = 1e-10,
+                 gate_patience: int = 5, gate_inflation: float = 4.0, growth_limit: float = 1e3):
         if not hasattr(model, "functions") or "ukf_update" not in model.functions:
             raise TypeError("GPUKF needs a model bundle with a generated ukf_update (its observation model)")
-        self.model = model
         n, m = model.n_x, model.n_y
+        if not all(math.isfinite(v) for v in (alpha, beta, kappa)) or not alpha**2 * (n + kappa) > 0:
+            raise ValueError(f"sigma points need finite alpha, beta, kappa with alpha^2 (n + kappa) > 0 (n = {n})")
+        if not growth_limit > 1.0:
+            raise ValueError(f"growth_limit must be > 1, got {growth_limit!r}")
+        self._init_contract(model)
         self.gp_dt = check_dt(gp_dt)
         self._x = check_state(x0, n, "x0")
         self._P = check_covariance(P0, n, "P0")
         self._R = check_covariance(R, m, "R", definite=True)
         self._abk = np.array([alpha, beta, kappa], dtype=float)
-        self._guard = ConcurrencyGuard(type(self).__name__)
+        lam = alpha**2 * (n + kappa) - n
+        self.gate = InnovationGate(self._R, probability=gate_probability, patience=gate_patience, inflation=gate_inflation,
+                                   S_dominates_R=lam / (n + lam) + 1 - alpha**2 + beta >= 0)
+        self.growth_limit = float(growth_limit)
         self.nis, self.nis_dof = math.nan, 0
         self.last_Q = np.zeros((n, n))
         # predict: casadi.external on preallocated buffers
@@ -69,61 +85,51 @@ class GPUKF(FilterBase):
             self._buffer.set_res(i, memoryview(a.reshape(-1, order="F")))
         self._update_fn = model.function("ukf_update")
 
-    # ------------------------------------------------------------------ state
+    @property
+    def gated(self) -> int:
+        """Measurement entries left out by the innovation gate so far."""
+        return self.gate.gated
 
-    def checkpoint(self):
-        return (self._x.copy(), self._P.copy(), self.nis, self.nis_dof, self.last_Q.copy())
-
-    def restore(self, checkpoint) -> None:
-        x, P, self.nis, self.nis_dof, Q = checkpoint
-        self._x, self._P, self.last_Q = x.copy(), P.copy(), Q.copy()
-
-    # ------------------------------------------------------------------ contract
-    def predict(self, u, dt, p=None) -> None:
-        with self._guard:
-            u = check_u(u, self.model.n_u)
-            dt = check_dt(dt)
-            check_p(p, self.model)
-            if abs(dt - self.gp_dt) > 1e-9 * self.gp_dt:
-                raise ValueError(f"dt must be the GPs' training step {self.gp_dt} s (their increments are over it), got {dt}")
-            self._pin[0][:] = self._x
-            self._pin[1][:] = self._P
-            self._pin[2][:] = u
+    # ------------------------------------------------------------------ the contract's hooks (FilterBase)
+    def _predict(self, u, dt) -> None:
+        if abs(dt - self.gp_dt) > 1e-9 * self.gp_dt:
+            raise ValueError(f"dt must be the GPs' training step {self.gp_dt} s (their increments are over it), got {dt}")
+        self._pin[0][:] = self._x
+        self._pin[1][:] = self._P
+        self._pin[2][:] = u
+        self._eval()
+        if self._pout[3][0] != 1.0 and np.all(np.isfinite(self._P)):  # a singular P (P0 = 0): its nearest factorable
+            self._pin[1][:] = factorable_covariance(self._P, self._R)
             self._eval()
-            if self._pout[3][0] != 1.0:
-                raise ValueError("GPUKF.predict: the generated step failed (covariance not positive definite or "
-                                 "non-finite outputs); state left unchanged")
-            self._x = self._pout[0].copy()
-            self._P = np.asfortranarray(self._pout[1])
-            self.last_Q = self._pout[2].copy()
+        if self._pout[3][0] != 1.0:
+            raise ValueError("GPUKF.predict: the generated step failed (covariance not positive definite or "
+                             "non-finite outputs); state left unchanged")
+        if grew_beyond(self.growth_limit, self._P, self._pout[1], self._pout[2]):
+            raise ValueError(f"GPUKF.predict: the covariance grew more than {self.growth_limit:g}x in one predict (the GPs "
+                             "extrapolate far outside their training data); state left unchanged")
+        self._x = self._pout[0].copy()
+        self._P = np.array(self._pout[1], order="F")
+        self.last_Q = self._pout[2].copy()
 
-    def update(self, z, p=None) -> bool:
-        with self._guard:
-            checked = check_z(z, self.model.n_y)
-            p = check_p(p, self.model)
-            if checked is None:
-                return False
-            values, present = checked
-            mask = present.astype(float)
-            x_post, P_post, innovation, S, ok = self._update_fn(
-                self._x, self._P, values, self.model.params(p), self._R, mask, self._abk)
+    def _update(self, z, present) -> bool:
+        result = {}
+
+        def evaluate(entries):
+            x_post, P_post, innovation, S, ok = self._update_fn(self._x, self._P, np.where(entries, z, 0.0), self._p, self._R,
+                                                                 entries.astype(float), self._abk)
             if float(np.asarray(ok).reshape(-1)[0]) != 1.0:
                 raise ValueError("GPUKF.update: the generated update failed; state left unchanged")
-            used = np.flatnonzero(present)
-            nu = np.asarray(innovation)[used]
-            S_used = np.asarray(S)[np.ix_(used, used)]
-            self.nis, self.nis_dof = float(nu @ np.linalg.solve(S_used, nu)), int(used.size)
-            self._x, self._P = np.asarray(x_post, dtype=float), np.asfortranarray(P_post)
-            return True
+            result.update(x=np.asarray(x_post, dtype=float).reshape(-1), P=np.array(P_post, order="F"),
+                          nu=np.asarray(innovation, dtype=float).reshape(-1), S=np.atleast_2d(np.asarray(S, dtype=float)))
+            return result["nu"], result["S"]
 
-    def step(self, u, dt, z=None, p=None) -> bool:
-        saved = self.checkpoint()
-        try:
-            self.predict(u, dt, p)
-            return self.update(z, p)
-        except (ValueError, TypeError):
-            self.restore(saved)
-            raise
+        accepted, gated = self.gate.select(evaluate, present)
+        if accepted is not None:
+            self._x, self._P = result["x"], result["P"]
+            self.nis, self.nis_dof = float(result["nu"] @ np.linalg.solve(result["S"], result["nu"])), int(accepted.sum())
+        if self.gate.note(gated, present):
+            self._P = self._P * self.gate.inflation
+        return accepted is not None
 
 
 @functools.lru_cache(maxsize=None)

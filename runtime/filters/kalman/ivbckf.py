@@ -30,123 +30,90 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.stats import chi2
 from scipy.special import digamma
 
-from ...contract import (ConcurrencyGuard, FilterBase, check_covariance, check_dt, check_p, check_state, check_u,
-                         check_z, register)
-from ...numerics import REPAIR_FLOOR, repair_covariance
+from ...contract import FilterBase, check_covariance, check_state, register
+from ...numerics import factorable_covariance, grew_beyond
+from .gate import InnovationGate
 
 __all__ = ["IVBCKF"]
 
 
-#: numerical failures of the generated calls and NumPy algebra inside a step (the state is restored)
-_NUMERIC = (FloatingPointError, np.linalg.LinAlgError, OverflowError)
-
-
-def _out_of_range(error) -> ValueError:
-    return ValueError(f"IVBCKF: the step left the finite range ({error}): u, dt, z or p drive the model out of "
-                      "range; state left unchanged")
-
-
 @register("kalman")
 class IVBCKF(FilterBase):
-    """Iterated VB Student-t CKF (module docstring); Kalman constructor (model, x0, P0, Q, R, **options)."""
+    """Iterated VB Student-t CKF (module docstring); Kalman constructor (model, x0, P0, Q, R, **options).
+
+    gate_probability, gate_patience, gate_inflation: the innovation gate of every Kalman-type filter
+    (gate.py), applied to the update at the prior (the first fixed-point pass); growth_limit: a predict
+    whose covariance grows more than this (numerics.grew_beyond) is refused (this filter does not subdivide dt).
+    """
 
     name = "IVBCKF"
-
-    growth_limit = 1e3  # see _predict
+    _state = ("_x", "_P", "nis", "nis_dof", "xi", "lam", "gate")
 
     def __init__(self, model, x0, P0, Q, R, *, chi: float = 5.0, phi: float = 1.0, kappa: float = 5.0,
                  zeta: float = 1.0, u: float | None = None, t: float | None = None, iterations: int = 10,
-                 gate_probability: float = 1e-10):
+                 gate_probability: float = 1e-10, gate_patience: int = 5, gate_inflation: float = 4.0,
+                 growth_limit: float = 1e3):
         n, m = model.n_x, model.n_y
         # the paper's tau_P = 5, tau_R = 3 (u = 8, t = 5 for its n = 2, m = 1) for any model size
         u = n + 6.0 if u is None else u
         t = m + 4.0 if t is None else t
-        self.model = model
+        self._init_contract(model)
         self._x, self._P = check_state(x0, n, "x0"), check_covariance(P0, n, "P0")
         self.Q = check_covariance(Q, n, "Q")
         self.R = check_covariance(R, m, "R", definite=True)
         if not (u > n + 1 and t > m + 1 and iterations >= 1):
             raise ValueError(f"IVBCKF needs u > n + 1 = {n + 1}, t > m + 1 = {m + 1} and iterations >= 1")
+        if not growth_limit > 1.0:
+            raise ValueError(f"growth_limit must be > 1, got {growth_limit!r}")
         self.chi, self.phi, self.kappa, self.zeta, self.u, self.t = chi, phi, kappa, zeta, u, t
         self.iterations = int(iterations)
-        if not 0.0 <= gate_probability < 1.0:
-            raise ValueError(f"gate_probability must be in [0, 1), got {gate_probability!r}")
-        #: chi-square gate on the NIS at the prior, as the Kalman engine's (0 = off; the CN experiment runs the
-        #: paper's filter without it); a gated measurement is left out whole and counted in ``gated``
-        self.gate_probability = float(gate_probability)
-        self.gated = 0
+        self.gate = InnovationGate(self.R, probability=gate_probability, patience=gate_patience, inflation=gate_inflation,
+                                   S_dominates_R=True)
+        self.growth_limit = float(growth_limit)
         self._predict_fn = model.function("ckf_predict")
         self._update_fn = model.function("ckf_update")
         self._h = model.function("h")
         self.nis, self.nis_dof = math.nan, 0
         self.xi, self.lam = 1.0, 1.0  # the last step's E[xi], E[lambda] (for inspection)
-        self._guard = ConcurrencyGuard(type(self).__name__)
 
-    def checkpoint(self):
-        return self._x.copy(), self._P.copy(), self.nis, self.nis_dof, self.xi, self.lam, self.gated
+    @property
+    def gated(self) -> int:
+        """Measurement entries left out by the innovation gate so far."""
+        return self.gate.gated
 
-    def restore(self, state) -> None:
-        x, P, self.nis, self.nis_dof, self.xi, self.lam, self.gated = state
-        self._x, self._P = x.copy(), P.copy()
-
-    def _p(self, p):
-        return np.array(self.model.p_default) if p is None else p
-
-    def predict(self, u, dt, p=None) -> None:
-        u, dt, p = check_u(u, self.model.n_u), check_dt(dt), check_p(p, self.model)
-        with self._guard:
-            try:
-                self._predict(u, dt, p)
-            except _NUMERIC as error:
-                raise _out_of_range(error) from error
-
-    def _predict(self, u, dt, p) -> None:
+    # ---------------------------------------------------------------- the contract's hooks (FilterBase)
+    def _predict(self, u, dt) -> None:
         P0 = self._P
-        x, P, ok = self._predict_fn(self._x, P0, u, self._p(p), dt, self.Q)
+        x, P, ok = self._predict_fn(self._x, P0, u, self._p, dt, self.Q)
         if not ok:  # a singular P (e.g. P0 = 0) has no cubature factor: its nearest positive definite matrix
-            floor = max(float(np.max(np.abs(P0))), float(np.max(np.abs(self.Q))), 1e-300)
-            P0 = repair_covariance(P0) if np.any(P0) else np.eye(P0.shape[0]) * REPAIR_FLOOR * floor
-            x, P, ok = self._predict_fn(self._x, P0, u, self._p(p), dt, self.Q)
+            P0 = factorable_covariance(P0, self.Q)
+            x, P, ok = self._predict_fn(self._x, P0, u, self._p, dt, self.Q)
         if not ok or not np.all(np.isfinite(P)):
             raise ValueError("IVBCKF predict failed (P not positive definite)")
-        # the Kalman engine's stability test (growth_limit): a dt beyond the model's stable range gives finite
-        # but absurd covariances that would poison every later step; refused (this filter does not subdivide)
-        base = float(np.max(np.diag(P0))) + float(np.max(np.diag(self.Q)))
-        if not float(np.max(np.diag(P))) <= self.growth_limit * max(base, np.finfo(float).tiny):
+        if grew_beyond(self.growth_limit, P0, np.asarray(P), self.Q):
             raise ValueError(f"IVBCKF: dt = {dt:g} s is beyond the model's stable range (the covariance grew more than "
                              f"{self.growth_limit:g}x in one predict); use a shorter dt. State left unchanged")
         self._x, self._P = np.asarray(x).reshape(-1), np.asarray(P)
 
-    def update(self, z, p=None) -> bool:
-        measurement, p = check_z(z, self.model.n_y), check_p(p, self.model)
-        if measurement is None:
-            return False
-        with self._guard:
-            saved = self.checkpoint()
-            try:
-                return self._update(measurement, self._p(p))
-            except BaseException as error:
-                self.restore(saved)
-                if isinstance(error, _NUMERIC):
-                    raise _out_of_range(error) from error
-                raise
+    def _update(self, z, present) -> bool:
+        accepted = present
+        if self.gate.probability > 0.0:
+            accepted, gated = self.gate.select(lambda entries: self._prior_innovation(z, entries), present)
+        if accepted is not None:
+            self._vb_update(z, accepted)
+        if self.gate.probability > 0.0 and self.gate.note(gated, present):
+            self._P = self._P * self.gate.inflation
+        return accepted is not None
 
-    def step(self, u, dt, z=None, p=None) -> bool:
-        u, dt = check_u(u, self.model.n_u), check_dt(dt)
-        measurement, p = check_z(z, self.model.n_y), check_p(p, self.model)
-        with self._guard:
-            saved = self.checkpoint()
-            try:
-                self._predict(u, dt, p)
-                return False if measurement is None else self._update(measurement, self._p(p))
-            except BaseException as error:
-                self.restore(saved)
-                if isinstance(error, _NUMERIC):
-                    raise _out_of_range(error) from error
-                raise
+    def _prior_innovation(self, z, present):
+        """(nu, S) of the cubature update at the prior with R: the gate's test."""
+        _, _, innovation, S, ok = self._update_fn(self._x, self._P, np.where(present, z, 0.0), self._p, self.R,
+                                                  present.astype(float))
+        if not ok:
+            raise ValueError("IVBCKF update failed (covariance not positive definite)")
+        return np.asarray(innovation, dtype=float).reshape(-1), np.atleast_2d(np.asarray(S, dtype=float))
 
     def _cubature_B(self, x, P, z, p, present) -> np.ndarray:
         """E[(z - h(x))(z - h(x))^T] over the 2n cubature points of N(x, P) (present rows)."""
@@ -157,20 +124,8 @@ class IVBCKF(FilterBase):
         r = (z[present, None] - Y[present])
         return r @ r.T / (2 * n)
 
-    def _gated(self, innovation, S, present, m: int) -> bool:
-        """NIS of the prior prediction beyond the chi-square gate: the measurement is left out (counted)."""
-        nu = np.asarray(innovation).reshape(-1)[present]
-        S = np.atleast_2d(np.asarray(S))
-        S = S[np.ix_(present, present)] if S.shape[0] != m else S
-        with np.errstate(over="ignore", invalid="ignore"):
-            nis = float(nu @ np.linalg.solve(S, nu))
-        if nis <= chi2.isf(self.gate_probability, m):
-            return False
-        self.gated += 1
-        return True
-
-    def _update(self, measurement, p) -> bool:
-        z, present = measurement
+    def _vb_update(self, z, present) -> None:
+        p = self._p
         n, m_all = self.model.n_x, self.model.n_y
         m = int(present.sum())
         mask = present.astype(float)
@@ -183,7 +138,6 @@ class IVBCKF(FilterBase):
         E_xi = E_lam = 1.0
         E_omega, E_nu = self.chi / self.phi, self.kappa / self.zeta
         R_full = np.array(self.R)
-        first = True
         for _ in range(self.iterations):
             P_t = np.linalg.inv(E_Pinv) / E_xi
             R_t = np.linalg.inv(E_Rinv) / E_lam
@@ -195,9 +149,6 @@ class IVBCKF(FilterBase):
             x, P = np.asarray(x).reshape(-1), np.asarray(P)
             if not ok:
                 raise ValueError("IVBCKF update failed (covariance not positive definite)")
-            if first and self.gate_probability > 0.0 and self._gated(innovation, S, present, m):
-                return False
-            first = False
             d = x - x_prior
             A = np.outer(d, d) + P
             B = self._cubature_B(x, P, z, p, present)
@@ -217,4 +168,3 @@ class IVBCKF(FilterBase):
         S = S[np.ix_(present, present)] if S.shape == (m_all, m_all) else S
         self.nis, self.nis_dof = float(nu @ np.linalg.solve(S, nu)), m
         self.xi, self.lam = E_xi, E_lam
-        return True

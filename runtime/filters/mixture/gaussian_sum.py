@@ -20,10 +20,10 @@ from types import SimpleNamespace
 import numpy as np
 
 from ...compiled.batches import CubaturePredictBatch, CubatureUpdateBatch, MeasureBatch
-from ...contract import (ConcurrencyGuard, FilterBase, as_generator, check_count, check_covariance, check_dt, check_p,
-                         check_state, check_u, check_z, register)
+from ...contract import FilterBase, as_generator, check_count, check_covariance, check_state, register
 from ...noise.mixtures import (LOG_2PI, GaussianMixture, initial_mixture, logsumexp, merge_components, reduce_mixture,
                                weighted_em, weighted_moments)
+from ...numerics import factorable_covariance, grew_beyond
 from ...resampling import normalise_log_weights, systematic_resample
 from ..particle.engine import MeasurementNoise, check_model, informative, measurement_residuals
 
@@ -84,7 +84,9 @@ class _GaussianSumCubature:
 
 class _MixtureFilterBase(FilterBase):
     """Common set-up of the Gaussian-sum filters: G-component posterior, cubature bank, estimate (eq. 45),
-    input checks and the commit-at-the-end transaction of the contract."""
+    and the contract's hooks (FilterBase holds the transaction)."""
+
+    _state = ("posterior", "_pending", "_x", "_P", "ess", "rng")
 
     def __init__(self, model, x0, P0, process_noise, measurement_noise, n_components, rng):
         check_model(model, type(self).__name__)
@@ -94,71 +96,32 @@ class _MixtureFilterBase(FilterBase):
         P0 = check_covariance(P0, model.n_x, "P0")
         self.noise = MeasurementNoise(measurement_noise, model.n_y)
         process = _process_components(process_noise, model.n_x)
-        self.model, self.rng = model, rng
+        self._init_contract(model)
+        self.rng = rng
         self.process_noise, self.measurement_noise = process, measurement_noise
         self.angle_outputs = tuple(model.angle_outputs)
-        self.p = np.array(model.p_default)
-        self._p_is_default = True
-        self.cubature = _GaussianSumCubature(model, self.G, process, measurement_noise, self.p)
-        if np.linalg.eigvalsh(P0)[0] <= 0:  # singular P0: a cubature point set needs a factor; start at the
-            P0 = P0 + 1e-12 * max(np.max(np.abs(P0)), 1.0) * np.eye(model.n_x)  # Dirac's nearest Gaussian
+        self.cubature = _GaussianSumCubature(model, self.G, process, measurement_noise, self._p)
+        if np.linalg.eigvalsh(P0)[0] <= 0:  # singular P0: a cubature point set needs a factor
+            P0 = factorable_covariance(P0, process.covariances)
         self.posterior = initial_mixture(x0, P0, self.G, rng)
         self._pending = None  # the predicted mixture of a predict() not yet followed by update()
         self._x, self._P = x0, np.array(P0)
-        self._guard = ConcurrencyGuard(type(self).__name__)
 
     def _publish(self, mixture: GaussianMixture) -> None:
         self._x, self._P = mixture.mean(), mixture.covariance()  # eq. 45
 
-    def checkpoint(self, particles: bool = True):
-        return (self.posterior, self._pending, self._x.copy(), self._P.copy(), self.ess, self.p.copy(),
-                self._p_is_default, None if self.rng is None else self.rng.bit_generator.state,
-                self._extra_state(particles))
+    # the contract's hooks (FilterBase)
+    def _predict(self, u, dt) -> None:
+        self._advance(u, dt, None)
 
-    def restore(self, state) -> None:
-        (self.posterior, self._pending, x, P, self.ess, p, self._p_is_default, rng_state, extra) = state
-        self._x, self._P = x.copy(), P.copy()
-        self.p[:] = p
-        if rng_state is not None:
-            self.rng.bit_generator.state = rng_state
-        self._restore_extra(extra)
+    def _update(self, z, present) -> bool:
+        return self._advance(None, None, (z, present))
 
-    def _extra_state(self, particles: bool = True):
-        return None
+    def _step(self, u, dt, measurement) -> bool:
+        return self._advance(u, dt, measurement)
 
-    def _restore_extra(self, state) -> None:
-        pass
-
-    # contract calls
-    def predict(self, u, dt, p=None) -> None:
-        u, dt, p = check_u(u, self.model.n_u), check_dt(dt), check_p(p, self.model)
-        with self._guard:
-            self._transaction(u, dt, None, p)
-
-    def update(self, z, p=None) -> bool:
-        measurement, p = check_z(z, self.model.n_y), check_p(p, self.model)
-        if measurement is None:
-            return False
-        with self._guard:
-            return self._transaction(None, None, measurement, p)
-
-    def step(self, u, dt, z=None, p=None) -> bool:
-        u, dt = check_u(u, self.model.n_u), check_dt(dt)
-        measurement, p = check_z(z, self.model.n_y), check_p(p, self.model)
-        with self._guard:
-            return self._transaction(u, dt, measurement, p)
-
-    def _transaction(self, u, dt, measurement, p) -> bool:
-        # the step's own checkpoint leaves out the particles: a step redraws them all (checkpoint() has them)
-        saved = self.checkpoint(particles=False)
+    def _advance(self, u, dt, measurement) -> bool:
         try:
-            if p is None:
-                if not self._p_is_default:
-                    self.p[:] = self.model.p_default
-                    self._p_is_default = True
-            else:
-                self.p[:] = p
-                self._p_is_default = False
             if u is not None:
                 predicted = self.cubature.predict(self.posterior, u, dt)
                 self._check_growth(self.posterior, predicted, dt)
@@ -170,17 +133,14 @@ class _MixtureFilterBase(FilterBase):
                 self._publish(predicted)
                 return False
             self._pending = None
-            self._update(predicted, *measurement)
+            self._correct(predicted, *measurement)
             return True
-        except BaseException as error:
-            self.restore(saved)
-            if isinstance(error, (np.linalg.LinAlgError, FloatingPointError, OverflowError)) or (
-                    isinstance(error, ValueError) and str(error).startswith("mixture ")):
-                raise ValueError(f"{type(self).__name__}: the step left the finite range ({error}): u, dt or p drive "
-                                 "the model out of range; state left unchanged") from error
+        except ValueError as error:
+            if str(error).startswith("mixture "):  # GaussianMixture refused a component: the numbers left their range
+                raise FloatingPointError(str(error)) from error
             raise
 
-    def _update(self, predicted: GaussianMixture, z: np.ndarray, present: np.ndarray) -> None:
+    def _correct(self, predicted: GaussianMixture, z: np.ndarray, present: np.ndarray) -> None:
         raise NotImplementedError
 
     #: a predict whose largest component variance grows more than this many times the prior's largest
@@ -190,9 +150,7 @@ class _MixtureFilterBase(FilterBase):
     growth_limit = 1e3
 
     def _check_growth(self, prior: GaussianMixture, predicted: GaussianMixture, dt: float) -> None:
-        variance = lambda covs: float(np.max(np.diagonal(covs, axis1=1, axis2=2)))  # noqa: E731
-        base = variance(prior.covariances) + variance(self.process_noise.covariances)
-        if not variance(predicted.covariances) <= self.growth_limit * max(base, np.finfo(float).tiny):
+        if grew_beyond(self.growth_limit, prior.covariances, predicted.covariances, self.process_noise.covariances):
             raise ValueError(f"{type(self).__name__}: dt = {dt:g} s is beyond the model's stable range (a component "
                              f"covariance grew more than {self.growth_limit:g}x in one predict); use a shorter dt. "
                              "State left unchanged")
@@ -209,7 +167,7 @@ class GaussianSumCKF(_MixtureFilterBase):
             raise ValueError("GaussianSumCKF with n_components > 1 needs rng (it spreads the initial components)")
         super().__init__(model, x0, P0, process_noise, measurement_noise, n_components, rng)
 
-    def _update(self, predicted, z, present) -> None:
+    def _correct(self, predicted, z, present) -> None:
         updated = self.cubature.update(predicted, z, present)
         self._publish(updated)
         self.posterior = reduce_mixture(updated, self.G)
@@ -217,6 +175,8 @@ class GaussianSumCKF(_MixtureFilterBase):
 
 class _SampledMixtureFilter(_MixtureFilterBase):
     """Particles drawn from the G'' cubature posterior and weighted with the exact likelihood."""
+
+    _state = _MixtureFilterBase._state + ("particles",)
 
     def __init__(self, model, x0, P0, process_noise, measurement_noise, n_particles, n_components, rng):
         self.N = check_count(n_particles, "n_particles")
@@ -226,17 +186,8 @@ class _SampledMixtureFilter(_MixtureFilterBase):
         self.n = self.N
         self.n_particles = float(self.N)
         self.particles = np.zeros((model.n_x, self.N))
-        self._h = MeasureBatch(model, self.particles, self.p)
+        self._h = MeasureBatch(model, self.particles, self._p)
         self.ess = float(self.N)
-
-    def _extra_state(self, particles: bool = True):
-        return self.particles.copy() if particles else None, getattr(self, "em_iterations", None)
-
-    def _restore_extra(self, state) -> None:
-        if state[0] is not None:
-            self.particles[...] = state[0]
-        if state[1] is not None:
-            self.em_iterations = state[1]
 
     def _draw(self, proposal: GaussianMixture, labels: np.ndarray) -> np.ndarray:
         """Fill self.particles with draws from the proposal components named by labels; returns xi."""
@@ -268,7 +219,7 @@ class MixtureCubatureParticleFilter(_SampledMixtureFilter):
         # with fewer particles than components some components get none and keep their cubature moments
         self._labels = np.arange(self.N) % g2
 
-    def _update(self, predicted, z, present) -> None:
+    def _correct(self, predicted, z, present) -> None:
         updated = self.cubature.update(predicted, z, present)
         M, n = self.cubature.M, self.model.n_x
         labels = self._labels % updated.n_components
@@ -321,6 +272,7 @@ class EMMixtureCubatureParticleFilter(_SampledMixtureFilter):
     """
 
     name = "EM-MOGCPF"
+    _state = _SampledMixtureFilter._state + ("em_iterations",)
 
     def __init__(self, model, x0, P0, process_noise, measurement_noise, n_particles, rng, *,
                  n_components: int = 2, em_tol: float = 1e-3, em_max_iter: int = 20, reg_covar: float = 1e-6,
@@ -343,7 +295,7 @@ class EMMixtureCubatureParticleFilter(_SampledMixtureFilter):
             weights.append(w), means.append(m), covs.append(c)
         return GaussianMixture(np.maximum(weights, 1e-12), np.array(means), np.array(covs))
 
-    def _update(self, predicted, z, present) -> None:
+    def _correct(self, predicted, z, present) -> None:
         updated = self.cubature.update(predicted, z, present)  # G' -> G''
         labels = systematic_resample(updated.weights, self.rng, self.N)
         self._draw(updated, labels)

@@ -19,7 +19,7 @@ entries of z, normalisation, ESS, moments, resampling, input checks, checkpoints
             # the transition itself (bootstrap)
         def predict(self, engine, u, dt) -> None             # a move without measurement (default: transition)
         def commit(self, ancestors | None, mode) -> None    # carried per-particle state follows resampling
-        def checkpoint(self) -> object; def restore(self, state) -> None
+        _state = (...)                                         # carried state, checkpointed with the filter
 
 The engine then weights w_k = w_{k-1} p(z | x_k) exp(log_ratio), normalised in the log domain.
 Nothing the filter reports changes until the step's last line (commit): a refused or failed
@@ -59,8 +59,7 @@ import math
 import numpy as np
 
 from ...compiled.batches import MeasureBatch, ModelBatch
-from ...contract import (ConcurrencyGuard, FilterBase, as_generator, check_count, check_covariance, check_dt, check_p,
-                         check_state, check_u, check_z)
+from ...contract import FilterBase, Stateful, as_generator, check_count, check_covariance, check_state
 from ...noise.mixtures import LOG_2PI, GaussianMixture, weighted_moments
 from ...numerics import angle_indices, wrap_to_pi
 from ...resampling import ResamplingPolicy, normalise_log_weights
@@ -207,8 +206,9 @@ def initial_draw(x0: np.ndarray, P0: np.ndarray, rng: np.random.Generator, count
 # proposals
 
 
-class Proposal:
-    """Base of the proposals: the move and its importance ratio (see the module docstring)."""
+class Proposal(Stateful):
+    """Base of the proposals: the move and its importance ratio (see the module docstring). Carried
+    per-particle state is declared in ``_state`` (checkpointed with the filter)."""
 
     name = "proposal"
 
@@ -224,12 +224,6 @@ class Proposal:
 
     def commit(self, ancestors: np.ndarray | None, mode: str) -> None:
         """The step is accepted (mode "predict", "update" or "step"): carried state follows ancestors."""
-
-    def checkpoint(self):
-        return None
-
-    def restore(self, state) -> None:
-        pass
 
 
 class BootstrapProposal(Proposal):
@@ -250,6 +244,10 @@ class SIRFilter(FilterBase):
     """Sequential importance resampling on generated C, with a pluggable proposal (module docstring)."""
 
     name = "SIR"
+    _state = ("particles", "log_weights", "weights", "ess", "_x", "_P", "resamples", "uninformative", "rng", "proposal")
+    #: a step writes only the free particle buffer and scratch before its commit, and a proposal's carried state
+    #: may be repaired in place by its generated step (a failed Cholesky guard): a refusal restores these
+    _touched = ("rng", "proposal")
 
     def __init__(self, model, x0, P0, process_noise, measurement_noise, n_particles, rng, *,
                  proposal: Proposal | None = None, policy: ResamplingPolicy = ResamplingPolicy()):
@@ -261,18 +259,16 @@ class SIRFilter(FilterBase):
         self.transition, self.noise = check_noises(model, process_noise, measurement_noise)
         if not isinstance(policy, ResamplingPolicy):
             raise TypeError(f"policy must be a ResamplingPolicy, got {type(policy).__name__}")
-        self.model, self.rng, self.policy = model, rng, policy
+        self._init_contract(model)  # self._p: the model parameters of the current step, shared by every batch
+        self.rng, self.policy = rng, policy
         self.process_noise, self.measurement_noise = process_noise, measurement_noise
         self.N = N
         self.n_particles = float(N)
         self.angle_outputs = angle_indices(model, "outputs")
-        #: the model parameters of the current step, shared by every batch of this filter
-        self.p = np.array(model.p_default)
-        self._p_is_default = True
         # Two particle buffers, each bound to its own f and h: ``particles`` (x_{k-1}) and ``proposed``
         # (x_k, written by the proposal). A step without resampling commits by swapping them.
-        self._batches = [ModelBatch(model, N, self.p), ModelBatch(model, N, self.p)]
-        self._measures = [MeasureBatch(model, b.x, self.p) for b in self._batches]
+        self._batches = [ModelBatch(model, N, self._p), ModelBatch(model, N, self._p)]
+        self._measures = [MeasureBatch(model, b.x, self._p) for b in self._batches]
         self._cur = 0
         self.particles[...] = initial_draw(x0, P0, rng, N)
         self.log_weights = np.full(N, -math.log(N))
@@ -285,7 +281,6 @@ class SIRFilter(FilterBase):
         self._checked_dt = 0.0  # f in one piece was checked stable up to this dt (see pieces())
         self._dt_pieces: dict[float, int] = {}
         self._sub = None  # scratch batch for substeps
-        self._guard = ConcurrencyGuard(type(self).__name__)
         self.proposal = BootstrapProposal() if proposal is None else proposal
         if not isinstance(self.proposal, Proposal):
             raise TypeError(f"proposal must be a Proposal, got {type(self.proposal).__name__}")
@@ -302,41 +297,18 @@ class SIRFilter(FilterBase):
         """The buffer a proposal writes the moved particles into (n_x, N)."""
         return self._batches[1 - self._cur].x
 
-    def checkpoint(self):
-        return (self.particles.copy(), self.log_weights.copy(), self.weights.copy(), self.ess, self._x.copy(),
-                self._P.copy(), self.resamples, self.uninformative, self.rng.bit_generator.state,
-                self.p.copy(), self._p_is_default, self.proposal.checkpoint())
-
-    def restore(self, state) -> None:
-        (particles, log_w, w, self.ess, x, P, self.resamples, self.uninformative, rng_state, p, self._p_is_default,
-         proposal) = state
-        self.particles[...] = particles
-        self.log_weights, self.weights, self._x, self._P = log_w.copy(), w.copy(), x.copy(), P.copy()
-        self.rng.bit_generator.state = rng_state
-        self.p[:] = p
-        self.proposal.restore(proposal)
-
-    # ---------------------------------------------------------------- contract: calls
-    def predict(self, u, dt, p=None) -> None:
+    # ---------------------------------------------------------------- the contract's hooks (FilterBase)
+    def _predict(self, u, dt) -> None:
         """Move every particle by the transition (weights unchanged)."""
-        u, dt, p = check_u(u, self.model.n_u), check_dt(dt), check_p(p, self.model)
-        with self._guard:
-            self._transaction(u, dt, None, p, "predict")
+        self._move(u, dt, None, "predict")
 
-    def update(self, z, p=None) -> bool:
+    def _update(self, z, present) -> bool:
         """Reweight the particles by the likelihood of the present entries of z."""
-        measurement, p = check_z(z, self.model.n_y), check_p(p, self.model)
-        if measurement is None:
-            return False
-        with self._guard:
-            return self._transaction(None, None, measurement, p, "update")
+        return self._move(None, None, (z, present), "update")
 
-    def step(self, u, dt, z=None, p=None) -> bool:
+    def _step(self, u, dt, measurement) -> bool:
         """Move by the proposal, then weight by the likelihood; returns whether z had an entry."""
-        u, dt = check_u(u, self.model.n_u), check_dt(dt)
-        measurement, p = check_z(z, self.model.n_y), check_p(p, self.model)
-        with self._guard:
-            return self._transaction(u, dt, measurement, p, "step" if measurement is not None else "predict")
+        return self._move(u, dt, measurement, "step" if measurement is not None else "predict")
 
     # ---------------------------------------------------------------- the step
     def transition_draw(self, u, dt) -> None:
@@ -392,7 +364,7 @@ class SIRFilter(FilterBase):
         """f applied `pieces` times with dt / pieces, from x (n, N), in the scratch batch."""
         sub = self._sub
         if sub is None:
-            sub = self._sub = ModelBatch(self.model, self.N, self.p)
+            sub = self._sub = ModelBatch(self.model, self.N, self._p)
         sub.x[...] = x
         for _ in range(pieces):
             sub.x[...] = sub.propagate(u, dt / pieces)
@@ -409,58 +381,36 @@ class SIRFilter(FilterBase):
             residuals = measurement_residuals(z[rows], y[rows], angle_rows)
         return self.noise.marginal(present).log_density(residuals)
 
-    def _set_p(self, p) -> None:
-        if p is None:
-            if not self._p_is_default:
-                self.p[:] = self.model.p_default
-                self._p_is_default = True
+    def _move(self, u, dt, measurement, mode: str) -> bool:
+        """One predict/update/step on checked inputs; commits only at its end (FilterBase restores the rest)."""
+        z, present = measurement if measurement is not None else (None, None)
+        log_w = None
+        if mode == "step":
+            log_w = self.proposal.move(self, u, dt, z, present)
+        elif mode == "predict":
+            self.proposal.predict(self, u, dt)
         else:
-            self.p[:] = p
-            self._p_is_default = False
-
-    def _transaction(self, u, dt, measurement, p, mode: str) -> bool:
-        """One predict/update/step on checked inputs; commits only at the end (else restores)."""
-        saved_p, saved_default = (None, True) if p is None and self._p_is_default else (self.p.copy(), self._p_is_default)
-        rng_state = self.rng.bit_generator.state
-        try:
-            self._set_p(p)
-            z, present = measurement if measurement is not None else (None, None)
-            log_w = None
-            if mode == "step":
-                log_w = self.proposal.move(self, u, dt, z, present)
-            elif mode == "predict":
-                self.proposal.predict(self, u, dt)
+            self.proposed[...] = self.particles
+        informative_step = True
+        if measurement is not None:
+            log_lik = informative(self.log_likelihoods(z, present))
+            if log_lik is None:
+                informative_step = False
             else:
-                self.proposed[...] = self.particles
-            informative_step = True
-            if measurement is not None:
-                log_lik = informative(self.log_likelihoods(z, present))
-                if log_lik is None:
-                    informative_step = False
-                else:
-                    log_w = log_lik if log_w is None else log_w + log_lik
-            if log_w is None:
-                log_w = self.log_weights.copy()
-            else:
-                log_w += self.log_weights
-            if not np.isfinite(self.proposed).all():
-                raise ValueError(f"{type(self).__name__}: a particle left the finite range (the model's integration "
-                                 f"overflowed): dt = {dt!r} s may be beyond the model's stable range; state left unchanged")
-            weights, log_mean = normalise_log_weights(log_w)
-            ess = 1.0 / float(weights @ weights)
-            x, P = weighted_moments(self.proposed, weights)
-            ancestors = None
-            if self._resample_always or ess < self.policy.threshold * self.N:
-                ancestors = self.policy.ancestors(weights, self.rng)
-        except BaseException as error:
-            if saved_p is not None:
-                self.p[:] = saved_p
-            self._p_is_default = saved_default
-            self.rng.bit_generator.state = rng_state
-            if isinstance(error, (np.linalg.LinAlgError, FloatingPointError, OverflowError)):
-                raise ValueError(f"{type(self).__name__}: the step failed numerically ({error}): u, dt or p drive the "
-                                 "model out of its finite range; state left unchanged") from error
-            raise
+                log_w = log_lik if log_w is None else log_w + log_lik
+        if log_w is None:
+            log_w = self.log_weights.copy()
+        else:
+            log_w += self.log_weights
+        if not np.isfinite(self.proposed).all():
+            raise ValueError(f"{type(self).__name__}: a particle left the finite range (the model's integration "
+                             f"overflowed): dt = {dt!r} s may be beyond the model's stable range; state left unchanged")
+        weights, log_mean = normalise_log_weights(log_w)
+        ess = 1.0 / float(weights @ weights)
+        x, P = weighted_moments(self.proposed, weights)
+        ancestors = None
+        if self._resample_always or ess < self.policy.threshold * self.N:
+            ancestors = self.policy.ancestors(weights, self.rng)
         # commit: nothing below can fail on finite numbers
         if ancestors is None:
             self._cur = 1 - self._cur  # the proposed buffer becomes the particles

@@ -73,6 +73,7 @@ class CarriedCubatureProposal(Proposal):
     """CKF predict + update of (x^i, P^i) per particle, P^i carried (see the module docstring)."""
 
     name = "cubature, carried P^i"
+    _state = ("carried",)
 
     def bind(self, engine) -> None:
         model, N = engine.model, engine.N
@@ -130,11 +131,10 @@ class CarriedCubatureProposal(Proposal):
             cov[...] = source
         self._next_cov = None
 
-    def checkpoint(self):
-        return self._pb.cov.copy()
-
-    def restore(self, state) -> None:
-        self._pb.cov[...] = state
+    @property
+    def carried(self) -> np.ndarray:
+        """P^i of every particle (n, n, N): the generated predict's input buffer."""
+        return self._pb.cov
 
 
 class OptimalCubatureProposal(Proposal):

@@ -51,8 +51,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from ...contract import (ConcurrencyGuard, FilterBase, register, as_generator, check_count, check_covariance, check_dt, check_p,
-                         check_state, check_u, check_z, run_filter)
+from ...contract import FilterBase, as_generator, check_count, check_covariance, check_state, register
 from ...resampling import ResamplingPolicy
 from .terrain_step import M_ESS, M_P, M_RESAMPLED, M_SLOPE, M_X, S_SLOPE, S_V, TerrainStep, seed_streams
 
@@ -65,9 +64,13 @@ class TerrainParticleFilter(FilterBase):
     """SIR for terrain-aided navigation on a bathymetry map, fixed or fuzzy sigma (module docstring)."""
 
     name = "TAN-SIR"
+    _state = ("particles", "log_weights", "weights", "streams", "ess", "_x", "_P", "resamples", "_history", "_travelled",
+              "gradient", "gradient_rate", "sigma")
+    #: a step writes the uncommitted side of the compiled step's buffers and its input scalars only
+    _touched = ()
 
     @classmethod
-    def contract_example(cls, model, seed):
+    def contract_example(cls, model, *, x0=None, P0=None, n_particles=None, rng=0):
         """For the contract test: fuzzy sigma on a small random map (tan3dof's own bundle; its u, z and p
         have the shapes of the test model's: [v, omega], [depth, heading], current [d_x, d_y])."""
         import abyssal.generated
@@ -75,8 +78,9 @@ class TerrainParticleFilter(FilterBase):
 
         depths = np.random.default_rng(0).uniform(100.0, 200.0, (41, 41))
         terrain = BathymetryMap(depths, origin=(-2000.0, -2000.0), resolution=100.0)
-        return cls(abyssal.generated.load("tan3dof"), np.zeros(3), np.diag([100.0, 100.0, 0.01]), "fuzzy", 5.0, 40,
-                   seed, terrain=terrain)
+        return cls(abyssal.generated.load("tan3dof"), np.zeros(3) if x0 is None else x0,
+                   np.diag([100.0, 100.0, 0.01]) if P0 is None else P0, "fuzzy", 5.0, 40 if n_particles is None else n_particles,
+                   rng, terrain=terrain)
 
     def __init__(self, model, x0, P0, sigma, altimeter_sigma: float, n_particles: int, rng, *, terrain,
                  body_noise=BODY_NOISE, policy: ResamplingPolicy = ResamplingPolicy("systematic", 0.5),
@@ -114,31 +118,27 @@ class TerrainParticleFilter(FilterBase):
         self.rate_window_m = float(rate_window_m)
         self.gradient_scale, self.rate_length_m = float(gradient_scale), float(rate_length_m)
         # one compiled call per step (terrain_step); its buffers hold both sides of the state
-        self._p_default = np.array(model.p_default, dtype=np.float64)
         f = model.function("f")
         if f.soa_batched_inputs != ("x", "u"):
             raise TypeError("model's f has no structure-of-arrays kernel over x and u: regenerate tan3dof")
-        self._step = TerrainStep(f.soa_address, model.n_p, terrain, N, self.body_noise, self.altimeter_sigma,
+        self._compiled = TerrainStep(f.soa_address, model.n_p, terrain, N, self.body_noise, self.altimeter_sigma,
                                  self.out_of_map_log_likelihood,
                                  math.inf if policy.threshold >= 1.0 else policy.threshold * N)
-        self._p = self._step.p
-        self._p[:] = self._p_default
-        self._p_is_default = True
+        self._init_contract(self.model, p_buffer=self._compiled.p)
         self._side = 0
         values, vectors = np.linalg.eigh(P0)
         root = vectors * np.sqrt(np.maximum(values, 0.0))
-        self._step.particles[0][...] = x0[:, None] + root @ self.rng.standard_normal((3, N))
-        self._step.rng[0][...] = seed_streams(self.rng)
-        self._scalars = self._step.scalars
+        self._compiled.particles[0][...] = x0[:, None] + root @ self.rng.standard_normal((3, N))
+        self._compiled.rng[0][...] = seed_streams(self.rng)
+        self._scalars = self._compiled.scalars
         # x and P are views of the committed side's moments (FilterBase returns copies); a step writes the other side
-        self._moment_views = [(m[M_X:M_X + 3], m[M_P:M_P + 9].reshape(3, 3)) for m in self._step.moments]
+        self._moment_views = [(m[M_X:M_X + 3], m[M_P:M_P + 9].reshape(3, 3)) for m in self._compiled.moments]
         self._g_in, self._r_in, self._sigma_out = np.zeros(1), np.zeros(1), np.zeros(1)
         self._fuzzy = model.function("fuzzy_sigma").bind([self._g_in, self._r_in], [self._sigma_out]).eval
         self.ess = float(N)
         self.resamples = 0
         self._x, self._P = self._moment_views[0]
         self._x[...], self._P[...] = x0, P0
-        self._guard = ConcurrencyGuard(type(self).__name__)
         # fuzzy inputs: the gradient history along the track (travelled distance, G)
         self._history: deque[tuple[float, float]] = deque()
         self._travelled = 0.0
@@ -150,53 +150,31 @@ class TerrainParticleFilter(FilterBase):
     @property
     def particles(self) -> np.ndarray:
         """(3, N) particles after the last step's resampling (a view: copy before keeping it)."""
-        return self._step.particles[self._side]
+        return self._compiled.particles[self._side]
 
     @property
     def log_weights(self) -> np.ndarray:
-        return self._step.log_w[self._side]
+        return self._compiled.log_w[self._side]
 
     @property
     def weights(self) -> np.ndarray:
         """(N,) normalised weights of the last update, before resampling."""
-        return self._step.w[self._side]
+        return self._compiled.w[self._side]
 
-    # ---------------------------------------------------------------- contract: state
-    def checkpoint(self):
-        st, side = self._step, self._side
-        return (st.particles[side].copy(), st.log_w[side].copy(), st.w[side].copy(), st.rng[side].copy(), self.ess,
-                self._x.copy(), self._P.copy(), self.resamples, list(self._history), self._travelled,
-                self.gradient, self.gradient_rate, self.sigma)
+    @property
+    def streams(self) -> np.ndarray:
+        """The compiled step's random streams of the committed side."""
+        return self._compiled.rng[self._side]
 
-    def restore(self, state) -> None:
-        (particles, log_w, w, streams, self.ess, x, P, self.resamples, history, self._travelled, self.gradient,
-         self.gradient_rate, self.sigma) = state
-        st, side = self._step, self._side
-        st.particles[side][...], st.log_w[side][...], st.w[side][...], st.rng[side][...] = particles, log_w, w, streams
-        self._x[...], self._P[...] = x, P
-        self._history = deque(history)
+    # ---------------------------------------------------------------- the contract's hooks (FilterBase)
+    def _predict(self, u, dt) -> None:
+        self._run_step(u, dt, None)
 
-    def run(self, U, Z, dt, params=None, truth=None):
-        return run_filter(self, U, Z, dt, params, truth)
+    def _update(self, z, present) -> bool:
+        return self._run_step(None, None, (z, present))
 
-    # ---------------------------------------------------------------- contract: calls
-    def predict(self, u, dt, p=None) -> None:
-        u, dt, p = check_u(u, 2), check_dt(dt), check_p(p, self.bundle)
-        with self._guard:
-            self._transaction(u, dt, None, p)
-
-    def update(self, z, p=None) -> bool:
-        measurement, p = check_z(z, 2), check_p(p, self.bundle)
-        if measurement is None:
-            return False
-        with self._guard:
-            return self._transaction(None, None, measurement, p)
-
-    def step(self, u, dt, z=None, p=None) -> bool:
-        u, dt = check_u(u, 2), check_dt(dt)
-        measurement, p = check_z(z, 2), check_p(p, self.bundle)
-        with self._guard:
-            return self._transaction(u, dt, measurement, p)
+    def _step(self, u, dt, measurement) -> bool:
+        return self._run_step(u, dt, measurement)
 
     # ---------------------------------------------------------------- the step
     def _gradient_at(self, x: np.ndarray) -> float:
@@ -208,7 +186,7 @@ class TerrainParticleFilter(FilterBase):
         self._fuzzy()
         return float(self._sigma_out[0])
 
-    def _transaction(self, u, dt, measurement, p) -> bool:
+    def _run_step(self, u, dt, measurement) -> bool:
         """One predict/update/step on checked inputs: one compiled call (terrain_step) writing the uncommitted
         side, then the fuzzy inputs; only the step's input scalars are written before the commit."""
         move, depth_present, heading_present = u is not None, False, False
@@ -221,18 +199,12 @@ class TerrainParticleFilter(FilterBase):
         sc = self._scalars  # inputs only (scratch): nothing to restore when the step is refused
         sc[S_V:S_SLOPE + 1] = (v, omega, dt if move else 1.0, self.sigma, z_depth, z_heading, move, depth_present,
                                heading_present, self.fuzzy)
-        if p is not None:
-            self._p[:] = p
-            self._p_is_default = False
-        elif not self._p_is_default:
-            self._p[:] = self._p_default
-            self._p_is_default = True
-        status = self._step.step(self._side)
+        status = self._compiled.step(self._side)
         if status:
             raise FloatingPointError("TerrainParticleFilter: a particle left the finite range" if status == 1 else
                                      "TerrainParticleFilter: every weight vanished")
         nxt = 1 - self._side
-        moments = self._step.moments[nxt]
+        moments = self._compiled.moments[nxt]
         fuzzy_state = None
         if self.fuzzy:
             gradient = self.gradient_scale * moments.item(M_SLOPE)

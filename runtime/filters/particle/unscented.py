@@ -47,9 +47,9 @@ import math
 import numpy as np
 
 from ...compiled.batches import MeasureBatch, ModelBatch, ParallelBatch
-from ...contract import (ConcurrencyGuard, FilterBase, register, as_generator, check_count, check_covariance, check_dt, check_p,
-                         check_state, check_u, check_z)
+from ...contract import FilterBase, as_generator, check_count, check_covariance, check_state, register
 from ...noise.mixtures import LOG_2PI, weighted_moments
+from ...numerics import factorable_covariance
 from ...resampling import KLDResampling, kld_resample, multinomial_resample, normalise_log_weights
 from .engine import LOG_UNDERFLOW, initial_draw
 
@@ -66,11 +66,15 @@ def _f_zeros(*shape) -> np.ndarray:
 class UnscentedParticleFilter(FilterBase):
     """UPF / HRUPF / MCUPF on batched generated UKF steps (see the module docstring)."""
 
+    _state = ("N", "particles", "carried", "log_weights", "ess", "_x", "_P", "uninformative", "failed_slices", "rng",
+              "n_particles")
+
     @classmethod
-    def contract_example(cls, model, seed):
+    def contract_example(cls, model, *, x0=None, P0=None, n_particles=None, rng=0):
         """For the contract test: an MCUPF (MCC update + KLD-resampling, the most moving parts)."""
         n, m = model.n_x, model.n_y
-        return cls(model, np.zeros(n), np.eye(n), 0.05 * np.eye(n), 0.5 * np.eye(m), 40, seed, update="mcc",
+        return cls(model, np.zeros(n) if x0 is None else x0, np.eye(n) if P0 is None else P0, 0.05 * np.eye(n),
+                   0.5 * np.eye(m), 40 if n_particles is None else n_particles, rng, update="mcc",
                    resampling=KLDResampling(bin_size=(0.5, 0.5), n_min=10, n_max=60))
 
     def __init__(self, model, x0, P0, Q, R, n_particles, rng, *, update: str = "ukf", sigma: float = 15.0,
@@ -81,7 +85,8 @@ class UnscentedParticleFilter(FilterBase):
         if resampling is not None and not all(0 <= c < n for c in resampling.coordinates):
             raise ValueError(f"resampling.coordinates must name rows of the {n}-state, got {resampling.coordinates}")
         N = check_count(n_particles, "n_particles")
-        self.model, self.rng = model, as_generator(rng)
+        self._init_contract(model)
+        self.rng = as_generator(rng)
         x0, P0 = check_state(x0, n, "x0"), check_covariance(P0, n, "P0")
         self.Q = np.asfortranarray(check_covariance(Q, n, "Q", definite=True))
         self.R = np.asfortranarray(check_covariance(R, m, "R", definite=True))
@@ -90,18 +95,17 @@ class UnscentedParticleFilter(FilterBase):
         cap = max(N, resampling.n_max if resampling else N)
         self.capacity, self.N = cap, N
         self.n_particles = float(N)
-        self.p = np.array(model.p_default, dtype=np.float64)
-        self._p_is_default = True
         # particle means and carried covariances, Fortran (column j = particle j)
         self._means, self._covs = _f_zeros(n, cap), _f_zeros(n, n, cap)
         self._means[:, :N] = initial_draw(x0, P0, self.rng, N)
-        self._covs[:, :, :N] = P0[:, :, None]
+        # the carried covariances start at P0, or its nearest factorable when P0 is singular (a UKF step needs a factor)
+        self._covs[:, :, :N] = (P0 if np.linalg.eigvalsh(P0)[0] > 0 else factorable_covariance(P0, self.Q))[:, :, None]
         self._u, self._dt = np.zeros(model.n_u), np.zeros(1)
         lam = 3.0 - n
         self.abk = np.array([1.0, 0.0, lam], dtype=np.float64)
         self.mean_pred, self.cov_pred, self._ok_p = _f_zeros(n, cap), _f_zeros(n, n, cap), _f_zeros(1, cap)
-        self._predict = ParallelBatch(model.function("ukf_predict"),
-                                      [self._means, self._covs, self._u, self.p, self._dt, self.Q.reshape(-1, order="F"), self.abk],
+        self._predict_batch = ParallelBatch(model.function("ukf_predict"),
+                                      [self._means, self._covs, self._u, self._p, self._dt, self.Q.reshape(-1, order="F"), self.abk],
                                       [True, True, False, False, False, False, False],
                                       [self.mean_pred, self.cov_pred, self._ok_p], cap)
         fn, extra_name = UPDATES[update]
@@ -110,13 +114,13 @@ class UnscentedParticleFilter(FilterBase):
         self.mean_post, self.cov_post = _f_zeros(n, cap), _f_zeros(n, n, cap)
         self._innov, self._ok_u = _f_zeros(m, cap), _f_zeros(1, cap)
         self._S = _f_zeros(m, cap) if m == 1 else _f_zeros(m, m, cap)  # a (1, 1) output batches as a vector
-        self._update = ParallelBatch(model.function(fn),
-                                     [self.mean_pred, self.cov_pred, self._z, self.p, self.R.reshape(-1, order="F"), self._mask, self.abk, *extra],
+        self._update_batch = ParallelBatch(model.function(fn),
+                                     [self.mean_pred, self.cov_pred, self._z, self._p, self.R.reshape(-1, order="F"), self._mask, self.abk, *extra],
                                      [True, True, False, False, False, False, False] + [False] * len(extra),
                                      [self.mean_post, self.cov_post, self._innov, self._S, self._ok_u], cap)
-        self._f = ModelBatch(model, cap, self.p)  # transition means f(x^j_{k-1}) (SIMD kernel)
+        self._f = ModelBatch(model, cap, self._p)  # transition means f(x^j_{k-1}) (SIMD kernel)
         self.proposed = np.zeros((n, cap))
-        self._h = MeasureBatch(model, self.proposed, self.p)
+        self._h = MeasureBatch(model, self.proposed, self._p)
         self._R_inv = np.linalg.inv(self.R)
         self._R_log_norm = -0.5 * (float(np.linalg.slogdet(self.R)[1]) + m * LOG_2PI)
         self._Q_inv = np.linalg.inv(self.Q)
@@ -126,7 +130,6 @@ class UnscentedParticleFilter(FilterBase):
         self._x, self._P = x0.copy(), np.array(P0)
         self.uninformative = 0
         self.failed_slices = 0  # particles whose generated step reported ok = 0 (kept at their prediction)
-        self._guard = ConcurrencyGuard(type(self).__name__)
 
     # ---------------------------------------------------------------- contract: state
     @property
@@ -139,49 +142,39 @@ class UnscentedParticleFilter(FilterBase):
         """The covariances the particles carry, (n, n, N); a copy."""
         return self._covs[:, :, :self.N].copy()
 
-    def checkpoint(self):
-        N = self.N
-        return (N, self._means[:, :N].copy(), self._covs[:, :, :N].copy(), self.log_weights.copy(), self.ess,
-                self._x.copy(), self._P.copy(), self.uninformative, self.failed_slices, self.rng.bit_generator.state,
-                self.p.copy(), self._p_is_default, self.n_particles)
+    @property
+    def particles(self) -> np.ndarray:
+        """The N particles' means (n, N): a view of the buffer (copy before keeping it)."""
+        return self._means[:, :self.N]
 
-    def restore(self, state) -> None:
-        (N, mean, cov, log_w, self.ess, x, P, self.uninformative, self.failed_slices, rng_state, p,
-         self._p_is_default, self.n_particles) = state
-        self.N = N
-        self._means[:, :N], self._covs[:, :, :N] = mean, cov
-        self.log_weights, self._x, self._P = log_w.copy(), x.copy(), P.copy()
-        self.rng.bit_generator.state = rng_state
-        self.p[:] = p
+    @particles.setter
+    def particles(self, value) -> None:
+        self._means[:, :self.N] = value
 
-    # ---------------------------------------------------------------- contract: calls
-    def predict(self, u, dt, p=None) -> None:
-        u, dt, p = check_u(u, self.model.n_u), check_dt(dt), check_p(p, self.model)
-        with self._guard:
-            self._transaction(u, dt, None, p)
+    @property
+    def carried(self) -> np.ndarray:
+        """The covariances the N particles carry (n, n, N): a view of the buffer."""
+        return self._covs[:, :, :self.N]
 
-    def update(self, z, p=None) -> bool:
+    @carried.setter
+    def carried(self, value) -> None:
+        self._covs[:, :, :self.N] = value
+
+    # ---------------------------------------------------------------- the contract's hooks (FilterBase)
+    def _predict(self, u, dt) -> None:
+        self._move(u, dt, None)
+
+    def _step(self, u, dt, measurement) -> bool:
+        return self._move(u, dt, measurement)
+
+    def _update(self, z, present) -> bool:
         """Reweight the particles where they are by p(z | x) and resample (no unscented move: the
         proposal needs the step's input; ``step`` is the filter)."""
-        measurement, p = check_z(z, self.model.n_y), check_p(p, self.model)
-        if measurement is None:
-            return False
-        with self._guard:
-            saved = self.checkpoint()
-            try:
-                self._set_p(p)
-                N = self.N
-                log_lik = self._log_likelihood(self._means[:, :N], *measurement)
-                log_w = self.log_weights + (log_lik if log_lik is not None else 0.0)
-                self._finish(self._means[:, :N].copy(), self._covs[:, :, :N], log_w)
-                return True
-            except BaseException:
-                self.restore(saved)
-                raise
-
-    def _set_p(self, p) -> None:
-        self.p[:] = self.model.p_default if p is None else p
-        self._p_is_default = p is None
+        N = self.N
+        log_lik = self._log_likelihood(self._means[:, :N], z, present)
+        log_w = self.log_weights + (log_lik if log_lik is not None else 0.0)
+        self._finish(self._means[:, :N].copy(), self._covs[:, :, :N], log_w)
+        return True
 
     def _log_likelihood(self, x: np.ndarray, z: np.ndarray, present: np.ndarray):
         """log p(z | x) per particle (Gaussian, the filter's R, present rows); None when it underflows
@@ -202,26 +195,10 @@ class UnscentedParticleFilter(FilterBase):
             return None
         return log_lik
 
-    def step(self, u, dt, z=None, p=None) -> bool:
-        u, dt = check_u(u, self.model.n_u), check_dt(dt)
-        measurement, p = check_z(z, self.model.n_y), check_p(p, self.model)
-        with self._guard:
-            return self._transaction(u, dt, measurement, p)
-
-    # ---------------------------------------------------------------- the step
-    def _transaction(self, u, dt, measurement, p) -> bool:
-        saved = self.checkpoint()
-        try:
-            return self._step(u, dt, measurement, p)
-        except BaseException:
-            self.restore(saved)
-            raise
-
-    def _step(self, u, dt, measurement, p) -> bool:
+    def _move(self, u, dt, measurement) -> bool:
         N, n = self.N, self.model.n_x
-        self._set_p(p)
         self._u[:], self._dt[0] = u, dt
-        self._predict(N)
+        self._predict_batch(N)
         fb = self._f  # the SIMD kernel of f over the first N columns only (ModelBatch.propagate runs all)
         fb.x[:, :N] = self._means[:, :N]
         fb.u[:, :N] = u[:, None]
@@ -236,7 +213,7 @@ class UnscentedParticleFilter(FilterBase):
         else:
             z, present = measurement
             self._z[:], self._mask[:] = np.where(present, z, 0.0), present
-            self._update(N)
+            self._update_batch(N)
             ok = self._ok_u[0, :N] > 0
             mu, C = self.mean_post[:, :N], self.cov_post[:, :, :N]
             if not ok.all():  # a particle whose update failed its guards proposes from its prediction
