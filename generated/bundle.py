@@ -28,12 +28,13 @@ from __future__ import annotations
 
 import ctypes
 import threading
-import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
 import casadi as ca
 import numpy as np
+
+from abyssal.arrays import real_array
 
 
 @dataclass(frozen=True)
@@ -44,27 +45,6 @@ class Signature:
     @property
     def size(self) -> int:
         return self.shape[0] * self.shape[1]
-
-
-def _real(value, what: str) -> np.ndarray:
-    """value as a float64 array; complex or non-numeric values are a TypeError naming `what`.
-
-    (NumPy would drop the imaginary part with only a warning.)
-    """
-    arr = np.asarray(value)
-    if arr.dtype.kind == "c":
-        raise TypeError(f"{what} is complex ({arr.dtype}): abyssal computes in real float64; pass the real part "
-                        "explicitly if that is what you mean")
-    if arr.dtype.kind == "O":
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("error", np.exceptions.ComplexWarning)
-                return np.array(arr, dtype=np.float64)  # complex entries raise TypeError or ComplexWarning
-        except (TypeError, ValueError, np.exceptions.ComplexWarning):
-            pass
-    if arr.dtype.kind not in "iuf":
-        raise TypeError(f"{what} must hold real numbers, got {type(value).__name__} of {arr.dtype}")
-    return arr.astype(np.float64, copy=False)
 
 
 def _writable(arr: np.ndarray, sig: Signature, what: str) -> None:
@@ -283,7 +263,7 @@ class CompiledFunction:
     # ---------------------------------------------------------- convenience path
     def _checked(self, value, sig: Signature) -> np.ndarray:
         """value as a flat column-major float64 array, after shape and finiteness checks."""
-        arr = _real(value, f"{self.name}: argument {sig.name!r}")
+        arr = real_array(value, f"{self.name}: argument {sig.name!r}")
         if arr.shape not in (sig.shape, (sig.size,)) and not (sig.size == 1 and arr.ndim == 0):
             want = f"({sig.shape[0]},)" if sig.shape[1] == 1 else str(sig.shape)
             raise ValueError(f"{self.name}: argument {sig.name!r} must have shape {want}, got {arr.shape}")
@@ -330,7 +310,7 @@ class CompiledFunction:
             raise TypeError(f"{self.name} takes {len(self.inputs)} arguments ({', '.join(s.name for s in self.inputs)})")
         ins = []
         for a, s in zip(args, self.inputs):
-            arr = np.asfortranarray(_real(a, f"{self.name}: argument {s.name!r}"))  # shapes are checked by bind_batch
+            arr = np.asfortranarray(real_array(a, f"{self.name}: argument {s.name!r}"))  # shapes are checked by bind_batch
             if not _all_finite(arr):
                 raise ValueError(f"{self.name}: argument {s.name!r} has non-finite entries")
             ins.append(arr)
@@ -418,7 +398,7 @@ class ModelBundle:
             return base
         if p is None:
             return np.array(self.p_default)
-        arr = _real(p, f"{self.name}: p")
+        arr = real_array(p, f"{self.name}: p")
         if arr.shape != (self.n_p,):
             raise ValueError(f"{self.name}: p must have shape ({self.n_p},) [{', '.join(self.parameter_names)}], got {arr.shape}")
         if not np.all(np.isfinite(arr)):
@@ -475,7 +455,7 @@ class ModelBundle:
 
     def _state_batch(self, X) -> np.ndarray:
         """X as a checked, finite, C-ordered (n_x, N) batch (the SIMD kernels' layout)."""
-        X = np.ascontiguousarray(_real(X, f"{self.name}: X"))
+        X = np.ascontiguousarray(real_array(X, f"{self.name}: X"))
         if X.ndim != 2 or X.shape[0] != self.n_x:
             raise ValueError(f"{self.name}: X must have shape ({self.n_x}, N), got {X.shape}")
         if not _all_finite(X):
@@ -485,7 +465,7 @@ class ModelBundle:
     def f_batch(self, X, U, p=None, dt=None) -> np.ndarray:
         """One step for each column of X (n_x, N); U is (n_u, N) or (n_u,) shared. Returns (n_x, N)."""
         X = self._state_batch(X)
-        U = _real(U, f"{self.name}: U")
+        U = real_array(U, f"{self.name}: U")
         if U.shape not in ((self.n_u,), (self.n_u, X.shape[1])):
             raise ValueError(f"{self.name}: U must have shape ({self.n_u}, {X.shape[1]}) or ({self.n_u},), got {U.shape}")
         if not np.isfinite(U).all():

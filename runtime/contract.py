@@ -63,6 +63,8 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from abyssal.arrays import real_array
+
 from .numerics import SYMMETRY_TOLERANCE, angle_indices, nees, wrap_angles
 
 __all__ = [
@@ -164,17 +166,6 @@ def registered_filters() -> dict[type, str]:
 
 # ---------------------------------------------------------------------------------------------
 # input checks (each names its argument)
-
-
-def real_array(value, name: str) -> np.ndarray:
-    """value as a float64 array; TypeError for complex, object, string or missing values."""
-    if value is None:
-        raise TypeError(f"{name} is required (got None)")
-    arr = value if isinstance(value, np.ndarray) else np.asarray(value)
-    if arr.dtype.kind not in "fiub":
-        kind = "complex" if arr.dtype.kind == "c" else str(arr.dtype)
-        raise TypeError(f"{name} must be an array of real numbers, got {kind}")
-    return arr.astype(np.float64, copy=False)
 
 
 def _finite(v: np.ndarray) -> bool:

@@ -21,8 +21,9 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["NEES_FLOOR", "REPAIR_FLOOR", "SYMMETRY_TOLERANCE", "angle_indices", "factorable_covariance", "grew_beyond", "kalman_filter", "nees",
-           "relative_error", "repair_covariance", "simulate_truth", "wrap_angles", "wrap_to_pi"]
+__all__ = ["NEES_FLOOR", "REPAIR_FLOOR", "SYMMETRY_TOLERANCE", "angle_indices", "covariance_root", "factorable_covariance",
+           "gaussian_draws", "grew_beyond", "kalman_filter", "nees", "relative_error", "repair_covariance", "simulate_truth",
+           "stacked_cholesky", "wrap_angles", "wrap_to_pi"]
 
 #: eigenvalue floor of ``repair_covariance``, relative to the largest |eigenvalue|. 1e-10 makes
 #: every pivot of the generated Cholesky factorisations pass their guard (1e-13).
@@ -145,7 +146,7 @@ def simulate_truth(model, x0, U, dt: float, Q, R, rng, p=None):
 
     rng = as_generator(rng)
     U = np.asarray(U, dtype=np.float64)
-    noise_q, noise_r = _square_root(Q, "Q"), _square_root(R, "R")
+    noise_q, noise_r = covariance_root(Q, "Q"), covariance_root(R, "R")
     x = np.array(x0, dtype=np.float64)
     states = np.empty((len(U), model.n_x))
     for k, u in enumerate(U):
@@ -155,13 +156,48 @@ def simulate_truth(model, x0, U, dt: float, Q, R, rng, p=None):
     return states, measurements
 
 
-def _square_root(C, name: str) -> np.ndarray:
-    """L with L L^T = C for a symmetric positive semi-definite C (singular allowed)."""
+def covariance_root(C, name: str = "covariance") -> np.ndarray:
+    """L with L L^T = C for a symmetric positive semi-definite C (singular allowed: eigen-decomposition)."""
     C = np.asarray(C, dtype=np.float64)
     values, vectors = np.linalg.eigh(0.5 * (C + C.T))
     if values.size and values[0] < -1e-9 * max(abs(values[-1]), 1e-300):
         raise ValueError(f"{name} must be positive semi-definite; smallest eigenvalue {values[0]:.3g}")
     return vectors * np.sqrt(np.maximum(values, 0.0))
+
+
+def gaussian_draws(mean: np.ndarray, C: np.ndarray, rng: np.random.Generator, count: int) -> np.ndarray:
+    """count draws of N(mean, C) as columns (n, count); C may be singular (zero: every draw at the mean)."""
+    return mean[:, None] + covariance_root(C) @ rng.standard_normal((mean.shape[0], count))
+
+
+def stacked_cholesky(C: np.ndarray, *, repair: bool) -> tuple[np.ndarray, np.ndarray]:
+    """(L, sum log diag L) of a stack of covariances C (K, r, r): lower factors (K, r, r) and (K,).
+
+    repair=True: matrices that fail (not numerically positive definite) are replaced by
+    ``repair_covariance`` first; repair=False: a failure raises numpy.linalg.LinAlgError. r = 2 is
+    factored in closed form (the cooperative-navigation particle clouds: thousands of 2 x 2 matrices).
+    """
+    if C.shape[-1] == 2:
+        a, b, c = C[:, 0, 0], C[:, 1, 0], C[:, 1, 1]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            l11 = np.sqrt(a)
+            l21 = b / l11
+            l22 = np.sqrt(c - l21 * l21)
+        if np.all(l11 > 0) and np.all(l22 > 0):
+            L = np.zeros_like(C)
+            L[:, 0, 0], L[:, 1, 0], L[:, 1, 1] = l11, l21, l22
+            return L, np.log(l11) + np.log(l22)
+    else:
+        try:
+            L = np.linalg.cholesky(C)
+            return L, np.log(np.diagonal(L, axis1=1, axis2=2)).sum(axis=1)
+        except np.linalg.LinAlgError:
+            if not repair:
+                raise
+    if not repair:
+        raise np.linalg.LinAlgError("a covariance of the stack is not positive definite")
+    L = np.linalg.cholesky(repair_covariance(C))
+    return L, np.log(np.diagonal(L, axis1=1, axis2=2)).sum(axis=1)
 
 
 def grew_beyond(limit: float, before: np.ndarray, after: np.ndarray, noise: np.ndarray) -> bool:

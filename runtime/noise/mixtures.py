@@ -24,6 +24,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from abyssal.arrays import real_array
+
 from ..numerics import SYMMETRY_TOLERANCE
 LOG_2PI = float(np.log(2.0 * np.pi))
 
@@ -51,13 +53,6 @@ def cholesky_precision(covariances: np.ndarray) -> tuple[np.ndarray, np.ndarray]
 #: relative symmetry tolerance of a covariance: max |C - C^T| <= tol * max |C| (as the Kalman filters)
 
 
-def _real_array(value, name: str) -> np.ndarray:
-    arr = np.asarray(value)
-    if arr.dtype.kind not in "fiub":
-        raise TypeError(f"mixture {name} must be an array of real numbers, got dtype {arr.dtype}")
-    return np.asarray(arr, dtype=np.float64)
-
-
 @dataclass(frozen=True, eq=False)
 class GaussianMixture:
     """sum_k weights[k] N(means[k], covariances[k]).
@@ -82,9 +77,9 @@ class GaussianMixture:
     _neg_half_precision: np.ndarray | None = field(init=False, repr=False)
 
     def __post_init__(self):
-        w = _real_array(self.weights, "weights").reshape(-1)
-        mu = _real_array(self.means, "means")
-        cov = _real_array(self.covariances, "covariances")
+        w = real_array(self.weights, "mixture weights").reshape(-1)
+        mu = real_array(self.means, "mixture means")
+        cov = real_array(self.covariances, "mixture covariances")
         if mu.ndim != 2 or mu.shape[0] == 0 or mu.shape[1] == 0:
             raise ValueError(f"mixture means must have shape (K, d) with K, d >= 1, got {mu.shape}")
         if w.shape != (mu.shape[0],):
@@ -241,12 +236,12 @@ def weighted_em(points: np.ndarray, weights: np.ndarray, initial: GaussianMixtur
         raise ValueError("weighted_em needs tol > 0, max_iter >= 1 and reg_covar > 0")
     if not isinstance(initial, GaussianMixture):
         raise TypeError(f"initial must be a GaussianMixture, got {type(initial).__name__}")
-    points = _real_array(points, "points")
+    points = real_array(points, "points")
     if points.ndim != 2 or points.shape[0] != initial.dim or points.shape[1] == 0:
         raise ValueError(f"points must have shape ({initial.dim}, N) with N >= 1, got {points.shape}")
     if not np.all(np.isfinite(points)):
         raise ValueError("points must be finite")
-    w = _real_array(weights, "weights")
+    w = real_array(weights, "weights")
     if w.shape != (points.shape[1],):
         raise ValueError(f"weights must have shape ({points.shape[1]},) (one per point), got {w.shape}")
     if not (np.all(np.isfinite(w)) and w.min() >= 0 and w.sum() > 0):

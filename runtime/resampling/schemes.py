@@ -37,6 +37,8 @@ from typing import Callable
 
 import numpy as np
 
+from abyssal.arrays import real_array
+
 Resampler = Callable[[np.ndarray, np.random.Generator, "int | None"], np.ndarray]
 
 #: largest accepted |sum(weights) - 1| (normalisation round-off is about N * 2e-16)
@@ -45,12 +47,10 @@ WEIGHT_SUM_TOLERANCE = 1e-9
 
 def _real_vector(values, name: str) -> np.ndarray:
     """values as a non-empty 1-D float64 array; TypeError for complex/non-numeric, ValueError for shape."""
-    arr = np.asarray(values)
-    if arr.dtype.kind not in "fiub":
-        raise TypeError(f"{name} must be an array of real numbers, got dtype {arr.dtype}")
+    arr = real_array(values, name)
     if arr.ndim != 1 or arr.shape[0] == 0:
         raise ValueError(f"{name} must be a non-empty 1-D array, got shape {arr.shape}")
-    return arr if arr.dtype == np.float64 else arr.astype(np.float64)
+    return arr
 
 
 def check_weights(weights) -> np.ndarray:

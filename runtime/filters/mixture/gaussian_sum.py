@@ -23,7 +23,7 @@ from ...compiled.batches import CubaturePredictBatch, CubatureUpdateBatch, Measu
 from ...contract import FilterBase, as_generator, check_count, check_covariance, check_state, register
 from ...noise.mixtures import (LOG_2PI, GaussianMixture, initial_mixture, logsumexp, merge_components, reduce_mixture,
                                weighted_em, weighted_moments)
-from ...numerics import factorable_covariance, grew_beyond
+from ...numerics import factorable_covariance, grew_beyond, stacked_cholesky
 from ...resampling import normalise_log_weights, systematic_resample
 from ..particle.engine import MeasurementNoise, check_model, informative, measurement_residuals
 
@@ -191,7 +191,7 @@ class _SampledMixtureFilter(_MixtureFilterBase):
 
     def _draw(self, proposal: GaussianMixture, labels: np.ndarray) -> np.ndarray:
         """Fill self.particles with draws from the proposal components named by labels; returns xi."""
-        L = np.linalg.cholesky(proposal.covariances)
+        L, _ = stacked_cholesky(proposal.covariances, repair=False)
         xi = self.rng.standard_normal((self.model.n_x, self.N))
         self.particles[...] = proposal.means[labels].T + (L[labels] @ xi.T[:, :, None])[:, :, 0].T
         return xi
@@ -225,7 +225,7 @@ class MixtureCubatureParticleFilter(_SampledMixtureFilter):
         labels = self._labels % updated.n_components
         xi = self._draw(updated, labels)
         parent, noise = labels // M, labels % M
-        L_diag = np.log(np.diagonal(np.linalg.cholesky(updated.covariances), axis1=1, axis2=2)).sum(1)
+        _, L_diag = stacked_cholesky(updated.covariances, repair=False)
         log_q = -0.5 * (np.einsum("ij,ij->j", xi, xi) + n * LOG_2PI) - L_diag[labels]
         log_prior = predicted.component_log_densities(self.particles)[parent, np.arange(self.N)]
         by_component = self._log_likelihoods_by_component(z, present)

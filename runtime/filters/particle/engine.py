@@ -61,7 +61,7 @@ import numpy as np
 from ...compiled.batches import MeasureBatch, ModelBatch
 from ...contract import FilterBase, Stateful, as_generator, check_count, check_covariance, check_state
 from ...noise.mixtures import LOG_2PI, GaussianMixture, weighted_moments
-from ...numerics import angle_indices, wrap_to_pi
+from ...numerics import angle_indices, gaussian_draws, wrap_to_pi
 from ...resampling import ResamplingPolicy, normalise_log_weights
 
 __all__ = ["LOG_UNDERFLOW", "BootstrapProposal", "MeasurementNoise", "Proposal", "SIRFilter", "TransitionNoise",
@@ -195,13 +195,6 @@ def check_model(model, who: str) -> None:
         raise TypeError(f"{who} needs a model bundle from abyssal.generated.load(); got {model!r}")
 
 
-def initial_draw(x0: np.ndarray, P0: np.ndarray, rng: np.random.Generator, count: int) -> np.ndarray:
-    """count draws of N(x0, P0) (n, count); P0 may be singular (zero: every particle at x0)."""
-    values, vectors = np.linalg.eigh(P0)
-    root = vectors * np.sqrt(np.maximum(values, 0.0))
-    return x0[:, None] + root @ rng.standard_normal((x0.shape[0], count))
-
-
 # ---------------------------------------------------------------------------------------------
 # proposals
 
@@ -270,7 +263,7 @@ class SIRFilter(FilterBase):
         self._batches = [ModelBatch(model, N, self._p), ModelBatch(model, N, self._p)]
         self._measures = [MeasureBatch(model, b.x, self._p) for b in self._batches]
         self._cur = 0
-        self.particles[...] = initial_draw(x0, P0, rng, N)
+        self.particles[...] = gaussian_draws(x0, P0, rng, N)
         self.log_weights = np.full(N, -math.log(N))
         self.weights = np.full(N, 1.0 / N)
         self.ess = float(N)

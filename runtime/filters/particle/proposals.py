@@ -27,23 +27,10 @@ import numpy as np
 
 from ...compiled.batches import CubaturePredictBatch, CubatureStepBatch, CubatureUpdateBatch, MeasureBatch
 from ...noise.mixtures import LOG_2PI
-from ...numerics import repair_covariance, wrap_to_pi
+from ...numerics import stacked_cholesky, wrap_to_pi
 from .engine import Proposal
 
 __all__ = ["CarriedCubatureProposal", "OptimalCubatureProposal"]
-
-
-def _cholesky(C: np.ndarray) -> np.ndarray:
-    """Cholesky factors of a stack (K, r, r); slices that fail are repaired (numerics.repair_covariance)."""
-    try:
-        return np.linalg.cholesky(C)
-    except np.linalg.LinAlgError:
-        return np.linalg.cholesky(repair_covariance(C))
-
-
-def _log_det(L: np.ndarray) -> np.ndarray:
-    """sum_i log L_ii of stacked triangular factors (K, r, r), matrix by matrix."""
-    return np.log(np.diagonal(L, axis1=1, axis2=2)).sum(axis=1)
 
 
 def _gaussian_draw(engine, f: np.ndarray, mean: np.ndarray, C: np.ndarray) -> np.ndarray:
@@ -62,10 +49,10 @@ def _gaussian_draw(engine, f: np.ndarray, mean: np.ndarray, C: np.ndarray) -> np
         V = tr.basis
         mean_y = V.T @ (mean - f)
         C_y = V.T @ C @ V
-    L = _cholesky(C_y)
+    L, log_det = stacked_cholesky(C_y, repair=True)
     y = mean_y + np.matmul(L, xi.T[:, :, None])[:, :, 0].T
     np.add(f, tr.embed(y), out=engine.proposed)
-    log_q = -0.5 * np.einsum("rn,rn->n", xi, xi) - _log_det(L) - 0.5 * r * LOG_2PI
+    log_q = -0.5 * np.einsum("rn,rn->n", xi, xi) - log_det - 0.5 * r * LOG_2PI
     return tr.log_density(engine.proposed - f) - log_q
 
 
@@ -200,10 +187,10 @@ class OptimalCubatureProposal(Proposal):
         mean_y = np.einsum("nar,an->rn", KT, innovation)
         C_y = np.diag(engine.transition.variances)[None] - Pyz @ KT  # Lambda - K S K^T
         C_y = 0.5 * (C_y + np.swapaxes(C_y, 1, 2))
-        L = _cholesky(C_y)
+        L, log_det = stacked_cholesky(C_y, repair=True)
         xi = engine.rng.standard_normal((r, N))
         y = mean_y + np.matmul(L, xi.T[:, :, None])[:, :, 0].T
         tr = engine.transition
         np.add(f, tr.embed(y), out=engine.proposed)
-        log_q = -0.5 * np.einsum("rn,rn->n", xi, xi) - _log_det(L) - 0.5 * r * LOG_2PI
+        log_q = -0.5 * np.einsum("rn,rn->n", xi, xi) - log_det - 0.5 * r * LOG_2PI
         return tr.log_density(engine.proposed - f) - log_q

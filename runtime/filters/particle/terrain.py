@@ -52,6 +52,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from ...contract import FilterBase, as_generator, check_count, check_covariance, check_state, register
+from ...numerics import gaussian_draws
 from ...resampling import ResamplingPolicy
 from .terrain_step import M_ESS, M_P, M_RESAMPLED, M_SLOPE, M_X, S_SLOPE, S_V, TerrainStep, seed_streams
 
@@ -126,9 +127,7 @@ class TerrainParticleFilter(FilterBase):
                                  math.inf if policy.threshold >= 1.0 else policy.threshold * N)
         self._init_contract(self.model, p_buffer=self._compiled.p)
         self._side = 0
-        values, vectors = np.linalg.eigh(P0)
-        root = vectors * np.sqrt(np.maximum(values, 0.0))
-        self._compiled.particles[0][...] = x0[:, None] + root @ self.rng.standard_normal((3, N))
+        self._compiled.particles[0][...] = gaussian_draws(x0, P0, self.rng, N)
         self._compiled.rng[0][...] = seed_streams(self.rng)
         self._scalars = self._compiled.scalars
         # x and P are views of the committed side's moments (FilterBase returns copies); a step writes the other side

@@ -49,9 +49,9 @@ import numpy as np
 from ...compiled.batches import MeasureBatch, ModelBatch, ParallelBatch
 from ...contract import FilterBase, as_generator, check_count, check_covariance, check_state, register
 from ...noise.mixtures import LOG_2PI, weighted_moments
-from ...numerics import factorable_covariance
+from ...numerics import factorable_covariance, gaussian_draws, stacked_cholesky
 from ...resampling import KLDResampling, kld_resample, multinomial_resample, normalise_log_weights
-from .engine import LOG_UNDERFLOW, initial_draw
+from .engine import LOG_UNDERFLOW
 
 __all__ = ["UnscentedParticleFilter"]
 
@@ -97,7 +97,7 @@ class UnscentedParticleFilter(FilterBase):
         self.n_particles = float(N)
         # particle means and carried covariances, Fortran (column j = particle j)
         self._means, self._covs = _f_zeros(n, cap), _f_zeros(n, n, cap)
-        self._means[:, :N] = initial_draw(x0, P0, self.rng, N)
+        self._means[:, :N] = gaussian_draws(x0, P0, self.rng, N)
         # the carried covariances start at P0, or its nearest factorable when P0 is singular (a UKF step needs a factor)
         self._covs[:, :, :N] = (P0 if np.linalg.eigvalsh(P0)[0] > 0 else factorable_covariance(P0, self.Q))[:, :, None]
         self._u, self._dt = np.zeros(model.n_u), np.zeros(1)
@@ -221,8 +221,8 @@ class UnscentedParticleFilter(FilterBase):
                 mu = np.where(ok, mu, self.mean_pred[:, :N])
                 C = np.where(ok, C, self.cov_pred[:, :, :N])
             xi = self.rng.standard_normal((n, N))
-            L, log_det = _cholesky_2x2(C) if n == 2 else _cholesky_stack(C)
-            new_mean = mu + np.einsum("ijN,jN->iN", L, xi)
+            L, log_det = stacked_cholesky(np.moveaxis(C, -1, 0), repair=True)
+            new_mean = mu + np.einsum("Nij,jN->iN", L, xi)
             new_cov = C
             log_q = -0.5 * np.einsum("iN,iN->N", xi, xi) - log_det - 0.5 * n * LOG_2PI
             d = new_mean - f
@@ -257,22 +257,3 @@ class UnscentedParticleFilter(FilterBase):
         self._means[:, :N], self._covs[:, :, :N] = new_mean, new_cov
         self.log_weights = np.full(N, -math.log(N))
 
-
-def _cholesky_2x2(C: np.ndarray):
-    """Lower Cholesky factors (2, 2, N) of a (2, 2, N) stack and sum log diag; pivots floored at 1e-300."""
-    a = np.maximum(C[0, 0], 1e-300)
-    l11 = np.sqrt(a)
-    l21 = C[1, 0] / l11
-    l22 = np.sqrt(np.maximum(C[1, 1] - l21 * l21, 1e-300))
-    L = np.zeros_like(C)
-    L[0, 0], L[1, 0], L[1, 1] = l11, l21, l22
-    return L, np.log(l11) + np.log(l22)
-
-
-def _cholesky_stack(C: np.ndarray):
-    try:
-        Lk = np.linalg.cholesky(np.moveaxis(C, -1, 0))
-    except np.linalg.LinAlgError:
-        raise ValueError("a particle's proposal covariance is not positive definite (the generated step failed "
-                         "its guards; u, dt or the particle cloud left the model's range); state left unchanged") from None
-    return np.moveaxis(Lk, 0, -1), np.log(np.diagonal(Lk, axis1=1, axis2=2)).sum(axis=1)
