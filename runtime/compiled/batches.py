@@ -292,15 +292,21 @@ class ModelBatch:
         self._f = bundle.function("f").bind_soa([self.x, self.u, self.p, self.dt], [self.x_next])
         self._h = bundle.function("h").bind_soa([self.x, self.p], [self.y])
 
-    def propagate(self, u: np.ndarray, dt: float) -> np.ndarray:
-        """x_next = f(x, u) for every column of self.x (fill self.x first)."""
-        self.u[...] = u[:, None]
+    def propagate(self, u: np.ndarray, dt: float, count: int | None = None) -> np.ndarray:
+        """x_next = f(x, u) for the first `count` columns of self.x (default: all; fill self.x first).
+        Returns the (n, count) view of x_next."""
+        count = self.capacity if count is None else count
+        if count == self.capacity:
+            self.u[...] = u[:, None]
+        else:
+            self.u[:, :count] = u[:, None]
         self.dt[0] = dt
-        self._f(self.capacity)
-        return self.x_next
+        self._f(count)
+        return self.x_next if count == self.capacity else self.x_next[:, :count]
 
-    def measure(self) -> np.ndarray:
-        """y = h(x) for every column of self.x."""
-        self._h(self.capacity)
-        return self.y
+    def measure(self, count: int | None = None) -> np.ndarray:
+        """y = h(x) for the first `count` columns of self.x (default: all); the (n_y, count) view of y."""
+        count = self.capacity if count is None else count
+        self._h(count)
+        return self.y if count == self.capacity else self.y[:, :count]
 

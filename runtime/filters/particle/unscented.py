@@ -199,12 +199,8 @@ class UnscentedParticleFilter(FilterBase):
         N, n = self.N, self.model.n_x
         self._u[:], self._dt[0] = u, dt
         self._predict_batch(N)
-        fb = self._f  # the SIMD kernel of f over the first N columns only (ModelBatch.propagate runs all)
-        fb.x[:, :N] = self._means[:, :N]
-        fb.u[:, :N] = u[:, None]
-        fb.dt[0] = dt
-        fb._f(N)
-        f = fb.x_next[:, :N]
+        self._f.x[:, :N] = self._means[:, :N]
+        f = self._f.propagate(u, dt, N)
         if measurement is None:  # no range: x ~ p(x | x_prev), weights unchanged, P^j <- P^j_pred
             w = np.linalg.cholesky(self.Q) @ self.rng.standard_normal((n, N))
             new_mean, new_cov = f + w, self.cov_pred[:, :, :N]
