@@ -371,11 +371,14 @@ class Stateful:
 class FilterBase(Stateful):
     """The contract's transaction, once: predict/update/step/run/checkpoint/restore for every filter.
 
-    A filter implements hooks on checked inputs, with ``self._p`` already set to the call's parameters:
+    A filter implements, on checked inputs and with ``self._p`` already set to the call's parameters,
+    either both of
 
         _predict(u, dt)                -> None
         _update(z, present)            -> bool   (z with 0 where missing, present (n_y,) bool)
-        _step(u, dt, measurement)      -> bool   (default: _predict then _update; measurement None or (z, present))
+
+    or one move ``_advance(u, dt, measurement) -> bool`` (u, dt None: an update alone; measurement None
+    or (z, present)), which by default is _predict then _update.
 
     and declares in ``_state`` the attribute names of everything it holds and reports (``_p`` and
     ``_p_is_default`` are added here). A public call takes the filter's lock without blocking, checks
@@ -468,18 +471,18 @@ class FilterBase(Stateful):
     # ---------------------------------------------------------------- the transaction
     def _predict_call(self, u, dt, p) -> None:
         u, dt, p = check_u(u, self.model.n_u), check_dt(dt), check_p(p, self.model)
-        self._transaction(self._predict, (u, dt), p)
+        self._transaction(self._advance, (u, dt, None), p)
 
     def _update_call(self, z, p) -> bool:
         measurement, p = check_z(z, self.model.n_y), check_p(p, self.model)
         if measurement is None:
             return False
-        return self._transaction(self._update, measurement, p)
+        return self._transaction(self._advance, (None, None, measurement), p)
 
     def _step_call(self, u, dt, z, p) -> bool:
         u, dt = check_u(u, self.model.n_u), check_dt(dt)
         measurement, p = check_z(z, self.model.n_y), check_p(p, self.model)
-        return self._transaction(self._step, (u, dt, measurement), p)
+        return self._transaction(self._advance, (u, dt, measurement), p)
 
     def _transaction(self, hook, args, p):
         names = self._state if self._touched is None else self._touched
@@ -502,15 +505,16 @@ class FilterBase(Stateful):
             self._p[:] = p
             self._p_is_default = False
 
+    def _advance(self, u, dt, measurement) -> bool:
+        if u is not None:
+            self._predict(u, dt)
+        return False if measurement is None else self._update(*measurement)
+
     def _predict(self, u, dt) -> None:
-        raise NotImplementedError
+        raise NotImplementedError(f"{type(self).__name__} implements neither _advance nor _predict")
 
     def _update(self, z, present) -> bool:
-        raise NotImplementedError
-
-    def _step(self, u, dt, measurement) -> bool:
-        self._predict(u, dt)
-        return False if measurement is None else self._update(*measurement)
+        raise NotImplementedError(f"{type(self).__name__} implements neither _advance nor _update")
 
     def _busy(self) -> RuntimeError:
         return RuntimeError(f"{type(self).__name__} is being used from two threads at once; a filter is not thread-safe "

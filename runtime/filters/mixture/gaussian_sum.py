@@ -110,17 +110,8 @@ class _MixtureFilterBase(FilterBase):
     def _publish(self, mixture: GaussianMixture) -> None:
         self._x, self._P = mixture.mean(), mixture.covariance()  # eq. 45
 
-    # the contract's hooks (FilterBase)
-    def _predict(self, u, dt) -> None:
-        self._advance(u, dt, None)
-
-    def _update(self, z, present) -> bool:
-        return self._advance(None, None, (z, present))
-
-    def _step(self, u, dt, measurement) -> bool:
-        return self._advance(u, dt, measurement)
-
     def _advance(self, u, dt, measurement) -> bool:
+        """The contract's move (FilterBase): predict when u is given, then update when z is."""
         try:
             if u is not None:
                 predicted = self.cubature.predict(self.posterior, u, dt)

@@ -290,19 +290,6 @@ class SIRFilter(FilterBase):
         """The buffer a proposal writes the moved particles into (n_x, N)."""
         return self._batches[1 - self._cur].x
 
-    # ---------------------------------------------------------------- the contract's hooks (FilterBase)
-    def _predict(self, u, dt) -> None:
-        """Move every particle by the transition (weights unchanged)."""
-        self._move(u, dt, None, "predict")
-
-    def _update(self, z, present) -> bool:
-        """Reweight the particles by the likelihood of the present entries of z."""
-        return self._move(None, None, (z, present), "update")
-
-    def _step(self, u, dt, measurement) -> bool:
-        """Move by the proposal, then weight by the likelihood; returns whether z had an entry."""
-        return self._move(u, dt, measurement, "step" if measurement is not None else "predict")
-
     # ---------------------------------------------------------------- the step
     def transition_draw(self, u, dt) -> None:
         """proposed = f(particles, u) + w (the bootstrap move; also used by other proposals)."""
@@ -374,8 +361,11 @@ class SIRFilter(FilterBase):
             residuals = measurement_residuals(z[rows], y[rows], angle_rows)
         return self.noise.marginal(present).log_density(residuals)
 
-    def _move(self, u, dt, measurement, mode: str) -> bool:
-        """One predict/update/step on checked inputs; commits only at its end (FilterBase restores the rest)."""
+    def _advance(self, u, dt, measurement) -> bool:
+        """The contract's move (FilterBase) on checked inputs: a predict moves every particle by the transition
+        (weights unchanged), an update alone reweights them by the likelihood of the present entries of z, a
+        step moves by the proposal and weights; commits only at its end (FilterBase restores the rest)."""
+        mode = "update" if u is None else "predict" if measurement is None else "step"
         z, present = measurement if measurement is not None else (None, None)
         log_w = None
         if mode == "step":

@@ -165,16 +165,6 @@ class TerrainParticleFilter(FilterBase):
         """The compiled step's random streams of the committed side."""
         return self._compiled.rng[self._side]
 
-    # ---------------------------------------------------------------- the contract's hooks (FilterBase)
-    def _predict(self, u, dt) -> None:
-        self._run_step(u, dt, None)
-
-    def _update(self, z, present) -> bool:
-        return self._run_step(None, None, (z, present))
-
-    def _step(self, u, dt, measurement) -> bool:
-        return self._run_step(u, dt, measurement)
-
     # ---------------------------------------------------------------- the step
     def _gradient_at(self, x: np.ndarray) -> float:
         _, gx, gy, _ = self.terrain.lookup(x[0:1], x[1:2])
@@ -185,8 +175,8 @@ class TerrainParticleFilter(FilterBase):
         self._fuzzy()
         return float(self._sigma_out[0])
 
-    def _run_step(self, u, dt, measurement) -> bool:
-        """One predict/update/step on checked inputs: one compiled call (terrain_step) writing the uncommitted
+    def _advance(self, u, dt, measurement) -> bool:
+        """The contract's move (FilterBase), one predict/update/step on checked inputs: one compiled call (terrain_step) writing the uncommitted
         side, then the fuzzy inputs; only the step's input scalars are written before the commit."""
         move, depth_present, heading_present = u is not None, False, False
         z_depth = z_heading = 0.0

@@ -160,16 +160,13 @@ class UnscentedParticleFilter(FilterBase):
     def carried(self, value) -> None:
         self._covs[:, :, :self.N] = value
 
-    # ---------------------------------------------------------------- the contract's hooks (FilterBase)
-    def _predict(self, u, dt) -> None:
-        self._move(u, dt, None)
+    # ---------------------------------------------------------------- the contract's move (FilterBase)
+    def _advance(self, u, dt, measurement) -> bool:
+        return self._reweight(*measurement) if u is None else self._move(u, dt, measurement)
 
-    def _step(self, u, dt, measurement) -> bool:
-        return self._move(u, dt, measurement)
-
-    def _update(self, z, present) -> bool:
-        """Reweight the particles where they are by p(z | x) and resample (no unscented move: the
-        proposal needs the step's input; ``step`` is the filter)."""
+    def _reweight(self, z, present) -> bool:
+        """An update alone: reweight the particles where they are by p(z | x) and resample (no unscented move:
+        the proposal needs the step's input; ``step`` is the filter)."""
         N = self.N
         log_lik = self._log_likelihood(self._means[:, :N], z, present)
         log_w = self.log_weights + (log_lik if log_lik is not None else 0.0)
