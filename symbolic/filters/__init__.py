@@ -33,10 +33,7 @@ from .ekf import ekf_functions
 from .robust import robust_functions
 from .unscented import SharedLeaves, ckf_functions, ukf_functions, unscented_family
 
-#: every filter family, in the order of the generated units
-FAMILIES = ("ekf", "ukf", "ckf", "robust")
-#: family -> families it builds on (the robust filters predict with the UKF step)
-REQUIRES = {"robust": ("ukf",)}
+from .families import FAMILIES, FUNCTIONS, REQUIRES  # noqa: F401 (the names' one home, re-exported)
 
 
 def check_families(families) -> tuple[str, ...]:

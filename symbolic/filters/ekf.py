@@ -22,6 +22,7 @@ import casadi as ca
 
 from ..model import Model
 from .common import exported, filter_symbols, leaf, step_inputs, transition_with_jacobian
+from .families import FUNCTIONS
 from .linalg import all_finite, congruence, symmetric_from_upper, symmetrise
 from .measurement import gain_update, masked_columns, masked_covariance, masked_innovation
 from .unscented import PREDICT_IN, UPDATE_IN, UPDATE_OUT, fused_step
@@ -90,9 +91,10 @@ def ekf_functions(model: Model) -> tuple[ca.Function, ...]:
     s = step_inputs(model, PREDICT_IN)
     x_pred, F = step_and_F(s["x"], s["u"], s["p"], s["dt"])
     P_pred, ok = covariance(x_pred, F, s["P"], s["Q"])
-    predict = exported(f"{m}_ekf_predict", s, {"x_pred": x_pred, "P_pred": P_pred, "ok": ok})
+    names = FUNCTIONS["ekf"]
+    predict = exported(f"{m}_{names['predict']}", s, {"x_pred": x_pred, "P_pred": P_pred, "ok": ok})
     jacobian = exported(f"{m}_F", {name: s[name] for name in ("x", "u", "p", "dt")}, {"dfdx": F})
     sx = filter_symbols(model)
-    update = leaf(f"{m}_ekf_update", [sx.x, sx.P, sx.z, sx.p, sx.R, sx.mask],
+    update = leaf(f"{m}_{names['update']}", [sx.x, sx.P, sx.z, sx.p, sx.R, sx.mask],
                   ekf_update(model, sx.x, sx.P, sx.z, sx.p, sx.R, sx.mask), UPDATE_IN, UPDATE_OUT)
-    return jacobian, predict, update, fused_step(f"{m}_ekf_step", model, predict, update)
+    return jacobian, predict, update, fused_step(f"{m}_{names['step']}", model, predict, update)

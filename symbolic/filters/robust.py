@@ -27,6 +27,7 @@ from __future__ import annotations
 import casadi as ca
 
 from ..model import Model
+from .families import FUNCTIONS
 from .linalg import cholesky_solve, forward_substitute, guarded_cholesky
 from .unscented import SigmaPointFamily, noise_leaf, unscented_family
 
@@ -70,5 +71,6 @@ def robust_functions(model: Model, family: SigmaPointFamily | None = None,
     m = model.name
     mcc = noise_leaf(model, f"{m}_mcc_noise", correntropy_noise(sigma), [sigma], ["sigma"])
     huber = noise_leaf(model, f"{m}_huber_noise", huber_noise(gamma, huber_iterations), [gamma], ["gamma"])
-    return (family.update_function(f"{m}_mcukf_update", mcc, [sigma], ["sigma"]),
-            family.update_function(f"{m}_huber_ukf_update", huber, [gamma], ["gamma"]))
+    names = FUNCTIONS["robust"]
+    return (family.update_function(f"{m}_{names['mcc_update']}", mcc, [sigma], ["sigma"]),
+            family.update_function(f"{m}_{names['huber_update']}", huber, [gamma], ["gamma"]))

@@ -26,6 +26,7 @@ import casadi as ca
 
 from ..model import Model
 from .common import call_columns, exported, leaf, measurement, step_inputs, transition
+from .families import FUNCTIONS
 from .linalg import all_finite, guarded_cholesky, symmetrise, upper_mirrored, weight_groups, weighted_outer
 from .measurement import gain_update, masked_columns, masked_covariance, masked_innovation, residual
 from .sigma_points import SigmaPointRule, cubature_rule, scaled_unscented_rule
@@ -246,9 +247,10 @@ def ckf_functions(model: Model, shared: SharedLeaves | None = None) -> tuple[ca.
     """<m>_ckf_predict, <m>_ckf_update and the fused <m>_ckf_step."""
     m = model.name
     family = SigmaPointFamily(model, f"{m}_ckf", cubature_rule, {}, shared)
-    predict = family.predict_function(f"{m}_ckf_predict")
-    update = family.update_function(f"{m}_ckf_update")
-    return predict, update, fused_step(f"{m}_ckf_step", model, predict, update)
+    names = FUNCTIONS["ckf"]
+    predict = family.predict_function(f"{m}_{names['predict']}")
+    update = family.update_function(f"{m}_{names['update']}")
+    return predict, update, fused_step(f"{m}_{names['step']}", model, predict, update)
 
 
 def unscented_family(model: Model, shared: SharedLeaves | None = None) -> SigmaPointFamily:
@@ -262,4 +264,5 @@ def ukf_functions(model: Model, family: SigmaPointFamily | None = None) -> tuple
     """<m>_ukf_predict and <m>_ukf_update (`family`: the unscented leaves, shared with the robust updates)."""
     m = model.name
     family = family or unscented_family(model)
-    return family.predict_function(f"{m}_ukf_predict"), family.update_function(f"{m}_ukf_update")
+    names = FUNCTIONS["ukf"]
+    return family.predict_function(f"{m}_{names['predict']}"), family.update_function(f"{m}_{names['update']}")

@@ -69,6 +69,8 @@ import numpy as np
 
 from ...contract import FilterBase, FilterResult, check_covariance, check_dt, check_state, real_array, register
 from ...numerics import REPAIR_FLOOR, factorable_covariance, grew_beyond, repair_covariance
+from abyssal.symbolic.filters.families import FUNCTIONS
+
 from .gate import InnovationGate
 
 __all__ = [
@@ -519,9 +521,7 @@ class EKF(KalmanFilter):
     """Extended Kalman filter: <m>_ekf_predict / <m>_ekf_update (Joseph form)."""
 
     S_dominates_R = True
-    predict_function = "ekf_predict"
-    update_function = "ekf_update"
-    step_function = "ekf_step"
+    predict_function, update_function, step_function = (FUNCTIONS["ekf"][r] for r in ("predict", "update", "step"))
 
 
 @register("kalman")
@@ -529,17 +529,14 @@ class CKF(KalmanFilter):
     """Cubature Kalman filter (third-degree spherical-radial rule, 2n points)."""
 
     S_dominates_R = True
-    predict_function = "ckf_predict"
-    update_function = "ckf_update"
-    step_function = "ckf_step"
+    predict_function, update_function, step_function = (FUNCTIONS["ckf"][r] for r in ("predict", "update", "step"))
 
 
 @register("kalman")
 class UKF(KalmanFilter):
     """Unscented Kalman filter with scaled sigma points (alpha, beta, kappa)."""
 
-    predict_function = "ukf_predict"
-    update_function = "ukf_update"
+    predict_function, update_function = FUNCTIONS["ukf"]["predict"], FUNCTIONS["ukf"]["update"]
 
     def __init__(self, model, x0, P0, Q, R, *, alpha: float = 1.0, beta: float = 2.0, kappa: float = 0.0, **options):
         n = model.n_x
@@ -562,7 +559,7 @@ class UKF(KalmanFilter):
 class MCUKF(UKF):
     """UKF with the maximum-correntropy update of seed 002 (eqs. 36-39), kernel bandwidth sigma."""
 
-    update_function = "mcukf_update"
+    update_function = FUNCTIONS["robust"]["mcc_update"]
 
     def __init__(self, model, x0, P0, Q, R, *, sigma: float = 15.0, **options):
         if not sigma > 0:
@@ -578,7 +575,7 @@ class MCUKF(UKF):
 class HuberUKF(UKF):
     """UKF with a Huber M-estimation update (gamma = 1.345, 3 IRLS iterations; HRUKF of seed 002)."""
 
-    update_function = "huber_ukf_update"
+    update_function = FUNCTIONS["robust"]["huber_update"]
 
     def __init__(self, model, x0, P0, Q, R, *, gamma: float = 1.345, **options):
         if not gamma > 0:

@@ -46,6 +46,8 @@ import math
 
 import numpy as np
 
+from abyssal.symbolic.filters.families import FUNCTIONS
+
 from ...compiled.batches import MeasureBatch, ModelBatch, ParallelBatch
 from ...contract import FilterBase, as_generator, check_count, check_covariance, check_state, register
 from ...noise.mixtures import LOG_2PI, weighted_moments
@@ -55,7 +57,8 @@ from .engine import LOG_UNDERFLOW
 
 __all__ = ["UnscentedParticleFilter"]
 
-UPDATES = {"ukf": ("ukf_update", None), "huber": ("huber_ukf_update", "gamma"), "mcc": ("mcukf_update", "sigma")}
+UPDATES = {"ukf": (FUNCTIONS["ukf"]["update"], None), "huber": (FUNCTIONS["robust"]["huber_update"], "gamma"),
+           "mcc": (FUNCTIONS["robust"]["mcc_update"], "sigma")}
 
 
 def _f_zeros(*shape) -> np.ndarray:
