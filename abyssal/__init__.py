@@ -4,7 +4,8 @@ The public surface in one import; the layers stay where the design card puts the
 
     abyssal.symbolic    CasADi only: Model, Fossen blocks, discretisations, filter algebra, codegen
     abyssal.generated   committed C, compile cache, loader
-    abyssal.runtime     filters, particles, noise models, experiments, checks, CLI
+    abyssal.runtime     filters, particles, noise models, experiments, CLI
+    abyssal.verify      `abyssal verify`: checks all three layers against independent references
 
 Your own vehicle, from equations to a verified filter:
 
@@ -14,6 +15,8 @@ Your own vehicle, from equations to a verified filter:
     assert abyssal.verify(folder).ok                     # compiled C vs CasADi, Jacobians, steps, filters
     ckf = abyssal.CKF(vessel, x0, P0, Q, R)
 """
+import importlib
+
 from abyssal.generated import load
 from abyssal.generated.regenerate import check_folder as check_generated
 from abyssal.generated.regenerate import generate
@@ -21,6 +24,10 @@ from abyssal.runtime import CKF, EKF, MCUKF, UKF, FilterResult, HuberUKF
 from abyssal.runtime.filters.particle import CubatureParticleFilter, ParticleFilter
 from abyssal.runtime.noise import GaussianMixture
 from abyssal.symbolic import Envelope, Model, Parameter, Quantity, discretise, fossen, symbols
+
+# The package abyssal.verify is loaded before the function of the same name is defined below, so the
+# function stays the attribute `abyssal.verify` (loading a submodule later would overwrite it).
+importlib.import_module("abyssal.verify")
 
 
 def verify(target, *, strict: bool = False):
@@ -33,14 +40,14 @@ def verify(target, *, strict: bool = False):
     import os
     import tempfile
 
-    from abyssal.runtime.checks import verify as checks
+    from abyssal.verify import driver
 
     if isinstance(target, (str, os.PathLike)):
         folders = [target] if (isinstance(target, os.PathLike) or "/" in target or os.sep in target) else []
-        return checks.run_all(models=None if folders else [target], folders=folders, strict=strict)
+        return driver.run_all(models=None if folders else [target], folders=folders, strict=strict)
     folder = generate(target, tempfile.mkdtemp(prefix="abyssal-verify-"))
     model = target if isinstance(target, Model) else target()
-    return checks.verify_targets([checks.model_target(model, folder)], strict=strict)
+    return driver.verify_targets([driver.model_target(model, folder)], strict=strict)
 
 
 __all__ = [

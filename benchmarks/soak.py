@@ -3,13 +3,13 @@
     python benchmarks/soak.py [--quick] [--json]
 
 Reports steps, updates, refusals, gated, NaN steps, the final error against the truth and the
-RSS growth per filter (see abyssal.runtime.checks.bench_soak); `abyssal bench` prints the same
-section. Nothing is asserted.
+RSS growth per filter (bench_soak.py beside this file, which `abyssal bench` prints as its soak
+section). Nothing is asserted.
 """
 import json
 import sys
 
-from abyssal.runtime.checks import bench_soak
+import bench_soak  # this folder is sys.path[0] when the script runs
 
 if __name__ == "__main__":
     report = bench_soak.run(quick="--quick" in sys.argv, verbose="--json" not in sys.argv)

@@ -14,9 +14,9 @@ import numpy as np
 
 import abyssal.generated
 from abyssal.runtime import CKF, EKF, UKF
-from abyssal.runtime.checks.bench_filters import trajectory
 from abyssal.runtime.filters.particle import CubatureParticleFilter, ParticleFilter, UnscentedParticleFilter
 from abyssal.runtime.noise.mixtures import GaussianMixture
+from bench_filters import trajectory  # this folder is sys.path[0] when the script runs
 
 REPETITIONS = 7
 

@@ -56,7 +56,7 @@ def _regenerate_user(args, regenerate) -> int:
 
 
 def _verify(args) -> int:
-    from abyssal.runtime.checks import verify
+    from abyssal.verify import driver as verify  # the product's checks sit above the layers; only the command imports them
 
     names = [m for m in args.models if not _is_path(m)]
     folders = [m for m in args.models if _is_path(m)]
@@ -100,14 +100,28 @@ def _verify_model_spec(args, verify):
     return verify.verify_targets([verify.model_target(model, folder)], strict=args.strict)
 
 
+def benchmarks_folder():
+    """benchmarks/ of the source checkout abyssal runs from (the repository root holds runtime/ and
+    benchmarks/); benchmarks/ is never installed, so a non-editable install has none."""
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parent.parent
+    folder = root / "benchmarks"
+    if not ((root / "pyproject.toml").is_file() and (folder / "bench.py").is_file()):
+        raise RuntimeError("the benchmarks ship with the source checkout only (git clone the abyssal repository, "
+                           f"pip install -e . in it, and run abyssal bench there); this abyssal is installed at {root}")
+    return folder
+
+
 def _bench(args) -> int:
+    import importlib
+
+    folder = str(benchmarks_folder())
+    if folder not in sys.path:
+        sys.path.insert(0, folder)  # the sections import each other by file name, as when run as scripts
     if args.folders:
-        from abyssal.runtime.checks import bench_folder
-
-        return bench_folder.main(args.folders, json_output=args.json, quick=args.quick)
-    from abyssal.runtime.checks import bench
-
-    return bench.main(json_output=args.json, out=args.out, quick=args.quick)
+        return importlib.import_module("bench_folder").main(args.folders, json_output=args.json, quick=args.quick)
+    return importlib.import_module("bench").main(json_output=args.json, out=args.out, quick=args.quick)
 
 
 def _reproduce(args) -> int:
@@ -173,7 +187,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("models", nargs="*", help="built-in model names or model folders (default: all built-ins)")
     p.set_defaults(run=_verify)
 
-    p = sub.add_parser("bench", help="per-call and per-step timings, with ratios against peers")
+    p = sub.add_parser("bench", help="per-call and per-step timings, with ratios against peers",
+                       description="Runs the sections of benchmarks/ (or times model folders, DIR); the benchmarks "
+                                   "ship with the source checkout only.")
     p.add_argument("--json", action="store_true", help="print the results as JSON")
     p.add_argument("--out", default="benchmarks/results", help="folder for the JSON results (default: %(default)s)")
     p.add_argument("--quick", action="store_true", help="fewer repetitions (smoke run)")

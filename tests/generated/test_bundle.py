@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 import abyssal.generated
-from abyssal.runtime.checks.reference_models import REFERENCES
+from abyssal.verify.reference_models import REFERENCES
 
 
 @pytest.fixture

@@ -17,7 +17,9 @@ import pytest
 import abyssal
 from abyssal.generated import GeneratedFolderError, regenerate
 from abyssal.runtime import cli
-from abyssal.runtime.checks import verify, verify_filters
+from abyssal.verify import driver as verify
+from abyssal.verify import filters as verify_filters
+from abyssal.verify.report import Check, Report
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "own_vehicle" / "cybership.py"
 
@@ -262,11 +264,11 @@ def test_verify_model_spec_cli(project, capsys, monkeypatch):
 
 
 def test_a_skipped_check_is_a_status_of_its_own():
-    skipped = verify.Check.skip("m", "order", "solve_ivp", "the model is discrete")
-    passed = verify.Check("m", "f", "CasADi", 1e-16, 1e-12)
-    report = verify.Report([skipped, passed])
+    skipped = Check.skip("m", "order", "solve_ivp", "the model is discrete")
+    passed = Check("m", "f", "CasADi", 1e-16, 1e-12)
+    report = Report([skipped, passed])
     assert (skipped.status, passed.status) == ("skipped", "ok") and report.ok
-    assert not verify.Report([skipped, passed], strict=True).ok
+    assert not Report([skipped, passed], strict=True).ok
     assert [c["status"] for c in report.as_dict()["checks"]] == ["skipped", "ok"]
     table = report.table()
     assert "SKIPPED m order: skipped, because the model is discrete" in table

@@ -182,7 +182,7 @@ def test_load_of_a_path_under_an_unknown_home_is_a_clear_refusal():
 
 @pytest.fixture(scope="module")
 def quick_soak(rov):
-    from abyssal.runtime.checks import bench_soak
+    import bench_soak  # benchmarks/ ([tool.pytest.ini_options] pythonpath)
 
     return {group: bench_soak.soak_run(rov, steps) for group, steps in
             (("kalman", 2000), ("particle", 300))}
@@ -205,7 +205,7 @@ def test_quick_soak_has_no_nan_and_no_permanent_divergence(rov, quick_soak, cls,
     """The soak benchmark's run, short: gross outliers (1e4 m, 1e6 m), NaN entries and rows, an outage
     and one 5 s step. Refusals may happen (the 5 s step), but never a non-finite state, and the filter
     must accept measurements again in the last 10 % of the run."""
-    from abyssal.runtime.checks import bench_soak
+    import bench_soak  # benchmarks/ ([tool.pytest.ini_options] pythonpath)
 
     run = quick_soak["kalman" if kind == "kalman" else "particle"]
     report = bench_soak.soak_filter(bench_soak.build_filter(cls, kind, rov, run, 50), run)

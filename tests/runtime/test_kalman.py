@@ -9,7 +9,7 @@ import pytest
 
 import abyssal.generated
 from abyssal.runtime import CKF, EKF, MCUKF, UKF, HuberUKF, repair_covariance
-from abyssal.runtime.checks import verify_filters
+from abyssal.verify import filters as verify_filters
 
 ROOT = Path(__file__).resolve().parents[2]
 

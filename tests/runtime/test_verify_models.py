@@ -3,13 +3,15 @@ from __future__ import annotations
 
 import dataclasses
 import re
+from pathlib import Path
 
 import casadi as ca
 import numpy as np
 import pytest
 
-from abyssal.runtime.checks import reference_models, verify_models
-from abyssal.runtime.checks.reference_models import REFERENCES
+from abyssal.verify import models as verify_models
+from abyssal.verify import reference_models
+from abyssal.verify.reference_models import REFERENCES
 
 
 @pytest.fixture(scope="module")
@@ -190,7 +192,7 @@ def attitude_folder(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def attitude(attitude_folder):
-    from abyssal.runtime.checks import verify
+    from abyssal.verify import driver as verify
 
     return verify.folder_target(attitude_folder)
 
@@ -226,7 +228,7 @@ def test_user_model_is_sampled_inside_its_envelope(attitude):
 
 
 def test_euler_angle_model_passes_every_check_inside_its_envelope(attitude_folder):
-    from abyssal.runtime.checks import verify
+    from abyssal.verify import driver as verify
 
     report = verify.run_all(folders=[attitude_folder])
     assert report.ok, report.table()
@@ -258,9 +260,9 @@ def test_fail_line_names_point_entry_both_values_and_tolerance(attitude):
     got, expected = float(match.group(7)), float(match.group(8))
     assert got / expected == pytest.approx(1 + eps, rel=1e-6)  # the perturbed entry and its reference value
     assert float(match.group(9)) == pytest.approx(bad.error, rel=1e-2) and bad.error > bad.tolerance
-    from abyssal.runtime.checks import verify
+    from abyssal.verify.report import Report
 
-    table = verify.Report(checks).table()
+    table = Report(checks).table()
     assert f"FAIL attitude {bad.name}: {bad.worst}; " in table
 
 
@@ -280,8 +282,8 @@ def test_a_diverging_step_is_reported_as_diverged(attitude):
 
 
 def test_no_envelope_declared_is_said_once_with_the_defaults(attitude):
-    from abyssal.runtime.checks import verify
     from abyssal.symbolic.model import envelope_record
+    from abyssal.verify.report import Report
 
     undeclared = envelope_record(None, attitude.bundle.state_names, attitude.bundle.input_names)
     for envelope, why in ((undeclared, "no envelope declared: "), (None, "none recorded in its manifest")):
@@ -289,7 +291,7 @@ def test_no_envelope_declared_is_said_once_with_the_defaults(attitude):
         notes = [c.note for c in checks if c.note]
         assert len(notes) == 1 and why in notes[0]
         assert "states and inputs in [-1, 1], dt in [0.01, 0.5] s" in notes[0]
-        assert verify.Report(checks).table().count("NOTE attitude: no envelope declared") == 1
+        assert Report(checks).table().count("NOTE attitude: no envelope declared") == 1
     points = verify_models._Points(WithEnvelope(attitude.bundle, undeclared), None, np.random.default_rng(2))
     X = np.array([points.state() for _ in range(500)])
     assert np.all(np.abs(X) <= 1.0) and 0.01 <= min(points.dt() for _ in range(200))
@@ -304,20 +306,61 @@ def test_builtins_with_a_twin_keep_their_draws(rov):
 
 
 def test_a_missing_or_renamed_section_is_an_error_not_a_silent_skip(monkeypatch):
-    from abyssal.runtime.checks import bench, verify
+    import bench  # benchmarks/ ([tool.pytest.ini_options] pythonpath)
 
-    monkeypatch.setattr(verify, "SECTIONS", verify.SECTIONS + ("abyssal.runtime.checks.verify_renamed",))
-    with pytest.raises(ModuleNotFoundError, match="verify_renamed"):
+    from abyssal.verify import driver as verify
+
+    monkeypatch.setattr(verify, "SECTIONS", verify.SECTIONS + ("abyssal.verify.renamed",))
+    with pytest.raises(ModuleNotFoundError, match="abyssal.verify.renamed"):
         list(verify._sections())
-    monkeypatch.setattr(bench, "SECTIONS", ("abyssal.runtime.checks.bench_renamed",))
+    monkeypatch.setattr(bench, "SECTIONS", ("bench_renamed",))
     with pytest.raises(ModuleNotFoundError, match="bench_renamed"):
         bench.main(json_output=True, out=None, quick=True)
+
+
+def test_every_section_file_is_listed():
+    """A section file that SECTIONS does not name would never run: verify/ and benchmarks/ hold only listed
+    sections besides their drivers and helpers."""
+    import bench  # benchmarks/ ([tool.pytest.ini_options] pythonpath)
+
+    from abyssal.runtime import cli
+    from abyssal.verify import driver as verify
+
+    here = Path(verify.__file__).parent
+    assert {f"abyssal.verify.{f.stem}" for f in here.glob("*.py")} - set(verify.SECTIONS) == {
+        "abyssal.verify.__init__", "abyssal.verify.driver", "abyssal.verify.report", "abyssal.verify.reference_models"}
+    bench_files = {f.stem for f in cli.benchmarks_folder().glob("bench*.py")}
+    assert bench_files - set(bench.SECTIONS) == {"bench", "bench_folder", "bench_scaling"}
+    assert set(bench.SECTIONS) <= bench_files
+
+
+def test_bench_outside_a_source_checkout_is_one_clear_line(monkeypatch, tmp_path, capsys):
+    """A non-editable install has no benchmarks/ (it is never installed): `abyssal bench`, with or without
+    model folders, says so in one line and exits 2."""
+    from abyssal.runtime import cli
+
+    installed = tmp_path / "site-packages" / "abyssal" / "runtime"
+    installed.mkdir(parents=True)
+    monkeypatch.setattr(cli, "__file__", str(installed / "cli.py"))
+    for argv in (["bench", "--quick"], ["bench", str(tmp_path)]):
+        assert cli.main(argv) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "the benchmarks ship with the source checkout only (git clone" in err, err
+
+
+def test_the_public_verify_stays_a_function_beside_its_package():
+    """abyssal.verify (the function) is not replaced by the package abyssal.verify once its modules load."""
+    import abyssal
+    from abyssal.verify import driver, models  # noqa: F401
+
+    assert callable(abyssal.verify) and abyssal.verify.__module__ == "abyssal"
+    assert driver.run_all.__module__ == "abyssal.verify.driver"
 
 
 def test_the_bench_timing_driver_links_every_timed_function(rov):
     """The pure-C driver of `abyssal bench` finds each function in the file the manifest names (F sits in
     the EKF's file): a timing for every one, not a link error."""
-    from abyssal.runtime.checks import bench_models
+    import bench_models  # benchmarks/ ([tool.pytest.ini_options] pythonpath)
 
     args = {"x": np.zeros(12), "u": np.zeros(4), "p": rov.params(), "dt": np.array([0.1])}
     times = bench_models.pure_c_times(rov, args, quick=True)

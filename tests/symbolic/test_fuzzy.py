@@ -59,7 +59,7 @@ def test_steep_terrain_gives_small_and_flat_terrain_large_sigma():
 
 def test_scikit_fuzzy_agrees_on_a_fine_universe():
     pytest.importorskip("networkx")
-    from abyssal.runtime.checks.verify_tan import _skfuzzy_system
+    from abyssal.verify.tan import _skfuzzy_system
 
     sim = _skfuzzy_system()
     for g, r in [(0.0, 0.0), (4.0, -3.0), (-15.0, 12.0)]:

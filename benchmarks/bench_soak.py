@@ -34,7 +34,7 @@ import time
 
 import numpy as np
 
-from .bench import target
+from bench import target
 
 MODEL = "rov4dof"
 DT = 0.1
@@ -166,7 +166,7 @@ def soak_filter(filt, run: dict) -> dict:
 
 def build_filter(cls, kind: str, bundle, run: dict, n_particles: int, seed: int = 1):
     """A filter of a registered class (``contract.registered_filters``) on the soak's noise."""
-    from ..noise.mixtures import GaussianMixture
+    from abyssal.runtime.noise.mixtures import GaussianMixture
 
     x0, P0, Q, R = np.zeros(bundle.n_x), 0.3 * np.eye(bundle.n_x), run["Q"], run["R"]
     if kind == "kalman":
@@ -184,7 +184,7 @@ def build_filter(cls, kind: str, bundle, run: dict, n_particles: int, seed: int 
 
 def filter_groups() -> dict[str, list]:
     """Registered filter classes: the Kalman family, and everything else (particles, mixtures)."""
-    from ..contract import registered_filters
+    from abyssal.runtime.contract import registered_filters
 
     groups: dict[str, list] = {"kalman": [], "particle": []}
     for cls, kind in sorted(registered_filters().items(), key=lambda item: item[0].__name__):

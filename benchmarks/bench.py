@@ -1,21 +1,23 @@
 """`abyssal bench`: timings measured as ratios against peers in the same run.
 
-Sections (modules exposing ``run(quick: bool) -> dict``) each return
+Sections (modules of this folder exposing ``run(quick: bool) -> dict``) each return
 ``{"results": {...}, "targets": [{"name", "value", "limit", "unit", "met"}...]}``; this module
 prints them, and writes ``<out>/bench.json``. Targets are reported, never asserted in tests.
+
+The folder is not installed: `abyssal bench` puts it on sys.path (from a source checkout) and
+imports the sections by their file names, as `python benchmarks/bench_models.py` does.
 """
 from __future__ import annotations
 
+import argparse
 import importlib
 import json
 import platform
 import time
 from pathlib import Path
 
-SECTIONS = ("abyssal.runtime.checks.bench_models", "abyssal.runtime.checks.bench_filters", "abyssal.runtime.checks.bench_particles",
-            "abyssal.runtime.checks.bench_soak", "abyssal.runtime.checks.bench_campaign",
-            "abyssal.runtime.checks.bench_remus", "abyssal.runtime.checks.bench_tan",
-            "abyssal.runtime.checks.bench_cn")
+SECTIONS = ("bench_models", "bench_filters", "bench_particles", "bench_soak", "bench_campaign", "bench_remus", "bench_tan",
+            "bench_cn")
 
 
 def median_time(fn, repeat: int = 7, min_time: float = 0.05) -> float:
@@ -51,7 +53,7 @@ def main(json_output: bool = False, out: str | None = "benchmarks/results", quic
               "sections": {}}
     for section in SECTIONS:
         module = importlib.import_module(section)  # a missing or renamed section is an error, never skipped
-        key = section.rsplit(".", 1)[-1].removeprefix("bench_")
+        key = section.removeprefix("bench_")
         if not json_output:
             print(f"== {key}", flush=True)
         result = module.run(quick=quick, verbose=not json_output)
@@ -69,3 +71,11 @@ def main(json_output: bool = False, out: str | None = "benchmarks/results", quic
         if out:
             print(f"\nsaved {Path(out) / 'bench.json'}")
     return 0
+
+
+def json_main(run, description: str) -> None:
+    """`python benchmarks/<section>.py [--quick]`: one section alone, its report as JSON on stdout."""
+    parser = argparse.ArgumentParser(description=description)
+    parser.add_argument("--quick", action="store_true", help="fewer repetitions (smoke run)")
+    args = parser.parse_args()
+    print(json.dumps(run(quick=args.quick, verbose=False), indent=1))

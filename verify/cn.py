@@ -21,7 +21,7 @@ import math
 
 import numpy as np
 
-from .verify import Check
+from .report import Check
 
 MODEL = "cn2d"
 
@@ -39,7 +39,7 @@ def _particle_cloud(rng, N):
 
 
 def batch_checks(bundle) -> list[Check]:
-    from ..compiled.batches import ParallelBatch
+    from abyssal.runtime.compiled.batches import ParallelBatch
 
     rng = np.random.default_rng(0)
     N = 257
@@ -132,7 +132,7 @@ def ivbckf_reference(x_prior, P_prior, z, H, R, iterations, chi=5.0, phi=1.0, ka
 def ivbckf_checks() -> list[Check]:
     from abyssal.generated import load
 
-    from ..filters.kalman.ivbckf import IVBCKF
+    from abyssal.runtime.filters.kalman.ivbckf import IVBCKF
 
     lin = load("linear_cv")
     x0 = np.array([1.0, 2.0, 0.5, -0.3])
@@ -155,7 +155,7 @@ def ivbckf_checks() -> list[Check]:
 def kld_checks() -> list[Check]:
     from scipy.stats import norm
 
-    from ..resampling import kld_sample_size
+    from abyssal.runtime.resampling import kld_sample_size
 
     ks = np.arange(2, 1001)
     a = 2 / (9 * (ks - 1))

@@ -1,6 +1,6 @@
 """`abyssal verify` section for seed 004: the GP export (abyssal.symbolic.gp) against scikit-learn.
 
-remus100 itself is covered by the generic model checks (verify_models, with its NumPy twin in
+remus100 itself is covered by the generic model checks (abyssal.verify.models, with its NumPy twin in
 reference_models). Here, on the remus100 bundle only:
 
 * from_sklearn (CasADi evaluation) == GaussianProcessRegressor.predict(return_std=True), mean and
@@ -17,7 +17,7 @@ import importlib
 
 import numpy as np
 
-from .verify import Check
+from .report import Check
 
 TOLERANCE = 1e-9
 SEED = 4

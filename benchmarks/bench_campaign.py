@@ -14,9 +14,9 @@ import time
 
 
 def run(quick: bool = False, verbose: bool = True) -> dict:
-    from ..experiments import campaign
-    from ..experiments.rov import experiment
-    from .bench import target
+    from abyssal.runtime.experiments import campaign
+    from abyssal.runtime.experiments.rov import experiment
+    from bench import target
 
     duration, n_particles, runs = (2.0, 30, 2) if quick else (10.0, 300, 4)
     config = experiment.short_config(duration=duration, n_particles=n_particles)

@@ -36,9 +36,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..filters.kalman import CKF, EKF, MCUKF, UKF, HuberUKF
-from ..numerics import relative_error, wrap_to_pi as wrap
-from .verify import Check
+from abyssal.runtime.filters.kalman import CKF, EKF, MCUKF, UKF, HuberUKF
+from abyssal.runtime.numerics import relative_error, wrap_to_pi as wrap
+
+from .report import Check
 
 STEPS = 15
 TOLERANCE = 1e-12
@@ -85,7 +86,7 @@ def scenario(bundle, steps: int = STEPS, seed: int = 7) -> Scenario:
     if envelope.get("declared") and not _builtin(bundle):
         # a user's model that declares where it is meant to be used: start in the middle half of each state's
         # range, inputs in the middle half of theirs, dt inside [min_dt, max_dt]
-        from .verify_models import SamplingBox
+        from .models import SamplingBox
 
         box = SamplingBox(bundle)
         mid, half = (box.x_low + box.x_high) / 2, (box.x_high - box.x_low) / 2
@@ -107,7 +108,7 @@ def scenario(bundle, steps: int = STEPS, seed: int = 7) -> Scenario:
 
 
 def _builtin(bundle) -> bool:
-    from .verify_models import _builtin_bundle
+    from .models import _builtin_bundle
 
     return _builtin_bundle(bundle)
 

@@ -12,7 +12,7 @@ import tempfile
 
 import numpy as np
 
-from .bench import median_time, target
+from bench import median_time, target
 
 TRAINING_SIZES = (50, 100, 200)
 QUICK_SIZES = (50,)
@@ -21,9 +21,9 @@ QUICK_SIZES = (50,)
 def run(quick: bool = False, verbose: bool = True) -> dict:
     from abyssal.generated import load
 
-    from ..experiments.remus import experiment, gp_codegen, gp_model, truth
-    from ..filters.kalman import UKF
-    from ..filters.kalman.gp_ukf import GPUKF
+    from abyssal.runtime.experiments.remus import experiment, gp_codegen, gp_model, truth
+    from abyssal.runtime.filters.kalman import UKF
+    from abyssal.runtime.filters.kalman.gp_ukf import GPUKF
 
     bundle = load("remus100")
     duration = 300.0 if quick else 800.0

@@ -20,11 +20,11 @@ import itertools
 
 import numpy as np
 
-from .bench import median_time, target
+from bench import median_time, target
 
 
 def _filter(bundle, terrain, sigma, n, seed=1):
-    from ..filters.particle.terrain import TerrainParticleFilter
+    from abyssal.runtime.filters.particle.terrain import TerrainParticleFilter
 
     return TerrainParticleFilter(bundle, [20e3, 20e3, 0.0], np.diag([50.0 ** 2, 50.0 ** 2, 0.0]), sigma, 5.0, n, seed,
                                  terrain=terrain)
@@ -33,7 +33,7 @@ def _filter(bundle, terrain, sigma, n, seed=1):
 def run(quick: bool = False, verbose: bool = True) -> dict:
     from abyssal.generated import load
 
-    from ..experiments.tan.scenario import STARTS, TanConfig, get_map, simulate
+    from abyssal.runtime.experiments.tan.scenario import STARTS, TanConfig, get_map, simulate
 
     bundle = load("tan3dof")
     terrain = get_map("arctic")
@@ -61,12 +61,12 @@ def run(quick: bool = False, verbose: bool = True) -> dict:
         steps[label] = 1e6 * step_time(_filter(bundle, terrain, sigma, 1000))
         say(f"  TAN SIR step, N = 1000, {label:<18} {steps[label]:8.1f} us")
     # parts, as peers
-    from ..filters.particle import terrain_step
+    from abyssal.runtime.filters.particle import terrain_step
 
     filt = _filter(bundle, terrain, 3.0, 1000)
     for k in range(50):
         filt.step(truth.inputs[k], 1.0, truth.measurements[k])
-    compiled = filt._step
+    compiled = filt._compiled
     parts = {"compiled step alone (one C call)": 1e6 * median_time(lambda: compiled.step(filt._side), repeat, min_time)}
     compiled.scalars[terrain_step.S_DRAW] = 0.0  # the test hook: reuse the last noise instead of drawing
     parts["compiled step without the 4N draws"] = 1e6 * median_time(lambda: compiled.step(filt._side), repeat, min_time)
@@ -102,7 +102,7 @@ def run(quick: bool = False, verbose: bool = True) -> dict:
     fuzzy_c = 1e6 * median_time(filt._fuzzy, repeat, min_time)  # the bound generated fuzzy_sigma
     fuzzy = {"generated C, bound call (us)": fuzzy_c}
     try:
-        from .verify_tan import _skfuzzy_system
+        from abyssal.verify.tan import _skfuzzy_system
 
         sim = _skfuzzy_system()
 

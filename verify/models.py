@@ -7,7 +7,7 @@ x_next):
     compiled C vs CasADi        the committed C, compiled, against CasADi's own evaluation of the
                                 same symbolic Function (catches codegen, compiler and loader faults)
     vs NumPy model              xdot, h and f against the independent NumPy model
-                                (runtime/checks/reference_models.py; catches equation errors)
+                                (verify/reference_models.py; catches equation errors)
     vs central differences      F, G, H against central differences of the NumPy step/measurement
     vs solve_ivp (DOP853)       one f step against a tight adaptive integration of the NumPy RHS,
                                 and the order of the scheme from the error ratio when halving dt
@@ -37,7 +37,7 @@ reported as skipped, with that reason. Anything else that cannot run (no Model t
 in CasADi, say) is reported as skipped with its reason.
 
 Errors are relative in the max-norm: max|a - b| / max|b|, worst case over the sampled points.
-Filter functions are verified by verify_filters; names this module does not know are skipped.
+Filter functions are verified by abyssal.verify.filters; names this module does not know are skipped.
 """
 from __future__ import annotations
 
@@ -47,9 +47,10 @@ import math
 import numpy as np
 from scipy.integrate import solve_ivp
 
+from abyssal.runtime.numerics import relative_error
+
 from . import reference_models
-from ..numerics import relative_error
-from .verify import Check
+from .report import Check
 
 MODEL_FUNCTIONS = ("f", "F", "G", "h", "H", "xdot", "x_next")
 N_POINTS = 24           # random points per comparison
@@ -543,10 +544,10 @@ def checks(bundle, reference=None, symbolic=None, target=None) -> list[Check]:
     if ref is None:  # its own compiled functions stand in for the twin (a user's model has none)
         # every continuous built-in has a hand-written twin; ReferenceModel has no x_next yet, so a discrete
         # built-in (tan3dof) is checked like a user's model here, and against an independent arc formula in
-        # verify_tan
+        # abyssal.verify.tan
         if builtin and not bundle.is_discrete:
             out.append(Check(bundle.name, "independent NumPy model", "reference_models", float("nan"), 0.0,
-                             f"no NumPy model of {bundle.name!r} in runtime/checks/reference_models.py: add one"))
+                             f"no NumPy model of {bundle.name!r} in verify/reference_models.py: add one"))
         model_checks = _compiled_checks(bundle, points)
         if points.envelope.note() and model_checks:  # said once per model, on its first check of this kind
             model_checks[0].note = points.envelope.note()

@@ -12,7 +12,7 @@ import json
 
 import numpy as np
 
-from .bench import median_time
+from bench import median_time
 
 PARTICLES = (1000, 10000)
 

@@ -12,14 +12,14 @@ import itertools
 
 import numpy as np
 
-from .bench import median_time, target
+from bench import median_time, target
 
 
 def run(quick: bool = False, verbose: bool = True) -> dict:
     import abyssal.generated
 
-    from ..experiments.cn import experiment, paper
-    from ..experiments.cn.scenario import CnScenario, simulate
+    from abyssal.runtime.experiments.cn import experiment, paper
+    from abyssal.runtime.experiments.cn.scenario import CnScenario, simulate
 
     model = abyssal.generated.load("cn2d")
     config = experiment.CnConfig()

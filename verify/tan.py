@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .verify import Check
+from .report import Check
 
 SKFUZZY_OUTPUT_STEP = 1e-3
 
@@ -87,7 +87,7 @@ def fuzzy_checks(bundle) -> list[Check]:
 def map_checks(name: str) -> list[Check]:
     from scipy.interpolate import RegularGridInterpolator
 
-    from ..experiments.tan.scenario import get_map
+    from abyssal.runtime.experiments.tan.scenario import get_map
 
     terrain = get_map(name)
     xg, yg = terrain.node_coordinates()

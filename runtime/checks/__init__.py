@@ -1,1 +1,0 @@
-"""`abyssal verify` and `abyssal bench`: sections imported explicitly, reference models, peers."""
