@@ -309,7 +309,8 @@ class KalmanFilter(FilterBase):
             return self._predict_then_update(u, dt, z, p)
         self._cur = self._last_update = 1 - cur
         self._last_dof = self._n_y
-        self.gate.accepted_all()
+        if self.gate.streaking:
+            self.gate.accepted_all()
         return True
 
     # -------------------------------------------------------------- steps
@@ -436,7 +437,8 @@ class KalmanFilter(FilterBase):
             if self._ok_view[0] == 1.0 and self.gate.passes(self._innovation[1 - cur], self._S[1 - cur], self._n_y):
                 self._cur = self._last_update = 1 - cur
                 self._last_dof = self._n_y
-                self.gate.accepted_all()
+                if self.gate.streaking:
+                    self.gate.accepted_all()
                 return True
             if self._update_slow_path(cur):
                 return True

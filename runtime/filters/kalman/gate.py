@@ -58,7 +58,8 @@ class InnovationGate(Stateful):
         #: covariance inflations asked for after `patience` consecutive gated updates of an entry
         self.inflations = 0
         self._streak = np.zeros(m, dtype=int)  # consecutive gated updates of each entry
-        self._streaking = False  # any streak > 0 (a bool keeps the hot path free of array work)
+        #: any streak > 0 (a bool: the hot path reads it before calling accepted_all)
+        self.streaking = False
         self.set_R(R)
 
     def set_R(self, R: np.ndarray) -> None:
@@ -68,12 +69,12 @@ class InnovationGate(Stateful):
 
     # the counters are the gate's state; a tuple (not the generic dict) keeps an update's snapshot cheap
     def checkpoint(self):
-        return self.gated, self.inflations, self._streak.copy() if self._streaking else None
+        return self.gated, self.inflations, self._streak.copy() if self.streaking else None
 
     def restore(self, state) -> None:
         self.gated, self.inflations, streak = state
         self._streak[:] = 0 if streak is None else streak
-        self._streaking = streak is not None
+        self.streaking = streak is not None
 
     def passes(self, nu: np.ndarray, S: np.ndarray, dof: int) -> bool:
         """Whether an update with innovation nu and covariance S over dof entries passes. Cheap bounds first
@@ -112,7 +113,7 @@ class InnovationGate(Stateful):
         streak = self._streak
         streak[present & ~gated] = 0
         streak[gated] += 1
-        self._streaking = bool(streak.any())
+        self.streaking = bool(streak.any())
         if gated.any() and streak.max() >= self.patience:
             self.inflations += 1
             return True
@@ -120,7 +121,7 @@ class InnovationGate(Stateful):
 
     def accepted_all(self) -> None:
         """A complete measurement passed: every streak ends."""
-        if self._streaking:
+        if self.streaking:
             self._streak[:] = 0
-            self._streaking = False
+            self.streaking = False
 
