@@ -21,14 +21,14 @@ QUICK_SIZES = (50,)
 def run(quick: bool = False, verbose: bool = True) -> dict:
     from abyssal.generated import load
 
-    from abyssal.runtime.experiments.remus import experiment, gp_codegen, gp_model, truth
+    from abyssal.runtime.experiments.remus import experiment, gp_codegen, gp_model, scenario
     from abyssal.runtime.filters.kalman import UKF
     from abyssal.runtime.filters.kalman.gp_ukf import GPUKF
 
     bundle = load("remus100")
     duration = 300.0 if quick else 800.0
-    setup = truth.HelixSetup(duration=duration)
-    training, evaluation = truth.simulate(1, setup, bundle), truth.simulate(2, setup, bundle)
+    setup = scenario.HelixSetup(duration=duration)
+    training, evaluation = scenario.simulate(1, setup, bundle), scenario.simulate(2, setup, bundle)
     repeat, min_time = (3, 0.02) if quick else (7, 0.1)
     P0 = np.diag(experiment.P0_DIAG)
     Q = experiment.ukf_process_noise(training, bundle)
@@ -43,7 +43,7 @@ def run(quick: bool = False, verbose: bool = True) -> dict:
             k[0] = i + 1 if i + 1 < len(evaluation.t) else 1
         return step
 
-    ukf = UKF(bundle, evaluation.x[0], P0, Q, truth.SENSOR_R)
+    ukf = UKF(bundle, evaluation.x[0], P0, Q, scenario.SENSOR_R)
     results = {"ukf_step_ms": 1e3 * median_time(timed_step(ukf), repeat=repeat, min_time=min_time), "gp": {}}
     if verbose:
         print(f"  ideal UKF (remus100, 2 RK4 substeps)  {results['ukf_step_ms']:8.3f} ms/step", flush=True)
@@ -54,7 +54,7 @@ def run(quick: bool = False, verbose: bool = True) -> dict:
             os.environ["ABYSSAL_CACHE_DIR"] = os.path.join(tmp, "cache")  # a cold compile, timed
             try:
                 compiled = gp_codegen.build_predict(gpm, tmp, name=f"remus_gpukf_bench_n{n}")
-                gpukf = GPUKF(bundle, compiled.library, compiled.name, evaluation.x[0], P0, truth.SENSOR_R, gp_dt=0.2)
+                gpukf = GPUKF(bundle, compiled.library, compiled.name, evaluation.x[0], P0, scenario.SENSOR_R, gp_dt=0.2)
                 step_ms = 1e3 * median_time(timed_step(gpukf), repeat=repeat, min_time=min_time)
             finally:
                 if previous_cache is None:

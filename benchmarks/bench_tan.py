@@ -33,7 +33,8 @@ def _filter(bundle, terrain, sigma, n, seed=1):
 def run(quick: bool = False, verbose: bool = True) -> dict:
     from abyssal.generated import load
 
-    from abyssal.runtime.experiments.tan.scenario import STARTS, TanConfig, get_map, simulate
+    from abyssal.runtime.experiments.tan.experiment import TanConfig
+    from abyssal.runtime.experiments.tan.scenario import STARTS, get_map, simulate
 
     bundle = load("tan3dof")
     terrain = get_map("arctic")

@@ -2,12 +2,17 @@
 
 State (eq. 13): x = [x y z psi u v w r b_x b_y b_z b_psi]; input tau = [X Y Z N] (eq. 5);
 measurement [x y z psi] (H of eq. 16). Surge, sway, heave and yaw only: roll and pitch are
-held by the chain (section 2.2), so J(eta) reduces to R(psi) (eq. 12).
+held by the chain (section 2.2), so J(eta) reduces to R(psi) (eq. 12). The four DOFs are
+``fossen.FOUR_DOF`` of Fossen's 6-DOF ordering; the Fossen blocks embed them themselves.
 
-Equations, as implemented:
+Equations, as implemented (eq. numbers of the paper):
+    M = M_RB + M_A                                                       (eqs. 6, 46-47)
+    C(nu) = C_RB(nu) + C_A(nu), derived from M                           (eq. 7)
+    D(nu) nu = (D_L + D_NL(nu)) nu                                       (eqs. 8-9, 48-49)
+    g(eta) = [0 0 -(W-B) 0]                                              (eq. 10)
     eta_dot = R(psi) nu                                                  (eq. 12)
-    M nu_dot = tau - C(nu) nu - D(nu) nu - g(eta) + R(psi)^T b + w_nu    (eqs. 5, 15)
-    b_dot    = -b / T_b + w_b                                             (eq. 11, F_b = -1/T_b)
+    M nu_dot = tau + R(psi)^T b + w_nu - C(nu) nu - D(nu) nu - g(eta)    (eqs. 5, 12, 15)
+    b_dot    = -b / T_b + w_b                                             (eq. 11, F_b = -b/T_b)
 
 Departures from the printed formulas (DESIGN.md lists them as known typos):
 - M_A (eq. 6/47) and D_L, D_NL (eqs. 8-9/48-49) are printed with negative entries; as in
@@ -15,12 +20,14 @@ Departures from the printed formulas (DESIGN.md lists them as known typos):
   M_A = -diag(X_udot, Y_vdot, Z_wdot, N_rdot) and D = -diag(X_u, ...) - diag(X_|u|u |u|, ...)
   are positive definite.
 - C_RB and C_A (eq. 7) are not typed in: they are derived from M_RB and M_A by Fossen's
-  formula (fossen.coriolis_from_mass) on the 6-DOF embedding with p = q = 0. This removes the
+  formula (``fossen.coriolis`` on the 4-DOF subset, i.e. p = q = 0). This removes the
   printed `m` on the heave diagonal of C_RB and the `-N_rdot` entry of C_A (neither is a
-  Coriolis term: both would make C(nu) not skew-symmetric).
+  Coriolis term: both would make C(nu) not skew-symmetric). C is linear in M, so
+  ``fossen.rigid_body_equations`` derives C_RB + C_A from M = M_RB + M_A in one go.
 - The bias b is an earth-frame disturbance force (eq. 15 writes R^T(psi) b in the body
-  equations). Eq. 11 leaves F_b unspecified; we use a first-order Gauss-Markov process with
-  time constant T_b (a runtime parameter, default 100 s), which reduces to a random walk as
+  equations); with the thrust and the force noise it is part of the generalised force the body
+  equations receive. Eq. 11 leaves F_b unspecified; we use a first-order Gauss-Markov process
+  with time constant T_b (a runtime parameter, default 100 s), which reduces to a random walk as
   T_b -> infinity.
 - W = B (section 5.1: neutrally buoyant), so g(eta) = [0 0 -(W-B) 0] vanishes by default;
   W and B stay parameters.
@@ -49,7 +56,7 @@ import casadi as ca
 from .. import fossen
 from ..model import Envelope, Model, Parameter, Quantity, symbols
 
-DOF = [0, 1, 2, 5]  # surge, sway, heave, yaw inside Fossen's 6-DOF ordering
+DOFS = fossen.FOUR_DOF  # surge, sway, heave, yaw inside Fossen's 6-DOF ordering
 SUBSTEPS = 2  # RK4 substeps per step: see the module docstring (stability of the quadratic damping)
 
 STATES = (
@@ -112,31 +119,31 @@ OUTPUTS = (
 def rov4dof() -> Model:
     x, u, p, w = symbols("x", STATES), symbols("u", INPUTS), symbols("p", PARAMETERS), symbols("w", NOISES)
     prm = {q.name: p[i] for i, q in enumerate(PARAMETERS)}
-    psi = x[3]
-    nu = x[4:8]
-    bias = x[8:12]
+    eta, nu, bias = x[0:4], x[4:8], x[8:12]  # eq. 13
+    psi = eta[3]
 
-    # Eq. 6: M = M_RB + M_A, embedded in 6-DOF to derive C(nu) by Fossen's formula.
-    zero = ca.SX(0)
-    m6 = ca.diag(ca.vertcat(prm["m"], prm["m"], prm["m"], zero, zero, prm["I_z"]))
-    added6 = -ca.diag(ca.vertcat(prm["X_udot"], prm["Y_vdot"], prm["Z_wdot"], zero, zero, prm["N_rdot"]))
-    nu6 = ca.vertcat(nu[0], nu[1], nu[2], zero, zero, nu[3])
-    coriolis6 = fossen.coriolis_from_mass(m6, nu6) + fossen.coriolis_from_mass(added6, nu6)  # eq. 7
-    M = (m6 + added6)[DOF, DOF]
-    C = coriolis6[DOF, DOF]
+    # Eqs. 6, 46-47: M = M_RB + M_A, both diagonal (the centre of gravity at the origin).
+    M_RB = ca.diag(ca.vertcat(prm["m"], prm["m"], prm["m"], prm["I_z"]))
+    M_A = -ca.diag(ca.vertcat(prm["X_udot"], prm["Y_vdot"], prm["Z_wdot"], prm["N_rdot"]))
+    M = M_RB + M_A
 
-    # Eqs. 8-9: D(nu) nu with positive coefficients.
-    linear = -ca.vertcat(prm["X_u"], prm["Y_v"], prm["Z_w"], prm["N_r"])
-    quadratic = -ca.vertcat(prm["X_uu"], prm["Y_vv"], prm["Z_ww"], prm["N_rr"])
-    damping = fossen.linear_plus_quadratic_damping(nu, linear, quadratic)
+    # Eqs. 8-9, 48-49: D(nu) nu = (D_L + D_NL(nu)) nu; D_L, D_NL hold the diagonals, positive (Fossen signs).
+    D_L = -ca.vertcat(prm["X_u"], prm["Y_v"], prm["Z_w"], prm["N_r"])
+    D_NL = -ca.vertcat(prm["X_uu"], prm["Y_vv"], prm["Z_ww"], prm["N_rr"])
+    damping = fossen.linear_plus_quadratic_damping(nu, D_L, D_NL)
 
-    # Eq. 10: restoring forces (phi = theta = 0).
-    restoring = fossen.restoring_forces(prm["W"], prm["B"], ca.SX.zeros(3), ca.SX.zeros(3), 0, 0)[DOF]
+    # Eq. 10: restoring forces, roll and pitch held at zero by the chain.
+    zero3 = ca.SX.zeros(3)
+    restoring = fossen.restrict(fossen.restoring_forces(prm["W"], prm["B"], zero3, zero3, 0, 0), DOFS)
 
-    # Eq. 12/15: R(psi) for the 4-DOF pose; the earth-frame bias enters the body equations as R^T b.
-    R4 = ca.diagcat(fossen.rotation_z(psi), ca.SX(1))
-    eta_dot = ca.mtimes(R4, nu)
-    nu_dot = fossen.solve_mass(M, u - ca.mtimes(C, nu) - damping - restoring + ca.mtimes(R4.T, bias) + w[0:4])
+    # Eq. 15: the earth-frame bias enters the body equations as R(psi)^T b, beside the thrust and the force noise.
+    bias_force = ca.vertcat(ca.mtimes(fossen.rotation_z(psi).T, bias[0:3]), bias[3])
+    tau = u + bias_force + w[0:4]
+
+    # Eq. 12: eta_dot = R(psi) nu; nu_dot = M^-1 (tau - C(nu) nu - D(nu) nu - g(eta)), C from M (eq. 7).
+    eta_dot = fossen.kinematics(eta, nu, DOFS)
+    nu_dot = fossen.rigid_body_equations(M, nu, tau, damping, restoring, dofs=DOFS)
+    # Eq. 11 with F_b = -b / T_b: a first-order Gauss-Markov bias.
     bias_dot = -bias / prm["T_b"] + w[4:8]
 
     return Model(

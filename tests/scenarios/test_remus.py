@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 import abyssal.generated
-from abyssal.runtime.experiments.remus import gp_codegen, gp_model, truth
+from abyssal.runtime.experiments.remus import gp_codegen, gp_model
+from abyssal.runtime.experiments.remus import scenario
 
 pytest.importorskip("sklearn")
 
@@ -19,7 +20,7 @@ def remus():
 
 @pytest.fixture(scope="module")
 def helix(remus):
-    return truth.simulate(1, bundle=remus)
+    return scenario.simulate(1, bundle=remus)
 
 
 def test_closed_loop_helix_matches_the_spec_reference_behaviour(helix):
@@ -38,25 +39,25 @@ def test_closed_loop_helix_matches_the_spec_reference_behaviour(helix):
 def test_sensors_quantise_clip_wrap_and_hold(helix):
     z = helix.z
     for ch in (0, 1, 2, 6, 7, 8, 9):
-        lsb = truth.SENSOR_LSB[ch]
+        lsb = scenario.SENSOR_LSB[ch]
         np.testing.assert_allclose(z[:, ch] / lsb, np.round(z[:, ch] / lsb), atol=1e-6)
     assert np.all(np.abs(z[:, 7:10]) <= np.pi)
-    noise = truth.sensor_noise(1, truth.HelixSetup())
+    noise = scenario.sensor_noise(1, scenario.HelixSetup())
     x = helix.x[100]
-    z, lsb = truth.measure(x, noise[3]), truth.SENSOR_LSB
+    z, lsb = scenario.measure(x, noise[3]), scenario.SENSOR_LSB
     # the gyro rates p, q, r (no clip, no wrap): the noisy value rounded to its 12-bit step
     assert np.all(np.abs(z[3:6] - (x[3:6] + noise[3][3:6])) <= np.where(lsb[3:6] > 0, lsb[3:6] / 2, 0) + 1e-15)
-    assert not np.array_equal(z, truth.measure(x, noise[4]))  # another noise sample, another reading
-    assert truth.measure(np.r_[5.0, np.zeros(11)], np.zeros(10))[0] == 3.0         # u clipped to 3 m/s
+    assert not np.array_equal(z, scenario.measure(x, noise[4]))  # another noise sample, another reading
+    assert scenario.measure(np.r_[5.0, np.zeros(11)], np.zeros(10))[0] == 3.0         # u clipped to 3 m/s
     # run index = seed: another run has other noise, the same helix
-    other = truth.simulate(2, truth.HelixSetup(duration=20.0))
+    other = scenario.simulate(2, scenario.HelixSetup(duration=20.0))
     np.testing.assert_allclose(other.x[:5], helix.x[:5], rtol=0, atol=1e-12)
     assert not np.array_equal(other.z[:20], helix.z[:20])
 
 
 @pytest.fixture(scope="module")
 def small_gp(tmp_path_factory):
-    short = truth.simulate(1, truth.HelixSetup(duration=60.0))
+    short = scenario.simulate(1, scenario.HelixSetup(duration=60.0))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         model = gp_model.fit(short, n_train=25)
@@ -90,7 +91,7 @@ def test_generated_gp_ukf_predict_equals_a_numpy_unscented_transform(remus, smal
     short, model, compiled = small_gp
     x0 = short.x[100]
     P0 = np.diag([1e-4] * 6 + [1.0, 1.0, 1e-2, 1e-4, 1e-4, 1e-3])
-    f = GPUKF(remus, compiled.library, compiled.name, x0, P0, truth.SENSOR_R, gp_dt=0.2)
+    f = GPUKF(remus, compiled.library, compiled.name, x0, P0, scenario.SENSOR_R, gp_dt=0.2)
     f.predict(short.u[100], 0.2)
     mean, cov, Q = _ut_reference(model, x0, P0, short.u[100])
     np.testing.assert_allclose(f.x, mean, rtol=0, atol=1e-9 * np.max(np.abs(mean)))
@@ -111,7 +112,9 @@ def test_gp_ukf_follows_the_filter_contract(remus, small_gp):
 
     short, _, compiled = small_gp
     P0 = np.diag([1e-4] * 6 + [1.0, 1.0, 1e-2, 1e-4, 1e-4, 1e-3])
-    f = GPUKF(remus, compiled.library, compiled.name, short.x[0], P0, truth.SENSOR_R, gp_dt=0.2)
+    # gate off: this 12-point GP predicts poorly enough that the innovation gate (tests/runtime/test_gate.py)
+    # leaves out some entries, and this test counts the entries NaN leaves out
+    f = GPUKF(remus, compiled.library, compiled.name, short.x[0], P0, scenario.SENSOR_R, gp_dt=0.2, gate_probability=0.0)
     assert f.step(short.u[0], 0.2, short.z[1]) is True
     x, P = f.x, f.P
     with pytest.raises(ValueError, match="training step"):
@@ -136,7 +139,10 @@ def test_run_one_gives_tidy_rows_for_both_filters(remus, small_gp, monkeypatch):
 
     short, _, compiled = small_gp
     monkeypatch.setattr(experiment, "PREDICTION_STARTS", (20, 30))
-    config = experiment.RemusConfig(60.0, tuple(map(tuple, np.eye(12) * 1e-6)), str(compiled.library), compiled.name, 0.2)
+    config = experiment.RemusConfig(duration=60.0, Q_ukf=tuple(map(tuple, np.eye(12) * 1e-6)),
+                                    predict_library=str(compiled.library), predict_name=compiled.name, gp_dt=0.2)
+    with pytest.raises(ValueError, match="not prepared"):
+        experiment.run_one(experiment.RemusConfig(duration=60.0), run_seeds(0, 1)[0])
     rows = experiment.run_one(config, run_seeds(0, 2)[1])
     assert {r["filter"] for r in rows} == {"UKF", "GP-UKF"}
     assert {r["run"] for r in rows} == {1}

@@ -9,7 +9,7 @@ import pytest
 
 import abyssal.generated
 from abyssal.runtime.experiments import campaign, reproduce
-from abyssal.runtime.experiments.rov import experiment
+from abyssal.runtime.experiments.rov import experiment, paper
 from abyssal.runtime.experiments.rov.scenario import SEA_STATES, RovScenario, mass_diagonal, simulate
 
 
@@ -25,13 +25,24 @@ def test_sea_states_are_data_with_renormalised_weights():
     assert sum(sea12.printed_weights) != pytest.approx(1.0)
     assert sum(sea12.weights) == pytest.approx(1.0, abs=1e-15)
     assert sea12.weights[0] / sea12.weights[1] == pytest.approx(sea12.printed_weights[0] / sea12.printed_weights[1])
-    noise = sea12.measurement_noise()
-    assert np.allclose(noise.covariances[1], 0.357 * np.diag([0.4, 0.3, 0.3, 0.4]))
-    sea3 = SEA_STATES["3"].measurement_noise()
-    assert np.allclose(sea3.weights, [0.1, 0.9])
-    assert np.allclose(np.diag(sea3.covariances[1]), 150 * np.array([0.2, 0.2, 0.1, 0.003]))
+    # the readings of the printed formulas, as relations between the components (not the literals again):
+    # "N(0.357*R)" is 0.357 times sea state 1-2's R, and sea state 3's R1 is that same R
+    c12 = sea12.measurement_noise().covariances
+    np.testing.assert_allclose(c12[1], 0.357 * c12[0], rtol=1e-15)
+    np.testing.assert_array_equal(SEA_STATES["3"].measurement_noise().covariances[0], c12[0])
+    rng = np.random.default_rng(11)
     for sea in SEA_STATES.values():
+        noise = sea.measurement_noise()
+        np.testing.assert_array_equal(noise.weights, sea.weights)
         assert np.isclose(sea.weights.sum(), 1.0)
+        for cov, diagonal in zip(noise.covariances, sea.diagonal_covariances):
+            np.testing.assert_array_equal(cov, np.diag(diagonal))
+        # the mixture the truth samples has the moment-matched covariance the CKF is given
+        draws = noise.sample(rng, 200_000)[0]
+        sample = np.cov(draws)
+        np.testing.assert_allclose(np.diag(sample), np.diag(noise.covariance()), rtol=0.03)
+        assert np.all(np.abs(sample / np.sqrt(np.outer(np.diag(sample), np.diag(sample))) - np.eye(4)) < 0.02)  # uncorrelated
+        assert np.all(np.abs(draws.mean(axis=1)) < 4 * np.sqrt(np.diag(noise.covariance()) / 200_000))  # zero mean
 
 
 def test_process_noise_readings_give_q_k_as_documented(rov):
@@ -152,7 +163,7 @@ def test_cpf_keeps_its_particles_alive_in_every_sea_state_at_the_default_reading
 def test_reproduce_rov_json_csv_and_figures_on_the_campaign(tmp_path, capsys):
     args = argparse.Namespace(experiment="rov", runs=2, seed=1, particles=None, out=str(tmp_path), json=True,
                               workers=0, scheduler=None, resume=False)
-    assert reproduce.run_rov(args, config=_short()) == 0
+    assert reproduce.run("rov", args, config=_short()) == 0
     report = json.loads(capsys.readouterr().out)
     assert report["experiment"] == "rov" and report["runs"] == 2 and not report["failures"]
     assert {"plain|3|CPF", "density|0|CKF (matched model)", "plain|1-2|EM-MOGCPF"} <= set(report["summary"])
@@ -164,17 +175,32 @@ def test_reproduce_rov_json_csv_and_figures_on_the_campaign(tmp_path, capsys):
     # the text tables: the paper's Table 3 beside ours, the sensitivity table and the rankings
     args.json = False
     args.resume = True  # nothing left to run: the tables come from the CSV alone
-    assert reproduce.run_rov(args, config=_short()) == 0
+    assert reproduce.run("rov", args, config=_short()) == 0
     text = capsys.readouterr().out
     assert "CKF (matched model)" in text and "CKF (mismatched Q)" in text and "1.8577" in text
+    assert "Wall time per filter step" in text  # the timings, apart from the tables
     assert "Sensitivity to the process-noise reading" in text and "paper: EM-MOGCPF < CPF" in text
 
 
 def test_paper_table_is_complete_and_independent_of_our_runs():
-    paper = reproduce.paper_rov_rmse()
-    assert set(paper) == {"0", "1-2", "3"}
-    for sea, rows in paper.items():
+    table = paper.table3_rmse()
+    assert set(table) == {"0", "1-2", "3"}
+    for sea, rows in table.items():
         assert set(rows) == {"PF", "CKF", "CPF", "EM-MOGCPF"}, sea  # Table 3 has no MOGCPF row
         for row in rows.values():
             assert set(row) == {"x", "y", "z", "psi"} and all(0 < v < 100 for v in row.values()), sea
-    assert reproduce.paper_rov_rmse() == paper and reproduce.paper_rov_rmse() is not paper  # a fresh copy each time
+    assert paper.table3_rmse() == table and paper.table3_rmse() is not table  # a fresh copy each time
+
+
+def test_table3_prints_each_paper_number_in_its_own_cell():
+    """Every quoted number sits in the row of its sea state and axis, under its filter's 'paper' column."""
+    values = {**{m: 1.0 for m in experiment.METRICS}, "refused": 0.0}
+    rows = [{"run": 0, "case": sea, "filter": label, "metric": m, "reading": "plain", "value": v}
+            for sea in SEA_STATES for label in ("PF", "CKF (matched model)", "CPF", "EM-MOGCPF") for m, v in values.items()]
+    lines = experiment.table3(rows).splitlines()
+    for sea, filters in paper.table3_rmse().items():
+        start = next(i for i, line in enumerate(lines) if line.startswith(f"{sea:<5}x "))
+        for offset, axis in enumerate(paper.AXES):
+            cells = lines[start + offset].split()[-8:]  # ours, paper for PF, CKF, CPF, EM-MOGCPF
+            quoted = [float(c) for c in cells[1::2]]
+            assert quoted == [filters[f][axis] for f in ("PF", "CKF", "CPF", "EM-MOGCPF")], (sea, axis)

@@ -3,7 +3,7 @@ import numpy as np
 
 from abyssal.runtime.experiments.campaign import TIMING_METRICS
 from abyssal.runtime.experiments.tan import experiment
-from abyssal.runtime.experiments.tan.scenario import TanConfig, run_one
+from abyssal.runtime.experiments.tan.experiment import TanConfig, run_one
 
 CONFIG = TanConfig(duration_s=400.0, n_particles=200, maps=("arctic",), starts=("flat",), currents=("0.15",),
                    sigmas=(2.0,), fuzzy=("fuzzy",))
@@ -37,13 +37,12 @@ def test_reproduce_tan_writes_table_json_csv_and_figures(tmp_path, capsys):
     import json
 
     from abyssal.runtime.experiments import reproduce
-    from abyssal.runtime.experiments.tan.scenario import TanConfig
 
     config = TanConfig(duration_s=200.0, n_particles=100, maps=("arctic",), starts=("rough", "flat"), currents=("0.1",),
                        sigmas=(2.0,), fuzzy=("fuzzy",))
     args = argparse.Namespace(runs=1, seed=0, particles=None, workers=0, scheduler=None, resume=False,
                               out=str(tmp_path), json=False, quick=False)
-    assert reproduce.run_tan(args, config) == 0
+    assert reproduce.run("tan", args, config) == 0
     printed = capsys.readouterr().out
     assert "arctic/rough/current_0.1" in printed and "THE PAPER" in printed
     document = json.loads((tmp_path / "tan.json").read_text())

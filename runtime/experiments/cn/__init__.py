@@ -1,1 +1,1 @@
-"""Cooperative navigation (seed 002) on a simulated lake trial: scenario, filters, Table 7, figures."""
+"""Seed 002: cooperative navigation on a simulated lake trial (paper.py, scenario.py, experiment.py)."""

@@ -201,8 +201,13 @@ def report(rows, config: CnConfig) -> str:
     return "\n".join(lines)
 
 
+def document(rows, config: CnConfig, prepared=None) -> dict:
+    """The JSON summary's entries: what the data is, and ``json_document``'s cases."""
+    return {"data": "simulated lake trial (the paper's data is not public)", "cases": json_document(rows)}
+
+
 def json_document(rows) -> dict:
-    """{case: {filter: {ape_m, step_ms, mean_particles (particle filters), ...}}} (NaN as null)."""
+    """{case: {filter: {ape_m, step_ms, mean_particles (particle filters), ...}}} (NaN kept: reproduce writes null)."""
     s = summary(rows)
     out = {}
     for case, filters in s.items():
@@ -222,7 +227,7 @@ def json_document(rows) -> dict:
 # figures
 
 
-def figures(config: CnConfig, seed: int, out) -> list:
+def figures(rows, out, config: CnConfig, seed: int = 0, prepared=None) -> list:
     """Figs. 7-9 analogues (paths, positions, position errors) and MCUPF's particle count, for run 0 of each
     case (re-run here from the same seed, so they show a run that is in the table)."""
     require("matplotlib", "the experiment figures").use("Agg")
@@ -270,3 +275,6 @@ def figures(config: CnConfig, seed: int, out) -> list:
         paths.append(path)
     return paths
 
+
+#: the name `abyssal reproduce` looks up (reproduce.py)
+Config = CnConfig

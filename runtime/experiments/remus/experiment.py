@@ -1,8 +1,10 @@
 """Seed 004's experiment: ideal UKF vs GP-UKF on the REMUS 100 helix (Tables 3-4, Figs. 3, 5-8).
 
-    config = prepare(out_dir, quick=False)        # run 1 -> GPs -> generated, compiled GP-UKF predict
-    rows = run_one(config, seed)                   # one run: truth, sensors, both filters, metrics
-    tables(rows)                                   # Table 3 and Table 4 beside the paper's numbers
+    config, prepared = prepare(RemusConfig(), out, say)  # run 1 -> GPs -> generated, compiled GP-UKF predict
+    rows = run_one(config, seed)                          # one run: truth, sensors, both filters, metrics
+    report(rows, config)                                  # Table 3 and Table 4 beside the paper's (paper.py)
+
+The truth (helix, LOS + PID, sensors) is scenario.py; the GPs are gp_model.py, their generated C gp_codegen.py.
 
 Set-up. Run r (1-based) uses sensor-noise seed r (spec 9); run 1 is also the GPs' training run
 (in-sample for the GP-UKF; the other runs differ only in sensor noise, the helix is the same).
@@ -27,16 +29,15 @@ Metrics (rows of the campaign table):
 """
 from __future__ import annotations
 
-import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from ...extras import require
-from . import truth
+from . import paper, scenario
 
-STATE_NAMES = truth.STATE_NAMES
+STATE_NAMES = scenario.STATE_NAMES
 MEASURED = ("u", "v", "w", "p", "q", "r", "z", "phi", "theta", "psi")
 FILTERS = ("UKF", "GP-UKF")
 P0_DIAG = (1e-4, 1e-4, 1e-4, 1e-6, 1e-6, 1e-6, 1.0, 1.0, 1e-2, 1e-4, 1e-4, 1e-3)
@@ -50,37 +51,37 @@ N_TRAIN = 100
 N_TRAIN_QUICK = 60
 QUICK_DURATION = 300.0
 
-#: seed 004 Table 3 (mean RMSE over 20 runs and its standard deviation), quoted. The velocity
-#: rows are legible; of the pose rows only the UKF means are (the sigma and GP-UKF cells are
-#: garbled in the seed text: "UKF σ-UKF 2.4237 14.6908 ..."), so nothing else is quoted.
-PAPER_TABLE3 = {
-    "UKF": {"u": 0.0014, "v": 0.0015, "w": 0.0005, "p": 0.0023, "q": 0.0013, "r": 0.0031,
-            "x": 2.4237, "y": 1.2695, "z": 0.0017, "phi": 0.0006, "theta": 0.0012, "psi": 0.0013},
-    "sigma-UKF": {"u": 0.0003, "v": 0.0021, "w": 0.0008, "p": 0.0078, "q": 0.0035, "r": 0.0121},
-    "GP-UKF": {"u": 0.0158, "v": 0.0369, "w": 0.0154, "p": 0.0569, "q": 0.0601, "r": 0.1813},
-    "sigma-GP-UKF": {"u": 0.0387, "v": 0.0069, "w": 0.0033, "p": 0.0123, "q": 0.0130, "r": 0.0347},
-}
-#: seed 004 Table 4, quoted.
-PAPER_TABLE4 = {("UKF", "correction"): 0.0028, ("GP-UKF", "correction"): 0.086,
-                ("UKF", "prediction"): 2.91, ("GP-UKF", "prediction"): 2.86}
+EXTRA_COLUMNS: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
 class RemusConfig:
-    """Everything a run needs (picklable: paths, not libraries)."""
+    """What a run needs. The first four fields are the set-up (defaults: `abyssal reproduce remus`); ``prepare``
+    fills in the rest from run 1 (paths and numbers, not libraries: the config is pickled to the workers)."""
 
-    duration: float
-    Q_ukf: tuple            # (12, 12) nested tuples
-    predict_library: str
-    predict_name: str
-    gp_dt: float
+    duration: float = 800.0             # s per run
+    n_train: int = N_TRAIN              # GP regressors per state
+    features: str = "paper"             # GP inputs: "paper" or "trig" (gp_model)
+    density_at_end: float | None = None  # the 40 % pool's sampling density at the end vs the start (None: gp_model's)
+    Q_ukf: tuple | None = None          # (12, 12) nested tuples: the ideal UKF's Q
+    predict_library: str | None = None  # the compiled GP-UKF predict
+    predict_name: str | None = None
+    gp_dt: float | None = None
+
+    def quick(self) -> "RemusConfig":
+        """`abyssal reproduce remus --quick`: 300 s runs, 60 regressors per GP."""
+        return replace(self, duration=QUICK_DURATION, n_train=N_TRAIN_QUICK)
+
+    @property
+    def prepared(self) -> bool:
+        return self.predict_library is not None
 
 
-def _setup(duration: float) -> truth.HelixSetup:
-    return truth.HelixSetup(duration=duration)
+def _setup(duration: float) -> scenario.HelixSetup:
+    return scenario.HelixSetup(duration=duration)
 
 
-def ukf_process_noise(log: truth.HelixLog, bundle) -> np.ndarray:
+def ukf_process_noise(log: scenario.HelixLog, bundle) -> np.ndarray:
     """Covariance of the true model's one-step residuals over the log (see the module docstring)."""
     X, U = log.x, log.u
     predicted = np.column_stack([bundle.f(X[k], U[k], None, log.dt) for k in range(len(X) - 1)]).T
@@ -89,31 +90,27 @@ def ukf_process_noise(log: truth.HelixLog, bundle) -> np.ndarray:
     return 0.5 * (Q + Q.T) + 1e-12 * np.eye(12)
 
 
-def prepare(out_dir: Path, quick: bool = False, n_train: int | None = None, progress=None, features: str = "paper",
-            density_at_end: float | None = None):
-    """Run 1, the GPs and the compiled GP-UKF predict; returns (config, details for tables/figures).
-
-    features ("paper" or "trig") and density_at_end (the 40 % pool's sampling density at the end
-    relative to the start; default gp_model.DENSITY_AT_END = 0.25, 1.0 = uniform) are the GP options.
-    """
+def prepare(config: RemusConfig, out_dir: Path | None = None, progress=None):
+    """Run 1, the GPs and the compiled GP-UKF predict (into out_dir, default ./out): (the prepared config,
+    details for the figures and the JSON: {"gp", "compiled", "training"})."""
     from abyssal import generated
 
     from . import gp_codegen, gp_model
 
     say = progress or (lambda message: None)
-    duration = QUICK_DURATION if quick else 800.0
-    n_train = n_train or (N_TRAIN_QUICK if quick else N_TRAIN)
     bundle = generated.load("remus100")
-    training = truth.simulate(1, _setup(duration), bundle)
-    say(f"fitting 12 GPs on run 1 ({n_train} regressors each)")
-    density = gp_model.DENSITY_AT_END if density_at_end is None else density_at_end
-    gpm = gp_model.fit(training, n_train=n_train, features=features, density_at_end=density)
+    training = scenario.simulate(1, _setup(config.duration), bundle)
+    say(f"fitting 12 GPs on run 1 ({config.n_train} regressors each)")
+    density = gp_model.DENSITY_AT_END if config.density_at_end is None else config.density_at_end
+    gpm = gp_model.fit(training, n_train=config.n_train, features=config.features, density_at_end=density)
     say(f"GPs fitted in {gpm.train_seconds:.1f} s; generating and compiling the GP-UKF predict")
-    compiled = gp_codegen.build_predict(gpm, Path(out_dir))
+    compiled = gp_codegen.build_predict(gpm, Path(out_dir) if out_dir else Path("out"))
+    say(f"GP-UKF predict: {compiled.c_bytes / 1e6:.2f} MB of C, generated in {compiled.generate_seconds:.1f} s, "
+        f"compiled in {compiled.compile_seconds:.1f} s (0 when cached)")
     Q = ukf_process_noise(training, bundle)
-    config = RemusConfig(duration, tuple(map(tuple, Q)), str(compiled.library), compiled.name, gpm.dt)
-    details = {"gp": gpm, "compiled": compiled, "training": training}
-    return config, details
+    config = replace(config, Q_ukf=tuple(map(tuple, Q)), predict_library=str(compiled.library),
+                     predict_name=compiled.name, gp_dt=gpm.dt)
+    return config, {"gp": gpm, "compiled": compiled, "training": training}
 
 
 def _filters(config: RemusConfig, bundle):
@@ -121,15 +118,15 @@ def _filters(config: RemusConfig, bundle):
     from ...filters.kalman.gp_ukf import GPUKF
 
     return {
-        "UKF": lambda x, P: UKF(bundle, x, P, np.array(config.Q_ukf), truth.SENSOR_R),
-        "GP-UKF": lambda x, P: GPUKF(bundle, config.predict_library, config.predict_name, x, P, truth.SENSOR_R,
+        "UKF": lambda x, P: UKF(bundle, x, P, np.array(config.Q_ukf), scenario.SENSOR_R),
+        "GP-UKF": lambda x, P: GPUKF(bundle, config.predict_library, config.predict_name, x, P, scenario.SENSOR_R,
                                      gp_dt=config.gp_dt),
     }
 
 
 def _errors(estimate: np.ndarray, true: np.ndarray) -> np.ndarray:
     e = estimate - true
-    e[..., 9:12] = truth.wrap(e[..., 9:12])
+    e[..., 9:12] = scenario.wrap(e[..., 9:12])
     return e
 
 
@@ -144,10 +141,12 @@ def filter_run(config: RemusConfig, seed: np.random.SeedSequence):
 
     from ..campaign import run_index
 
+    if not config.prepared:
+        raise ValueError("RemusConfig is not prepared: call prepare(config, out) first (it trains the GPs)")
     run = run_index(seed)                                   # 0-based row key of the campaign table
     sensor_seed = run + 1 + 100_000 * int(seed.entropy)     # spec 9: run r uses seed r (r = 1..M) for --seed 0
     bundle = generated.load("remus100")
-    log = truth.simulate(sensor_seed, _setup(config.duration), bundle)
+    log = scenario.simulate(sensor_seed, _setup(config.duration), bundle)
     T = len(log.t)
     P0 = np.diag(P0_DIAG)
     rows, traces = [], {}
@@ -155,12 +154,9 @@ def filter_run(config: RemusConfig, seed: np.random.SeedSequence):
         flt = make(log.x[0].copy(), P0)
         X, Ps = np.empty((T, 12)), np.empty((T, 12, 12))
         X[0], Ps[0] = flt.x, flt.P
-        t0 = time.perf_counter()
-        for k in range(1, T):
-            flt.predict(log.u[k - 1], LOG_DT)
-            flt.update(log.z[k])
-            X[k], Ps[k] = flt.x, flt.P
-        step_ms = (time.perf_counter() - t0) / (T - 1) * 1e3
+        result = flt.run(log.u[:-1], log.z[1:], LOG_DT)  # step k: predict with u[k - 1], update with z[k]
+        X[1:], Ps[1:] = result.x, result.P
+        step_ms = float(np.mean(result.step_time)) * 1e3
         err = _errors(X, log.x)
         rmse = np.sqrt(np.mean(err**2, axis=0))
         for i, state in enumerate(STATE_NAMES):
@@ -204,8 +200,10 @@ def summary(rows) -> dict:
     return out
 
 
-def tables(rows, runs: int) -> str:
+def report(rows, config: RemusConfig | None = None) -> str:
+    """Table 3 and Table 4, ours (mean ± std over the runs) beside the paper's (paper.py)."""
     s = summary(rows)
+    runs = len({r["run"] for r in rows})
     lines = [f"REMUS 100 helix (seed 004): ideal UKF vs GP-UKF, {runs} run(s); OURS = mean ± std over runs, "
              "THEIRS = the paper's Table 3/4 (quoted; '-' where illegible in the seed text)", "",
              "Table 3: RMSE per state", f"{'state':<7}{'UKF ours':>22}{'UKF theirs':>20}{'GP-UKF ours':>22}{'GP-UKF theirs':>20}"]
@@ -214,15 +212,15 @@ def tables(rows, runs: int) -> str:
         for name, sigma in (("UKF", "sigma-UKF"), ("GP-UKF", "sigma-GP-UKF")):
             mean, std = s[name][f"rmse_{state}"]
             cells.append(f"{mean:>11.4g} ± {std:<8.2g}")
-            theirs = PAPER_TABLE3[name].get(state)
-            tsig = PAPER_TABLE3[sigma].get(state)
+            theirs = paper.TABLE3[name].get(state)
+            tsig = paper.TABLE3[sigma].get(state)
             cells.append(f"{(f'{theirs:.4g}' if theirs is not None else '-'):>11} ± {(f'{tsig:.2g}' if tsig is not None else '-'):<6}")
         lines.append(f"{state:<7}" + "".join(f"{c:>21}" for c in cells))
     lines += ["", "Table 4", f"{'':<28}{'ours':>20}{'theirs':>10}"]
     for name in FILTERS:
         for metric in ("correction", "prediction"):
             mean, std = s[name][metric]
-            lines.append(f"RMSE-{name} {metric:<16}{mean:>11.4g} ± {std:<7.2g}{PAPER_TABLE4[(name, metric)]:>10}")
+            lines.append(f"RMSE-{name} {metric:<16}{mean:>11.4g} ± {std:<7.2g}{paper.TABLE4[(name, metric)]:>10}")
     lines += ["", "correction: mean of the 10 measured states' RMSE; prediction: horizontal-position RMSE (m) of "
               f"predict-only windows of {PREDICTION_HORIZON:g} s from t0 = {PREDICTION_STARTS[0]}, "
               f"{PREDICTION_STARTS[1]}, ..., {PREDICTION_STARTS[-1]} s (our definitions: the paper gives none).",
@@ -239,13 +237,27 @@ def per_state_json(rows) -> dict:
 
 
 # ------------------------------------------------------------------------------------------ figures
-def figures(out: Path, details: dict, first_run) -> list[Path]:
-    """Figs. 3, 5-8 of the paper from run 1 (training/evaluation data, surge, x(t), y(t), 3-D path)."""
+def document(rows, config: RemusConfig, prepared: dict) -> dict:
+    """The JSON summary's entries: the GPs, their generated predict, per-state RMSE and the paper's tables."""
+    gpm, compiled = prepared["gp"], prepared["compiled"]
+    return {"duration_s": config.duration, "gp_regressors": gpm.n_train, "gp_train_seconds": gpm.train_seconds,
+            "gp_predict_c_bytes": compiled.c_bytes, "gp_predict_compile_seconds": compiled.compile_seconds,
+            "per_state_rmse": per_state_json(rows),
+            "paper": {"table3": paper.TABLE3, "table4": {f"{k[0]}|{k[1]}": v for k, v in paper.TABLE4.items()}}}
+
+
+def figures(rows, out: Path, config: RemusConfig, seed: int, prepared: dict) -> list[Path]:
+    """Figs. 3, 5-8 of the paper from run 1 (training/evaluation data, surge, x(t), y(t), 3-D path), run again
+    here from the campaign's seed for run 1 (the same numbers as the table's)."""
     require("matplotlib", "the experiment figures").use("Agg")
     plt = require("matplotlib.pyplot", "the experiment figures")
 
+    from ..campaign import run_seeds
+
+    out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    log, traces = first_run
+    _, log, traces = filter_run(config, run_seeds(seed, 1)[0])
+    details = prepared
     written = []
 
     def save(fig, name):
@@ -300,47 +312,5 @@ def figures(out: Path, details: dict, first_run) -> list[Path]:
     return written
 
 
-# ------------------------------------------------------------------------------------------ CLI
-def reproduce(args) -> int:
-    """`abyssal reproduce remus [--runs M] [--quick]`: prepare, the campaign, tables, JSON, figures."""
-    import json
-    import sys
-
-    from .. import campaign
-
-    quick = bool(getattr(args, "quick", False))
-    runs = (3 if quick else 20) if args.runs is None else args.runs
-    if runs < 1:
-        raise ValueError("reproduce remus needs --runs >= 1")
-    out = Path(args.out) if args.out else Path("out")
-    say = lambda message: print(f"[remus] {message}", file=sys.stderr, flush=True)  # noqa: E731
-    config, details = prepare(out, quick=quick, progress=say)
-    c = details["compiled"]
-    say(f"GP-UKF predict: {c.c_bytes / 1e6:.2f} MB of C, generated in {c.generate_seconds:.1f} s, "
-        f"compiled in {c.compile_seconds:.1f} s (0 when cached)")
-    result = campaign.run_campaign(run_one, config, runs, args.seed, workers=getattr(args, "workers", None),
-                                   scheduler=getattr(args, "scheduler", None), csv_path=out / "remus.csv",
-                                   resume=getattr(args, "resume", False), experiment="remus")
-    rows = result.rows
-    say(f"{result.runs_done} run(s) done, {len(result.failures)} failed; {result.wall_seconds:.1f} s on {result.where}")
-    _, log, traces = filter_run(config, campaign.run_seeds(args.seed, 1)[0])  # run 1 again, for its figures
-    written = figures(out, details, (log, traces))
-    document = {"experiment": "remus", "runs": runs, "seed": args.seed, "quick": quick,
-                "duration_s": config.duration, "gp_regressors": details["gp"].n_train,
-                "gp_train_seconds": details["gp"].train_seconds, "gp_predict_c_bytes": c.c_bytes,
-                "gp_predict_compile_seconds": c.compile_seconds,
-                "per_state_rmse": per_state_json(rows),
-                "paper": {"table3": PAPER_TABLE3, "table4": {f"{k[0]}|{k[1]}": v for k, v in PAPER_TABLE4.items()}},
-                "failures": [f.describe() for f in result.failures]}
-    (out / "remus.json").write_text(json.dumps(document, indent=1))
-    if args.json:
-        print(json.dumps(document, indent=1))
-    else:
-        print(tables(rows, runs))
-        for path in written:
-            print(f"wrote {path}")
-        print(f"wrote {out / 'remus.csv'} and {out / 'remus.json'}")
-    if result.failures:
-        print(campaign.summarise_failures(result), file=sys.stderr)
-        return 1
-    return 0
+#: the name `abyssal reproduce` looks up (reproduce.py)
+Config = RemusConfig

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...extras import require
-from .truth import HelixLog, wrap
+from .scenario import HelixLog, wrap
 
 POOL_FRACTION = 0.4
 DENSITY_AT_END = 0.25   # sampling density at t = T relative to t = 0

@@ -1,1 +1,1 @@
-"""Seed 000: the anchor-chain cleaning ROV in sea states 0, 1-2 and 3 (scenario.py)."""
+"""Seed 000: the anchor-chain cleaning ROV in sea states 0, 1-2 and 3 (paper.py, scenario.py, experiment.py)."""

@@ -1,14 +1,16 @@
 """Seed 000 on the campaign harness: one run = every filter on fresh truths of every case.
 
 ``run_one(config, seed)`` is the experiment (``campaign.run_campaign`` maps it over the runs);
-``report(rows)`` (the tables) and ``figures(rows, out)`` are made from its tidy rows only.
+``report(rows)`` (the tables, beside the paper's Table 3 of paper.py), ``timing_table(rows)``,
+``document(rows, config)`` and ``figures(rows, out)`` are made from its tidy rows only. The truth
+(sea states, process-noise readings, the catenary run) is scenario.py.
 
 Rows: ``{"run", "case" (sea state), "filter" (label), "metric", "reading" (the truth's process-noise
 reading), "value"}`` with metrics ``mse_x, mse_y, mse_z, mse_psi`` (mean over the run's steps;
 RMSE over a campaign = sqrt of their mean over runs, every run having the same length), ``anees``
-(mean over steps of NEES / n_x), ``ess_mean`` (mean effective sample size per step; NaN for a
-Kalman filter), ``step_ms`` (wall time, kept out of the compared tables) and ``refused`` (1 when the
-filter refused a step of this run, its other metrics then NaN).
+(mean over steps of NEES / n_x, the NEES of ``FilterResult.nees``), ``ess_mean`` (mean effective
+sample size per step; NaN for a Kalman filter), ``step_ms`` (wall time, kept out of the compared
+tables) and ``refused`` (1 when the filter refused a step of this run, its other metrics then NaN).
 
 Decisions:
 
@@ -45,6 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from ..campaign import TIMING_METRICS, derive, run_index
+from .paper import table3_rmse
 from .scenario import POSE_AXES, PROCESS_NOISE_READINGS, SEA_STATES, RovScenario, make_filter, simulate
 
 METRICS = tuple(f"mse_{a}" for a in POSE_AXES) + ("anees", "ess_mean", "step_ms")
@@ -109,6 +112,10 @@ class RovConfig:
     readings: tuple[str, ...] = PROCESS_NOISE_READINGS
     filters: tuple[FilterSpec, ...] = MAIN_FILTERS + N_SWEEP
 
+    def quick(self) -> "RovConfig":
+        """`abyssal reproduce rov --quick`: every filter and case of this config, on the first 20 s of the path."""
+        return replace(self, scenario=replace(self.scenario, duration=20.0))
+
     def cases(self) -> list[tuple[int, str, str]]:
         """(case number, sea state, truth reading); numbers fixed by the full lists, for stable seeds."""
         out = []
@@ -121,12 +128,6 @@ class RovConfig:
 
 # ---------------------------------------------------------------------------------------------
 # one run
-
-
-def filter_output(filt, truth, dt: float):
-    """(estimates (T, n), covariances (T, n, n), NEES (T,), ess (T,), seconds per step) of a filter over a truth."""
-    result = filt.run(truth.inputs, truth.measurements, dt, truth=truth.states)  # the one contract (runtime/contract.py)
-    return result.x, result.P, result.nees, np.asarray(result.ess, dtype=np.float64), float(np.mean(result.step_time))
 
 
 def pose_errors(bundle, estimates: np.ndarray, states: np.ndarray) -> np.ndarray:
@@ -154,8 +155,8 @@ def run_one(config: RovConfig, seed: np.random.SeedSequence) -> list[dict]:
             filter_scenario = config.scenario.with_reading(spec.filter_reading(reading))
             filt = make_filter(spec.kind, bundle, filter_scenario, sea, spec.n_particles or config.n_particles, rng,
                                **dict(spec.options))
-            try:
-                est, cov, nees, ess, step_s = filter_output(filt, truth, truth_scenario.dt)
+            try:  # the one contract (runtime/contract.py): estimates, covariances, NEES, ESS, step times
+                result = filt.run(truth.inputs, truth.measurements, truth_scenario.dt, truth=truth.states)
             except (ValueError, ArithmeticError, np.linalg.LinAlgError):
                 # the filter refused a step: an outcome of this filter on this truth, not of the run
                 rows += [{"run": run, "case": sea_name, "filter": spec.label, "metric": m, "reading": reading,
@@ -163,13 +164,13 @@ def run_one(config: RovConfig, seed: np.random.SeedSequence) -> list[dict]:
                 rows.append({"run": run, "case": sea_name, "filter": spec.label, "metric": "refused",
                              "reading": reading, "value": 1.0})
                 continue
-            errors = pose_errors(bundle, est, truth.states)
-            finite = np.all(np.isfinite(errors)) and np.all(np.isfinite(cov))
+            errors = pose_errors(bundle, result.x, truth.states)
+            finite = np.all(np.isfinite(errors)) and np.all(np.isfinite(result.P))
             metrics = {f"mse_{axis}": float(np.mean(errors[:, i] ** 2)) if finite else math.inf
                        for i, axis in enumerate(POSE_AXES)}
-            metrics["anees"] = float(np.mean(nees) / bundle.n_x) if finite else math.inf  # FilterResult.nees
-            metrics["ess_mean"] = float(np.mean(ess))
-            metrics["step_ms"] = 1e3 * step_s
+            metrics["anees"] = float(np.mean(result.nees) / bundle.n_x) if finite else math.inf
+            metrics["ess_mean"] = float(np.mean(np.asarray(result.ess, dtype=np.float64)))
+            metrics["step_ms"] = 1e3 * float(np.mean(result.step_time))
             metrics["refused"] = 0.0
             rows += [{"run": run, "case": sea_name, "filter": spec.label, "metric": m, "reading": reading, "value": v}
                      for m, v in metrics.items()]
@@ -217,9 +218,7 @@ def _fmt(value: float, width: int, spec: str = ".4f") -> str:
 
 def table3(rows: list[dict], reading: str = "plain") -> str:
     """Our RMSE beside the paper's Table 3, for the filters the paper has (truth under `reading`)."""
-    from ..reproduce import paper_rov_rmse
-
-    paper = paper_rov_rmse()
+    paper = table3_rmse()
     stats = summary(rows)
     seas = [s for s in SEA_STATES if any(k[:2] == (reading, s) for k in stats)]
     labels = [f for f in _labels(rows) if f in PAPER_COLUMN and any(k == (reading, s, f) for s in seas for k in stats)]
@@ -301,9 +300,7 @@ def rankings(rows: list[dict], reading: str = "plain") -> str:
     """The paper's pairwise orderings (by mean pose RMSE over x, y, z, psi per sea state), and in how many of
     our runs each holds (a consistency measure: an ordering that holds in 5 of 10 runs is not a finding).
     The paper's CKF is compared as both of ours: the matched-model oracle and the mismatched-Q CKF."""
-    from ..reproduce import paper_rov_rmse
-
-    paper = paper_rov_rmse()
+    paper = table3_rmse()
     per_run: dict[tuple, dict[str, float]] = {}
     for row in rows:
         if row["reading"] == reading and row["metric"].startswith("mse_") and row["filter"] in PAPER_COLUMN:
@@ -331,8 +328,8 @@ def rankings(rows: list[dict], reading: str = "plain") -> str:
     return "\n".join(lines)
 
 
-def report(rows: list[dict]) -> str:
-    """Every reproducible table (no timings)."""
+def report(rows: list[dict], config: RovConfig | None = None) -> str:
+    """Every reproducible table (no timings: ``timing_table``)."""
     readings = _order(rows, lambda r: r["reading"])
     if not rows:
         return "no rows: every run failed"
@@ -345,14 +342,19 @@ def report(rows: list[dict]) -> str:
     return "\n\n".join(parts)
 
 
-def figures(rows: list[dict], out: Path) -> list[Path]:
+def document(rows: list[dict], config: RovConfig, prepared=None) -> dict:
+    """The JSON summary's entries: {"particles", "summary": {"reading|sea|filter": summary(rows) entry}}."""
+    return {"particles": config.n_particles,
+            "summary": {f"{reading}|{sea}|{label}": stats for (reading, sea, label), stats in summary(rows).items()}}
+
+
+def figures(rows: list[dict], out: Path, config: RovConfig | None = None, seed: int = 0, prepared=None) -> list[Path]:
     """RMSE bars per sea state (the paper's Figs. 11-12) from the rows, the paper's values as diamonds."""
     from ... import plots
-    from ..reproduce import paper_rov_rmse
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    paper = paper_rov_rmse()
+    paper = table3_rmse()
     stats = summary(rows)
     readings = _order(rows, lambda r: r["reading"])
     main = "plain" if "plain" in readings else readings[0]
@@ -367,11 +369,6 @@ def figures(rows: list[dict], out: Path) -> list[Path]:
     return written
 
 
-def quick_config() -> RovConfig:
-    """`abyssal reproduce rov --quick`: every filter and case of the default, on the first 20 s of the path."""
-    return RovConfig(scenario=RovScenario(duration=20.0))
-
-
 def short_config(duration: float = 3.0, n_particles: int = 20, **changes) -> RovConfig:
     """A seconds-long configuration for tests and quick benches (same filters, fewer steps and particles)."""
     filters = tuple(replace(f, n_particles=None if f.n_particles is None else 2 * n_particles) for f in MAIN_FILTERS + N_SWEEP)
@@ -379,6 +376,8 @@ def short_config(duration: float = 3.0, n_particles: int = 20, **changes) -> Rov
     return replace(base, **changes)
 
 
-__all__ = ["EXTRA_COLUMNS", "FilterSpec", "RovConfig", "TIMING_METRICS", "figures", "quick_config", "report", "run_one",
-           "short_config",
-           "summary", "timing_table"]
+#: the name `abyssal reproduce` looks up (reproduce.py)
+Config = RovConfig
+
+__all__ = ["EXTRA_COLUMNS", "Config", "FilterSpec", "RovConfig", "TIMING_METRICS", "document", "figures", "report", "run_one",
+           "short_config", "summary", "timing_table"]

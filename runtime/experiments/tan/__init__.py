@@ -1,1 +1,1 @@
-"""Seed 003: terrain-aided navigation with a fuzzy-sigma particle filter (scenario, paper numbers, figures)."""
+"""Seed 003: terrain-aided navigation with a fuzzy-sigma particle filter (paper.py, scenario.py, experiment.py)."""

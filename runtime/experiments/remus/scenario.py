@@ -1,4 +1,4 @@
-"""Truth simulator of seed 004's helix run: REMUS100-SPEC.md sections 5-9.
+"""Truth simulator of seed 004's helix run (the simulated world of experiment.py): REMUS100-SPEC.md sections 5-9.
 
     log = simulate(seed=1)          # 800 s, vehicle at 0.01 s, logged at 5 Hz
     log.t, log.x (T, 12), log.u (T, 3), log.z (T, 10)
