@@ -48,7 +48,8 @@ A new filter class registers itself with ``@register(kind)`` (kind: "kalman", "p
 "mixture", "gaussian-sum"; see ``register``) so the contract test (tests/runtime/test_contract.py)
 runs every rule against it the day it is added; ``registered_filters()`` lists them (importing
 every module under runtime/filters). A filter whose constructor fits no kind gives itself a
-``contract_example(model, seed)`` classmethod returning an instance.
+``contract_example(model, *, x0=None, P0=None, n_particles=None, rng)`` classmethod returning an
+instance (None: its own choice; the contract test passes its rules' x0, P0, N and rng through it).
 """
 from __future__ import annotations
 

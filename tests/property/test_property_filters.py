@@ -48,7 +48,7 @@ def build(cls, kind: str, model):
     Q = np.diag([1e-4] * 4 + [1e-3] * 4 + [1e-5] * 4)
     R = np.diag([0.05, 0.05, 0.02, 0.01])
     if hasattr(cls, "contract_example"):  # a constructor outside the standard kinds
-        filt = cls.contract_example(model, 0)
+        filt = cls.contract_example(model, rng=0)
         if getattr(filt, "model", model) is not model or hasattr(filt, "gp_dt"):
             pytest.skip(f"{cls.__name__} runs on its own model or learned step; tests/runtime/test_contract.py covers it")
         return filt
