@@ -38,6 +38,7 @@ import numpy as np
 
 from abyssal.runtime.filters.kalman import CKF, EKF, MCUKF, UKF, HuberUKF
 from abyssal.runtime.numerics import relative_error, wrap_to_pi as wrap
+from abyssal.symbolic.filters.families import FUNCTIONS
 
 from .report import Check
 
@@ -197,8 +198,8 @@ def compare(model: str, name: str, reference: str, ours, theirs, tolerance: floa
     return Check(model, name, reference, error, tolerance, detail=f"max relative error of x and P over {len(ours)} steps")
 
 
-FAMILY_FUNCTIONS = {"ekf": ("ekf_predict", "ekf_update"), "ukf": ("ukf_predict", "ukf_update"),
-                    "ckf": ("ckf_predict", "ckf_update"), "robust": ("mcukf_update", "huber_ukf_update")}
+#: family -> the generated functions it must provide (the predicts and updates; the fused steps are optional)
+FAMILY_FUNCTIONS = {family: tuple(name for role, name in roles.items() if role != "step") for family, roles in FUNCTIONS.items()}
 
 
 def _is_linear(bundle, sc: Scenario) -> bool:
