@@ -196,9 +196,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("folders", nargs="*", metavar="DIR", help="model folders to time (default: the built-in benchmarks)")
     p.set_defaults(run=_bench)
 
+    from .experiments.reproduce import EXPERIMENTS  # the registry (light: the experiments load when run)
+
     p = sub.add_parser("reproduce", help="rerun the experiments of the four papers")
-    p.add_argument("experiment", choices=["rov", "cn", "tan", "remus", "all"])
-    p.add_argument("--runs", type=int, default=None, help="Monte-Carlo runs (default: 10)")
+    p.add_argument("experiment", choices=[*EXPERIMENTS, "all"])
+    runs = ", ".join(f"{e.name} {e.runs} ({e.quick_runs} with --quick)" for e in EXPERIMENTS.values())
+    p.add_argument("--runs", type=int, default=None, help=f"Monte-Carlo runs (default: {runs})")
     p.add_argument("--seed", type=int, default=0, help="campaign seed: run i uses SeedSequence(seed).spawn(runs)[i]")
     p.add_argument("--particles", type=int, default=None)
     p.add_argument("--workers", type=int, default=None,
