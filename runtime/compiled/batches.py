@@ -125,11 +125,17 @@ def nearest_positive_definite(covariances: np.ndarray) -> np.ndarray:
 
 
 def _repair_failed_slices(ok: np.ndarray, cov: np.ndarray, evaluate, count: int) -> None:
-    """Slices whose Cholesky guard failed (ok = 0): repair their input covariance, evaluate again."""
+    """Slices whose Cholesky guard failed (ok = 0): evaluate again on their repaired input covariance. The input
+    buffer is given back as it was (a call reads its inputs, never changes them: a caller's refused step has
+    nothing of the batch's to undo)."""
     if count and ok[0, :count].min() == 0:  # ok is 0 or 1
         failed = np.flatnonzero(ok[0, :count] == 0)
-        cov[:, :, failed] = nearest_positive_definite(cov[:, :, failed])
-        evaluate(count)
+        original = cov[:, :, failed]  # fancy indexing: a copy
+        cov[:, :, failed] = nearest_positive_definite(original)
+        try:
+            evaluate(count)
+        finally:
+            cov[:, :, failed] = original
 
 
 class CubaturePredictBatch:

@@ -98,12 +98,12 @@ class IVBCKF(FilterBase):
         self._x, self._P = np.asarray(x).reshape(-1), np.asarray(P)
 
     def _update(self, z, present) -> bool:
-        accepted = present
-        if self.gate.probability > 0.0:
+        accepted, gated = present, np.zeros_like(present)
+        if self.gate.probability > 0.0:  # (off: no prior update to test)
             accepted, gated = self.gate.select(lambda entries: self._prior_innovation(z, entries), present)
         if accepted is not None:
             self._vb_update(z, accepted)
-        if self.gate.probability > 0.0 and self.gate.note(gated, present):
+        if self.gate.note(gated, present):
             self._P = self._P * self.gate.inflation
         return accepted is not None
 

@@ -238,9 +238,9 @@ class SIRFilter(FilterBase):
 
     name = "SIR"
     _state = ("particles", "log_weights", "weights", "ess", "_x", "_P", "resamples", "uninformative", "rng", "proposal")
-    #: a step writes only the free particle buffer and scratch before its commit, and a proposal's carried state
-    #: may be repaired in place by its generated step (a failed Cholesky guard): a refusal restores these
-    _touched = ("rng", "proposal")
+    #: a step writes only the free particle buffer and scratch before its commit (a proposal's carried state too):
+    #: a refusal restores the generator
+    _touched = ("rng",)
 
     def __init__(self, model, x0, P0, process_noise, measurement_noise, n_particles, rng, *,
                  proposal: Proposal | None = None, policy: ResamplingPolicy = ResamplingPolicy()):
