@@ -71,6 +71,8 @@ class UnscentedParticleFilter(FilterBase):
 
     _state = ("N", "particles", "carried", "log_weights", "ess", "_x", "_P", "uninformative", "failed_slices", "rng",
               "n_particles")
+    #: the particles and their covariances are written by _finish's last line only (after every check)
+    _touched = ("N", "log_weights", "ess", "_x", "_P", "uninformative", "failed_slices", "rng", "n_particles")
 
     @classmethod
     def contract_example(cls, model, *, x0=None, P0=None, n_particles=None, rng=0):
@@ -138,30 +140,22 @@ class UnscentedParticleFilter(FilterBase):
     @property
     def mean(self) -> np.ndarray:
         """The N particles (their UKF means), (n, N); a copy (the buffer beyond N is scratch)."""
-        return self._means[:, :self.N].copy()
+        return self.particles.copy()
 
     @property
     def cov(self) -> np.ndarray:
         """The covariances the particles carry, (n, n, N); a copy."""
-        return self._covs[:, :, :self.N].copy()
+        return self.carried.copy()
 
     @property
     def particles(self) -> np.ndarray:
         """The N particles' means (n, N): a view of the buffer (copy before keeping it)."""
         return self._means[:, :self.N]
 
-    @particles.setter
-    def particles(self, value) -> None:
-        self._means[:, :self.N] = value
-
     @property
     def carried(self) -> np.ndarray:
         """The covariances the N particles carry (n, n, N): a view of the buffer."""
         return self._covs[:, :, :self.N]
-
-    @carried.setter
-    def carried(self, value) -> None:
-        self._covs[:, :, :self.N] = value
 
     # ---------------------------------------------------------------- the contract's move (FilterBase)
     def _advance(self, u, dt, measurement) -> bool:
