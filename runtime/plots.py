@@ -1,6 +1,7 @@
 """PNG figures of the reproduced experiments (matplotlib, Agg backend: no display needed)."""
 from __future__ import annotations
 
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -10,11 +11,49 @@ from .extras import require
 require("matplotlib", "the experiment figures").use("Agg")
 plt = require("matplotlib.pyplot", "the experiment figures")
 
-FILTER_COLOURS = {"PF": "tab:gray", "CKF": "tab:blue", "CPF": "tab:orange", "MOGCPF": "tab:purple",
-                  "EM-MOGCPF": "tab:red", "GS-CKF": "tab:green"}
+# ---------------------------------------------------------------------------------------------
+# one look per filter, shared by every figure of every experiment
 
+#: colour-blind-safe colours (Okabe & Ito 2008, then Tol's "muted" set), in the order they are handed out
+PALETTE = ("#0072B2", "#D55E00", "#009E73", "#CC79A7", "#E69F00", "#56B4E9", "#882255", "#117733", "#332288",
+           "#999933", "#AA4499", "#44AA99", "#DDCC77", "#661100")
+#: line styles and markers that tell filters apart where colours alone would not (print, many lines)
+LINESTYLES = ("-", "--", "-.", ":")
+MARKERS = ("o", "s", "^", "v", "P", "X", "<", ">", "h", "*")
 
-#: hatches that tell apart the variants of one filter ("CKF (matched model)", "EM-MOGCPF N=1000") in its colour
+#: the fixed look of every filter named in the four experiments; a name not listed (a variant such as
+#: "CKF (matched model)" or "EM-MOGCPF N=1000") takes its family's colour with the next line style
+FILTER_STYLES = {
+    # baselines and oracles: greys and black, dotted or dashed, so the methods stand out
+    "DR": {"color": "#555555", "linestyle": ":", "marker": "x"},
+    "dead reckoning": {"color": "#555555", "linestyle": ":", "marker": "x"},
+    "oracle": {"color": "black", "linestyle": "--", "marker": "*"},
+    # Kalman family
+    "EKF": {"color": PALETTE[8], "linestyle": "-", "marker": "o"},
+    "UKF": {"color": PALETTE[5], "linestyle": "-", "marker": "o"},
+    "CKF": {"color": PALETTE[0], "linestyle": "-", "marker": "o"},
+    "MCUKF": {"color": PALETTE[2], "linestyle": "-", "marker": "s"},
+    "HuberUKF": {"color": PALETTE[9], "linestyle": "-", "marker": "s"},
+    "IVBCKF": {"color": PALETTE[6], "linestyle": "-", "marker": "^"},
+    "GS-CKF": {"color": PALETTE[7], "linestyle": "-", "marker": "v"},
+    "GP-UKF": {"color": PALETTE[1], "linestyle": "-", "marker": "D"},
+    # particle family
+    "PF": {"color": PALETTE[4], "linestyle": "--", "marker": "P"},
+    "CPF": {"color": PALETTE[1], "linestyle": "--", "marker": "X"},
+    "UPF": {"color": PALETTE[3], "linestyle": "--", "marker": "<"},
+    "HRUPF": {"color": PALETTE[10], "linestyle": "--", "marker": ">"},
+    "MCUPF": {"color": PALETTE[1], "linestyle": "-", "marker": "D"},
+    "MCC-UPF": {"color": PALETTE[11], "linestyle": "--", "marker": "h"},
+    "MOGCPF": {"color": PALETTE[3], "linestyle": "-.", "marker": "h"},
+    "EM-MOGCPF": {"color": PALETTE[13], "linestyle": "-", "marker": "D"},
+    "fuzzy": {"color": PALETTE[1], "linestyle": "-", "marker": "D"},
+}
+
+#: the paper's own values in a figure: black, hollow, drawn above everything (never hidden by our lines)
+PAPER_STYLE = {"color": "black", "marker": "D", "markerfacecolor": "none", "markersize": 7, "linestyle": "none",
+               "markeredgewidth": 1.4, "zorder": 10}
+
+# hatches that tell apart the variants of one filter ("CKF (matched model)", "EM-MOGCPF N=1000") in its colour
 VARIANT_HATCHES = ("", "//", "..", "xx", "\\\\", "++")
 
 
@@ -23,8 +62,36 @@ def _family(name: str) -> str:
     return name.split(" (")[0].split(" N=")[0]
 
 
+def filter_style(name: str, ordered: tuple[str, ...] = ()) -> dict:
+    """The look of a filter in every figure: {"color", "linestyle", "marker"} (matplotlib keywords).
+
+    A name in FILTER_STYLES keeps its look; a variant of a listed family ("CKF (matched model)") keeps the
+    family's colour and marker with a line style chosen by its place among the family's variants in
+    ``ordered``; a fixed-sigma family ("sigma=1 m" ... "sigma=6 m") or any other unlisted name gets a colour of
+    PALETTE by its index in ``ordered`` (give every figure of one experiment the same ``ordered`` list, so a
+    filter looks the same in all of them)."""
+    if name in FILTER_STYLES:
+        return dict(FILTER_STYLES[name])
+    family = _family(name)
+    if family in FILTER_STYLES:
+        style = dict(FILTER_STYLES[family])
+        variants = [n for n in ordered if _family(n) == family and n != family]
+        k = variants.index(name) + 1 if name in variants else 1
+        style["linestyle"] = LINESTYLES[k % len(LINESTYLES)]
+        return style
+    k = ordered.index(name) if name in ordered else zlib.crc32(name.encode()) % len(PALETTE)
+    return {"color": PALETTE[k % len(PALETTE)], "linestyle": LINESTYLES[(k // len(PALETTE)) % len(LINESTYLES)],
+            "marker": MARKERS[k % len(MARKERS)]}
+
+
 def _colour(name: str) -> str:
-    return FILTER_COLOURS.get(_family(name), "black")
+    return filter_style(name)["color"]
+
+
+def stamp_settings(fig, text: str) -> None:
+    """Write the run's settings ("quick run: 3 runs x 300 s, seed 0") in the figure's bottom-left corner, so a
+    figure says where it came from wherever it is copied to."""
+    fig.text(0.005, 0.005, text, fontsize=7, color="#444444", ha="left", va="bottom")
 
 
 def _break_at_wraps(values: np.ndarray) -> np.ndarray:
