@@ -349,38 +349,10 @@ def report(rows, config: CnConfig) -> str:
                             for c in cases)
             pa = paper.TABLE7.get(f)
             lines.append(f"{f:14s}{cells}{(f'{pa[0]:.1f}' if pa else '-'):>13s}")
-        lines += ["", f"{'vs DR, streams':14s}" + "".join(f"{c:>22s}" for c in cases)
-                  + "   runs with APE < DR/4 (< DR); particle filters: APE sd between streams (m, median over runs); R<k>:"
-                    " k refused streams"]
-        for f in labels:
-            if f == "DR":
-                continue
-            cells = []
-            for c in cases:
-                e = s.get((geometry, c, f))
-                if e is None:
-                    cells.append(f"{'-':>22s}")
-                    continue
-                (k4, n), (k1, _) = e["below_dr4"], e["below_dr"]
-                cell = f"{k4}/{n} ({k1}/{n})" + (f" R{e['refused_streams']}" if e.get("refused_streams") else "")
-                if is_particle_filter(f) and math.isfinite(e["stream_sd_m"]):
-                    cell += f" sd {e['stream_sd_m']:.2f}"
-                cells.append(f"{cell:>22s}")
-            lines.append(f"{f:14s}" + "".join(cells))
-        lines += ["", f"{'consistency':14s}" + "".join(f"{c:>22s}" for c in cases)
-                  + "   ANEES (NEES / 2, median over runs) / pings inside the 95 % NEES bound (mean over runs; 95 % if"
-                    " consistent)"]
-        for f in labels:
-            if f == "DR":
-                continue
-            cells = []
-            for c in cases:
-                e = s.get((geometry, c, f))
-                if e is None or not e["coverage95"].n:
-                    cells.append(f"{'-':>22s}")
-                    continue
-                cells.append(f"{_g(e['anees'].median) + ' / ' + format(100 * e['coverage95'].mean, '.0f') + ' %':>22s}")
-            lines.append(f"{f:14s}" + "".join(cells))
+        lines += _filter_table("vs DR, streams", "runs with APE < DR/4 (< DR); particle filters: APE sd between streams "
+                               "(m, median over runs); R<k>: k refused streams", s, geometry, cases, labels, _vs_dr_cell)
+        lines += _filter_table("consistency", "ANEES (NEES / 2, median over runs) / pings inside the 95 % NEES bound "
+                               "(mean over runs; 95 % if consistent)", s, geometry, cases, labels, _consistency_cell)
         wins = best_counts([r for r in rows if r["geometry"] == geometry], printed)
         for c in cases:
             if (geometry, c) in wins:
@@ -390,6 +362,28 @@ def report(rows, config: CnConfig) -> str:
                              f"runs (most often lowest: {best}, {w.get(best, 0)}/{n})")
     lines += ["", "Paper's APE ranking (Table 7): " + " < ".join(paper.APE_RANKING), "", kld_table(rows, config)]
     return "\n".join(lines)
+
+
+def _filter_table(title: str, note: str, s: dict, geometry: str, cases, labels, cell) -> list[str]:
+    """A sub-table of one geometry: a row per filter (DR left out), a column per noise case, ``cell(f, entry)``."""
+    lines = ["", f"{title:14s}" + "".join(f"{c:>22s}" for c in cases) + "   " + note]
+    for f in labels:
+        if f != "DR":
+            entries = [s.get((geometry, c, f)) for c in cases]
+            lines.append(f"{f:14s}" + "".join(f"{cell(f, e) if e else '-':>22s}" for e in entries))
+    return lines
+
+
+def _vs_dr_cell(f: str, e: dict) -> str:
+    (k4, n), (k1, _) = e["below_dr4"], e["below_dr"]
+    cell = f"{k4}/{n} ({k1}/{n})" + (f" R{e['refused_streams']}" if e.get("refused_streams") else "")
+    if is_particle_filter(f) and math.isfinite(e["stream_sd_m"]):
+        cell += f" sd {e['stream_sd_m']:.2f}"
+    return cell
+
+
+def _consistency_cell(f: str, e: dict) -> str:
+    return f"{_g(e['anees'].median)} / {100 * e['coverage95'].mean:.0f} %" if e["coverage95"].n else "-"
 
 
 def kld_table(rows, config: CnConfig) -> str:
