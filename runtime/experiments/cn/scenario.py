@@ -10,14 +10,15 @@ modems, DS-99 DVL, HZ001 compass) was never published, so every number abyssal r
 * Leaders (CNAs): two surface vessels, one north and one south of the AUV's path (the paper's Fig. 6: "AUV
   was between two leaders"), each keeping a fixed offset from (the AUV's smoothed east position, the survey's
   centre line) and broadcasting its GPS position with every packet (OEMV-2RT-2, 1.8 m CEP: sigma = 1.8 /
-  1.1774 = 1.53 m per axis, ours from the CEP). The paper does not publish the geometry (its Fig. 6 has no
-  scale we could read), and it decides how well a range pair fixes the AUV: ``GEOMETRIES`` names three
-  layouts, and ``crossing_angles`` / ``gdop`` measure each trial's. "collinear" (the default, this
-  scenario's first layout: leader 0 250 m ahead and 400 m north, leader 1 250 m behind and 400 m south)
-  puts both leaders on one line through the AUV at the centre line: the two range lines cross at ~10 deg
-  (measured over a run: median 11 deg, never above ~15 deg; 2-range GDOP median 7), so the cross-range
-  direction is barely observed. "crossing60" and "crossing90" put both leaders ahead of the AUV, north and
-  south, so the lines cross at ~60 and ~90 deg (measured medians: the experiment's report).
+  1.1774 = 1.53 m per axis, ours from the CEP). The paper does not publish the geometry (its text gives no
+  positions, and its Fig. 6 is not in our copy), and the geometry decides how well a range pair fixes the AUV:
+  ``GEOMETRIES`` names three layouts, and ``crossing_angles`` / ``gdop`` measure each trial's. "collinear"
+  (the default, this scenario's first layout: leader 0 250 m ahead and 400 m north, leader 1 250 m behind
+  and 400 m south) puts both leaders on one line through the AUV at the centre line: over the pings of 10
+  trials the two range lines cross at a median 12 deg (10th percentile 0.3 deg, never above 18 deg; 2-range
+  GDOP median 6.7, 90th percentile 260), so the direction along the range lines is barely observed.
+  "crossing60" and "crossing90" put both leaders ahead of the AUV, one north and one south: the lines cross
+  at a median 62 deg (55-68) and 88 deg (85-90), GDOP 1.6 and 1.4.
 * Acoustic channel: one range every 5 s, the two leaders alternating (time-division: leader 0 at
   t = 5, 15, 25 ... s, leader 1 at t = 10, 20, ...), so each leader pings every 10 s. The
   broadcast leader position is the runtime parameter p of the cn2d model at that step.
