@@ -103,6 +103,21 @@ def stamp_settings(fig, text: str) -> None:
     fig.text(0.005, 0.005, text, fontsize=7, color="#444444", ha="left", va="bottom")
 
 
+def plain_log_labels(ax, axis: str = "y") -> None:
+    """Tick labels of a log axis as plain numbers (0.3, 1, 20) rather than 3 x 10^-1."""
+    from matplotlib.ticker import FuncFormatter
+
+    def minor(value, _):  # label 2, 3 and 5 times a power of ten only, so the labels never crowd
+        if value <= 0:
+            return ""
+        digit = round(value / 10 ** np.floor(np.log10(value)))
+        return f"{value:g}" if digit in (2, 3, 5) else ""
+
+    target = ax.yaxis if axis == "y" else ax.xaxis
+    target.set_major_formatter(FuncFormatter(lambda value, _: f"{value:g}"))
+    target.set_minor_formatter(FuncFormatter(minor))
+
+
 def _break_at_wraps(values: np.ndarray) -> np.ndarray:
     """A wrapped angle error with NaN where it jumps by more than pi, so no line crosses the plot."""
     out = values.astype(float).copy()
@@ -197,11 +212,11 @@ def rmse_bars(metrics: dict[str, dict], paper: dict[str, dict[str, float]] | Non
                     handles.setdefault(paper_label, line)
         ax.set_xticks(centres, list(axes_names))
         ax.set_yscale("log")
+        plain_log_labels(ax)
         ax.set_ylabel(ylabel)
         ax.grid(axis="y", alpha=0.3, which="both")
-        if notes and p in notes:
-            ax.text(0.02, 0.98, notes[p], transform=ax.transAxes, fontsize=7, va="top", ha="left", wrap=True,
-                    bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "none"})
+        if notes and p in notes:  # above the panel, where no bar reaches
+            ax.set_title(notes[p], fontsize=7, loc="left")
     fig.legend(list(handles.values()), list(handles), ncol=4, fontsize=8, loc="lower center",
                bbox_to_anchor=(0.5, 0.02), frameon=False)
     fig.suptitle(title)

@@ -523,6 +523,7 @@ def figures(rows, out, config: CnConfig, seed: int = 0, prepared=None, settings:
                     ax.plot(trial.t, pe, **_line(plots.filter_style(f, tuple(labels)), every=max(1, len(pe) // 12)),
                             label=f"{f} ({pe.mean():.1f})")
             ax.set(yscale="log", ylabel="position error (m)", title=f"{geometry}, {title}")
+            plots.plain_log_labels(ax)
             ax.title.set_fontsize(9)
             ax.grid(alpha=0.3, which="both")
             ax.legend(fontsize=6.5, ncol=3, loc="upper left", title="filter (APE, m)", title_fontsize=6.5)
@@ -551,6 +552,7 @@ def figures(rows, out, config: CnConfig, seed: int = 0, prepared=None, settings:
                title=f"MCUPF particle number under KLD-resampling (N_start = {config.n_particles}, "
                      f"N_max = {config.kld_n_max}); run 0, {case0}")
         ax.title.set_fontsize(9)
+        plots.plain_log_labels(ax)
         ax.grid(alpha=0.3, which="both")
         ax.legend(fontsize=7, ncol=2)
         paths.append(_save(fig, out / "cn_kld.png", stamp, plots))
@@ -598,6 +600,7 @@ def _ape_figure(rows, config: CnConfig, out, stamp, labels, plots, plt):
         ax.set(yscale="log", xlabel="range-noise case",
                title=f"{geometry}: lines cross at {geo.get(geometry, {}).get('crossing_median_deg', math.nan):.0f} deg")
         ax.title.set_fontsize(10)
+        plots.plain_log_labels(ax)
         ax.grid(alpha=0.3, which="both", axis="y")
     axes[0, 0].set_ylabel("APE (m): mean over runs ± sd (ddof = 1)")
     ax = axes[0, n]
