@@ -61,7 +61,7 @@ def report(filt):
     out = {"x": filt.x, "P": filt.P, "nis": filt.nis, "nis_dof": filt.nis_dof, "ess": filt.ess,
            "n_particles": filt.n_particles}
     for name in ("innovation", "S", "gated", "repairs", "inflations", "substeps", "particles", "weights",
-                 "log_weights", "resamples", "uninformative"):
+                 "log_weights", "resamples", "uninformative", "last_Q", "xi", "lam", "recoveries", "em_iterations"):
         if hasattr(filt, name):
             value = getattr(filt, name)
             out[name] = None if value is None else np.array(value, copy=True)
