@@ -412,8 +412,10 @@ def _print_row(label: str, r: dict) -> None:
     recovered = "never" if r["never_recovered"] else r["worst_recovery_steps"]
     print(f"  {label:<22} {r['scenario']:<9} {r['steps']:7d} {r['refusals']:7d} {r['refusals_last_10pct']:7d} "
           f"{gated!s:>6} {r['nan_steps']:5d} {r['error_last_10pct_m']:10.3g} {r['twin_error_last_10pct_m']:10.3g} "
-          f"{r['error_ratio_last_10pct']:7.2f} {recovered!s:>8} {r['rss_growth_mib']:7.2f} {r['us_per_step']:8.1f}",
+          f"{r['error_ratio_last_10pct']:7.3g} {recovered!s:>8} {r['rss_growth_mib']:7.2f} {r['us_per_step']:8.1f}",
           flush=True)
+    if r["twin_refusals"]:
+        print(f"  {'':<22} the fault-free twin refused {r['twin_refusals']} steps too", flush=True)
     if r["never_recovered"]:
         print(f"  {'':<22} never back within {RECOVERY_BAND:g}x after: {'; '.join(r['never_recovered'])}", flush=True)
     if r["first_refusal"]:
