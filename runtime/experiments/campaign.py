@@ -186,13 +186,6 @@ def _replace(path: Path, text: str) -> None:
     os.replace(tmp, path)
 
 
-def write_csv(path: Path, rows: Sequence[dict], columns: Sequence[str]) -> None:
-    """Write the rows atomically (temporary file + rename): the file is always a whole table."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    _replace(path, _table_text(rows, columns))
-
-
 def _parse_value(text: str, where: str) -> float:
     try:
         return float(text)
