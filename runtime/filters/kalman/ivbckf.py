@@ -46,6 +46,13 @@ class IVBCKF(FilterBase):
     gate_probability, gate_patience, gate_inflation: the innovation gate of every Kalman-type filter
     (gate.py), applied to the update at the prior (the first fixed-point pass); growth_limit: a predict
     whose covariance grows more than this (numerics.grew_beyond) is refused (this filter does not subdivide dt).
+
+    A vanished measurement: the VB discounts an outlier by E[lambda] (R scaled by 1 / E[lambda]). When it ends
+    below ``DISCOUNTED`` in ``gate_patience`` consecutive updates, the filter, not the sensor, is taken to be
+    wrong (its estimate jumped: a glitch of u accepted, or a long outage; with a huge P a nonlinear h makes B,
+    and so 1 / E[lambda], huge at every later update, a fixed point that never lets a measurement in): the next
+    updates are plain cubature updates with the measurement at face value (E[xi] = E[lambda] = 1, counted in
+    ``recoveries``) until the E[lambda] the VB would give is back above ``DISCOUNTED``.
     """
 
     name = "IVBCKF"
