@@ -27,6 +27,8 @@ import sys
 import types
 from pathlib import Path
 
+from . import integrity
+
 GENERATED_DIR = Path(__file__).resolve().parent
 #: the folder holding the package's three layer folders in a source checkout (symbolic/, generated/, runtime/)
 SOURCE_ROOT = GENERATED_DIR.parent
@@ -72,7 +74,9 @@ def model_files(model, families=DEFAULT_FILTERS, origin=None) -> dict[str, str]:
                          "functions; rename them")
     if model.functions:
         units.append(codegen.Unit("functions", model.functions))
-    return codegen.generate_model(model, units, origin, families)
+    files = codegen.generate_model(model, units, origin, families)
+    files["manifest.json"] = integrity.seal(files["manifest.json"])  # load refuses a manifest edited after this
+    return files
 
 
 def _write(folder: Path, files: dict[str, str]) -> list[Path]:

@@ -38,7 +38,7 @@ def _regenerate_user(args, regenerate) -> int:
         raise ValueError("give either built-in model names or --model, not both")
     if not args.out:
         raise ValueError("--model needs --out DIR (the folder of your project that receives <DIR>/<model name>/)")
-    model, where = regenerate.load_model_spec(args.model)
+    model, where = _user_model(args.model, regenerate)
     origin = regenerate.cli_origin(args.model, args.out, model.name, where)
     filters = tuple(args.filters.split(",")) if args.filters else regenerate.DEFAULT_FILTERS
     if args.check:
@@ -53,6 +53,24 @@ def _regenerate_user(args, regenerate) -> int:
     folder = regenerate.generate(model, args.out, filters, origin=origin)
     print(f"wrote {folder} (load it with abyssal.load({str(folder)!r}); check it with `abyssal verify {folder}`)")
     return 0
+
+
+def _user_model(spec: str, regenerate):
+    """regenerate.load_model_spec(spec); any error raised while importing the user's file or calling its function
+    (an ImportError, a SyntaxError, a TypeError in the equations ...) becomes one line naming the spec and the line."""
+    import traceback
+    from pathlib import Path
+
+    try:
+        return regenerate.load_model_spec(spec)
+    except (ValueError, FileNotFoundError):
+        raise
+    except Exception as exc:  # noqa: BLE001 -- the user's code: anything may come out
+        ours = [regenerate.SOURCE_ROOT / d for d in ("abyssal", "generated", "runtime", "symbolic")]
+        frames = [f for f in traceback.extract_tb(exc.__traceback__) if "site-packages" not in Path(f.filename).parts
+                  and not any(Path(f.filename).resolve().is_relative_to(d) for d in ours)]
+        where = f" ({frames[-1].filename}, line {frames[-1].lineno})" if frames and not isinstance(exc, SyntaxError) else ""
+        raise ValueError(f"--model {spec!r}: loading the model failed: {type(exc).__name__}: {exc}{where}") from exc
 
 
 def _verify(args) -> int:
@@ -89,7 +107,7 @@ def _verify_model_spec(args, verify):
 
     from abyssal.generated import regenerate
 
-    model, where = regenerate.load_model_spec(args.model)
+    model, where = _user_model(args.model, regenerate)
     out = args.out or tempfile.mkdtemp(prefix="abyssal-verify-")
     origin = regenerate.cli_origin(args.model, out, model.name, where)
     if args.out:

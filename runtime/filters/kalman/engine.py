@@ -84,7 +84,7 @@ _PLAIN_NUMBERS = frozenset({float, int, np.float64})
 def process_noise(model, x, u, dt, Qw, p=None) -> np.ndarray:
     """G Qw G^T: the additive state covariance of a noise input with covariance Qw held over dt."""
     G = model.G(x, u, p, dt)
-    Q = G @ np.asarray(Qw, dtype=np.float64) @ G.T
+    Q = G @ check_covariance(Qw, model.n_w, "Qw") @ G.T
     return (Q + Q.T) / 2
 
 
