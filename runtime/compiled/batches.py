@@ -136,12 +136,17 @@ def nearest_positive_definite(covariances: np.ndarray) -> np.ndarray:
 
 
 def _repair_failed_slices(ok: np.ndarray, cov: np.ndarray, evaluate, count: int) -> None:
-    """Slices whose Cholesky guard failed (ok = 0): evaluate again on their repaired input covariance. The input
-    buffer is given back as it was (a call reads its inputs, never changes them: a caller's refused step has
-    nothing of the batch's to undo)."""
+    """Slices whose Cholesky guard failed (ok = 0): evaluate again on their repaired input covariance (a covariance
+    that is not finite cannot be repaired: its slice keeps ok = 0). The input buffer is given back as it was (a call
+    reads its inputs, never changes them: a caller's refused step has nothing of the batch's to undo)."""
     if count and ok[0, :count].min() == 0:  # ok is 0 or 1
         failed = np.flatnonzero(ok[0, :count] == 0)
         original = cov[:, :, failed]  # fancy indexing: a copy
+        finite = np.isfinite(original).all(axis=(0, 1))
+        if not finite.all():  # nothing to repair: the caller sees ok = 0 and the non-finite result
+            failed, original = failed[finite], original[:, :, finite]
+            if not failed.size:
+                return
         cov[:, :, failed] = nearest_positive_definite(original)
         try:
             evaluate(count)

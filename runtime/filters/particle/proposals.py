@@ -242,6 +242,9 @@ class OptimalCubatureProposal(Proposal):
     """Cubature approximation of p(x_k | x^i_{k-1}, z) from P^i = 0 (see the module docstring)."""
 
     name = "cubature, locally optimal"
+    #: an entry gated gate_patience times in a row is used by the next update: the proposal moves every particle
+    #: towards z (engine.py)
+    reacquire = "admit"
 
     def bind(self, engine) -> None:
         model, tr, cap = engine.model, engine.transition, engine.capacity
@@ -266,6 +269,11 @@ class OptimalCubatureProposal(Proposal):
         points[:, :, 0] = f
         np.add(f[:, :, None], self._dx[:, None, :], out=points[:, :, 1:])
         Y = self._h(N * (2 * r + 1)).reshape(-1, N, 2 * r + 1)
+        with np.errstate(over="ignore", invalid="ignore"):  # h beyond the finite range: refused by the engine
+            return self._draw(engine, u, dt, z, present, f, Y)
+
+    def _draw(self, engine, u, dt, z, present, f, Y):
+        N, r = engine.N, self._r
         centre = Y[:, :, 0]
         spread = Y[:, :, 1:] - centre[:, :, None]  # (m, N, 2r)
         for i in self._angles:
