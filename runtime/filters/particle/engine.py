@@ -22,10 +22,12 @@ One step (``_advance``), in one place and in this order:
     3. likelihood  log p(z_kept | x_k) at every moved particle (exact mixture); when it underflows
                    at every particle the weights are kept (``uninformative``)
     4. weights     w_k = w_{k-1} p(z | x_k) exp(log_ratio), normalised in the log domain; ESS
-    5. moments     x, P (reported; before resampling); a result that is not finite refuses the step
+    5. moments     x, P (reported; before resampling)
+       re-acquire  the gate's counters (restored with the generator if the step fails); an entry left
+                   out gate_patience times in a row widens the moved cloud or is admitted (below)
     6. resampling  policy.due(ess, N), policy.ancestors(w, rng, x_k): the next active count
     7. commit      the only writes to the filter's state: particle buffers swapped or gathered, N,
-                   weights, reports, the gate's counters, the proposal's carried state (commit)
+                   weights, reports, the proposal's carried state (commit)
 
 The hooks a proposal implements (``Proposal``):
 
@@ -110,10 +112,10 @@ state's scale, f is subdivided into 2, 4, ..., 64 equal substeps until they agre
 count is kept for that dt (``pieces``); beyond 64 the step is refused naming dt. The generated
 steps of the carried proposals cannot be subdivided: they refuse such a dt.
 
-Finite in, finite out: a step whose particles leave |x| <= MAX_STATE (1e150: beyond, their
-covariance overflows or their spread is lost to rounding), or whose weights, mean or covariance
-would not be finite, is refused with a ValueError (state unchanged); so is a start whose particles'
-covariance is not finite (x0, P0 near 1e154 or beyond).
+Finite in, finite out: a step whose particles leave |x| <= MAX_STATE (1e153: beyond, their
+covariance overflows or their spread is lost to rounding), or whose weights are not finite, is
+refused with a ValueError (state unchanged); inside that range the mean and covariance are finite.
+A start whose particles leave it is refused (x0 near 1e153 or beyond; P0 = 1e300 I is accepted).
 
 Reports: ``x``/``P`` are the weighted mean and covariance after the update (before resampling);
 ``ess`` the effective sample size 1/sum w^2 after the update (before resampling);
@@ -139,9 +141,9 @@ __all__ = ["LOG_UNDERFLOW", "BootstrapProposal", "MeasurementNoise", "Proposal",
 
 #: log of the smallest normal double: a likelihood below it at every particle underflows to zero
 LOG_UNDERFLOW = float(np.log(np.finfo(np.float64).tiny))
-#: the particles' finite range: beyond it their covariance overflows, or their spread is lost to rounding (a cloud
-#: of spread 1 moved to 1e200 collapses onto one double)
-MAX_STATE = 1e150
+#: the particles' finite range: inside it every entry of their covariance is at most (2 MAX_STATE)^2 = 4e306; beyond
+#: it the covariance overflows, or the spread is lost to rounding (a cloud of spread 1 moved to 1e200 is one double)
+MAX_STATE = 1e153
 
 
 def informative(log_likelihoods: np.ndarray) -> np.ndarray | None:
@@ -253,6 +255,8 @@ class MeasurementNoise:
         self.mean, self.covariance = noise.mean(), noise.covariance()
         self._marginals: dict[bytes, GaussianMixture] = {}
         self._inverses: dict[bytes, np.ndarray] = {}
+        #: 1 / the smallest eigenvalue of the covariance
+        self.inverse_norm = 1.0 / float(np.linalg.eigvalsh(self.covariance)[0])
 
     def marginal(self, present: np.ndarray) -> GaussianMixture:
         if present.all():
@@ -367,12 +371,9 @@ class SIRFilter(FilterBase):
         self._measures = [MeasureBatch(model, b.x, self._p) for b in self._batches]
         self._cur = 0
         self.particles[...] = gaussian_draws(x0, P0, rng, N)
-        with np.errstate(over="ignore", invalid="ignore"):
-            start = weighted_moments(self.particles, np.full(N, 1.0 / N))
-        if not (-MAX_STATE <= self.particles.min() <= self.particles.max() <= MAX_STATE and _finite(start[1])):
-            raise ValueError(f"{type(self).__name__}: x0 and P0 give particles beyond the finite range |x| <= {MAX_STATE:g} "
-                             f"or a covariance that is not finite; max |x0| = {np.abs(x0).max():.3g}, max |P0| = "
-                             f"{np.abs(P0).max():.3g}")
+        if not -MAX_STATE <= self.particles.min() <= self.particles.max() <= MAX_STATE:
+            raise ValueError(f"{type(self).__name__}: x0 and P0 give particles beyond the finite range |x| <= {MAX_STATE:g}; "
+                             f"max |x0| = {np.abs(x0).max():.3g}, max |P0| = {np.abs(P0).max():.3g}")
         self.log_weights = np.full(N, -math.log(N))
         self.weights = np.full(N, 1.0 / N)
         self._prior = None  # the normalised weights of the particles, None when uniform
@@ -491,19 +492,22 @@ class SIRFilter(FilterBase):
         if gate.probability == 0.0:
             self._screened = (present, gated, present)
             return present
-        w = self._prior
+        w = self._prior if self._prior is not None else np.full(residuals.shape[1], 1.0 / residuals.shape[1])
         with np.errstate(over="ignore", invalid="ignore"):
-            centre = residuals @ w if w is not None else residuals.mean(axis=1)
-            nu = centre - offset if offset is not None else centre.copy()
-            nu[~present] = 0.0
-            dof = int(present.sum())
-            bound = nu @ self.noise.inverse(present) @ nu  # >= the NIS (S >= R)
-            if bound <= gate.thresholds[dof]:
+            centre = residuals @ w
+            nu = centre - offset if offset is not None else centre
+            if present.all():
+                dof = nu.size
+            else:
+                nu, dof = np.where(present, nu, 0.0), int(present.sum())
+            # the NIS is at most nu^T R^-1 nu (S >= R), which is at most |nu|^2 / lambda_min(R): cheap bounds first
+            threshold = gate.thresholds[dof]
+            if nu.dot(nu) * self.noise.inverse_norm <= threshold or nu.dot(self.noise.inverse(present)).dot(nu) <= threshold:
                 self._screened = (present, gated, present)
                 return present
             deviations = residuals - centre[:, None]
-            spread = (deviations * w) @ deviations.T if w is not None else deviations @ deviations.T / residuals.shape[1]
-            own = self.noise.covariance if S is None else (S @ w if w is not None else S.mean(axis=2))
+            spread = (deviations * w) @ deviations.T
+            own = self.noise.covariance if S is None else S @ w
             S_cloud = own + spread
 
         def evaluate(entries):
@@ -580,9 +584,7 @@ class SIRFilter(FilterBase):
             kept = self._screened[0] if self._screened is not None else self.screen(residuals, present,
                                                                                     offset=self.noise.mean)
             if kept is not None:
-                with np.errstate(over="ignore", invalid="ignore"):
-                    log_lik = self.noise.marginal(kept).log_density(residuals if kept.all() else residuals[kept])
-                log_lik = informative(log_lik)
+                log_lik = informative(self.noise.marginal(kept).log_density(residuals if kept.all() else residuals[kept]))
                 if log_lik is None:
                     informative_step = False
                 else:
@@ -595,13 +597,8 @@ class SIRFilter(FilterBase):
             raise ValueError(f"{self.name}: the step's importance weights are not finite ({error}); u, z or p drive the "
                              "particles out of the finite range; state left unchanged") from None
         ess = 1.0 / float(weights @ weights)
-        # 5. moments
-        with np.errstate(over="ignore", invalid="ignore"):
-            x, P = weighted_moments(proposed, weights)
-        if not (_finite(x) and _finite(P)):
-            raise ValueError(f"{self.name}: the particles' mean or covariance is not finite (max |x| = "
-                             f"{np.abs(proposed).max():.3g}): u, z, p or dt drive the state beyond the finite range; "
-                             "state left unchanged")
+        # 5. moments (finite: |x| <= MAX_STATE and normalised weights bound every entry of P by (2 MAX_STATE)^2)
+        x, P = weighted_moments(proposed, weights)
         admit = None
         # the gate's counters, and the re-acquisition after gate_patience gated updates of an entry (an update whose
         # likelihood underflowed at every particle left its entries out too: the cloud cannot represent them)

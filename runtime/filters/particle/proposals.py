@@ -60,10 +60,11 @@ def _gaussian_draw(engine, f: np.ndarray, mean: np.ndarray, C: np.ndarray) -> np
     tr = engine.transition
     N, r = engine.N, tr.rank
     xi = engine.rng.standard_normal((r, N))
-    if tr.support is not None:
+    if tr.full:
+        mean_y, C_y = mean - f, C
+    elif tr.support is not None:
         idx = tr.support
-        mean_y = (mean - f)[idx]
-        C_y = C if tr.full else C[:, idx][:, :, idx]
+        mean_y, C_y = (mean - f)[idx], C[:, idx][:, :, idx]
     else:
         V = tr.basis
         mean_y = V.T @ (mean - f)
