@@ -151,7 +151,9 @@ def normalise_log_weights(log_weights: np.ndarray) -> tuple[np.ndarray, float]:
     weights fall back to uniform and the log-mean is -inf. The caller keeps the particles, which
     is the only unbiased choice without information, and can see from the -inf that it happened.
     """
-    log_weights = _real_vector(log_weights, "log_weights")
+    if not (type(log_weights) is np.ndarray and log_weights.dtype == np.float64 and log_weights.ndim == 1
+            and log_weights.shape[0]):  # (the checks cost more than the work for a filter's own weights)
+        log_weights = _real_vector(log_weights, "log_weights")
     n = log_weights.shape[0]
     peak = float(log_weights.max())  # NaN anywhere makes the maximum NaN
     if peak == -math.inf:

@@ -133,6 +133,7 @@ class CarriedGaussianProposal(Proposal):
         return True
 
     def predict(self, engine, u, dt) -> None:
+        self._next_failed = 0
         self._check_dt(engine, u, dt)
         engine.transition_draw(u, dt)
         self._inputs(engine, u, dt)
@@ -144,6 +145,7 @@ class CarriedGaussianProposal(Proposal):
 
     def move(self, engine, u, dt, z, present):
         N, pb, ub = engine.N, self._pb, self._ub
+        self._next_failed = 0
         self._check_dt(engine, u, dt)
         f = engine.propagate(u, dt)  # transition means f(x^i_{k-1}) + E[w]
         self._inputs(engine, u, dt)
@@ -163,7 +165,6 @@ class CarriedGaussianProposal(Proposal):
             ub(N)
         mean, cov = ub.mean_post[:, :N], ub.cov_post[:, :, :N]
         ok = ub.ok[0, :N] > 0
-        self._next_failed = 0
         if not ok.all():  # proposes from its prediction
             if not predicted:
                 self._predict(N)
