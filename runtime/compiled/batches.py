@@ -300,8 +300,9 @@ class CubatureStepBatch:
     (``ckf_step`` is the composition of ``ckf_predict`` and ``ckf_update``), so when every slice
     passes its Cholesky guards and no innovation trips the outlier gate the results are those of
     the two-stage path; otherwise the step is redone by the two-stage path, which owns the repair
-    and gating logic. Only valid when nothing is added between predict and update (zero-mean
-    process noise).
+    and gating logic. The update's present entries are the fused mask (with a per-slice outlier
+    gate, a measurement with missing entries goes the two-stage path). Only valid when nothing is
+    added between predict and update (zero-mean process noise).
     """
 
     def __init__(self, bundle, predict: CubaturePredictBatch, update: CubatureUpdateBatch):
@@ -320,15 +321,18 @@ class CubatureStepBatch:
         """Predict + update slices 0..count-1. `then(lo, hi)` is passed to ``ParallelBatch`` (it
         sees the fused results). Returns False when the step was redone by the two-stage path (the
         results `then` saw are stale)."""
-        self._eval(count, then)
-        if count and not self.update.present.all():
-            self.predict(count)  # missing entries: the two-stage path owns the mask
-            self.update(count)
+        update = self.update
+        gate = update.gate_sigma != np.inf
+        if count and gate and not update.present.all():
+            self.predict(count)  # missing entries and a per-slice gate: the two-stage path owns the mask
+            update(count)
             return False
-        if count == 0 or (self.update.ok[0, :count].min() != 0 and not self.update.outliers(count).any()):
+        self.mask[...] = update.present[:, None]
+        self._eval(count, then)
+        if count == 0 or (update.ok[0, :count].min() != 0 and not (gate and update.outliers(count).any())):
             return True  # every slice passed its guards (ok is 0 or 1) and nothing was gated
         self.predict(count)
-        self.update(count)
+        update(count)
         return False
 
 

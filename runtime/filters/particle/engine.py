@@ -495,25 +495,22 @@ class SIRFilter(FilterBase):
             return present
         N = residuals.shape[1]
         w = self._prior
-        # (ndarray.dot calls BLAS: several times faster than @ for a matrix times a vector, and no floating-point
-        # warnings: an overflow gives inf, which fails the bounds below)
-        if w is None:
-            centre = residuals.dot(self._ones[:N]) * (1.0 / N)
-        else:
-            centre = residuals.dot(w)
-        nu = centre - offset if offset is not None else centre
-        if present.all():
-            dof = nu.size
-        else:
-            nu, dof = np.where(present, nu, 0.0), int(present.sum())
-        # the NIS is at most nu^T R^-1 nu (S >= R), which is at most |nu|^2 / lambda_min(R): cheap bounds first
-        threshold = gate.thresholds[dof]
-        if nu.dot(nu) * self.noise.inverse_norm <= threshold or nu.dot(self.noise.inverse(present)).dot(nu) <= threshold:
-            self._screened = (present, gated, present)
-            return present
-        if w is None:
-            w = self._ones[:N] * (1.0 / N)
-        with np.errstate(over="ignore", invalid="ignore"):
+        with np.errstate(over="ignore", invalid="ignore"):  # an overflow gives inf, which fails the bounds below
+            # (ndarray.dot calls BLAS: several times faster than @ for a matrix times a vector)
+            centre = residuals.dot(self._ones[:N]) * (1.0 / N) if w is None else residuals.dot(w)
+            nu = centre - offset if offset is not None else centre
+            if present.all():
+                dof = nu.size
+            else:
+                nu, dof = np.where(present, nu, 0.0), int(present.sum())
+            # the NIS is at most nu^T R^-1 nu (S >= R), which is at most |nu|^2 / lambda_min(R): cheap bounds first
+            threshold = gate.thresholds[dof]
+            if (nu.dot(nu) * self.noise.inverse_norm <= threshold
+                    or nu.dot(self.noise.inverse(present)).dot(nu) <= threshold):
+                self._screened = (present, gated, present)
+                return present
+            if w is None:
+                w = self._ones[:N] * (1.0 / N)
             S_cloud = (residuals * w).dot(residuals.T)  # the weighted second moment, minus the centre's outer product:
             S_cloud -= np.outer(centre, centre)        # the spread of the predicted measurements
             S_cloud += self.noise.covariance if S is None else S.dot(w)

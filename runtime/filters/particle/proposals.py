@@ -132,6 +132,12 @@ class CarriedGaussianProposal(Proposal):
         self._ub(count)
         return True
 
+    def _update_again(self, count: int, predicted: bool) -> bool:
+        """The update again, with the update batch's present entries changed (the gate's): whether the predict batch's
+        outputs are current."""
+        self._ub(count)
+        return predicted
+
     def predict(self, engine, u, dt) -> None:
         self._next_failed = 0
         self._check_dt(engine, u, dt)
@@ -153,16 +159,15 @@ class CarriedGaussianProposal(Proposal):
         ub.set_measurement(np.where(present, z - self._r_mean, 0.0))
         predicted = self._evaluate(N)
         kept = engine.screen(ub.innovation[:, :N], present, S=ub.S[:, :, :N])
-        if kept is None or not np.array_equal(kept, present):
+        if kept is None:  # every entry gated: the transition, and P^i its prediction
             if not predicted:
                 self._predict(N)
-                predicted = True
-            if kept is None:  # every entry gated: the transition, and P^i its prediction
-                engine.add_transition_noise(f)
-                self._next_cov = pb.cov_pred
-                return None
+            engine.add_transition_noise(f)
+            self._next_cov = pb.cov_pred
+            return None
+        if not np.array_equal(kept, present):
             ub.present[:] = kept
-            ub(N)
+            predicted = self._update_again(N, predicted)
         mean, cov = ub.mean_post[:, :N], ub.cov_post[:, :, :N]
         ok = ub.ok[0, :N] > 0
         if not ok.all():  # proposes from its prediction
@@ -205,6 +210,11 @@ class CarriedCubatureProposal(CarriedGaussianProposal):
         if self._fused is None:
             return super()._evaluate(count)
         return not self._fused(count)  # the fused results stand (predict outputs stale), or the two-stage path ran
+
+    def _update_again(self, count: int, predicted: bool) -> bool:
+        if self._fused is None or predicted:
+            return super()._update_again(count, predicted)
+        return not self._fused(count)  # one fused call (it honours the present entries) rather than predict + update
 
 
 #: update kind -> (generated function, its extra argument)
