@@ -27,7 +27,10 @@ forms and the UPF family of seed 002.
 Each of them hands its per-particle predicted measurement and covariance to the engine's
 innovation gate (``engine.screen``) before z enters the proposal, and uses only the entries it
 keeps; with every entry gated the particles move by the transition and carried covariances become
-their prediction.
+their prediction. With the gate off (``gate_probability=0``) the cubature proposals keep their own
+guard: an entry more than 100 standard deviations of a particle's S from its prediction is left
+out of that proposal (the weights keep it), so an outlier far beyond every particle does not throw
+the particles to it.
 
 Singular Q (all): the transition lives on the subspace V (n x r) of Q's positive eigenvalues
 (``TransitionNoise``). Particles are drawn there, x = f + V y with y from the proposal's
@@ -200,7 +203,9 @@ class CarriedCubatureProposal(CarriedGaussianProposal):
     def _batches(self, engine):
         model, cap = engine.model, engine.capacity
         pb = CubaturePredictBatch(model, cap, engine.p)
-        ub = CubatureUpdateBatch(model, cap, engine.p, pb.mean_pred, pb.cov_pred, gate_sigma=np.inf)  # engine's gate
+        # the engine's gate on the cloud, or (gate off) the batch's own per-particle outlier guard, proposal only
+        ub = CubatureUpdateBatch(model, cap, engine.p, pb.mean_pred, pb.cov_pred,
+                                 gate_sigma=np.inf if engine.gate.probability > 0.0 else 100.0)
         pb.Q[...] = engine.transition.covariance[:, :, None]
         ub.R[...] = engine.noise.covariance[:, :, None]
         self._fused = None if engine.transition.mean.any() else CubatureStepBatch(model, pb, ub)
@@ -257,6 +262,9 @@ class OptimalCubatureProposal(Proposal):
     #: an entry gated gate_patience times in a row is used by the next update: the proposal moves every particle
     #: towards z (engine.py)
     reacquire = "admit"
+    #: with the engine's gate off: a measurement entry more than this many standard deviations of S from its
+    #: prediction (at any particle) is left out of the proposal, as in ``CubatureUpdateBatch``; the weights keep it
+    gate_sigma = 100.0
 
     def bind(self, engine) -> None:
         model, tr, cap = engine.model, engine.transition, engine.capacity
@@ -301,8 +309,12 @@ class OptimalCubatureProposal(Proposal):
         innovation = (z - self._r_mean)[:, None] - z_hat
         for i in self._angles:
             innovation[i] = wrap_to_pi(innovation[i])
-        kept = engine.screen(innovation, present, S=np.moveaxis(S, 0, -1))
-        if kept is None:  # every entry gated: the transition
+        if engine.gate.probability > 0.0:
+            kept = engine.screen(innovation, present, S=np.moveaxis(S, 0, -1))
+        else:  # the proposal's own outlier guard (the weights keep every entry)
+            kept = present & ~np.any(np.abs(innovation) > self.gate_sigma * np.sqrt(np.einsum("naa->an", S)), axis=1)
+            kept = kept if kept.any() else None
+        if kept is None:  # every entry left out: the transition
             engine.add_transition_noise(f)
             return None
         rows = np.flatnonzero(kept)
