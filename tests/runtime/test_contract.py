@@ -306,12 +306,7 @@ def assert_later_steps_finite(filt, model, ks) -> None:
 
 
 #: filters of other branches that fail a rule today: (class name, rule) -> the branch that fixes it
-KNOWN_FAILURES: dict[tuple[str, str], str] = {
-    ("UPF", "z = 1e300"): "sir-merge",                  # P = inf accepted (a weighted covariance overflows)
-    ("ParticleFilter", "x0 = 1e300"): "sir-merge",       # P = inf after the first step
-    ("CubatureParticleFilter", "x0 = 1e300"): "sir-merge",
-    ("UPF", "last z entry 1e300"): "sir-merge",
-}
+KNOWN_FAILURES: dict[tuple[str, str], str] = {}
 
 
 def _known(name, rule):
