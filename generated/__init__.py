@@ -5,9 +5,10 @@
     x1 = bundle.f(x0, tau, None, 0.1)
 
 ``load`` reads ``<folder>/manifest.json``, checks every source against the manifest's sha256
-(a hand-edited, truncated or missing file is refused, naming the file), compiles the sources on
-first use through the shared per-user cache (see build.py) and returns a ModelBundle. The cache
-entry is named by the manifest's model name (a checked C identifier), never by the path given.
+(a hand-edited, truncated or missing file is refused, naming the file), compiles the sources with the
+C runtime of the Kalman family (generated/c) on first use through the shared per-user cache (see
+build.py) and returns a ModelBundle. The cache entry is named by the manifest's model name (a checked C
+identifier), never by the path given.
 """
 from __future__ import annotations
 
@@ -18,7 +19,7 @@ import re
 import threading
 from pathlib import Path
 
-from .build import BuildError, CompilerNotFoundError, build
+from .build import BuildError, CompilerNotFoundError, build, runtime_sources
 from .bundle import BatchBinding, Binding, CompiledFunction, ModelBundle
 
 GENERATED_DIR = Path(__file__).resolve().parent
@@ -162,7 +163,7 @@ def load(name_or_path) -> ModelBundle:
         bundle = _BUNDLES.get(key)
         if bundle is None:
             manifest, sources = read_folder(folder)
-            bundle = ModelBundle(manifest, build(manifest["model"], sources))
+            bundle = ModelBundle(manifest, build(manifest["model"], {**sources, **runtime_sources()}))
             bundle.folder = folder
             _BUNDLES[key] = bundle
     return bundle

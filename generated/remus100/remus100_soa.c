@@ -22,10 +22,17 @@
 #if defined(__AVX512F__) && defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
 #pragma GCC target("prefer-vector-width=512")
 #endif
+/* The loops are OpenMP simd loops when compiled with -fopenmp-simd -DABYSSAL_OPENMP_SIMD (abyssal's own
+ * builds) or -fopenmp; otherwise plain C99 loops (any compiler, no unknown-pragma warning). */
+#if defined(ABYSSAL_OPENMP_SIMD) || defined(_OPENMP)
+#define ABYSSAL_SIMD_LOOP _Pragma("omp simd")
+#else
+#define ABYSSAL_SIMD_LOOP
+#endif
 /* glibc's libmvec has vector variants of sin, cos (and since 2.35 tan); declaring them lets the loops
  * below vectorise. const: errno is never read here, and without it gcc 12 does not if-convert a loop
  * that has a call and a comparison, so it would stay scalar. */
-#if defined(__x86_64__) && defined(__GLIBC__) && !defined(ABYSSAL_NO_LIBMVEC)
+#if defined(__x86_64__) && defined(__GLIBC__) && !defined(ABYSSAL_NO_LIBMVEC) && (defined(ABYSSAL_OPENMP_SIMD) || defined(_OPENMP))
 #pragma omp declare simd notinbranch
 extern double sin(double) __attribute__((const));
 #pragma omp declare simd notinbranch
@@ -44,7 +51,7 @@ CASADI_SYMBOL_EXPORT int remus100_f_soa(casadi_int N, casadi_int ld, const casad
   const casadi_real* a3 = arg[3];
   casadi_real* r0 = res[0];
   casadi_int j;
-#pragma omp simd
+  ABYSSAL_SIMD_LOOP
   for (j = 0; j < N; ++j) {
     casadi_real w0, w1, w2, w3, w4, w5, w6, w7, w8, w9, w10, w11, w12, w13, w14, w15, w16, w17, w18, w19, w20, w21, w22, w23, w24, w25, w26, w27, w28, w29, w30, w31, w32, w33, w34, w35, w36, w37, w38, w39, w40, w41, w42, w43, w44, w45, w46, w47, w48, w49, w50, w51, w52, w53, w54, w55, w56, w57, w58, w59, w60, w61, w62, w63, w64, w65, w66, w67, w68, w69, w70, w71, w72, w73, w74, w75, w76, w77, w78, w79, w80, w81, w82, w83, w84, w85, w86, w87, w88, w89, w90, w91, w92, w93, w94, w95, w96, w97, w98, w99, w100, w101, w102, w103, w104, w105, w106, w107, w108, w109, w110, w111, w112, w113, w114, w115, w116, w117, w118, w119, w120, w121, w122, w123, w124, w125, w126, w127, w128, w129, w130, w131, w132, w133, w134, w135, w136, w137, w138, w139, w140, w141, w142, w143, w144, w145, w146, w147, w148, w149, w150, w151, w152, w153, w154, w155, w156, w157, w158, w159, w160, w161, w162, w163, w164, w165, w166, w167, w168, w169, w170, w171, w172, w173, w174, w175, w176, w177, w178, w179;
     w0=a0[0*ld+j];
@@ -3190,10 +3197,9 @@ CASADI_SYMBOL_EXPORT int remus100_f_soa(casadi_int N, casadi_int ld, const casad
 /* remus100_h_soa(x[], p): inputs marked [] vary per particle. */
 CASADI_SYMBOL_EXPORT int remus100_h_soa(casadi_int N, casadi_int ld, const casadi_real** arg, casadi_real** res) {
   const casadi_real* a0 = arg[0];
-  const casadi_real* a1 = arg[1];
   casadi_real* r0 = res[0];
   casadi_int j;
-#pragma omp simd
+  ABYSSAL_SIMD_LOOP
   for (j = 0; j < N; ++j) {
     casadi_real w0;
     w0=a0[0*ld+j];

@@ -9,10 +9,15 @@ particle filters bind them.
 FAMILIES = ("ekf", "ukf", "ckf", "robust")
 #: family -> families it builds on (the robust filters predict with the UKF step)
 REQUIRES = {"robust": ("ukf",)}
-#: family -> role -> generated function (without the model's prefix)
+#: family -> role -> generated function (without the model's prefix). "predict_points" and
+#: "predict_moments" are the sigma-point predict in two halves (x, P -> points; propagated points, Q -> x_pred,
+#: P_pred), between which the C runtime of the Kalman family propagates the points through the model's SIMD
+#: kernel <m>_f_soa.
 FUNCTIONS = {
     "ekf": {"predict": "ekf_predict", "update": "ekf_update", "step": "ekf_step"},
-    "ukf": {"predict": "ukf_predict", "update": "ukf_update"},
-    "ckf": {"predict": "ckf_predict", "update": "ckf_update", "step": "ckf_step"},
+    "ukf": {"predict": "ukf_predict", "update": "ukf_update", "predict_points": "ukf_predict_points",
+            "predict_moments": "ukf_predict_moments"},
+    "ckf": {"predict": "ckf_predict", "update": "ckf_update", "step": "ckf_step", "predict_points": "ckf_predict_points",
+            "predict_moments": "ckf_predict_moments"},
     "robust": {"mcc_update": "mcukf_update", "huber_update": "huber_ukf_update"},
 }

@@ -6,8 +6,10 @@
     <m>_ukf_predict(x, P, u, p, dt, Q, abk)    -> (x_pred, P_pred, ok)
     <m>_ukf_update(x, P, z, p, R, mask, abk)   -> (x_post, P_post, innovation, S, ok)
     <m>_ckf_step(x, P, u, p, dt, Q, z, R, mask) -> (x_post, P_post, innovation, S, ok)
-                                                  calls predict then update (one C call per
-                                                  step for the runtime's step())
+                                                  calls predict then update (one C call)
+    <m>_ckf_predict_points(x, P)               -> (X, ok)           the predict in two halves, for the C
+    <m>_ckf_predict_moments(Y, Q)              -> (x_pred, P_pred, ok)   runtime (generated/c): it propagates
+    <m>_ukf_predict_points(x, P, abk), <m>_ukf_predict_moments(Y, Q, abk)  X through <m>_f_soa (Y)
 
 Predict (seed 000 eqs. 22-24, seed 002 eqs. 7-10): points from the symmetrised P by a guarded
 Cholesky factor, propagated through f, weighted mean, covariance of the residuals + Q (the
@@ -212,6 +214,28 @@ class SigmaPointFamily:
         P_pred, ok_moments = self.shared.predicted(x_pred, C, s["Q"])
         return exported(name, s, {"x_pred": x_pred, "P_pred": P_pred, "ok": ok_points * ok_moments})
 
+    def predict_points_function(self, name: str) -> ca.Function:
+        """(x, P, *rule_args) -> (X, ok): the first half of the predict, the points as the rows of X
+        (n_points, n_x). Column-major, point k's entry i is at X[k + i n_points]: the structure-of-arrays layout
+        of the model's SIMD kernel <m>_f_soa with ld = n_points, so the C runtime propagates them in one call."""
+        s, rule, _ = self._inputs(["x", "P"])
+        L, ok = self.shared.cholesky(s["P"])
+        return exported(name, s, {"X": self.points(s["x"], L, *rule).T, "ok": ok})
+
+    def predict_moments_function(self, name: str) -> ca.Function:
+        """(Y, Q, *rule_args) -> (x_pred, P_pred, ok): the second half, the moments of the propagated points Y
+        (n_points, n_x, the layout of predict_points' X) plus Q; the same leaves as predict_function's."""
+        n = self.model.n_x
+        inputs = {"Y": ca.MX.sym("Y", self.rule.n_points, n), "Q": ca.MX.sym("Q", n, n)}
+        inputs.update({name_: ca.MX.sym(name_, *arg.shape) for name_, arg in zip(self.rule_names, self.rule_args)})
+        rule = [inputs[name_] for name_ in self.rule_names]
+        Y = inputs["Y"].T
+        wm, wc = self._group_weights(rule)
+        x_pred = self._mean(wm, Y)
+        C, = self._looped(wc, self.shared.outer, [Y], [x_pred], summed=(0,))
+        P_pred, ok = self.shared.predicted(x_pred, C, inputs["Q"])
+        return exported(name, inputs, {"x_pred": x_pred, "P_pred": P_pred, "ok": ok})
+
     def update_function(self, name: str, noise: ca.Function | None = None, extra_args=(), extra_names=()) -> ca.Function:
         """(x, P, z, p, R, mask, *rule_args, *extra) -> (x_post, P_post, innovation, S, ok).
 
@@ -250,7 +274,9 @@ def ckf_functions(model: Model, shared: SharedLeaves | None = None) -> tuple[ca.
     names = FUNCTIONS["ckf"]
     predict = family.predict_function(f"{m}_{names['predict']}")
     update = family.update_function(f"{m}_{names['update']}")
-    return predict, update, fused_step(f"{m}_{names['step']}", model, predict, update)
+    return (predict, update, fused_step(f"{m}_{names['step']}", model, predict, update),
+            family.predict_points_function(f"{m}_{names['predict_points']}"),
+            family.predict_moments_function(f"{m}_{names['predict_moments']}"))
 
 
 def unscented_family(model: Model, shared: SharedLeaves | None = None) -> SigmaPointFamily:
@@ -265,4 +291,6 @@ def ukf_functions(model: Model, family: SigmaPointFamily | None = None) -> tuple
     m = model.name
     family = family or unscented_family(model)
     names = FUNCTIONS["ukf"]
-    return family.predict_function(f"{m}_{names['predict']}"), family.update_function(f"{m}_{names['update']}")
+    return (family.predict_function(f"{m}_{names['predict']}"), family.update_function(f"{m}_{names['update']}"),
+            family.predict_points_function(f"{m}_{names['predict_points']}"),
+            family.predict_moments_function(f"{m}_{names['predict_moments']}"))
