@@ -54,8 +54,8 @@ typedef struct {
   double nis;
 } pending;
 
-#define DOUBLES(f, offset) ((double*)((char*)(f) + (offset)))
-#define BYTES(f, offset) ((unsigned char*)((char*)(f) + (offset)))
+#define DOUBLES(f, offset) ((double*)(void*)((char*)(f) + (offset)))
+#define BYTES(f, offset) ((unsigned char*)(void*)((char*)(f) + (offset)))
 #define XS(f, k) DOUBLES(f, (f)->x[k])
 #define PS(f, k) DOUBLES(f, (f)->P[k])
 

@@ -7,8 +7,8 @@
  *   - a filter object in caller-provided memory: abyssal_kalman_work_size() bytes (8-byte aligned), built by
  *     abyssal_kalman_init(); no heap, no global state, re-entrant (one object per thread), no pointers inside
  *     (a memcpy of the object is a checkpoint; copying it back restores the filter exactly);
- *   - a transaction: a call that returns an error code leaves the object bit-identical (state, reports,
- *     counters); a successful call commits everything at once;
+ *   - a transaction: a call that returns an error code leaves the filter bit-identical (its state, reports and
+ *     counters; the spare buffers it computes in are scratch); a successful call commits everything at once;
  *   - missing data: NaN entries of z, or entries a mask leaves out, are left out entry by entry;
  *   - the innovation gate with patience and inflation (abyssal_kalman_gate.h);
  *   - covariance repair: a step whose Cholesky guard trips on a covariance that is not numerically positive

@@ -161,8 +161,7 @@ int abyssal_repair_covariance(int n, const double* P, const double* Q, double fl
     for (i = 0; i < n; ++i) AT(out, n, i, i) = floor * (q > 1.0 ? q : 1.0);
     return 0;
   }
-  for (j = 0; j < n; ++j)
-    for (i = 0; i < n; ++i) AT(A, n, i, j) = 0.5 * (AT(P, n, i, j) + AT(P, n, j, i));
+  abyssal_symmetrise(n, P, A);
   scale = largest_magnitude(n * n, A);
   if (!(scale > 0.0) || !isfinite(scale)) scale = 1.0;
   for (k = 0; k < n * n; ++k) A[k] /= scale;

@@ -10,8 +10,8 @@
 #define GATE_MAGIC 0x6761746561627973ULL /* "gateabys" */
 #define ROUND8(b) (((b) + 7u) & ~(size_t)7u)
 
-static double* thresholds(const abyssal_gate* g) { return (double*)((char*)g + g->thresholds); }
-static long long* streaks(const abyssal_gate* g) { return (long long*)((char*)g + g->streak); }
+static double* thresholds(const abyssal_gate* g) { return (double*)(void*)((char*)g + g->thresholds); }
+static long long* streaks(const abyssal_gate* g) { return (long long*)(void*)((char*)g + g->streak); }
 
 size_t abyssal_gate_size(int m) {
   if (m < 1) return 0;

@@ -280,6 +280,12 @@ class KalmanFilter(FilterBase):
         return int(self._substeps[0])
 
     @property
+    def code(self) -> int:
+        """The C runtime's return code of the last call (abyssal_kalman.h: 1 a measurement was used, 0 not, < 0 the
+        call was refused)."""
+        return int(self._code[0])
+
+    @property
     def gate(self):
         """The filter's innovation gate (gate.py's InnovationGate over the C object's gate: its thresholds and
         counters; the filter applies it)."""
