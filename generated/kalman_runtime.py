@@ -6,9 +6,10 @@
 Every model's library holds a copy of the runtime (build.KALMAN_RUNTIME, compiled from the same files with the
 same flags) and the model's descriptor ``<m>_descriptor`` (abyssal_model.h), so a filter calls the runtime of
 its own library; the standalone library serves InnovationGate objects of filters that run their own updates.
-The hot path of a Kalman filter does not go through ctypes: ``call_function`` is the runtime's
-``abyssal_kalman_call`` loaded by ``casadi.external`` and bound once with ``Function.buffer()`` (the fast
-binding of every generated function, bundle.py).
+The hot path of a Kalman filter does not go through ctypes: ``call_function(name)`` is one of the runtime's
+CasADi-convention entry points (abyssal_kalman_binding.c: step, predict, update, check_p) loaded by
+``casadi.external`` and bound once with ``Function.buffer()`` (the fast binding of every generated function,
+bundle.py).
 
 The option struct and the return codes below mirror abyssal_kalman.h (tests/generated/test_kalman_runtime.py
 checks the mirror against the C).
@@ -30,8 +31,8 @@ UPDATED, OK = 1, 0
 (E_MEMORY, E_MODEL, E_FILTER, E_SIGMA_POINTS, E_ROBUST, E_GATE, E_SUBSTEPS, E_X0, E_P0, E_Q, E_R, E_U, E_DT, E_Z, E_P,
  E_DIVERGED, E_UNSTABLE, E_STATE) = range(-1, -19, -1)
 
-# commands of abyssal_kalman_binding.c
-CALL_STEP, CALL_PREDICT, CALL_UPDATE, CALL_CHECK_P = 1.0, 2.0, 3.0, 4.0
+#: the calls of abyssal_kalman_binding.c (abyssal_kalman_<name>_call)
+CALLS = ("step", "predict", "update", "check_p")
 
 # items of abyssal_kalman_offset
 (AT_X, AT_P, AT_INNOVATION, AT_S, AT_Q, AT_R, AT_GATE, AT_CURRENT, AT_REPORTED, AT_NIS, AT_NIS_DOF, AT_REPAIRS,
@@ -93,7 +94,7 @@ class KalmanRuntime:
             setattr(self, name.removeprefix("abyssal_"), fn)
         #: the address of the model's descriptor (None for the standalone runtime)
         self.descriptor = descriptor
-        self._call = None
+        self._calls: dict[str, ca.Function] = {}
 
     @classmethod
     def of(cls, bundle) -> "KalmanRuntime":
@@ -115,12 +116,12 @@ class KalmanRuntime:
             setattr(options, name, value)
         return options
 
-    @property
-    def call_function(self) -> ca.Function:
-        """``abyssal_kalman_call`` (abyssal_kalman_binding.c) as a CasADi Function: bind it with ``.buffer()``."""
-        if self._call is None:
-            self._call = ca.external("abyssal_kalman_call", self.library)
-        return self._call
+    def call_function(self, name: str) -> ca.Function:
+        """``abyssal_kalman_<name>_call`` (abyssal_kalman_binding.c; name in CALLS) as a CasADi Function: arguments
+        (filter memory, call block [dt, u, z, p]), result (the return code); bind it with ``.buffer()``."""
+        if name not in self._calls:
+            self._calls[name] = ca.external(f"abyssal_kalman_{name}_call", self.library)
+        return self._calls[name]
 
 
 @lru_cache(maxsize=None)

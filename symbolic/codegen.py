@@ -331,7 +331,7 @@ def soa_source(model: Model, functions: list[ca.Function], origin: Origin) -> tu
 #: the generated functions an ``abyssal_model`` descriptor points to, in the order of its fields
 #: (generated/c/abyssal_model.h); a function the model was generated without is a NULL entry
 DESCRIPTOR_FUNCTIONS = ("f", "F", "h", "H", "ekf_predict", "ekf_update", "ekf_step", "ckf_predict_points",
-                        "ckf_predict_moments", "ckf_update", "ukf_predict_points", "ukf_predict_moments", "ukf_update",
+                        "ckf_predict_weights", "ckf_update", "ukf_predict_points", "ukf_predict_weights", "ukf_update",
                         "mcukf_update", "huber_ukf_update")
 DESCRIPTOR_HEADER = "abyssal_model.h"
 

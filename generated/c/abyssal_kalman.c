@@ -40,7 +40,7 @@ struct abyssal_kalman {
   long long cache_next;
   double abk[3];                  /* alpha, beta, kappa: an input of the unscented functions */
   double robust;                  /* sigma (MCUKF) or gamma (Huber): an input of the robust updates */
-  long long x[3], P[3], innovation[2], S[2], Q, R, gate, state_bytes;
+  long long x[3], P[3], innovation[2], S[2], Q, R, wm, wc, gate, state_bytes;
   long long Qk, z0, mask, present, gated, present0, gate_copy, X, U, Y, arg, res, iw, w, scratch, bytes;
 };
 
@@ -72,8 +72,8 @@ static const abyssal_function* predict_points(const abyssal_model* model, abyssa
   return filter == ABYSSAL_CKF ? &model->ckf_predict_points : &model->ukf_predict_points;
 }
 
-static const abyssal_function* predict_moments(const abyssal_model* model, abyssal_filter filter) {
-  return filter == ABYSSAL_CKF ? &model->ckf_predict_moments : &model->ukf_predict_moments;
+static const abyssal_function* predict_weights(const abyssal_model* model, abyssal_filter filter) {
+  return filter == ABYSSAL_CKF ? &model->ckf_predict_weights : &model->ukf_predict_weights;
 }
 
 static const abyssal_function* update_function(const abyssal_model* model, abyssal_filter filter) {
@@ -116,7 +116,7 @@ int abyssal_kalman_check_options(const abyssal_model* model, const abyssal_kalma
   } else {
     if (!model->f_soa) return ABYSSAL_E_MODEL;
     needed[count++] = predict_points(model, o->filter);
-    needed[count++] = predict_moments(model, o->filter);
+    needed[count++] = predict_weights(model, o->filter);
   }
   needed[count++] = update_function(model, o->filter);
   for (k = 0; k < count; ++k)
@@ -159,12 +159,14 @@ static void lay_out(struct abyssal_kalman* f, const abyssal_model* model, const 
   for (k = 0; k < 2; ++k) TAKE(S[k], sizeof(double) * m * m);
   TAKE(Q, sizeof(double) * n * n);
   TAKE(R, sizeof(double) * m * m);
+  TAKE(wm, sizeof(double) * f->points);
+  TAKE(wc, sizeof(double) * f->points);
   f->state_bytes = (long long)at;
   if (o->filter == ABYSSAL_EKF) {
     used[count++] = &model->ekf_predict;
   } else {
     used[count++] = predict_points(model, o->filter);
-    used[count++] = predict_moments(model, o->filter);
+    used[count++] = predict_weights(model, o->filter);
   }
   used[count++] = update_function(model, o->filter);
   for (k = 0; k < count; ++k) {
@@ -213,7 +215,49 @@ static int evaluate(abyssal_kalman* f, const abyssal_function* fn, const double*
   return fn->eval(arg, res, (long long*)(void*)((char*)f + f->iw), DOUBLES(f, f->w), 0);
 }
 
-/* predict from buffer set src into dst with step dt and noise Q; 1 when the step's ok flag was set. */
+/* sum_k a_k b_k in four interleaved partial sums (k mod 4, the tail in the first), added pairwise at the end: a
+ * fixed order, so every compiler computes the same sum, in 4-wide vector operations where it can. */
+static double dot(int N, const double* restrict a, const double* restrict b) {
+  double s[4] = {0.0, 0.0, 0.0, 0.0};
+  int k = 0, lane;
+  for (; k + 4 <= N; k += 4)
+    for (lane = 0; lane < 4; ++lane) s[lane] += a[k + lane] * b[k + lane];
+  for (; k < N; ++k) s[0] += a[k] * b[k];
+  return (s[0] + s[1]) + (s[2] + s[3]);
+}
+
+/* The moments of the propagated points Y (points x n, column-major: the N values of state i are contiguous at
+ * Y + i N, the layout of the model's SIMD kernel), with the rule's weights: x_i = sum_k wm_k Y_ik and
+ * P_ij = sum_k wc_k D_ik D_jk + sym(Q)_ij with D = Y - x (in place), on and above the diagonal, mirrored (P exactly
+ * symmetric). E = wc D goes to the points' buffer X. 1 when x and P are finite. */
+static int moments(abyssal_kalman* f, double* Y, const double* Q, double* x, double* P) {
+  const int N = f->points, n = f->n;
+  const double *wm = DOUBLES(f, f->wm), *wc = DOUBLES(f, f->wc);
+  double *D = Y, *E = DOUBLES(f, f->X), total = 0.0;
+  int i, j, k;
+  for (i = 0; i < n; ++i) {
+    double* d = D + i * N;
+    double* e = E + i * N;
+    const double mean = dot(N, wm, d);
+    x[i] = mean;
+    total += mean;
+    for (k = 0; k < N; ++k) {
+      d[k] -= mean;
+      e[k] = wc[k] * d[k];
+    }
+  }
+  for (j = 0; j < n; ++j)
+    for (i = 0; i <= j; ++i) {
+      double value = dot(N, E + i * N, D + j * N) + (i == j ? Q[i + j * n] : (Q[i + j * n] + Q[j + i * n]) / 2);
+      P[i + j * n] = value;
+      P[j + i * n] = value;
+      total += value;
+    }
+  return isfinite(total);
+}
+
+/* predict from buffer set src into dst with step dt and noise Q; 1 when it succeeded (every Cholesky pivot passed
+ * its guard, every output finite). */
 static int predict_once(abyssal_kalman* f, int src, int dst, const double* u, const double* p, double dt,
                         const double* Q) {
   const abyssal_model* model = f->model;
@@ -224,10 +268,11 @@ static int predict_once(abyssal_kalman* f, int src, int dst, const double* u, co
     args[0] = XS(f, src); args[1] = PS(f, src); args[2] = u; args[3] = p; args[4] = &dt; args[5] = Q;
     res[0] = XS(f, dst); res[1] = PS(f, dst); res[2] = &ok;
     evaluate(f, &model->ekf_predict, args, 6, res, 3);
+    return ok == 1.0;
   } else {
     double *X = DOUBLES(f, f->X), *U = DOUBLES(f, f->U), *Y = DOUBLES(f, f->Y);
     const double* args[4];
-    double* res[3];
+    double* res[2];
     int N = f->points, i, j;
     args[0] = XS(f, src); args[1] = PS(f, src); args[2] = f->abk;
     res[0] = X; res[1] = &ok;
@@ -238,11 +283,8 @@ static int predict_once(abyssal_kalman* f, int src, int dst, const double* u, co
     args[0] = X; args[1] = U; args[2] = p; args[3] = &dt;
     res[0] = Y;
     model->f_soa(N, N, args, res);
-    args[0] = Y; args[1] = Q; args[2] = f->abk;
-    res[0] = XS(f, dst); res[1] = PS(f, dst); res[2] = &ok;
-    evaluate(f, predict_moments(model, f->options.filter), args, is_unscented(f->options.filter) ? 3 : 2, res, 3);
+    return moments(f, Y, Q, XS(f, dst), PS(f, dst));
   }
-  return ok == 1.0;
 }
 
 /* update from buffer set src into dst with z0 (0 where left out) and the mask; innovation/S into buffer rb. */
@@ -524,6 +566,18 @@ int abyssal_kalman_init(void* memory, size_t bytes, const abyssal_model* model, 
   f->abk[1] = options->beta;
   f->abk[2] = options->kappa;
   f->robust = options->filter == ABYSSAL_HUBER_UKF ? options->gamma : options->sigma;
+  if (f->points > 0) { /* the rule's weights, once: they depend on alpha, beta, kappa only */
+    const double* args[1];
+    double* res[2];
+    args[0] = f->abk;
+    res[0] = DOUBLES(f, f->wm);
+    res[1] = DOUBLES(f, f->wc);
+    evaluate(f, predict_weights(model, options->filter), args, is_unscented(options->filter) ? 1 : 0, res, 2);
+    if (!all_finite(f->points, DOUBLES(f, f->wm)) || !all_finite(f->points, DOUBLES(f, f->wc))) {
+      memset(memory, 0, sizeof(struct abyssal_kalman));
+      return ABYSSAL_E_SIGMA_POINTS;
+    }
+  }
   f->current = 0;
   f->reported = -1;
   f->nis = NAN;

@@ -43,9 +43,10 @@ typedef struct {
   /* EKF: predict(x, P, u, p, dt, Q) -> (x, P, ok); update(x, P, z, p, R, mask) -> (x, P, nu, S, ok);
    * step(x, P, u, p, dt, Q, z, R, mask) -> (x, P, nu, S, ok) */
   abyssal_function ekf_predict, ekf_update, ekf_step;
-  /* sigma-point predicts in two halves: points(x, P[, abk]) -> (X, ok); moments(Y, Q[, abk]) -> (x, P, ok) */
-  abyssal_function ckf_predict_points, ckf_predict_moments, ckf_update;
-  abyssal_function ukf_predict_points, ukf_predict_moments, ukf_update;
+  /* the rule of a sigma-point predict: points(x, P[, abk]) -> (X (points x n_x), ok); weights([abk]) -> (wm, wc);
+   * update(x, P, z, p, R, mask[, abk]) -> (x, P, nu, S, ok) */
+  abyssal_function ckf_predict_points, ckf_predict_weights, ckf_update;
+  abyssal_function ukf_predict_points, ukf_predict_weights, ukf_update;
   /* robust updates: (x, P, z, p, R, mask, abk, sigma | gamma) -> (x, P, nu, S, ok) */
   abyssal_function mcukf_update, huber_ukf_update;
 } abyssal_model;

@@ -11,10 +11,10 @@
  *   cn2d_ekf_update
  *   cn2d_ekf_step
  *   cn2d_ckf_predict_points
- *   cn2d_ckf_predict_moments
+ *   cn2d_ckf_predict_weights
  *   cn2d_ckf_update
  *   cn2d_ukf_predict_points
- *   cn2d_ukf_predict_moments
+ *   cn2d_ukf_predict_weights
  *   cn2d_ukf_update
  *   cn2d_mcukf_update
  *   cn2d_huber_ukf_update
@@ -29,10 +29,10 @@ extern int cn2d_ekf_predict(const double** arg, double** res, long long* iw, dou
 extern int cn2d_ekf_update(const double** arg, double** res, long long* iw, double* w, int mem);
 extern int cn2d_ekf_step(const double** arg, double** res, long long* iw, double* w, int mem);
 extern int cn2d_ckf_predict_points(const double** arg, double** res, long long* iw, double* w, int mem);
-extern int cn2d_ckf_predict_moments(const double** arg, double** res, long long* iw, double* w, int mem);
+extern int cn2d_ckf_predict_weights(const double** arg, double** res, long long* iw, double* w, int mem);
 extern int cn2d_ckf_update(const double** arg, double** res, long long* iw, double* w, int mem);
 extern int cn2d_ukf_predict_points(const double** arg, double** res, long long* iw, double* w, int mem);
-extern int cn2d_ukf_predict_moments(const double** arg, double** res, long long* iw, double* w, int mem);
+extern int cn2d_ukf_predict_weights(const double** arg, double** res, long long* iw, double* w, int mem);
 extern int cn2d_ukf_update(const double** arg, double** res, long long* iw, double* w, int mem);
 extern int cn2d_mcukf_update(const double** arg, double** res, long long* iw, double* w, int mem);
 extern int cn2d_huber_ukf_update(const double** arg, double** res, long long* iw, double* w, int mem);
@@ -59,10 +59,10 @@ const abyssal_model cn2d_descriptor = {
   {cn2d_ekf_update, 6, 5, 0, 14},
   {cn2d_ekf_step, 19, 10, 0, 60},
   {cn2d_ckf_predict_points, 4, 4, 0, 35},
-  {cn2d_ckf_predict_moments, 8, 6, 0, 66},
+  {cn2d_ckf_predict_weights, 0, 3, 0, 4},
   {cn2d_ckf_update, 12, 11, 0, 48},
   {cn2d_ukf_predict_points, 6, 4, 0, 42},
-  {cn2d_ukf_predict_moments, 9, 6, 0, 87},
+  {cn2d_ukf_predict_weights, 2, 4, 0, 17},
   {cn2d_ukf_update, 14, 11, 0, 56},
   {cn2d_mcukf_update, 15, 11, 0, 57},
   {cn2d_huber_ukf_update, 15, 11, 0, 57}

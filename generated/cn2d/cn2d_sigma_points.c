@@ -7,14 +7,14 @@
  *   cn2d_ukf_predict                  354 operations
  *   cn2d_ukf_update                   283 operations
  *   cn2d_ukf_predict_points            74 operations
- *   cn2d_ukf_predict_moments          169 operations
+ *   cn2d_ukf_predict_weights           26 operations
  *   cn2d_mcukf_update                 307 operations
  *   cn2d_huber_ukf_update             338 operations
  *   cn2d_ckf_predict                  265 operations
  *   cn2d_ckf_update                   222 operations
  *   cn2d_ckf_step                     488 operations
  *   cn2d_ckf_predict_points            68 operations
- *   cn2d_ckf_predict_moments          108 operations
+ *   cn2d_ckf_predict_weights            4 operations
  */
 
 /* CasADi's calling convention passes iw, w and mem to every function; not every function uses them. */
@@ -82,8 +82,6 @@
 #define casadi_f41 CASADI_PREFIX(f41)
 #define casadi_f42 CASADI_PREFIX(f42)
 #define casadi_f43 CASADI_PREFIX(f43)
-#define casadi_f44 CASADI_PREFIX(f44)
-#define casadi_f45 CASADI_PREFIX(f45)
 #define casadi_f5 CASADI_PREFIX(f5)
 #define casadi_f6 CASADI_PREFIX(f6)
 #define casadi_f7 CASADI_PREFIX(f7)
@@ -100,6 +98,8 @@
 #define casadi_s3 CASADI_PREFIX(s3)
 #define casadi_s4 CASADI_PREFIX(s4)
 #define casadi_s5 CASADI_PREFIX(s5)
+#define casadi_s6 CASADI_PREFIX(s6)
+#define casadi_s7 CASADI_PREFIX(s7)
 #define casadi_sq CASADI_PREFIX(sq)
 #define casadi_zeros CASADI_PREFIX(zeros)
 
@@ -212,7 +212,9 @@ static const casadi_int casadi_s1[3] = {2, 2, 1};
 static const casadi_int casadi_s2[3] = {3, 1, 1};
 static const casadi_int casadi_s3[3] = {1, 1, 1};
 static const casadi_int casadi_s4[3] = {5, 2, 1};
-static const casadi_int casadi_s5[3] = {4, 2, 1};
+static const casadi_int casadi_s5[3] = {5, 1, 1};
+static const casadi_int casadi_s6[3] = {4, 2, 1};
+static const casadi_int casadi_s7[3] = {4, 1, 1};
 
 static const casadi_real casadi_zeros[10] = 
   {0.};
@@ -1329,218 +1331,131 @@ CASADI_SYMBOL_EXPORT int cn2d_ukf_predict_points_work_bytes(casadi_int *sz_arg, 
   return 0;
 }
 
-/* cn2d_outer_0_1:(y[2],mean[2])->(ddT[2x2,3nz]) */
+/* cn2d_ukf_point_weights:(abk[3])->(wm[5],wc[5]) */
 static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i, j;
-  casadi_real **res1=res+1, *w0=w+3, *w1=w+5, *w2=w+7, *w3=w+10;
-  const casadi_real **arg1=arg+2;
-  /* #0: @0 = input[0][0] */
-  casadi_copy(arg[0], 2, w0);
-  /* #1: @1 = input[1][0] */
-  casadi_copy(arg[1], 2, w1);
-  /* #2: @2 = cn2d_outer(@0, @1) */
-  arg1[0]=w0;
-  arg1[1]=w1;
-  res1[0]=w2;
-  if (casadi_f8(arg1, res1, iw, w, 0)) return 1;
-  /* #3: @3 = repsum(@2, 1) */
-  casadi_clear(w3, 3);
-    for (i=0;i<1;++i) {
-        for (j=0;j<3;++j) {
-            w3[j] += w2[j+i*3];
-          }
-      }
-  /* #4: output[0][0] = @3 */
-  casadi_copy(w3, 3, res[0]);
+  casadi_real a0, a1, a2, a3;
+  a0=arg[0]? arg[0][0] : 0;
+  a1=casadi_sq(a0);
+  a2=2.;
+  a3=arg[0]? arg[0][2] : 0;
+  a3=(a2+a3);
+  a1=(a1*a3);
+  a2=(a1-a2);
+  a2=(a2/a1);
+  if (res[0]!=0) res[0][0]=a2;
+  a1=(2.*a1);
+  a1=(1./a1);
+  if (res[0]!=0) res[0][1]=a1;
+  if (res[0]!=0) res[0][2]=a1;
+  if (res[0]!=0) res[0][3]=a1;
+  if (res[0]!=0) res[0][4]=a1;
+  a3=1.;
+  a2=(a2+a3);
+  a0=casadi_sq(a0);
+  a2=(a2-a0);
+  a0=arg[0]? arg[0][1] : 0;
+  a2=(a2+a0);
+  if (res[1]!=0) res[1][0]=a2;
+  if (res[1]!=0) res[1][1]=a1;
+  if (res[1]!=0) res[1][2]=a1;
+  if (res[1]!=0) res[1][3]=a1;
+  if (res[1]!=0) res[1][4]=a1;
   return 0;
 }
 
-/* cn2d_outer_1_5:(y[2x4],mean[2])->(ddT[2x2,3nz]) */
-static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i, j;
-  casadi_real **res1=res+1, *w1=w+3, *w2=w+5, *w3=w+13, *w4=w+25;
-  const casadi_real **arg1=arg+2, *wr0;
-  /* #0: @0 = input[0][0] */
-  wr0 = arg[0] ? arg[0] : casadi_zeros;
-  /* #1: @1 = input[1][0] */
-  casadi_copy(arg[1], 2, w1);
-  /* #2: @2 = repmat(@1, 4) */
-  for (i=0;i<4;++i) {
-    casadi_copy(w1, 2, w2+ i*2);
-  }
-  /* #3: @3 = map4_cn2d_outer(@0, @2) */
-  arg1[0]=wr0;
-  arg1[1]=w2;
-  res1[0]=w3;
-  if (casadi_f10(arg1, res1, iw, w, 0)) return 1;
-  /* #4: @4 = repsum(@3, 4) */
-  casadi_clear(w4, 3);
-    for (i=0;i<4;++i) {
-        for (j=0;j<3;++j) {
-            w4[j] += w3[j+i*3];
-          }
-      }
-  /* #5: output[0][0] = @4 */
-  casadi_copy(w4, 3, res[0]);
-  return 0;
-}
-
-/* cn2d_ukf_predict_moments:(Y[5x2],Q[2x2],abk[3])->(x_pred[2],P_pred[2x2],ok) */
+/* cn2d_ukf_predict_weights:(abk[3])->(wm[5],wc[5]) */
 static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i, j;
-  casadi_real **res1=res+3, *rr, *w00=w+36, *w01=w+39, *w02=w+41, w03, *w05=w+43, *w06=w+53, *w07=w+55, *w08=w+57, *w09=w+65, *w10=w+69;
-  casadi_real *w11=w+72;
-  const casadi_real **arg1=arg+3, *cs, *wr04;
-  /* #0: @0 = input[2][0] */
-  casadi_copy(arg[2], 3, w00);
-  /* #1: {@1, @2} = cn2d_ukf_weights(@0) */
-  arg1[0]=w00;
-  res1[0]=w01;
-  res1[1]=w02;
-  if (casadi_f1(arg1, res1, iw, w, 0)) return 1;
-  /* #2: @3 = @1[0] */
-  for (rr=(&w03), cs=w01+0; cs!=w01+1; cs+=1) *rr++ = *cs;
-  /* #3: @4 = input[0][0] */
-  wr04 = arg[0] ? arg[0] : casadi_zeros;
-  /* #4: @5 = @4' */
-  for (i=0, rr=w05, cs=wr04; i<2; ++i) for (j=0; j<5; ++j) rr[i+j*2] = *cs++;
-  /* #5: @6 = @5[:2] */
-  for (rr=w06, cs=w05+0; cs!=w05+2; cs+=1) *rr++ = *cs;
-  /* #6: @7 = (@3*@6) */
-  for (i=0, rr=w07, cs=w06; i<2; ++i) (*rr++)  = (w03*(*cs++));
-  /* #7: @3 = @1[1] */
-  for (rr=(&w03), cs=w01+1; cs!=w01+2; cs+=1) *rr++ = *cs;
-  /* #8: @1 = zeros(2x1) */
-  casadi_clear(w01, 2);
-  /* #9: @8 = @5[2:10] */
-  for (rr=w08, cs=w05+2; cs!=w05+10; cs+=1) *rr++ = *cs;
-  /* #10: @9 = ones(4x1) */
-  casadi_fill(w09, 4, 1.);
-  /* #11: @1 = mac(@8,@9,@1) */
-  casadi_mtimes_dense(w08, 2, 4, w09, 1, w01, 0);
-  /* #12: @1 = (@3*@1) */
-  for (i=0, rr=w01, cs=w01; i<2; ++i) (*rr++)  = (w03*(*cs++));
-  /* #13: @7 = (@7+@1) */
-  for (i=0, rr=w07, cs=w01; i<2; ++i) (*rr++) += (*cs++);
-  /* #14: output[0][0] = @7 */
-  casadi_copy(w07, 2, res[0]);
-  /* #15: @3 = @2[0] */
-  for (rr=(&w03), cs=w02+0; cs!=w02+1; cs+=1) *rr++ = *cs;
-  /* #16: @0 = cn2d_outer_0_1(@6, @7) */
-  arg1[0]=w06;
-  arg1[1]=w07;
-  res1[0]=w00;
+  casadi_real **res1=res+2, *w0=w+4, *w1=w+7, *w2=w+12;
+  const casadi_real **arg1=arg+1;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 3, w0);
+  /* #1: {@1, @2} = cn2d_ukf_point_weights(@0) */
+  arg1[0]=w0;
+  res1[0]=w1;
+  res1[1]=w2;
   if (casadi_f23(arg1, res1, iw, w, 0)) return 1;
-  /* #17: @0 = (@3*@0) */
-  for (i=0, rr=w00, cs=w00; i<3; ++i) (*rr++)  = (w03*(*cs++));
-  /* #18: @3 = @2[1] */
-  for (rr=(&w03), cs=w02+1; cs!=w02+2; cs+=1) *rr++ = *cs;
-  /* #19: @10 = cn2d_outer_1_5(@8, @7) */
-  arg1[0]=w08;
-  arg1[1]=w07;
-  res1[0]=w10;
-  if (casadi_f24(arg1, res1, iw, w, 0)) return 1;
-  /* #20: @10 = (@3*@10) */
-  for (i=0, rr=w10, cs=w10; i<3; ++i) (*rr++)  = (w03*(*cs++));
-  /* #21: @0 = (@0+@10) */
-  for (i=0, rr=w00, cs=w10; i<3; ++i) (*rr++) += (*cs++);
-  /* #22: @9 = input[1][0] */
-  casadi_copy(arg[1], 4, w09);
-  /* #23: {@11, @3} = cn2d_predicted(@7, @0, @9) */
-  arg1[0]=w07;
-  arg1[1]=w00;
-  arg1[2]=w09;
-  res1[0]=w11;
-  res1[1]=(&w03);
-  if (casadi_f11(arg1, res1, iw, w, 0)) return 1;
-  /* #24: output[1][0] = @11 */
-  casadi_copy(w11, 4, res[1]);
-  /* #25: output[2][0] = @3 */
-  if (res[2]) res[2][0] = w03;
+  /* #2: output[0][0] = @1 */
+  casadi_copy(w1, 5, res[0]);
+  /* #3: output[1][0] = @2 */
+  casadi_copy(w2, 5, res[1]);
   return 0;
 }
 
-CASADI_SYMBOL_EXPORT int cn2d_ukf_predict_moments(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+CASADI_SYMBOL_EXPORT int cn2d_ukf_predict_weights(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
   return casadi_f22(arg, res, iw, w, mem);
 }
 
-CASADI_SYMBOL_EXPORT int cn2d_ukf_predict_moments_checkout(void) {
+CASADI_SYMBOL_EXPORT int cn2d_ukf_predict_weights_checkout(void) {
   return 0;
 }
 
-CASADI_SYMBOL_EXPORT void cn2d_ukf_predict_moments_release(int mem) {
+CASADI_SYMBOL_EXPORT void cn2d_ukf_predict_weights_release(int mem) {
 }
 
-CASADI_SYMBOL_EXPORT void cn2d_ukf_predict_moments_incref(void) {
+CASADI_SYMBOL_EXPORT void cn2d_ukf_predict_weights_incref(void) {
 }
 
-CASADI_SYMBOL_EXPORT void cn2d_ukf_predict_moments_decref(void) {
+CASADI_SYMBOL_EXPORT void cn2d_ukf_predict_weights_decref(void) {
 }
 
-CASADI_SYMBOL_EXPORT casadi_int cn2d_ukf_predict_moments_n_in(void) { return 3;}
+CASADI_SYMBOL_EXPORT casadi_int cn2d_ukf_predict_weights_n_in(void) { return 1;}
 
-CASADI_SYMBOL_EXPORT casadi_int cn2d_ukf_predict_moments_n_out(void) { return 3;}
+CASADI_SYMBOL_EXPORT casadi_int cn2d_ukf_predict_weights_n_out(void) { return 2;}
 
-CASADI_SYMBOL_EXPORT casadi_real cn2d_ukf_predict_moments_default_in(casadi_int i) {
+CASADI_SYMBOL_EXPORT casadi_real cn2d_ukf_predict_weights_default_in(casadi_int i) {
   switch (i) {
     default: return 0;
   }
 }
 
-CASADI_SYMBOL_EXPORT const char* cn2d_ukf_predict_moments_name_in(casadi_int i) {
+CASADI_SYMBOL_EXPORT const char* cn2d_ukf_predict_weights_name_in(casadi_int i) {
   switch (i) {
-    case 0: return "Y";
-    case 1: return "Q";
-    case 2: return "abk";
+    case 0: return "abk";
     default: return 0;
   }
 }
 
-CASADI_SYMBOL_EXPORT const char* cn2d_ukf_predict_moments_name_out(casadi_int i) {
+CASADI_SYMBOL_EXPORT const char* cn2d_ukf_predict_weights_name_out(casadi_int i) {
   switch (i) {
-    case 0: return "x_pred";
-    case 1: return "P_pred";
-    case 2: return "ok";
+    case 0: return "wm";
+    case 1: return "wc";
     default: return 0;
   }
 }
 
-CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ukf_predict_moments_sparsity_in(casadi_int i) {
+CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ukf_predict_weights_sparsity_in(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s4;
-    case 1: return casadi_s1;
-    case 2: return casadi_s2;
+    case 0: return casadi_s2;
     default: return 0;
   }
 }
 
-CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ukf_predict_moments_sparsity_out(casadi_int i) {
+CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ukf_predict_weights_sparsity_out(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s0;
-    case 1: return casadi_s1;
-    case 2: return casadi_s3;
+    case 0: return casadi_s5;
+    case 1: return casadi_s5;
     default: return 0;
   }
 }
 
-CASADI_SYMBOL_EXPORT int cn2d_ukf_predict_moments_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 9;
-  if (sz_res) *sz_res = 6;
+CASADI_SYMBOL_EXPORT int cn2d_ukf_predict_weights_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 2;
+  if (sz_res) *sz_res = 4;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 76;
+  if (sz_w) *sz_w = 17;
   return 0;
 }
 
-CASADI_SYMBOL_EXPORT int cn2d_ukf_predict_moments_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 9*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 6*sizeof(casadi_real*);
+CASADI_SYMBOL_EXPORT int cn2d_ukf_predict_weights_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 2*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 4*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 76*sizeof(casadi_real);
+  if (sz_w) *sz_w = 17*sizeof(casadi_real);
   return 0;
 }
 
 /* cn2d_residual_0_1:(z_k,z_pred)->(dz,dzdzT) */
-static int casadi_f26(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i, j;
   casadi_real **res1=res+2, w0, w1, w2, w3;
   const casadi_real **arg1=arg+2;
@@ -1569,7 +1484,7 @@ static int casadi_f26(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* cn2d_residual_1_5:(z_k[1x4],z_pred)->(dz[1x4],dzdzT) */
-static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f26(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i, j;
   casadi_real **res1=res+2, *w0=w+2, w1, *w2=w+6, *w3=w+10, *w4=w+14;
   const casadi_real **arg1=arg+2;
@@ -1602,7 +1517,7 @@ static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* cn2d_mcc_noise:(R,mask,Pzz,innovation,sigma)->(R_used,ok) */
-static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a0, a1, a2, a3, a4, a5;
   a0=arg[1]? arg[1][0] : 0;
   a1=0.;
@@ -1643,7 +1558,7 @@ static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* cn2d_mcukf_update:(x[2],P[2x2],z,p[2],R,mask,abk[3],sigma)->(x_post[2],P_post[2x2],innovation,S,ok) */
-static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
   casadi_real **res1=res+5, *rr, *w00=w+19, *w01=w+21, *w02=w+25, w03, *w04=w+29, *w05=w+31, *w06=w+34, w07, *w08=w+39, w09;
   casadi_real w10, w11, *w12=w+41, *w13=w+45, w14, w15, w16;
@@ -1698,13 +1613,13 @@ static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[1]=(&w09);
   res1[0]=(&w10);
   res1[1]=(&w11);
-  if (casadi_f26(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f25(arg1, res1, iw, w, 0)) return 1;
   /* #18: {@13, @7} = cn2d_residual_1_5(@12, @9) */
   arg1[0]=w12;
   arg1[1]=(&w09);
   res1[0]=w13;
   res1[1]=(&w07);
-  if (casadi_f27(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f26(arg1, res1, iw, w, 0)) return 1;
   /* #19: @6 = horzcat(@10, @13) */
   rr=w06;
   *rr++ = w10;
@@ -1747,7 +1662,7 @@ static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[4]=(&w09);
   res1[0]=(&w11);
   res1[1]=(&w16);
-  if (casadi_f28(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f27(arg1, res1, iw, w, 0)) return 1;
   /* #31: {@4, @2, @10, @7} = cn2d_kalman(@0, @1, @15, @8, @11, @14) */
   arg1[0]=w00;
   arg1[1]=w01;
@@ -1778,7 +1693,7 @@ static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_mcukf_update(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f25(arg, res, iw, w, mem);
+  return casadi_f24(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_mcukf_update_checkout(void) {
@@ -1871,7 +1786,7 @@ CASADI_SYMBOL_EXPORT int cn2d_mcukf_update_work_bytes(casadi_int *sz_arg, casadi
 }
 
 /* cn2d_residual_0_1:(z_k,z_pred)->(dz,dzdzT) */
-static int casadi_f30(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i, j;
   casadi_real **res1=res+2, w0, w1, w2, w3;
   const casadi_real **arg1=arg+2;
@@ -1900,7 +1815,7 @@ static int casadi_f30(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* cn2d_residual_1_5:(z_k[1x4],z_pred)->(dz[1x4],dzdzT) */
-static int casadi_f31(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f30(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i, j;
   casadi_real **res1=res+2, *w0=w+2, w1, *w2=w+6, *w3=w+10, *w4=w+14;
   const casadi_real **arg1=arg+2;
@@ -1933,7 +1848,7 @@ static int casadi_f31(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* cn2d_huber_noise:(R,mask,Pzz,innovation,gamma)->(R_used,ok) */
-static int casadi_f32(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f31(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12;
   a00=arg[1]? arg[1][0] : 0;
@@ -2006,7 +1921,7 @@ static int casadi_f32(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* cn2d_huber_ukf_update:(x[2],P[2x2],z,p[2],R,mask,abk[3],gamma)->(x_post[2],P_post[2x2],innovation,S,ok) */
-static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
   casadi_real **res1=res+5, *rr, *w00=w+19, *w01=w+21, *w02=w+25, w03, *w04=w+29, *w05=w+31, *w06=w+34, w07, *w08=w+39, w09;
   casadi_real w10, w11, *w12=w+41, *w13=w+45, w14, w15, w16;
@@ -2061,13 +1976,13 @@ static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[1]=(&w09);
   res1[0]=(&w10);
   res1[1]=(&w11);
-  if (casadi_f30(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f29(arg1, res1, iw, w, 0)) return 1;
   /* #18: {@13, @7} = cn2d_residual_1_5(@12, @9) */
   arg1[0]=w12;
   arg1[1]=(&w09);
   res1[0]=w13;
   res1[1]=(&w07);
-  if (casadi_f31(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f30(arg1, res1, iw, w, 0)) return 1;
   /* #19: @6 = horzcat(@10, @13) */
   rr=w06;
   *rr++ = w10;
@@ -2110,7 +2025,7 @@ static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[4]=(&w09);
   res1[0]=(&w11);
   res1[1]=(&w16);
-  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f31(arg1, res1, iw, w, 0)) return 1;
   /* #31: {@4, @2, @10, @7} = cn2d_kalman(@0, @1, @15, @8, @11, @14) */
   arg1[0]=w00;
   arg1[1]=w01;
@@ -2141,7 +2056,7 @@ static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_huber_ukf_update(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f29(arg, res, iw, w, mem);
+  return casadi_f28(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_huber_ukf_update_checkout(void) {
@@ -2234,7 +2149,7 @@ CASADI_SYMBOL_EXPORT int cn2d_huber_ukf_update_work_bytes(casadi_int *sz_arg, ca
 }
 
 /* cn2d_ckf_points:(x[2],L[2x2])->(X[2x4]) */
-static int casadi_f34(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a0, a1, a2, a3, a4, a5;
   a0=arg[0]? arg[0][0] : 0;
   a1=1.4142135623730951e+00;
@@ -2267,7 +2182,7 @@ static int casadi_f34(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* map4_cn2d_step:(x[2x4],u[3x4],p[2x4],dt[1x4])->(x_next[2x4]) */
-static int casadi_f36(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f35(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
   casadi_real* *res1;
   const casadi_real* *arg1;
@@ -2287,7 +2202,7 @@ static int casadi_f36(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* cn2d_step_columns:(x[2x4],u[3],p[2],dt)->(x_next[2x4]) */
-static int casadi_f35(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f34(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
   casadi_real **res1=res+1, *w1=w+8, *w2=w+11, *w3=w+23, *w4=w+25, w5, *w6=w+33, *w7=w+37;
   const casadi_real **arg1=arg+4, *wr0;
@@ -2317,14 +2232,14 @@ static int casadi_f35(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[2]=w4;
   arg1[3]=w6;
   res1[0]=w7;
-  if (casadi_f36(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f35(arg1, res1, iw, w, 0)) return 1;
   /* #8: output[0][0] = @7 */
   casadi_copy(w7, 8, res[0]);
   return 0;
 }
 
 /* cn2d_outer_0_4:(y[2x4],mean[2])->(ddT[2x2,3nz]) */
-static int casadi_f37(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f36(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i, j;
   casadi_real **res1=res+1, *w1=w+3, *w2=w+5, *w3=w+13, *w4=w+25;
   const casadi_real **arg1=arg+2, *wr0;
@@ -2354,7 +2269,7 @@ static int casadi_f37(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* cn2d_ckf_predict:(x[2],P[2x2],u[3],p[2],dt,Q[2x2])->(x_pred[2],P_pred[2x2],ok) */
-static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f32(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
   casadi_real **res1=res+3, *rr, w0, *w1=w+54, *w2=w+56, *w3=w+58, *w4=w+62, w5, *w6=w+66, *w7=w+74, w8, *w9=w+77;
   const casadi_real **arg1=arg+6, *cs;
@@ -2375,7 +2290,7 @@ static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[0]=w2;
   arg1[1]=w4;
   res1[0]=w6;
-  if (casadi_f34(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
   /* #6: @7 = input[2][0] */
   casadi_copy(arg[2], 3, w7);
   /* #7: @2 = input[3][0] */
@@ -2388,7 +2303,7 @@ static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[2]=w2;
   arg1[3]=(&w8);
   res1[0]=w9;
-  if (casadi_f35(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f34(arg1, res1, iw, w, 0)) return 1;
   /* #10: @4 = ones(4x1) */
   casadi_fill(w4, 4, 1.);
   /* #11: @1 = mac(@9,@4,@1) */
@@ -2401,7 +2316,7 @@ static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[0]=w9;
   arg1[1]=w1;
   res1[0]=w7;
-  if (casadi_f37(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f36(arg1, res1, iw, w, 0)) return 1;
   /* #15: @7 = (@0*@7) */
   for (i=0, rr=w7, cs=w7; i<3; ++i) (*rr++)  = (w0*(*cs++));
   /* #16: @4 = input[5][0] */
@@ -2423,7 +2338,7 @@ static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ckf_predict(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f33(arg, res, iw, w, mem);
+  return casadi_f32(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ckf_predict_checkout(void) {
@@ -2508,7 +2423,7 @@ CASADI_SYMBOL_EXPORT int cn2d_ckf_predict_work_bytes(casadi_int *sz_arg, casadi_
 }
 
 /* cn2d_ckf_measured_points:(x[2],L[2x2],p[2])->(Z[1x4]) */
-static int casadi_f39(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f38(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a0, a1, a2, a3, a4, a5, a6, a7, a8;
   a0=arg[0]? arg[0][0] : 0;
   a1=1.4142135623730951e+00;
@@ -2561,7 +2476,7 @@ static int casadi_f39(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* cn2d_residual_0_4:(z_k[1x4],z_pred)->(dz[1x4],dzdzT) */
-static int casadi_f40(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f39(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i, j;
   casadi_real **res1=res+2, *w0=w+2, w1, *w2=w+6, *w3=w+10, *w4=w+14;
   const casadi_real **arg1=arg+2;
@@ -2594,7 +2509,7 @@ static int casadi_f40(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* cn2d_ckf_moments:(L[2x2],DZ[1x4],Czz,z_pred,z,mask)->(innovation,Pzz,Pxz[2]) */
-static int casadi_f41(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f40(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a0, a1, a2, a3, a4, a5;
   a0=arg[5]? arg[5][0] : 0;
   a1=0.;
@@ -2635,7 +2550,7 @@ static int casadi_f41(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* cn2d_ckf_update:(x[2],P[2x2],z,p[2],R,mask)->(x_post[2],P_post[2x2],innovation,S,ok) */
-static int casadi_f38(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f37(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real **res1=res+5, *w00=w+19, *w01=w+21, *w02=w+25, w03, *w04=w+29, *w05=w+31, w06, w07, *w08=w+35, w09, w10;
   casadi_real w11, w12, *w13=w+39;
   const casadi_real **arg1=arg+6;
@@ -2655,7 +2570,7 @@ static int casadi_f38(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[1]=w02;
   arg1[2]=w04;
   res1[0]=w05;
-  if (casadi_f39(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f38(arg1, res1, iw, w, 0)) return 1;
   /* #5: @6 = 0.25 */
   w06 = 2.5000000000000000e-01;
   /* #6: @7 = 0 */
@@ -2671,7 +2586,7 @@ static int casadi_f38(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[1]=(&w07);
   res1[0]=w08;
   res1[1]=(&w09);
-  if (casadi_f40(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f39(arg1, res1, iw, w, 0)) return 1;
   /* #11: @6 = (@6*@9) */
   w06 *= w09;
   /* #12: @9 = input[2][0] */
@@ -2688,7 +2603,7 @@ static int casadi_f38(const casadi_real** arg, casadi_real** res, casadi_int* iw
   res1[0]=(&w11);
   res1[1]=(&w12);
   res1[2]=w04;
-  if (casadi_f41(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f40(arg1, res1, iw, w, 0)) return 1;
   /* #15: @6 = input[4][0] */
   w06 = arg[4] ? arg[4][0] : 0;
   /* #16: {@7, @9} = cn2d_noise(@6, @10, @12, @11) */
@@ -2729,7 +2644,7 @@ static int casadi_f38(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ckf_update(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f38(arg, res, iw, w, mem);
+  return casadi_f37(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ckf_update_checkout(void) {
@@ -2818,7 +2733,7 @@ CASADI_SYMBOL_EXPORT int cn2d_ckf_update_work_bytes(casadi_int *sz_arg, casadi_i
 }
 
 /* cn2d_ckf_step:(x[2],P[2x2],u[3],p[2],dt,Q[2x2],z,R,mask)->(x_post[2],P_post[2x2],innovation,S,ok) */
-static int casadi_f42(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f41(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real **res1=res+5, *w00=w+88, *w01=w+90, *w02=w+94, *w03=w+97, w04, *w05=w+99, *w06=w+103, *w07=w+105, w08, w09, w10;
   casadi_real w11, w12, w13;
   const casadi_real **arg1=arg+9;
@@ -2844,7 +2759,7 @@ static int casadi_f42(const casadi_real** arg, casadi_real** res, casadi_int* iw
   res1[0]=w06;
   res1[1]=w07;
   res1[2]=(&w08);
-  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
   /* #7: @4 = input[6][0] */
   w04 = arg[6] ? arg[6][0] : 0;
   /* #8: @9 = input[7][0] */
@@ -2863,7 +2778,7 @@ static int casadi_f42(const casadi_real** arg, casadi_real** res, casadi_int* iw
   res1[2]=(&w11);
   res1[3]=(&w12);
   res1[4]=(&w13);
-  if (casadi_f38(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f37(arg1, res1, iw, w, 0)) return 1;
   /* #11: output[0][0] = @0 */
   casadi_copy(w00, 2, res[0]);
   /* #12: output[1][0] = @1 */
@@ -2880,7 +2795,7 @@ static int casadi_f42(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ckf_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f42(arg, res, iw, w, mem);
+  return casadi_f41(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ckf_step_checkout(void) {
@@ -2975,7 +2890,7 @@ CASADI_SYMBOL_EXPORT int cn2d_ckf_step_work_bytes(casadi_int *sz_arg, casadi_int
 }
 
 /* cn2d_ckf_predict_points:(x[2],P[2x2])->(X[4x2],ok) */
-static int casadi_f43(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f42(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i, j;
   casadi_real **res1=res+2, *rr, *w0=w+8, *w1=w+10, *w2=w+14, w3, *w4=w+18, *w5=w+26;
   const casadi_real **arg1=arg+2, *cs;
@@ -2992,7 +2907,7 @@ static int casadi_f43(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[0]=w0;
   arg1[1]=w2;
   res1[0]=w4;
-  if (casadi_f34(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
   /* #4: @5 = @4' */
   for (i=0, rr=w5, cs=w4; i<4; ++i) for (j=0; j<2; ++j) rr[i+j*4] = *cs++;
   /* #5: output[0][0] = @5 */
@@ -3003,7 +2918,7 @@ static int casadi_f43(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ckf_predict_points(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f43(arg, res, iw, w, mem);
+  return casadi_f42(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ckf_predict_points_checkout(void) {
@@ -3055,7 +2970,7 @@ CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ckf_predict_points_sparsity_in(casad
 
 CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ckf_predict_points_sparsity_out(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s5;
+    case 0: return casadi_s6;
     case 1: return casadi_s3;
     default: return 0;
   }
@@ -3077,154 +2992,86 @@ CASADI_SYMBOL_EXPORT int cn2d_ckf_predict_points_work_bytes(casadi_int *sz_arg, 
   return 0;
 }
 
-/* cn2d_outer_0_4:(y[2x4],mean[2])->(ddT[2x2,3nz]) */
-static int casadi_f45(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i, j;
-  casadi_real **res1=res+1, *w1=w+3, *w2=w+5, *w3=w+13, *w4=w+25;
-  const casadi_real **arg1=arg+2, *wr0;
-  /* #0: @0 = input[0][0] */
-  wr0 = arg[0] ? arg[0] : casadi_zeros;
-  /* #1: @1 = input[1][0] */
-  casadi_copy(arg[1], 2, w1);
-  /* #2: @2 = repmat(@1, 4) */
-  for (i=0;i<4;++i) {
-    casadi_copy(w1, 2, w2+ i*2);
-  }
-  /* #3: @3 = map4_cn2d_outer(@0, @2) */
-  arg1[0]=wr0;
-  arg1[1]=w2;
-  res1[0]=w3;
-  if (casadi_f10(arg1, res1, iw, w, 0)) return 1;
-  /* #4: @4 = repsum(@3, 4) */
-  casadi_clear(w4, 3);
-    for (i=0;i<4;++i) {
-        for (j=0;j<3;++j) {
-            w4[j] += w3[j+i*3];
-          }
-      }
-  /* #5: output[0][0] = @4 */
-  casadi_copy(w4, 3, res[0]);
+/* cn2d_ckf_predict_weights:()->(wm[4],wc[4]) */
+static int casadi_f43(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real *w0=w+0;
+  /* #0: @0 = all_0.25(4x1) */
+  casadi_fill(w0, 4, 2.5000000000000000e-01);
+  /* #1: output[0][0] = @0 */
+  casadi_copy(w0, 4, res[0]);
+  /* #2: output[1][0] = @0 */
+  casadi_copy(w0, 4, res[1]);
   return 0;
 }
 
-/* cn2d_ckf_predict_moments:(Y[4x2],Q[2x2])->(x_pred[2],P_pred[2x2],ok) */
-static int casadi_f44(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i, j;
-  casadi_real **res1=res+3, *rr, w0, *w1=w+36, *w3=w+38, *w4=w+46, *w5=w+50, *w6=w+53;
-  const casadi_real **arg1=arg+2, *cs, *wr2;
-  /* #0: @0 = 0.25 */
-  w0 = 2.5000000000000000e-01;
-  /* #1: @1 = zeros(2x1) */
-  casadi_clear(w1, 2);
-  /* #2: @2 = input[0][0] */
-  wr2 = arg[0] ? arg[0] : casadi_zeros;
-  /* #3: @3 = @2' */
-  for (i=0, rr=w3, cs=wr2; i<2; ++i) for (j=0; j<4; ++j) rr[i+j*2] = *cs++;
-  /* #4: @4 = ones(4x1) */
-  casadi_fill(w4, 4, 1.);
-  /* #5: @1 = mac(@3,@4,@1) */
-  casadi_mtimes_dense(w3, 2, 4, w4, 1, w1, 0);
-  /* #6: @1 = (@0*@1) */
-  for (i=0, rr=w1, cs=w1; i<2; ++i) (*rr++)  = (w0*(*cs++));
-  /* #7: output[0][0] = @1 */
-  casadi_copy(w1, 2, res[0]);
-  /* #8: @5 = cn2d_outer_0_4(@3, @1) */
-  arg1[0]=w3;
-  arg1[1]=w1;
-  res1[0]=w5;
-  if (casadi_f45(arg1, res1, iw, w, 0)) return 1;
-  /* #9: @5 = (@0*@5) */
-  for (i=0, rr=w5, cs=w5; i<3; ++i) (*rr++)  = (w0*(*cs++));
-  /* #10: @4 = input[1][0] */
-  casadi_copy(arg[1], 4, w4);
-  /* #11: {@6, @0} = cn2d_predicted(@1, @5, @4) */
-  arg1[0]=w1;
-  arg1[1]=w5;
-  arg1[2]=w4;
-  res1[0]=w6;
-  res1[1]=(&w0);
-  if (casadi_f11(arg1, res1, iw, w, 0)) return 1;
-  /* #12: output[1][0] = @6 */
-  casadi_copy(w6, 4, res[1]);
-  /* #13: output[2][0] = @0 */
-  if (res[2]) res[2][0] = w0;
+CASADI_SYMBOL_EXPORT int cn2d_ckf_predict_weights(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f43(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int cn2d_ckf_predict_weights_checkout(void) {
   return 0;
 }
 
-CASADI_SYMBOL_EXPORT int cn2d_ckf_predict_moments(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f44(arg, res, iw, w, mem);
+CASADI_SYMBOL_EXPORT void cn2d_ckf_predict_weights_release(int mem) {
 }
 
-CASADI_SYMBOL_EXPORT int cn2d_ckf_predict_moments_checkout(void) {
-  return 0;
+CASADI_SYMBOL_EXPORT void cn2d_ckf_predict_weights_incref(void) {
 }
 
-CASADI_SYMBOL_EXPORT void cn2d_ckf_predict_moments_release(int mem) {
+CASADI_SYMBOL_EXPORT void cn2d_ckf_predict_weights_decref(void) {
 }
 
-CASADI_SYMBOL_EXPORT void cn2d_ckf_predict_moments_incref(void) {
-}
+CASADI_SYMBOL_EXPORT casadi_int cn2d_ckf_predict_weights_n_in(void) { return 0;}
 
-CASADI_SYMBOL_EXPORT void cn2d_ckf_predict_moments_decref(void) {
-}
+CASADI_SYMBOL_EXPORT casadi_int cn2d_ckf_predict_weights_n_out(void) { return 2;}
 
-CASADI_SYMBOL_EXPORT casadi_int cn2d_ckf_predict_moments_n_in(void) { return 2;}
-
-CASADI_SYMBOL_EXPORT casadi_int cn2d_ckf_predict_moments_n_out(void) { return 3;}
-
-CASADI_SYMBOL_EXPORT casadi_real cn2d_ckf_predict_moments_default_in(casadi_int i) {
+CASADI_SYMBOL_EXPORT casadi_real cn2d_ckf_predict_weights_default_in(casadi_int i) {
   switch (i) {
     default: return 0;
   }
 }
 
-CASADI_SYMBOL_EXPORT const char* cn2d_ckf_predict_moments_name_in(casadi_int i) {
+CASADI_SYMBOL_EXPORT const char* cn2d_ckf_predict_weights_name_in(casadi_int i) {
   switch (i) {
-    case 0: return "Y";
-    case 1: return "Q";
     default: return 0;
   }
 }
 
-CASADI_SYMBOL_EXPORT const char* cn2d_ckf_predict_moments_name_out(casadi_int i) {
+CASADI_SYMBOL_EXPORT const char* cn2d_ckf_predict_weights_name_out(casadi_int i) {
   switch (i) {
-    case 0: return "x_pred";
-    case 1: return "P_pred";
-    case 2: return "ok";
+    case 0: return "wm";
+    case 1: return "wc";
     default: return 0;
   }
 }
 
-CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ckf_predict_moments_sparsity_in(casadi_int i) {
+CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ckf_predict_weights_sparsity_in(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s5;
-    case 1: return casadi_s1;
     default: return 0;
   }
 }
 
-CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ckf_predict_moments_sparsity_out(casadi_int i) {
+CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ckf_predict_weights_sparsity_out(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s0;
-    case 1: return casadi_s1;
-    case 2: return casadi_s3;
+    case 0: return casadi_s7;
+    case 1: return casadi_s7;
     default: return 0;
   }
 }
 
-CASADI_SYMBOL_EXPORT int cn2d_ckf_predict_moments_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 8;
-  if (sz_res) *sz_res = 6;
+CASADI_SYMBOL_EXPORT int cn2d_ckf_predict_weights_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 0;
+  if (sz_res) *sz_res = 3;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 57;
+  if (sz_w) *sz_w = 4;
   return 0;
 }
 
-CASADI_SYMBOL_EXPORT int cn2d_ckf_predict_moments_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 8*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 6*sizeof(casadi_real*);
+CASADI_SYMBOL_EXPORT int cn2d_ckf_predict_weights_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 0*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 3*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 57*sizeof(casadi_real);
+  if (sz_w) *sz_w = 4*sizeof(casadi_real);
   return 0;
 }
 
@@ -3290,22 +3137,22 @@ CASADI_SYMBOL_EXPORT int cn2d_ukf_predict_points_batch(casadi_int N, const casad
   return 0;
 }
 
-/* cn2d_ukf_predict_moments_batch: evaluate cn2d_ukf_predict_moments for j = 0..N-1 on slices arg[k] + j*arg_step[k] and
+/* cn2d_ukf_predict_weights_batch: evaluate cn2d_ukf_predict_weights for j = 0..N-1 on slices arg[k] + j*arg_step[k] and
  * res[k] + j*res_step[k] (a step of 0 shares the argument). Returns 0, or 1 + j of the first
  * failing evaluation. */
-CASADI_SYMBOL_EXPORT int cn2d_ukf_predict_moments_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
+CASADI_SYMBOL_EXPORT int cn2d_ukf_predict_weights_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
-  const casadi_real* a[9];
-  casadi_real* r[6];
+  const casadi_real* a[2];
+  casadi_real* r[4];
   casadi_int iw[1];
-  casadi_real w[87];
+  casadi_real w[17];
   casadi_int j, k;
-  for (k = 0; k < 9; ++k) a[k] = 0;
-  for (k = 0; k < 6; ++k) r[k] = 0;
+  for (k = 0; k < 2; ++k) a[k] = 0;
+  for (k = 0; k < 4; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
-    for (k = 0; k < 3; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
-    for (k = 0; k < 3; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
-    if (cn2d_ukf_predict_moments(a, r, iw, w, 0)) return (int)(1 + j);
+    for (k = 0; k < 1; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
+    for (k = 0; k < 2; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
+    if (cn2d_ukf_predict_weights(a, r, iw, w, 0)) return (int)(1 + j);
   }
   return 0;
 }
@@ -3430,22 +3277,22 @@ CASADI_SYMBOL_EXPORT int cn2d_ckf_predict_points_batch(casadi_int N, const casad
   return 0;
 }
 
-/* cn2d_ckf_predict_moments_batch: evaluate cn2d_ckf_predict_moments for j = 0..N-1 on slices arg[k] + j*arg_step[k] and
+/* cn2d_ckf_predict_weights_batch: evaluate cn2d_ckf_predict_weights for j = 0..N-1 on slices arg[k] + j*arg_step[k] and
  * res[k] + j*res_step[k] (a step of 0 shares the argument). Returns 0, or 1 + j of the first
  * failing evaluation. */
-CASADI_SYMBOL_EXPORT int cn2d_ckf_predict_moments_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
+CASADI_SYMBOL_EXPORT int cn2d_ckf_predict_weights_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
-  const casadi_real* a[8];
-  casadi_real* r[6];
+  const casadi_real* a[1];
+  casadi_real* r[3];
   casadi_int iw[1];
-  casadi_real w[66];
+  casadi_real w[4];
   casadi_int j, k;
-  for (k = 0; k < 8; ++k) a[k] = 0;
-  for (k = 0; k < 6; ++k) r[k] = 0;
+  for (k = 0; k < 1; ++k) a[k] = 0;
+  for (k = 0; k < 3; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
-    for (k = 0; k < 2; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
-    for (k = 0; k < 3; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
-    if (cn2d_ckf_predict_moments(a, r, iw, w, 0)) return (int)(1 + j);
+    for (k = 0; k < 0; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
+    for (k = 0; k < 2; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
+    if (cn2d_ckf_predict_weights(a, r, iw, w, 0)) return (int)(1 + j);
   }
   return 0;
 }

@@ -11,10 +11,10 @@
  *   linear_cv_ekf_update
  *   linear_cv_ekf_step
  *   linear_cv_ckf_predict_points
- *   linear_cv_ckf_predict_moments
+ *   linear_cv_ckf_predict_weights
  *   linear_cv_ckf_update
  *   linear_cv_ukf_predict_points
- *   linear_cv_ukf_predict_moments
+ *   linear_cv_ukf_predict_weights
  *   linear_cv_ukf_update
  *   linear_cv_mcukf_update
  *   linear_cv_huber_ukf_update
@@ -29,10 +29,10 @@ extern int linear_cv_ekf_predict(const double** arg, double** res, long long* iw
 extern int linear_cv_ekf_update(const double** arg, double** res, long long* iw, double* w, int mem);
 extern int linear_cv_ekf_step(const double** arg, double** res, long long* iw, double* w, int mem);
 extern int linear_cv_ckf_predict_points(const double** arg, double** res, long long* iw, double* w, int mem);
-extern int linear_cv_ckf_predict_moments(const double** arg, double** res, long long* iw, double* w, int mem);
+extern int linear_cv_ckf_predict_weights(const double** arg, double** res, long long* iw, double* w, int mem);
 extern int linear_cv_ckf_update(const double** arg, double** res, long long* iw, double* w, int mem);
 extern int linear_cv_ukf_predict_points(const double** arg, double** res, long long* iw, double* w, int mem);
-extern int linear_cv_ukf_predict_moments(const double** arg, double** res, long long* iw, double* w, int mem);
+extern int linear_cv_ukf_predict_weights(const double** arg, double** res, long long* iw, double* w, int mem);
 extern int linear_cv_ukf_update(const double** arg, double** res, long long* iw, double* w, int mem);
 extern int linear_cv_mcukf_update(const double** arg, double** res, long long* iw, double* w, int mem);
 extern int linear_cv_huber_ukf_update(const double** arg, double** res, long long* iw, double* w, int mem);
@@ -59,10 +59,10 @@ const abyssal_model linear_cv_descriptor = {
   {linear_cv_ekf_update, 6, 5, 0, 41},
   {linear_cv_ekf_step, 19, 10, 0, 156},
   {linear_cv_ckf_predict_points, 4, 4, 0, 118},
-  {linear_cv_ckf_predict_moments, 8, 6, 0, 282},
+  {linear_cv_ckf_predict_weights, 0, 3, 0, 8},
   {linear_cv_ckf_update, 12, 11, 0, 192},
   {linear_cv_ukf_predict_points, 6, 4, 0, 129},
-  {linear_cv_ukf_predict_moments, 9, 6, 0, 347},
+  {linear_cv_ukf_predict_weights, 2, 4, 0, 25},
   {linear_cv_ukf_update, 14, 11, 0, 213},
   {linear_cv_mcukf_update, 15, 11, 0, 213},
   {linear_cv_huber_ukf_update, 15, 11, 0, 213}

@@ -7,14 +7,14 @@
  *   linear_cv_ukf_predict            1218 operations
  *   linear_cv_ukf_update              771 operations
  *   linear_cv_ukf_predict_points      231 operations
- *   linear_cv_ukf_predict_moments      581 operations
+ *   linear_cv_ukf_predict_weights       34 operations
  *   linear_cv_mcukf_update            822 operations
  *   linear_cv_huber_ukf_update        926 operations
  *   linear_cv_ckf_predict            1035 operations
  *   linear_cv_ckf_update              666 operations
  *   linear_cv_ckf_step               1702 operations
  *   linear_cv_ckf_predict_points      227 operations
- *   linear_cv_ckf_predict_moments      447 operations
+ *   linear_cv_ckf_predict_weights        8 operations
  */
 
 /* CasADi's calling convention passes iw, w and mem to every function; not every function uses them. */
@@ -82,8 +82,6 @@
 #define casadi_f41 CASADI_PREFIX(f41)
 #define casadi_f42 CASADI_PREFIX(f42)
 #define casadi_f43 CASADI_PREFIX(f43)
-#define casadi_f44 CASADI_PREFIX(f44)
-#define casadi_f45 CASADI_PREFIX(f45)
 #define casadi_f5 CASADI_PREFIX(f5)
 #define casadi_f6 CASADI_PREFIX(f6)
 #define casadi_f7 CASADI_PREFIX(f7)
@@ -102,6 +100,8 @@
 #define casadi_s5 CASADI_PREFIX(s5)
 #define casadi_s6 CASADI_PREFIX(s6)
 #define casadi_s7 CASADI_PREFIX(s7)
+#define casadi_s8 CASADI_PREFIX(s8)
+#define casadi_s9 CASADI_PREFIX(s9)
 #define casadi_sq CASADI_PREFIX(sq)
 #define casadi_zeros CASADI_PREFIX(zeros)
 
@@ -216,7 +216,9 @@ static const casadi_int casadi_s3[3] = {1, 1, 1};
 static const casadi_int casadi_s4[3] = {3, 1, 1};
 static const casadi_int casadi_s5[3] = {2, 2, 1};
 static const casadi_int casadi_s6[3] = {9, 4, 1};
-static const casadi_int casadi_s7[3] = {8, 4, 1};
+static const casadi_int casadi_s7[3] = {9, 1, 1};
+static const casadi_int casadi_s8[3] = {8, 4, 1};
+static const casadi_int casadi_s9[3] = {8, 1, 1};
 
 static const casadi_real casadi_zeros[36] = 
   {0.};
@@ -1831,218 +1833,139 @@ CASADI_SYMBOL_EXPORT int linear_cv_ukf_predict_points_work_bytes(casadi_int *sz_
   return 0;
 }
 
-/* linear_cv_outer_0_1:(y[4],mean[4])->(ddT[4x4,10nz]) */
+/* linear_cv_ukf_point_weights:(abk[3])->(wm[9],wc[9]) */
 static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i, j;
-  casadi_real **res1=res+1, *w0=w+5, *w1=w+9, *w2=w+13, *w3=w+23;
-  const casadi_real **arg1=arg+2;
-  /* #0: @0 = input[0][0] */
-  casadi_copy(arg[0], 4, w0);
-  /* #1: @1 = input[1][0] */
-  casadi_copy(arg[1], 4, w1);
-  /* #2: @2 = linear_cv_outer(@0, @1) */
-  arg1[0]=w0;
-  arg1[1]=w1;
-  res1[0]=w2;
-  if (casadi_f8(arg1, res1, iw, w, 0)) return 1;
-  /* #3: @3 = repsum(@2, 1) */
-  casadi_clear(w3, 10);
-    for (i=0;i<1;++i) {
-        for (j=0;j<10;++j) {
-            w3[j] += w2[j+i*10];
-          }
-      }
-  /* #4: output[0][0] = @3 */
-  casadi_copy(w3, 10, res[0]);
+  casadi_real a0, a1, a2, a3;
+  a0=arg[0]? arg[0][0] : 0;
+  a1=casadi_sq(a0);
+  a2=4.;
+  a3=arg[0]? arg[0][2] : 0;
+  a3=(a2+a3);
+  a1=(a1*a3);
+  a2=(a1-a2);
+  a2=(a2/a1);
+  if (res[0]!=0) res[0][0]=a2;
+  a1=(2.*a1);
+  a1=(1./a1);
+  if (res[0]!=0) res[0][1]=a1;
+  if (res[0]!=0) res[0][2]=a1;
+  if (res[0]!=0) res[0][3]=a1;
+  if (res[0]!=0) res[0][4]=a1;
+  if (res[0]!=0) res[0][5]=a1;
+  if (res[0]!=0) res[0][6]=a1;
+  if (res[0]!=0) res[0][7]=a1;
+  if (res[0]!=0) res[0][8]=a1;
+  a3=1.;
+  a2=(a2+a3);
+  a0=casadi_sq(a0);
+  a2=(a2-a0);
+  a0=arg[0]? arg[0][1] : 0;
+  a2=(a2+a0);
+  if (res[1]!=0) res[1][0]=a2;
+  if (res[1]!=0) res[1][1]=a1;
+  if (res[1]!=0) res[1][2]=a1;
+  if (res[1]!=0) res[1][3]=a1;
+  if (res[1]!=0) res[1][4]=a1;
+  if (res[1]!=0) res[1][5]=a1;
+  if (res[1]!=0) res[1][6]=a1;
+  if (res[1]!=0) res[1][7]=a1;
+  if (res[1]!=0) res[1][8]=a1;
   return 0;
 }
 
-/* linear_cv_outer_1_9:(y[4x8],mean[4])->(ddT[4x4,10nz]) */
-static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i, j;
-  casadi_real **res1=res+1, *w1=w+5, *w2=w+9, *w3=w+41, *w4=w+121;
-  const casadi_real **arg1=arg+2, *wr0;
-  /* #0: @0 = input[0][0] */
-  wr0 = arg[0] ? arg[0] : casadi_zeros;
-  /* #1: @1 = input[1][0] */
-  casadi_copy(arg[1], 4, w1);
-  /* #2: @2 = repmat(@1, 8) */
-  for (i=0;i<8;++i) {
-    casadi_copy(w1, 4, w2+ i*4);
-  }
-  /* #3: @3 = map8_linear_cv_outer(@0, @2) */
-  arg1[0]=wr0;
-  arg1[1]=w2;
-  res1[0]=w3;
-  if (casadi_f10(arg1, res1, iw, w, 0)) return 1;
-  /* #4: @4 = repsum(@3, 8) */
-  casadi_clear(w4, 10);
-    for (i=0;i<8;++i) {
-        for (j=0;j<10;++j) {
-            w4[j] += w3[j+i*10];
-          }
-      }
-  /* #5: output[0][0] = @4 */
-  casadi_copy(w4, 10, res[0]);
-  return 0;
-}
-
-/* linear_cv_ukf_predict_moments:(Y[9x4],Q[4x4],abk[3])->(x_pred[4],P_pred[4x4],ok) */
+/* linear_cv_ukf_predict_weights:(abk[3])->(wm[9],wc[9]) */
 static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i, j;
-  casadi_real **res1=res+3, *rr, *w00=w+163, *w01=w+166, *w02=w+168, w03, *w05=w+170, *w06=w+206, *w07=w+210, *w08=w+214, *w09=w+218, *w10=w+250;
-  casadi_real *w11=w+258, *w12=w+268, *w14=w+278;
-  const casadi_real **arg1=arg+3, *cs, *wr04, *wr13;
-  /* #0: @0 = input[2][0] */
-  casadi_copy(arg[2], 3, w00);
-  /* #1: {@1, @2} = linear_cv_ukf_weights(@0) */
-  arg1[0]=w00;
-  res1[0]=w01;
-  res1[1]=w02;
-  if (casadi_f1(arg1, res1, iw, w, 0)) return 1;
-  /* #2: @3 = @1[0] */
-  for (rr=(&w03), cs=w01+0; cs!=w01+1; cs+=1) *rr++ = *cs;
-  /* #3: @4 = input[0][0] */
-  wr04 = arg[0] ? arg[0] : casadi_zeros;
-  /* #4: @5 = @4' */
-  for (i=0, rr=w05, cs=wr04; i<4; ++i) for (j=0; j<9; ++j) rr[i+j*4] = *cs++;
-  /* #5: @6 = @5[:4] */
-  for (rr=w06, cs=w05+0; cs!=w05+4; cs+=1) *rr++ = *cs;
-  /* #6: @7 = (@3*@6) */
-  for (i=0, rr=w07, cs=w06; i<4; ++i) (*rr++)  = (w03*(*cs++));
-  /* #7: @3 = @1[1] */
-  for (rr=(&w03), cs=w01+1; cs!=w01+2; cs+=1) *rr++ = *cs;
-  /* #8: @8 = zeros(4x1) */
-  casadi_clear(w08, 4);
-  /* #9: @9 = @5[4:36] */
-  for (rr=w09, cs=w05+4; cs!=w05+36; cs+=1) *rr++ = *cs;
-  /* #10: @10 = ones(8x1) */
-  casadi_fill(w10, 8, 1.);
-  /* #11: @8 = mac(@9,@10,@8) */
-  casadi_mtimes_dense(w09, 4, 8, w10, 1, w08, 0);
-  /* #12: @8 = (@3*@8) */
-  for (i=0, rr=w08, cs=w08; i<4; ++i) (*rr++)  = (w03*(*cs++));
-  /* #13: @7 = (@7+@8) */
-  for (i=0, rr=w07, cs=w08; i<4; ++i) (*rr++) += (*cs++);
-  /* #14: output[0][0] = @7 */
-  casadi_copy(w07, 4, res[0]);
-  /* #15: @3 = @2[0] */
-  for (rr=(&w03), cs=w02+0; cs!=w02+1; cs+=1) *rr++ = *cs;
-  /* #16: @11 = linear_cv_outer_0_1(@6, @7) */
-  arg1[0]=w06;
-  arg1[1]=w07;
-  res1[0]=w11;
+  casadi_real **res1=res+2, *w0=w+4, *w1=w+7, *w2=w+16;
+  const casadi_real **arg1=arg+1;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 3, w0);
+  /* #1: {@1, @2} = linear_cv_ukf_point_weights(@0) */
+  arg1[0]=w0;
+  res1[0]=w1;
+  res1[1]=w2;
   if (casadi_f23(arg1, res1, iw, w, 0)) return 1;
-  /* #17: @11 = (@3*@11) */
-  for (i=0, rr=w11, cs=w11; i<10; ++i) (*rr++)  = (w03*(*cs++));
-  /* #18: @3 = @2[1] */
-  for (rr=(&w03), cs=w02+1; cs!=w02+2; cs+=1) *rr++ = *cs;
-  /* #19: @12 = linear_cv_outer_1_9(@9, @7) */
-  arg1[0]=w09;
-  arg1[1]=w07;
-  res1[0]=w12;
-  if (casadi_f24(arg1, res1, iw, w, 0)) return 1;
-  /* #20: @12 = (@3*@12) */
-  for (i=0, rr=w12, cs=w12; i<10; ++i) (*rr++)  = (w03*(*cs++));
-  /* #21: @11 = (@11+@12) */
-  for (i=0, rr=w11, cs=w12; i<10; ++i) (*rr++) += (*cs++);
-  /* #22: @13 = input[1][0] */
-  wr13 = arg[1] ? arg[1] : casadi_zeros;
-  /* #23: {@14, @3} = linear_cv_predicted(@7, @11, @13) */
-  arg1[0]=w07;
-  arg1[1]=w11;
-  arg1[2]=wr13;
-  res1[0]=w14;
-  res1[1]=(&w03);
-  if (casadi_f11(arg1, res1, iw, w, 0)) return 1;
-  /* #24: output[1][0] = @14 */
-  casadi_copy(w14, 16, res[1]);
-  /* #25: output[2][0] = @3 */
-  if (res[2]) res[2][0] = w03;
+  /* #2: output[0][0] = @1 */
+  casadi_copy(w1, 9, res[0]);
+  /* #3: output[1][0] = @2 */
+  casadi_copy(w2, 9, res[1]);
   return 0;
 }
 
-CASADI_SYMBOL_EXPORT int linear_cv_ukf_predict_moments(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+CASADI_SYMBOL_EXPORT int linear_cv_ukf_predict_weights(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
   return casadi_f22(arg, res, iw, w, mem);
 }
 
-CASADI_SYMBOL_EXPORT int linear_cv_ukf_predict_moments_checkout(void) {
+CASADI_SYMBOL_EXPORT int linear_cv_ukf_predict_weights_checkout(void) {
   return 0;
 }
 
-CASADI_SYMBOL_EXPORT void linear_cv_ukf_predict_moments_release(int mem) {
+CASADI_SYMBOL_EXPORT void linear_cv_ukf_predict_weights_release(int mem) {
 }
 
-CASADI_SYMBOL_EXPORT void linear_cv_ukf_predict_moments_incref(void) {
+CASADI_SYMBOL_EXPORT void linear_cv_ukf_predict_weights_incref(void) {
 }
 
-CASADI_SYMBOL_EXPORT void linear_cv_ukf_predict_moments_decref(void) {
+CASADI_SYMBOL_EXPORT void linear_cv_ukf_predict_weights_decref(void) {
 }
 
-CASADI_SYMBOL_EXPORT casadi_int linear_cv_ukf_predict_moments_n_in(void) { return 3;}
+CASADI_SYMBOL_EXPORT casadi_int linear_cv_ukf_predict_weights_n_in(void) { return 1;}
 
-CASADI_SYMBOL_EXPORT casadi_int linear_cv_ukf_predict_moments_n_out(void) { return 3;}
+CASADI_SYMBOL_EXPORT casadi_int linear_cv_ukf_predict_weights_n_out(void) { return 2;}
 
-CASADI_SYMBOL_EXPORT casadi_real linear_cv_ukf_predict_moments_default_in(casadi_int i) {
+CASADI_SYMBOL_EXPORT casadi_real linear_cv_ukf_predict_weights_default_in(casadi_int i) {
   switch (i) {
     default: return 0;
   }
 }
 
-CASADI_SYMBOL_EXPORT const char* linear_cv_ukf_predict_moments_name_in(casadi_int i) {
+CASADI_SYMBOL_EXPORT const char* linear_cv_ukf_predict_weights_name_in(casadi_int i) {
   switch (i) {
-    case 0: return "Y";
-    case 1: return "Q";
-    case 2: return "abk";
+    case 0: return "abk";
     default: return 0;
   }
 }
 
-CASADI_SYMBOL_EXPORT const char* linear_cv_ukf_predict_moments_name_out(casadi_int i) {
+CASADI_SYMBOL_EXPORT const char* linear_cv_ukf_predict_weights_name_out(casadi_int i) {
   switch (i) {
-    case 0: return "x_pred";
-    case 1: return "P_pred";
-    case 2: return "ok";
+    case 0: return "wm";
+    case 1: return "wc";
     default: return 0;
   }
 }
 
-CASADI_SYMBOL_EXPORT const casadi_int* linear_cv_ukf_predict_moments_sparsity_in(casadi_int i) {
+CASADI_SYMBOL_EXPORT const casadi_int* linear_cv_ukf_predict_weights_sparsity_in(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s6;
-    case 1: return casadi_s1;
-    case 2: return casadi_s4;
+    case 0: return casadi_s4;
     default: return 0;
   }
 }
 
-CASADI_SYMBOL_EXPORT const casadi_int* linear_cv_ukf_predict_moments_sparsity_out(casadi_int i) {
+CASADI_SYMBOL_EXPORT const casadi_int* linear_cv_ukf_predict_weights_sparsity_out(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s0;
-    case 1: return casadi_s1;
-    case 2: return casadi_s3;
+    case 0: return casadi_s7;
+    case 1: return casadi_s7;
     default: return 0;
   }
 }
 
-CASADI_SYMBOL_EXPORT int linear_cv_ukf_predict_moments_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 9;
-  if (sz_res) *sz_res = 6;
+CASADI_SYMBOL_EXPORT int linear_cv_ukf_predict_weights_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 2;
+  if (sz_res) *sz_res = 4;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 294;
+  if (sz_w) *sz_w = 25;
   return 0;
 }
 
-CASADI_SYMBOL_EXPORT int linear_cv_ukf_predict_moments_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 9*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 6*sizeof(casadi_real*);
+CASADI_SYMBOL_EXPORT int linear_cv_ukf_predict_weights_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 2*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 4*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 294*sizeof(casadi_real);
+  if (sz_w) *sz_w = 25*sizeof(casadi_real);
   return 0;
 }
 
 /* linear_cv_residual_0_1:(z_k[2],z_pred[2])->(dz[2],dzdzT[2x2]) */
-static int casadi_f26(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i, j;
   casadi_real **res1=res+2, *w0=w+3, *w1=w+5, *w2=w+7, *w3=w+9, *w4=w+13;
   const casadi_real **arg1=arg+2;
@@ -2071,7 +1994,7 @@ static int casadi_f26(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* linear_cv_residual_1_9:(z_k[2x8],z_pred[2])->(dz[2x8],dzdzT[2x2]) */
-static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f26(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i, j;
   casadi_real **res1=res+2, *w1=w+3, *w2=w+5, *w3=w+21, *w4=w+37, *w5=w+69;
   const casadi_real **arg1=arg+2, *wr0;
@@ -2104,7 +2027,7 @@ static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* linear_cv_mcc_noise:(R[2x2],mask[2],Pzz[2x2],innovation[2],sigma)->(R_used[2x2],ok) */
-static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16;
   a00=arg[1]? arg[1][0] : 0;
@@ -2190,7 +2113,7 @@ static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* linear_cv_mcukf_update:(x[4],P[4x4],z[2],p[2],R[2x2],mask[2],abk[3],sigma)->(x_post[4],P_post[4x4],innovation[2],S[2x2],ok) */
-static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
   casadi_real **res1=res+5, *rr, *w00=w+89, *w02=w+93, w03, *w04=w+109, *w05=w+111, *w06=w+114, *w07=w+132, *w08=w+134, w09, *w10=w+136;
   casadi_real *w11=w+138, *w12=w+154, *w13=w+162, *w14=w+166, *w15=w+182, *w16=w+186, w17, *w18=w+190;
@@ -2245,13 +2168,13 @@ static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[1]=w10;
   res1[0]=w07;
   res1[1]=w13;
-  if (casadi_f26(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f25(arg1, res1, iw, w, 0)) return 1;
   /* #18: {@14, @15} = linear_cv_residual_1_9(@11, @10) */
   arg1[0]=w11;
   arg1[1]=w10;
   res1[0]=w14;
   res1[1]=w15;
-  if (casadi_f27(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f26(arg1, res1, iw, w, 0)) return 1;
   /* #19: @6 = horzcat(@7, @14) */
   rr=w06;
   for (i=0, cs=w07; i<2; ++i) *rr++ = *cs++;
@@ -2294,7 +2217,7 @@ static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[4]=(&w09);
   res1[0]=w16;
   res1[1]=(&w17);
-  if (casadi_f28(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f27(arg1, res1, iw, w, 0)) return 1;
   /* #31: {@13, @2, @18, @9} = linear_cv_kalman(@0, @1, @15, @12, @16, @4) */
   arg1[0]=w00;
   arg1[1]=wr01;
@@ -2325,7 +2248,7 @@ static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_mcukf_update(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f25(arg, res, iw, w, mem);
+  return casadi_f24(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_mcukf_update_checkout(void) {
@@ -2418,7 +2341,7 @@ CASADI_SYMBOL_EXPORT int linear_cv_mcukf_update_work_bytes(casadi_int *sz_arg, c
 }
 
 /* linear_cv_residual_0_1:(z_k[2],z_pred[2])->(dz[2],dzdzT[2x2]) */
-static int casadi_f30(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i, j;
   casadi_real **res1=res+2, *w0=w+3, *w1=w+5, *w2=w+7, *w3=w+9, *w4=w+13;
   const casadi_real **arg1=arg+2;
@@ -2447,7 +2370,7 @@ static int casadi_f30(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* linear_cv_residual_1_9:(z_k[2x8],z_pred[2])->(dz[2x8],dzdzT[2x2]) */
-static int casadi_f31(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f30(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i, j;
   casadi_real **res1=res+2, *w1=w+3, *w2=w+5, *w3=w+21, *w4=w+37, *w5=w+69;
   const casadi_real **arg1=arg+2, *wr0;
@@ -2480,7 +2403,7 @@ static int casadi_f31(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* linear_cv_huber_noise:(R[2x2],mask[2],Pzz[2x2],innovation[2],gamma)->(R_used[2x2],ok) */
-static int casadi_f32(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f31(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27;
@@ -2671,7 +2594,7 @@ static int casadi_f32(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* linear_cv_huber_ukf_update:(x[4],P[4x4],z[2],p[2],R[2x2],mask[2],abk[3],gamma)->(x_post[4],P_post[4x4],innovation[2],S[2x2],ok) */
-static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
   casadi_real **res1=res+5, *rr, *w00=w+89, *w02=w+93, w03, *w04=w+109, *w05=w+111, *w06=w+114, *w07=w+132, *w08=w+134, w09, *w10=w+136;
   casadi_real *w11=w+138, *w12=w+154, *w13=w+162, *w14=w+166, *w15=w+182, *w16=w+186, w17, *w18=w+190;
@@ -2726,13 +2649,13 @@ static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[1]=w10;
   res1[0]=w07;
   res1[1]=w13;
-  if (casadi_f30(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f29(arg1, res1, iw, w, 0)) return 1;
   /* #18: {@14, @15} = linear_cv_residual_1_9(@11, @10) */
   arg1[0]=w11;
   arg1[1]=w10;
   res1[0]=w14;
   res1[1]=w15;
-  if (casadi_f31(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f30(arg1, res1, iw, w, 0)) return 1;
   /* #19: @6 = horzcat(@7, @14) */
   rr=w06;
   for (i=0, cs=w07; i<2; ++i) *rr++ = *cs++;
@@ -2775,7 +2698,7 @@ static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[4]=(&w09);
   res1[0]=w16;
   res1[1]=(&w17);
-  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f31(arg1, res1, iw, w, 0)) return 1;
   /* #31: {@13, @2, @18, @9} = linear_cv_kalman(@0, @1, @15, @12, @16, @4) */
   arg1[0]=w00;
   arg1[1]=wr01;
@@ -2806,7 +2729,7 @@ static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_huber_ukf_update(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f29(arg, res, iw, w, mem);
+  return casadi_f28(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_huber_ukf_update_checkout(void) {
@@ -2899,7 +2822,7 @@ CASADI_SYMBOL_EXPORT int linear_cv_huber_ukf_update_work_bytes(casadi_int *sz_ar
 }
 
 /* linear_cv_ckf_points:(x[4],L[4x4])->(X[4x8]) */
-static int casadi_f34(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14;
   a00=arg[0]? arg[0][0] : 0;
@@ -2993,7 +2916,7 @@ static int casadi_f34(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* map8_linear_cv_step:(x[4x8],u[2x8],p[2x8],dt[1x8])->(x_next[4x8]) */
-static int casadi_f36(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f35(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
   casadi_real* *res1;
   const casadi_real* *arg1;
@@ -3013,7 +2936,7 @@ static int casadi_f36(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* linear_cv_step_columns:(x[4x8],u[2],p[2],dt)->(x_next[4x8]) */
-static int casadi_f35(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f34(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
   casadi_real **res1=res+1, *w1=w+9, *w2=w+11, *w3=w+27, w4, *w5=w+43, *w6=w+51;
   const casadi_real **arg1=arg+4, *wr0;
@@ -3043,14 +2966,14 @@ static int casadi_f35(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[2]=w3;
   arg1[3]=w5;
   res1[0]=w6;
-  if (casadi_f36(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f35(arg1, res1, iw, w, 0)) return 1;
   /* #8: output[0][0] = @6 */
   casadi_copy(w6, 32, res[0]);
   return 0;
 }
 
 /* linear_cv_outer_0_8:(y[4x8],mean[4])->(ddT[4x4,10nz]) */
-static int casadi_f37(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f36(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i, j;
   casadi_real **res1=res+1, *w1=w+5, *w2=w+9, *w3=w+41, *w4=w+121;
   const casadi_real **arg1=arg+2, *wr0;
@@ -3080,7 +3003,7 @@ static int casadi_f37(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* linear_cv_ckf_predict:(x[4],P[4x4],u[2],p[2],dt,Q[4x4])->(x_pred[4],P_pred[4x4],ok) */
-static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f32(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
   casadi_real **res1=res+3, *rr, w00, *w01=w+163, *w02=w+167, *w03=w+171, *w04=w+187, w05, *w06=w+203, *w07=w+235, *w08=w+237, w09;
   casadi_real *w10=w+239, *w11=w+271, *w12=w+279;
@@ -3102,7 +3025,7 @@ static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[0]=w02;
   arg1[1]=w04;
   res1[0]=w06;
-  if (casadi_f34(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
   /* #6: @7 = input[2][0] */
   casadi_copy(arg[2], 2, w07);
   /* #7: @8 = input[3][0] */
@@ -3115,7 +3038,7 @@ static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[2]=w08;
   arg1[3]=(&w09);
   res1[0]=w10;
-  if (casadi_f35(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f34(arg1, res1, iw, w, 0)) return 1;
   /* #10: @11 = ones(8x1) */
   casadi_fill(w11, 8, 1.);
   /* #11: @1 = mac(@10,@11,@1) */
@@ -3128,7 +3051,7 @@ static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[0]=w10;
   arg1[1]=w01;
   res1[0]=w12;
-  if (casadi_f37(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f36(arg1, res1, iw, w, 0)) return 1;
   /* #15: @12 = (@0*@12) */
   for (i=0, rr=w12, cs=w12; i<10; ++i) (*rr++)  = (w00*(*cs++));
   /* #16: @4 = input[5][0] */
@@ -3150,7 +3073,7 @@ static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_ckf_predict(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f33(arg, res, iw, w, mem);
+  return casadi_f32(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_ckf_predict_checkout(void) {
@@ -3235,7 +3158,7 @@ CASADI_SYMBOL_EXPORT int linear_cv_ckf_predict_work_bytes(casadi_int *sz_arg, ca
 }
 
 /* linear_cv_ckf_measured_points:(x[4],L[4x4],p[2])->(Z[2x8]) */
-static int casadi_f39(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f38(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a0, a1, a2, a3, a4, a5, a6, a7, a8, a9;
   a0=arg[0]? arg[0][0] : 0;
   a1=arg[1]? arg[1][0] : 0;
@@ -3285,7 +3208,7 @@ static int casadi_f39(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* linear_cv_residual_0_8:(z_k[2x8],z_pred[2])->(dz[2x8],dzdzT[2x2]) */
-static int casadi_f40(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f39(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i, j;
   casadi_real **res1=res+2, *w1=w+3, *w2=w+5, *w3=w+21, *w4=w+37, *w5=w+69;
   const casadi_real **arg1=arg+2, *wr0;
@@ -3318,7 +3241,7 @@ static int casadi_f40(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* linear_cv_ckf_moments:(L[4x4],DZ[2x8],Czz[2x2],z_pred[2],z[2],mask[2])->(innovation[2],Pzz[2x2],Pxz[4x2]) */
-static int casadi_f41(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f40(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16;
   a00=arg[5]? arg[5][0] : 0;
@@ -3453,7 +3376,7 @@ static int casadi_f41(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* linear_cv_ckf_update:(x[4],P[4x4],z[2],p[2],R[2x2],mask[2])->(x_post[4],P_post[4x4],innovation[2],S[2x2],ok) */
-static int casadi_f38(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f37(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
   casadi_real **res1=res+5, *rr, *w00=w+89, *w02=w+93, w03, *w04=w+109, *w05=w+111, w06, *w07=w+127, *w08=w+135, *w09=w+151, *w10=w+155;
   casadi_real *w11=w+157, *w12=w+159, *w13=w+161, *w14=w+165, *w15=w+169, w16;
@@ -3474,7 +3397,7 @@ static int casadi_f38(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[1]=w02;
   arg1[2]=w04;
   res1[0]=w05;
-  if (casadi_f39(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f38(arg1, res1, iw, w, 0)) return 1;
   /* #5: @6 = 0.125 */
   w06 = 1.2500000000000000e-01;
   /* #6: @4 = zeros(2x1) */
@@ -3490,7 +3413,7 @@ static int casadi_f38(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[1]=w04;
   res1[0]=w08;
   res1[1]=w09;
-  if (casadi_f40(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f39(arg1, res1, iw, w, 0)) return 1;
   /* #11: @9 = (@6*@9) */
   for (i=0, rr=w09, cs=w09; i<4; ++i) (*rr++)  = (w06*(*cs++));
   /* #12: @10 = input[2][0] */
@@ -3507,7 +3430,7 @@ static int casadi_f38(const casadi_real** arg, casadi_real** res, casadi_int* iw
   res1[0]=w12;
   res1[1]=w13;
   res1[2]=w07;
-  if (casadi_f41(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f40(arg1, res1, iw, w, 0)) return 1;
   /* #15: @9 = input[4][0] */
   casadi_copy(arg[4], 4, w09);
   /* #16: {@14, @6} = linear_cv_noise(@9, @11, @13, @12) */
@@ -3548,7 +3471,7 @@ static int casadi_f38(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_ckf_update(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f38(arg, res, iw, w, mem);
+  return casadi_f37(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_ckf_update_checkout(void) {
@@ -3637,7 +3560,7 @@ CASADI_SYMBOL_EXPORT int linear_cv_ckf_update_work_bytes(casadi_int *sz_arg, cas
 }
 
 /* linear_cv_ckf_step:(x[4],P[4x4],u[2],p[2],dt,Q[4x4],z[2],R[2x2],mask[2])->(x_post[4],P_post[4x4],innovation[2],S[2x2],ok) */
-static int casadi_f42(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f41(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real **res1=res+5, *w00=w+292, *w01=w+296, *w02=w+312, *w03=w+314, w04, *w06=w+316, *w07=w+320, w08, *w09=w+336, *w10=w+338, *w11=w+342;
   casadi_real *w12=w+344;
   const casadi_real **arg1=arg+9, *wr01, *wr05;
@@ -3663,7 +3586,7 @@ static int casadi_f42(const casadi_real** arg, casadi_real** res, casadi_int* iw
   res1[0]=w06;
   res1[1]=w07;
   res1[2]=(&w08);
-  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
   /* #7: @2 = input[6][0] */
   casadi_copy(arg[6], 2, w02);
   /* #8: @0 = input[7][0] */
@@ -3682,7 +3605,7 @@ static int casadi_f42(const casadi_real** arg, casadi_real** res, casadi_int* iw
   res1[2]=w11;
   res1[3]=w12;
   res1[4]=(&w04);
-  if (casadi_f38(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f37(arg1, res1, iw, w, 0)) return 1;
   /* #11: output[0][0] = @10 */
   casadi_copy(w10, 4, res[0]);
   /* #12: output[1][0] = @1 */
@@ -3699,7 +3622,7 @@ static int casadi_f42(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_ckf_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f42(arg, res, iw, w, mem);
+  return casadi_f41(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_ckf_step_checkout(void) {
@@ -3794,7 +3717,7 @@ CASADI_SYMBOL_EXPORT int linear_cv_ckf_step_work_bytes(casadi_int *sz_arg, casad
 }
 
 /* linear_cv_ckf_predict_points:(x[4],P[4x4])->(X[8x4],ok) */
-static int casadi_f43(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f42(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i, j;
   casadi_real **res1=res+2, *rr, *w0=w+17, *w2=w+21, w3, *w4=w+37, *w5=w+69;
   const casadi_real **arg1=arg+2, *cs, *wr1;
@@ -3811,7 +3734,7 @@ static int casadi_f43(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[0]=w0;
   arg1[1]=w2;
   res1[0]=w4;
-  if (casadi_f34(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
   /* #4: @5 = @4' */
   for (i=0, rr=w5, cs=w4; i<8; ++i) for (j=0; j<4; ++j) rr[i+j*8] = *cs++;
   /* #5: output[0][0] = @5 */
@@ -3822,7 +3745,7 @@ static int casadi_f43(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_ckf_predict_points(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f43(arg, res, iw, w, mem);
+  return casadi_f42(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_ckf_predict_points_checkout(void) {
@@ -3874,7 +3797,7 @@ CASADI_SYMBOL_EXPORT const casadi_int* linear_cv_ckf_predict_points_sparsity_in(
 
 CASADI_SYMBOL_EXPORT const casadi_int* linear_cv_ckf_predict_points_sparsity_out(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s7;
+    case 0: return casadi_s8;
     case 1: return casadi_s3;
     default: return 0;
   }
@@ -3896,154 +3819,86 @@ CASADI_SYMBOL_EXPORT int linear_cv_ckf_predict_points_work_bytes(casadi_int *sz_
   return 0;
 }
 
-/* linear_cv_outer_0_8:(y[4x8],mean[4])->(ddT[4x4,10nz]) */
-static int casadi_f45(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i, j;
-  casadi_real **res1=res+1, *w1=w+5, *w2=w+9, *w3=w+41, *w4=w+121;
-  const casadi_real **arg1=arg+2, *wr0;
-  /* #0: @0 = input[0][0] */
-  wr0 = arg[0] ? arg[0] : casadi_zeros;
-  /* #1: @1 = input[1][0] */
-  casadi_copy(arg[1], 4, w1);
-  /* #2: @2 = repmat(@1, 8) */
-  for (i=0;i<8;++i) {
-    casadi_copy(w1, 4, w2+ i*4);
-  }
-  /* #3: @3 = map8_linear_cv_outer(@0, @2) */
-  arg1[0]=wr0;
-  arg1[1]=w2;
-  res1[0]=w3;
-  if (casadi_f10(arg1, res1, iw, w, 0)) return 1;
-  /* #4: @4 = repsum(@3, 8) */
-  casadi_clear(w4, 10);
-    for (i=0;i<8;++i) {
-        for (j=0;j<10;++j) {
-            w4[j] += w3[j+i*10];
-          }
-      }
-  /* #5: output[0][0] = @4 */
-  casadi_copy(w4, 10, res[0]);
+/* linear_cv_ckf_predict_weights:()->(wm[8],wc[8]) */
+static int casadi_f43(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real *w0=w+0;
+  /* #0: @0 = all_0.125(8x1) */
+  casadi_fill(w0, 8, 1.2500000000000000e-01);
+  /* #1: output[0][0] = @0 */
+  casadi_copy(w0, 8, res[0]);
+  /* #2: output[1][0] = @0 */
+  casadi_copy(w0, 8, res[1]);
   return 0;
 }
 
-/* linear_cv_ckf_predict_moments:(Y[8x4],Q[4x4])->(x_pred[4],P_pred[4x4],ok) */
-static int casadi_f44(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i, j;
-  casadi_real **res1=res+3, *rr, w0, *w1=w+163, *w3=w+167, *w4=w+199, *w5=w+207, *w7=w+217;
-  const casadi_real **arg1=arg+2, *cs, *wr2, *wr6;
-  /* #0: @0 = 0.125 */
-  w0 = 1.2500000000000000e-01;
-  /* #1: @1 = zeros(4x1) */
-  casadi_clear(w1, 4);
-  /* #2: @2 = input[0][0] */
-  wr2 = arg[0] ? arg[0] : casadi_zeros;
-  /* #3: @3 = @2' */
-  for (i=0, rr=w3, cs=wr2; i<4; ++i) for (j=0; j<8; ++j) rr[i+j*4] = *cs++;
-  /* #4: @4 = ones(8x1) */
-  casadi_fill(w4, 8, 1.);
-  /* #5: @1 = mac(@3,@4,@1) */
-  casadi_mtimes_dense(w3, 4, 8, w4, 1, w1, 0);
-  /* #6: @1 = (@0*@1) */
-  for (i=0, rr=w1, cs=w1; i<4; ++i) (*rr++)  = (w0*(*cs++));
-  /* #7: output[0][0] = @1 */
-  casadi_copy(w1, 4, res[0]);
-  /* #8: @5 = linear_cv_outer_0_8(@3, @1) */
-  arg1[0]=w3;
-  arg1[1]=w1;
-  res1[0]=w5;
-  if (casadi_f45(arg1, res1, iw, w, 0)) return 1;
-  /* #9: @5 = (@0*@5) */
-  for (i=0, rr=w5, cs=w5; i<10; ++i) (*rr++)  = (w0*(*cs++));
-  /* #10: @6 = input[1][0] */
-  wr6 = arg[1] ? arg[1] : casadi_zeros;
-  /* #11: {@7, @0} = linear_cv_predicted(@1, @5, @6) */
-  arg1[0]=w1;
-  arg1[1]=w5;
-  arg1[2]=wr6;
-  res1[0]=w7;
-  res1[1]=(&w0);
-  if (casadi_f11(arg1, res1, iw, w, 0)) return 1;
-  /* #12: output[1][0] = @7 */
-  casadi_copy(w7, 16, res[1]);
-  /* #13: output[2][0] = @0 */
-  if (res[2]) res[2][0] = w0;
+CASADI_SYMBOL_EXPORT int linear_cv_ckf_predict_weights(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f43(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int linear_cv_ckf_predict_weights_checkout(void) {
   return 0;
 }
 
-CASADI_SYMBOL_EXPORT int linear_cv_ckf_predict_moments(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f44(arg, res, iw, w, mem);
+CASADI_SYMBOL_EXPORT void linear_cv_ckf_predict_weights_release(int mem) {
 }
 
-CASADI_SYMBOL_EXPORT int linear_cv_ckf_predict_moments_checkout(void) {
-  return 0;
+CASADI_SYMBOL_EXPORT void linear_cv_ckf_predict_weights_incref(void) {
 }
 
-CASADI_SYMBOL_EXPORT void linear_cv_ckf_predict_moments_release(int mem) {
+CASADI_SYMBOL_EXPORT void linear_cv_ckf_predict_weights_decref(void) {
 }
 
-CASADI_SYMBOL_EXPORT void linear_cv_ckf_predict_moments_incref(void) {
-}
+CASADI_SYMBOL_EXPORT casadi_int linear_cv_ckf_predict_weights_n_in(void) { return 0;}
 
-CASADI_SYMBOL_EXPORT void linear_cv_ckf_predict_moments_decref(void) {
-}
+CASADI_SYMBOL_EXPORT casadi_int linear_cv_ckf_predict_weights_n_out(void) { return 2;}
 
-CASADI_SYMBOL_EXPORT casadi_int linear_cv_ckf_predict_moments_n_in(void) { return 2;}
-
-CASADI_SYMBOL_EXPORT casadi_int linear_cv_ckf_predict_moments_n_out(void) { return 3;}
-
-CASADI_SYMBOL_EXPORT casadi_real linear_cv_ckf_predict_moments_default_in(casadi_int i) {
+CASADI_SYMBOL_EXPORT casadi_real linear_cv_ckf_predict_weights_default_in(casadi_int i) {
   switch (i) {
     default: return 0;
   }
 }
 
-CASADI_SYMBOL_EXPORT const char* linear_cv_ckf_predict_moments_name_in(casadi_int i) {
+CASADI_SYMBOL_EXPORT const char* linear_cv_ckf_predict_weights_name_in(casadi_int i) {
   switch (i) {
-    case 0: return "Y";
-    case 1: return "Q";
     default: return 0;
   }
 }
 
-CASADI_SYMBOL_EXPORT const char* linear_cv_ckf_predict_moments_name_out(casadi_int i) {
+CASADI_SYMBOL_EXPORT const char* linear_cv_ckf_predict_weights_name_out(casadi_int i) {
   switch (i) {
-    case 0: return "x_pred";
-    case 1: return "P_pred";
-    case 2: return "ok";
+    case 0: return "wm";
+    case 1: return "wc";
     default: return 0;
   }
 }
 
-CASADI_SYMBOL_EXPORT const casadi_int* linear_cv_ckf_predict_moments_sparsity_in(casadi_int i) {
+CASADI_SYMBOL_EXPORT const casadi_int* linear_cv_ckf_predict_weights_sparsity_in(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s7;
-    case 1: return casadi_s1;
     default: return 0;
   }
 }
 
-CASADI_SYMBOL_EXPORT const casadi_int* linear_cv_ckf_predict_moments_sparsity_out(casadi_int i) {
+CASADI_SYMBOL_EXPORT const casadi_int* linear_cv_ckf_predict_weights_sparsity_out(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s0;
-    case 1: return casadi_s1;
-    case 2: return casadi_s3;
+    case 0: return casadi_s9;
+    case 1: return casadi_s9;
     default: return 0;
   }
 }
 
-CASADI_SYMBOL_EXPORT int linear_cv_ckf_predict_moments_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 8;
-  if (sz_res) *sz_res = 6;
+CASADI_SYMBOL_EXPORT int linear_cv_ckf_predict_weights_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 0;
+  if (sz_res) *sz_res = 3;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 233;
+  if (sz_w) *sz_w = 8;
   return 0;
 }
 
-CASADI_SYMBOL_EXPORT int linear_cv_ckf_predict_moments_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 8*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 6*sizeof(casadi_real*);
+CASADI_SYMBOL_EXPORT int linear_cv_ckf_predict_weights_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 0*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 3*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 233*sizeof(casadi_real);
+  if (sz_w) *sz_w = 8*sizeof(casadi_real);
   return 0;
 }
 
@@ -4109,22 +3964,22 @@ CASADI_SYMBOL_EXPORT int linear_cv_ukf_predict_points_batch(casadi_int N, const 
   return 0;
 }
 
-/* linear_cv_ukf_predict_moments_batch: evaluate linear_cv_ukf_predict_moments for j = 0..N-1 on slices arg[k] + j*arg_step[k] and
+/* linear_cv_ukf_predict_weights_batch: evaluate linear_cv_ukf_predict_weights for j = 0..N-1 on slices arg[k] + j*arg_step[k] and
  * res[k] + j*res_step[k] (a step of 0 shares the argument). Returns 0, or 1 + j of the first
  * failing evaluation. */
-CASADI_SYMBOL_EXPORT int linear_cv_ukf_predict_moments_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
+CASADI_SYMBOL_EXPORT int linear_cv_ukf_predict_weights_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
-  const casadi_real* a[9];
-  casadi_real* r[6];
+  const casadi_real* a[2];
+  casadi_real* r[4];
   casadi_int iw[1];
-  casadi_real w[347];
+  casadi_real w[25];
   casadi_int j, k;
-  for (k = 0; k < 9; ++k) a[k] = 0;
-  for (k = 0; k < 6; ++k) r[k] = 0;
+  for (k = 0; k < 2; ++k) a[k] = 0;
+  for (k = 0; k < 4; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
-    for (k = 0; k < 3; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
-    for (k = 0; k < 3; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
-    if (linear_cv_ukf_predict_moments(a, r, iw, w, 0)) return (int)(1 + j);
+    for (k = 0; k < 1; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
+    for (k = 0; k < 2; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
+    if (linear_cv_ukf_predict_weights(a, r, iw, w, 0)) return (int)(1 + j);
   }
   return 0;
 }
@@ -4249,22 +4104,22 @@ CASADI_SYMBOL_EXPORT int linear_cv_ckf_predict_points_batch(casadi_int N, const 
   return 0;
 }
 
-/* linear_cv_ckf_predict_moments_batch: evaluate linear_cv_ckf_predict_moments for j = 0..N-1 on slices arg[k] + j*arg_step[k] and
+/* linear_cv_ckf_predict_weights_batch: evaluate linear_cv_ckf_predict_weights for j = 0..N-1 on slices arg[k] + j*arg_step[k] and
  * res[k] + j*res_step[k] (a step of 0 shares the argument). Returns 0, or 1 + j of the first
  * failing evaluation. */
-CASADI_SYMBOL_EXPORT int linear_cv_ckf_predict_moments_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
+CASADI_SYMBOL_EXPORT int linear_cv_ckf_predict_weights_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
-  const casadi_real* a[8];
-  casadi_real* r[6];
+  const casadi_real* a[1];
+  casadi_real* r[3];
   casadi_int iw[1];
-  casadi_real w[282];
+  casadi_real w[8];
   casadi_int j, k;
-  for (k = 0; k < 8; ++k) a[k] = 0;
-  for (k = 0; k < 6; ++k) r[k] = 0;
+  for (k = 0; k < 1; ++k) a[k] = 0;
+  for (k = 0; k < 3; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
-    for (k = 0; k < 2; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
-    for (k = 0; k < 3; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
-    if (linear_cv_ckf_predict_moments(a, r, iw, w, 0)) return (int)(1 + j);
+    for (k = 0; k < 0; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
+    for (k = 0; k < 2; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
+    if (linear_cv_ckf_predict_weights(a, r, iw, w, 0)) return (int)(1 + j);
   }
   return 0;
 }

@@ -8,7 +8,7 @@
  *   remus100_h
  *   remus100_H
  *   remus100_ukf_predict_points
- *   remus100_ukf_predict_moments
+ *   remus100_ukf_predict_weights
  *   remus100_ukf_update
  */
 #include "abyssal_model.h"
@@ -18,7 +18,7 @@ extern int remus100_F(const double** arg, double** res, long long* iw, double* w
 extern int remus100_h(const double** arg, double** res, long long* iw, double* w, int mem);
 extern int remus100_H(const double** arg, double** res, long long* iw, double* w, int mem);
 extern int remus100_ukf_predict_points(const double** arg, double** res, long long* iw, double* w, int mem);
-extern int remus100_ukf_predict_moments(const double** arg, double** res, long long* iw, double* w, int mem);
+extern int remus100_ukf_predict_weights(const double** arg, double** res, long long* iw, double* w, int mem);
 extern int remus100_ukf_update(const double** arg, double** res, long long* iw, double* w, int mem);
 extern int remus100_f_soa(long long n, long long ld, const double** arg, double** res);
 extern int remus100_h_soa(long long n, long long ld, const double** arg, double** res);
@@ -46,7 +46,7 @@ const abyssal_model remus100_descriptor = {
   {0, 0, 0, 0, 0},
   {0, 0, 0, 0, 0},
   {remus100_ukf_predict_points, 6, 4, 0, 995},
-  {remus100_ukf_predict_moments, 9, 6, 0, 3951},
+  {remus100_ukf_predict_weights, 2, 4, 0, 57},
   {remus100_ukf_update, 14, 11, 0, 4851},
   {0, 0, 0, 0, 0},
   {0, 0, 0, 0, 0}

@@ -7,7 +7,7 @@
  *   remus100_ukf_predict            88969 operations
  *   remus100_ukf_update             16085 operations
  *   remus100_ukf_predict_points      2099 operations
- *   remus100_ukf_predict_moments     6869 operations
+ *   remus100_ukf_predict_weights       66 operations
  */
 
 /* CasADi's calling convention passes iw, w and mem to every function; not every function uses them. */
@@ -53,7 +53,6 @@
 #define casadi_f21 CASADI_PREFIX(f21)
 #define casadi_f22 CASADI_PREFIX(f22)
 #define casadi_f23 CASADI_PREFIX(f23)
-#define casadi_f24 CASADI_PREFIX(f24)
 #define casadi_f3 CASADI_PREFIX(f3)
 #define casadi_f4 CASADI_PREFIX(f4)
 #define casadi_f5 CASADI_PREFIX(f5)
@@ -73,6 +72,7 @@
 #define casadi_s5 CASADI_PREFIX(s5)
 #define casadi_s6 CASADI_PREFIX(s6)
 #define casadi_s7 CASADI_PREFIX(s7)
+#define casadi_s8 CASADI_PREFIX(s8)
 #define casadi_sq CASADI_PREFIX(sq)
 #define casadi_zeros CASADI_PREFIX(zeros)
 
@@ -179,6 +179,7 @@ static const casadi_int casadi_s4[3] = {1, 1, 1};
 static const casadi_int casadi_s5[3] = {10, 1, 1};
 static const casadi_int casadi_s6[3] = {10, 10, 1};
 static const casadi_int casadi_s7[3] = {25, 12, 1};
+static const casadi_int casadi_s8[3] = {25, 1, 1};
 
 static const casadi_real casadi_zeros[300] = 
   {0.};
@@ -15376,213 +15377,166 @@ CASADI_SYMBOL_EXPORT int remus100_ukf_predict_points_work_bytes(casadi_int *sz_a
   return 0;
 }
 
-/* remus100_outer_0_1:(y[12],mean[12])->(ddT[12x12,78nz]) */
+/* remus100_ukf_point_weights:(abk[3])->(wm[25],wc[25]) */
 static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i, j;
-  casadi_real **res1=res+1, *w2=w+13, *w3=w+91;
-  const casadi_real **arg1=arg+2, *wr0, *wr1;
-  /* #0: @0 = input[0][0] */
-  wr0 = arg[0] ? arg[0] : casadi_zeros;
-  /* #1: @1 = input[1][0] */
-  wr1 = arg[1] ? arg[1] : casadi_zeros;
-  /* #2: @2 = remus100_outer(@0, @1) */
-  arg1[0]=wr0;
-  arg1[1]=wr1;
-  res1[0]=w2;
-  if (casadi_f8(arg1, res1, iw, w, 0)) return 1;
-  /* #3: @3 = repsum(@2, 1) */
-  casadi_clear(w3, 78);
-    for (i=0;i<1;++i) {
-        for (j=0;j<78;++j) {
-            w3[j] += w2[j+i*78];
-          }
-      }
-  /* #4: output[0][0] = @3 */
-  casadi_copy(w3, 78, res[0]);
+  casadi_real a0, a1, a2, a3;
+  a0=arg[0]? arg[0][0] : 0;
+  a1=casadi_sq(a0);
+  a2=12.;
+  a3=arg[0]? arg[0][2] : 0;
+  a3=(a2+a3);
+  a1=(a1*a3);
+  a2=(a1-a2);
+  a2=(a2/a1);
+  if (res[0]!=0) res[0][0]=a2;
+  a1=(2.*a1);
+  a1=(1./a1);
+  if (res[0]!=0) res[0][1]=a1;
+  if (res[0]!=0) res[0][2]=a1;
+  if (res[0]!=0) res[0][3]=a1;
+  if (res[0]!=0) res[0][4]=a1;
+  if (res[0]!=0) res[0][5]=a1;
+  if (res[0]!=0) res[0][6]=a1;
+  if (res[0]!=0) res[0][7]=a1;
+  if (res[0]!=0) res[0][8]=a1;
+  if (res[0]!=0) res[0][9]=a1;
+  if (res[0]!=0) res[0][10]=a1;
+  if (res[0]!=0) res[0][11]=a1;
+  if (res[0]!=0) res[0][12]=a1;
+  if (res[0]!=0) res[0][13]=a1;
+  if (res[0]!=0) res[0][14]=a1;
+  if (res[0]!=0) res[0][15]=a1;
+  if (res[0]!=0) res[0][16]=a1;
+  if (res[0]!=0) res[0][17]=a1;
+  if (res[0]!=0) res[0][18]=a1;
+  if (res[0]!=0) res[0][19]=a1;
+  if (res[0]!=0) res[0][20]=a1;
+  if (res[0]!=0) res[0][21]=a1;
+  if (res[0]!=0) res[0][22]=a1;
+  if (res[0]!=0) res[0][23]=a1;
+  if (res[0]!=0) res[0][24]=a1;
+  a3=1.;
+  a2=(a2+a3);
+  a0=casadi_sq(a0);
+  a2=(a2-a0);
+  a0=arg[0]? arg[0][1] : 0;
+  a2=(a2+a0);
+  if (res[1]!=0) res[1][0]=a2;
+  if (res[1]!=0) res[1][1]=a1;
+  if (res[1]!=0) res[1][2]=a1;
+  if (res[1]!=0) res[1][3]=a1;
+  if (res[1]!=0) res[1][4]=a1;
+  if (res[1]!=0) res[1][5]=a1;
+  if (res[1]!=0) res[1][6]=a1;
+  if (res[1]!=0) res[1][7]=a1;
+  if (res[1]!=0) res[1][8]=a1;
+  if (res[1]!=0) res[1][9]=a1;
+  if (res[1]!=0) res[1][10]=a1;
+  if (res[1]!=0) res[1][11]=a1;
+  if (res[1]!=0) res[1][12]=a1;
+  if (res[1]!=0) res[1][13]=a1;
+  if (res[1]!=0) res[1][14]=a1;
+  if (res[1]!=0) res[1][15]=a1;
+  if (res[1]!=0) res[1][16]=a1;
+  if (res[1]!=0) res[1][17]=a1;
+  if (res[1]!=0) res[1][18]=a1;
+  if (res[1]!=0) res[1][19]=a1;
+  if (res[1]!=0) res[1][20]=a1;
+  if (res[1]!=0) res[1][21]=a1;
+  if (res[1]!=0) res[1][22]=a1;
+  if (res[1]!=0) res[1][23]=a1;
+  if (res[1]!=0) res[1][24]=a1;
   return 0;
 }
 
-/* remus100_outer_1_25:(y[12x24],mean[12])->(ddT[12x12,78nz]) */
-static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i, j;
-  casadi_real **res1=res+1, *w2=w+13, *w3=w+301, *w4=w+2173;
-  const casadi_real **arg1=arg+2, *wr0, *wr1;
-  /* #0: @0 = input[0][0] */
-  wr0 = arg[0] ? arg[0] : casadi_zeros;
-  /* #1: @1 = input[1][0] */
-  wr1 = arg[1] ? arg[1] : casadi_zeros;
-  /* #2: @2 = repmat(@1, 24) */
-  for (i=0;i<24;++i) {
-    casadi_copy(wr1, 12, w2+ i*12);
-  }
-  /* #3: @3 = map24_remus100_outer(@0, @2) */
-  arg1[0]=wr0;
-  arg1[1]=w2;
-  res1[0]=w3;
-  if (casadi_f10(arg1, res1, iw, w, 0)) return 1;
-  /* #4: @4 = repsum(@3, 24) */
-  casadi_clear(w4, 78);
-    for (i=0;i<24;++i) {
-        for (j=0;j<78;++j) {
-            w4[j] += w3[j+i*78];
-          }
-      }
-  /* #5: output[0][0] = @4 */
-  casadi_copy(w4, 78, res[0]);
-  return 0;
-}
-
-/* remus100_ukf_predict_moments:(Y[25x12],Q[12x12],abk[3])->(x_pred[12],P_pred[12x12],ok) */
+/* remus100_ukf_predict_weights:(abk[3])->(wm[25],wc[25]) */
 static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i, j;
-  casadi_real **res1=res+3, *rr, *w00=w+2551, *w01=w+2554, *w02=w+2556, w03, *w05=w+2558, *w06=w+2858, *w07=w+2870, *w08=w+2882, *w09=w+2894, *w10=w+3182;
-  casadi_real *w11=w+3206, *w12=w+3284, *w14=w+3362;
-  const casadi_real **arg1=arg+3, *cs, *wr04, *wr13;
-  /* #0: @0 = input[2][0] */
-  casadi_copy(arg[2], 3, w00);
-  /* #1: {@1, @2} = remus100_ukf_weights(@0) */
-  arg1[0]=w00;
-  res1[0]=w01;
-  res1[1]=w02;
-  if (casadi_f1(arg1, res1, iw, w, 0)) return 1;
-  /* #2: @3 = @1[0] */
-  for (rr=(&w03), cs=w01+0; cs!=w01+1; cs+=1) *rr++ = *cs;
-  /* #3: @4 = input[0][0] */
-  wr04 = arg[0] ? arg[0] : casadi_zeros;
-  /* #4: @5 = @4' */
-  for (i=0, rr=w05, cs=wr04; i<12; ++i) for (j=0; j<25; ++j) rr[i+j*12] = *cs++;
-  /* #5: @6 = @5[:12] */
-  for (rr=w06, cs=w05+0; cs!=w05+12; cs+=1) *rr++ = *cs;
-  /* #6: @7 = (@3*@6) */
-  for (i=0, rr=w07, cs=w06; i<12; ++i) (*rr++)  = (w03*(*cs++));
-  /* #7: @3 = @1[1] */
-  for (rr=(&w03), cs=w01+1; cs!=w01+2; cs+=1) *rr++ = *cs;
-  /* #8: @8 = zeros(12x1) */
-  casadi_clear(w08, 12);
-  /* #9: @9 = @5[12:300] */
-  for (rr=w09, cs=w05+12; cs!=w05+300; cs+=1) *rr++ = *cs;
-  /* #10: @10 = ones(24x1) */
-  casadi_fill(w10, 24, 1.);
-  /* #11: @8 = mac(@9,@10,@8) */
-  casadi_mtimes_dense(w09, 12, 24, w10, 1, w08, 0);
-  /* #12: @8 = (@3*@8) */
-  for (i=0, rr=w08, cs=w08; i<12; ++i) (*rr++)  = (w03*(*cs++));
-  /* #13: @7 = (@7+@8) */
-  for (i=0, rr=w07, cs=w08; i<12; ++i) (*rr++) += (*cs++);
-  /* #14: output[0][0] = @7 */
-  casadi_copy(w07, 12, res[0]);
-  /* #15: @3 = @2[0] */
-  for (rr=(&w03), cs=w02+0; cs!=w02+1; cs+=1) *rr++ = *cs;
-  /* #16: @11 = remus100_outer_0_1(@6, @7) */
-  arg1[0]=w06;
-  arg1[1]=w07;
-  res1[0]=w11;
+  casadi_real **res1=res+2, *w0=w+4, *w1=w+7, *w2=w+32;
+  const casadi_real **arg1=arg+1;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 3, w0);
+  /* #1: {@1, @2} = remus100_ukf_point_weights(@0) */
+  arg1[0]=w0;
+  res1[0]=w1;
+  res1[1]=w2;
   if (casadi_f23(arg1, res1, iw, w, 0)) return 1;
-  /* #17: @11 = (@3*@11) */
-  for (i=0, rr=w11, cs=w11; i<78; ++i) (*rr++)  = (w03*(*cs++));
-  /* #18: @3 = @2[1] */
-  for (rr=(&w03), cs=w02+1; cs!=w02+2; cs+=1) *rr++ = *cs;
-  /* #19: @12 = remus100_outer_1_25(@9, @7) */
-  arg1[0]=w09;
-  arg1[1]=w07;
-  res1[0]=w12;
-  if (casadi_f24(arg1, res1, iw, w, 0)) return 1;
-  /* #20: @12 = (@3*@12) */
-  for (i=0, rr=w12, cs=w12; i<78; ++i) (*rr++)  = (w03*(*cs++));
-  /* #21: @11 = (@11+@12) */
-  for (i=0, rr=w11, cs=w12; i<78; ++i) (*rr++) += (*cs++);
-  /* #22: @13 = input[1][0] */
-  wr13 = arg[1] ? arg[1] : casadi_zeros;
-  /* #23: {@14, @3} = remus100_predicted(@7, @11, @13) */
-  arg1[0]=w07;
-  arg1[1]=w11;
-  arg1[2]=wr13;
-  res1[0]=w14;
-  res1[1]=(&w03);
-  if (casadi_f11(arg1, res1, iw, w, 0)) return 1;
-  /* #24: output[1][0] = @14 */
-  casadi_copy(w14, 144, res[1]);
-  /* #25: output[2][0] = @3 */
-  if (res[2]) res[2][0] = w03;
+  /* #2: output[0][0] = @1 */
+  casadi_copy(w1, 25, res[0]);
+  /* #3: output[1][0] = @2 */
+  casadi_copy(w2, 25, res[1]);
   return 0;
 }
 
-CASADI_SYMBOL_EXPORT int remus100_ukf_predict_moments(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+CASADI_SYMBOL_EXPORT int remus100_ukf_predict_weights(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
   return casadi_f22(arg, res, iw, w, mem);
 }
 
-CASADI_SYMBOL_EXPORT int remus100_ukf_predict_moments_checkout(void) {
+CASADI_SYMBOL_EXPORT int remus100_ukf_predict_weights_checkout(void) {
   return 0;
 }
 
-CASADI_SYMBOL_EXPORT void remus100_ukf_predict_moments_release(int mem) {
+CASADI_SYMBOL_EXPORT void remus100_ukf_predict_weights_release(int mem) {
 }
 
-CASADI_SYMBOL_EXPORT void remus100_ukf_predict_moments_incref(void) {
+CASADI_SYMBOL_EXPORT void remus100_ukf_predict_weights_incref(void) {
 }
 
-CASADI_SYMBOL_EXPORT void remus100_ukf_predict_moments_decref(void) {
+CASADI_SYMBOL_EXPORT void remus100_ukf_predict_weights_decref(void) {
 }
 
-CASADI_SYMBOL_EXPORT casadi_int remus100_ukf_predict_moments_n_in(void) { return 3;}
+CASADI_SYMBOL_EXPORT casadi_int remus100_ukf_predict_weights_n_in(void) { return 1;}
 
-CASADI_SYMBOL_EXPORT casadi_int remus100_ukf_predict_moments_n_out(void) { return 3;}
+CASADI_SYMBOL_EXPORT casadi_int remus100_ukf_predict_weights_n_out(void) { return 2;}
 
-CASADI_SYMBOL_EXPORT casadi_real remus100_ukf_predict_moments_default_in(casadi_int i) {
+CASADI_SYMBOL_EXPORT casadi_real remus100_ukf_predict_weights_default_in(casadi_int i) {
   switch (i) {
     default: return 0;
   }
 }
 
-CASADI_SYMBOL_EXPORT const char* remus100_ukf_predict_moments_name_in(casadi_int i) {
+CASADI_SYMBOL_EXPORT const char* remus100_ukf_predict_weights_name_in(casadi_int i) {
   switch (i) {
-    case 0: return "Y";
-    case 1: return "Q";
-    case 2: return "abk";
+    case 0: return "abk";
     default: return 0;
   }
 }
 
-CASADI_SYMBOL_EXPORT const char* remus100_ukf_predict_moments_name_out(casadi_int i) {
+CASADI_SYMBOL_EXPORT const char* remus100_ukf_predict_weights_name_out(casadi_int i) {
   switch (i) {
-    case 0: return "x_pred";
-    case 1: return "P_pred";
-    case 2: return "ok";
+    case 0: return "wm";
+    case 1: return "wc";
     default: return 0;
   }
 }
 
-CASADI_SYMBOL_EXPORT const casadi_int* remus100_ukf_predict_moments_sparsity_in(casadi_int i) {
+CASADI_SYMBOL_EXPORT const casadi_int* remus100_ukf_predict_weights_sparsity_in(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s7;
-    case 1: return casadi_s1;
-    case 2: return casadi_s2;
+    case 0: return casadi_s2;
     default: return 0;
   }
 }
 
-CASADI_SYMBOL_EXPORT const casadi_int* remus100_ukf_predict_moments_sparsity_out(casadi_int i) {
+CASADI_SYMBOL_EXPORT const casadi_int* remus100_ukf_predict_weights_sparsity_out(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s0;
-    case 1: return casadi_s1;
-    case 2: return casadi_s4;
+    case 0: return casadi_s8;
+    case 1: return casadi_s8;
     default: return 0;
   }
 }
 
-CASADI_SYMBOL_EXPORT int remus100_ukf_predict_moments_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 9;
-  if (sz_res) *sz_res = 6;
+CASADI_SYMBOL_EXPORT int remus100_ukf_predict_weights_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 2;
+  if (sz_res) *sz_res = 4;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 3506;
+  if (sz_w) *sz_w = 57;
   return 0;
 }
 
-CASADI_SYMBOL_EXPORT int remus100_ukf_predict_moments_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 9*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 6*sizeof(casadi_real*);
+CASADI_SYMBOL_EXPORT int remus100_ukf_predict_weights_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 2*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 4*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 3506*sizeof(casadi_real);
+  if (sz_w) *sz_w = 57*sizeof(casadi_real);
   return 0;
 }
 
@@ -15648,22 +15602,22 @@ CASADI_SYMBOL_EXPORT int remus100_ukf_predict_points_batch(casadi_int N, const c
   return 0;
 }
 
-/* remus100_ukf_predict_moments_batch: evaluate remus100_ukf_predict_moments for j = 0..N-1 on slices arg[k] + j*arg_step[k] and
+/* remus100_ukf_predict_weights_batch: evaluate remus100_ukf_predict_weights for j = 0..N-1 on slices arg[k] + j*arg_step[k] and
  * res[k] + j*res_step[k] (a step of 0 shares the argument). Returns 0, or 1 + j of the first
  * failing evaluation. */
-CASADI_SYMBOL_EXPORT int remus100_ukf_predict_moments_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
+CASADI_SYMBOL_EXPORT int remus100_ukf_predict_weights_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
-  const casadi_real* a[9];
-  casadi_real* r[6];
+  const casadi_real* a[2];
+  casadi_real* r[4];
   casadi_int iw[1];
-  casadi_real w[3951];
+  casadi_real w[57];
   casadi_int j, k;
-  for (k = 0; k < 9; ++k) a[k] = 0;
-  for (k = 0; k < 6; ++k) r[k] = 0;
+  for (k = 0; k < 2; ++k) a[k] = 0;
+  for (k = 0; k < 4; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
-    for (k = 0; k < 3; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
-    for (k = 0; k < 3; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
-    if (remus100_ukf_predict_moments(a, r, iw, w, 0)) return (int)(1 + j);
+    for (k = 0; k < 1; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
+    for (k = 0; k < 2; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
+    if (remus100_ukf_predict_weights(a, r, iw, w, 0)) return (int)(1 + j);
   }
   return 0;
 }

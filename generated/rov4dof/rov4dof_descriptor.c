@@ -11,10 +11,10 @@
  *   rov4dof_ekf_update
  *   rov4dof_ekf_step
  *   rov4dof_ckf_predict_points
- *   rov4dof_ckf_predict_moments
+ *   rov4dof_ckf_predict_weights
  *   rov4dof_ckf_update
  *   rov4dof_ukf_predict_points
- *   rov4dof_ukf_predict_moments
+ *   rov4dof_ukf_predict_weights
  *   rov4dof_ukf_update
  *   rov4dof_mcukf_update
  *   rov4dof_huber_ukf_update
@@ -29,10 +29,10 @@ extern int rov4dof_ekf_predict(const double** arg, double** res, long long* iw, 
 extern int rov4dof_ekf_update(const double** arg, double** res, long long* iw, double* w, int mem);
 extern int rov4dof_ekf_step(const double** arg, double** res, long long* iw, double* w, int mem);
 extern int rov4dof_ckf_predict_points(const double** arg, double** res, long long* iw, double* w, int mem);
-extern int rov4dof_ckf_predict_moments(const double** arg, double** res, long long* iw, double* w, int mem);
+extern int rov4dof_ckf_predict_weights(const double** arg, double** res, long long* iw, double* w, int mem);
 extern int rov4dof_ckf_update(const double** arg, double** res, long long* iw, double* w, int mem);
 extern int rov4dof_ukf_predict_points(const double** arg, double** res, long long* iw, double* w, int mem);
-extern int rov4dof_ukf_predict_moments(const double** arg, double** res, long long* iw, double* w, int mem);
+extern int rov4dof_ukf_predict_weights(const double** arg, double** res, long long* iw, double* w, int mem);
 extern int rov4dof_ukf_update(const double** arg, double** res, long long* iw, double* w, int mem);
 extern int rov4dof_mcukf_update(const double** arg, double** res, long long* iw, double* w, int mem);
 extern int rov4dof_huber_ukf_update(const double** arg, double** res, long long* iw, double* w, int mem);
@@ -59,10 +59,10 @@ const abyssal_model rov4dof_descriptor = {
   {rov4dof_ekf_update, 6, 5, 0, 187},
   {rov4dof_ekf_step, 19, 10, 0, 1243},
   {rov4dof_ckf_predict_points, 4, 4, 0, 968},
-  {rov4dof_ckf_predict_moments, 8, 6, 0, 3530},
+  {rov4dof_ckf_predict_weights, 0, 3, 0, 24},
   {rov4dof_ckf_update, 12, 11, 0, 1359},
   {rov4dof_ukf_predict_points, 6, 4, 0, 995},
-  {rov4dof_ukf_predict_moments, 9, 6, 0, 3951},
+  {rov4dof_ukf_predict_weights, 2, 4, 0, 57},
   {rov4dof_ukf_update, 14, 11, 0, 1466},
   {rov4dof_mcukf_update, 15, 11, 0, 1466},
   {rov4dof_huber_ukf_update, 15, 11, 0, 1466}

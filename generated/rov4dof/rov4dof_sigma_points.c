@@ -7,14 +7,14 @@
  *   rov4dof_ukf_predict             30094 operations
  *   rov4dof_ukf_update               5826 operations
  *   rov4dof_ukf_predict_points       2099 operations
- *   rov4dof_ukf_predict_moments      6869 operations
+ *   rov4dof_ukf_predict_weights        66 operations
  *   rov4dof_mcukf_update             5985 operations
  *   rov4dof_huber_ukf_update         6400 operations
  *   rov4dof_ckf_predict             28512 operations
  *   rov4dof_ckf_update               5488 operations
  *   rov4dof_ckf_step                34001 operations
  *   rov4dof_ckf_predict_points       2148 operations
- *   rov4dof_ckf_predict_moments      6083 operations
+ *   rov4dof_ckf_predict_weights        24 operations
  */
 
 /* CasADi's calling convention passes iw, w and mem to every function; not every function uses them. */
@@ -82,8 +82,6 @@
 #define casadi_f41 CASADI_PREFIX(f41)
 #define casadi_f42 CASADI_PREFIX(f42)
 #define casadi_f43 CASADI_PREFIX(f43)
-#define casadi_f44 CASADI_PREFIX(f44)
-#define casadi_f45 CASADI_PREFIX(f45)
 #define casadi_f5 CASADI_PREFIX(f5)
 #define casadi_f6 CASADI_PREFIX(f6)
 #define casadi_f7 CASADI_PREFIX(f7)
@@ -96,6 +94,7 @@
 #define casadi_mtimes_dense CASADI_PREFIX(mtimes_dense)
 #define casadi_s0 CASADI_PREFIX(s0)
 #define casadi_s1 CASADI_PREFIX(s1)
+#define casadi_s10 CASADI_PREFIX(s10)
 #define casadi_s2 CASADI_PREFIX(s2)
 #define casadi_s3 CASADI_PREFIX(s3)
 #define casadi_s4 CASADI_PREFIX(s4)
@@ -103,6 +102,7 @@
 #define casadi_s6 CASADI_PREFIX(s6)
 #define casadi_s7 CASADI_PREFIX(s7)
 #define casadi_s8 CASADI_PREFIX(s8)
+#define casadi_s9 CASADI_PREFIX(s9)
 #define casadi_sq CASADI_PREFIX(sq)
 #define casadi_zeros CASADI_PREFIX(zeros)
 
@@ -218,7 +218,9 @@ static const casadi_int casadi_s4[3] = {1, 1, 1};
 static const casadi_int casadi_s5[3] = {3, 1, 1};
 static const casadi_int casadi_s6[3] = {4, 4, 1};
 static const casadi_int casadi_s7[3] = {25, 12, 1};
-static const casadi_int casadi_s8[3] = {24, 12, 1};
+static const casadi_int casadi_s8[3] = {25, 1, 1};
+static const casadi_int casadi_s9[3] = {24, 12, 1};
+static const casadi_int casadi_s10[3] = {24, 1, 1};
 
 static const casadi_real casadi_zeros[300] = 
   {0.};
@@ -7615,218 +7617,171 @@ CASADI_SYMBOL_EXPORT int rov4dof_ukf_predict_points_work_bytes(casadi_int *sz_ar
   return 0;
 }
 
-/* rov4dof_outer_0_1:(y[12],mean[12])->(ddT[12x12,78nz]) */
+/* rov4dof_ukf_point_weights:(abk[3])->(wm[25],wc[25]) */
 static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i, j;
-  casadi_real **res1=res+1, *w2=w+13, *w3=w+91;
-  const casadi_real **arg1=arg+2, *wr0, *wr1;
-  /* #0: @0 = input[0][0] */
-  wr0 = arg[0] ? arg[0] : casadi_zeros;
-  /* #1: @1 = input[1][0] */
-  wr1 = arg[1] ? arg[1] : casadi_zeros;
-  /* #2: @2 = rov4dof_outer(@0, @1) */
-  arg1[0]=wr0;
-  arg1[1]=wr1;
-  res1[0]=w2;
-  if (casadi_f8(arg1, res1, iw, w, 0)) return 1;
-  /* #3: @3 = repsum(@2, 1) */
-  casadi_clear(w3, 78);
-    for (i=0;i<1;++i) {
-        for (j=0;j<78;++j) {
-            w3[j] += w2[j+i*78];
-          }
-      }
-  /* #4: output[0][0] = @3 */
-  casadi_copy(w3, 78, res[0]);
+  casadi_real a0, a1, a2, a3;
+  a0=arg[0]? arg[0][0] : 0;
+  a1=casadi_sq(a0);
+  a2=12.;
+  a3=arg[0]? arg[0][2] : 0;
+  a3=(a2+a3);
+  a1=(a1*a3);
+  a2=(a1-a2);
+  a2=(a2/a1);
+  if (res[0]!=0) res[0][0]=a2;
+  a1=(2.*a1);
+  a1=(1./a1);
+  if (res[0]!=0) res[0][1]=a1;
+  if (res[0]!=0) res[0][2]=a1;
+  if (res[0]!=0) res[0][3]=a1;
+  if (res[0]!=0) res[0][4]=a1;
+  if (res[0]!=0) res[0][5]=a1;
+  if (res[0]!=0) res[0][6]=a1;
+  if (res[0]!=0) res[0][7]=a1;
+  if (res[0]!=0) res[0][8]=a1;
+  if (res[0]!=0) res[0][9]=a1;
+  if (res[0]!=0) res[0][10]=a1;
+  if (res[0]!=0) res[0][11]=a1;
+  if (res[0]!=0) res[0][12]=a1;
+  if (res[0]!=0) res[0][13]=a1;
+  if (res[0]!=0) res[0][14]=a1;
+  if (res[0]!=0) res[0][15]=a1;
+  if (res[0]!=0) res[0][16]=a1;
+  if (res[0]!=0) res[0][17]=a1;
+  if (res[0]!=0) res[0][18]=a1;
+  if (res[0]!=0) res[0][19]=a1;
+  if (res[0]!=0) res[0][20]=a1;
+  if (res[0]!=0) res[0][21]=a1;
+  if (res[0]!=0) res[0][22]=a1;
+  if (res[0]!=0) res[0][23]=a1;
+  if (res[0]!=0) res[0][24]=a1;
+  a3=1.;
+  a2=(a2+a3);
+  a0=casadi_sq(a0);
+  a2=(a2-a0);
+  a0=arg[0]? arg[0][1] : 0;
+  a2=(a2+a0);
+  if (res[1]!=0) res[1][0]=a2;
+  if (res[1]!=0) res[1][1]=a1;
+  if (res[1]!=0) res[1][2]=a1;
+  if (res[1]!=0) res[1][3]=a1;
+  if (res[1]!=0) res[1][4]=a1;
+  if (res[1]!=0) res[1][5]=a1;
+  if (res[1]!=0) res[1][6]=a1;
+  if (res[1]!=0) res[1][7]=a1;
+  if (res[1]!=0) res[1][8]=a1;
+  if (res[1]!=0) res[1][9]=a1;
+  if (res[1]!=0) res[1][10]=a1;
+  if (res[1]!=0) res[1][11]=a1;
+  if (res[1]!=0) res[1][12]=a1;
+  if (res[1]!=0) res[1][13]=a1;
+  if (res[1]!=0) res[1][14]=a1;
+  if (res[1]!=0) res[1][15]=a1;
+  if (res[1]!=0) res[1][16]=a1;
+  if (res[1]!=0) res[1][17]=a1;
+  if (res[1]!=0) res[1][18]=a1;
+  if (res[1]!=0) res[1][19]=a1;
+  if (res[1]!=0) res[1][20]=a1;
+  if (res[1]!=0) res[1][21]=a1;
+  if (res[1]!=0) res[1][22]=a1;
+  if (res[1]!=0) res[1][23]=a1;
+  if (res[1]!=0) res[1][24]=a1;
   return 0;
 }
 
-/* rov4dof_outer_1_25:(y[12x24],mean[12])->(ddT[12x12,78nz]) */
-static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i, j;
-  casadi_real **res1=res+1, *w2=w+13, *w3=w+301, *w4=w+2173;
-  const casadi_real **arg1=arg+2, *wr0, *wr1;
-  /* #0: @0 = input[0][0] */
-  wr0 = arg[0] ? arg[0] : casadi_zeros;
-  /* #1: @1 = input[1][0] */
-  wr1 = arg[1] ? arg[1] : casadi_zeros;
-  /* #2: @2 = repmat(@1, 24) */
-  for (i=0;i<24;++i) {
-    casadi_copy(wr1, 12, w2+ i*12);
-  }
-  /* #3: @3 = map24_rov4dof_outer(@0, @2) */
-  arg1[0]=wr0;
-  arg1[1]=w2;
-  res1[0]=w3;
-  if (casadi_f10(arg1, res1, iw, w, 0)) return 1;
-  /* #4: @4 = repsum(@3, 24) */
-  casadi_clear(w4, 78);
-    for (i=0;i<24;++i) {
-        for (j=0;j<78;++j) {
-            w4[j] += w3[j+i*78];
-          }
-      }
-  /* #5: output[0][0] = @4 */
-  casadi_copy(w4, 78, res[0]);
-  return 0;
-}
-
-/* rov4dof_ukf_predict_moments:(Y[25x12],Q[12x12],abk[3])->(x_pred[12],P_pred[12x12],ok) */
+/* rov4dof_ukf_predict_weights:(abk[3])->(wm[25],wc[25]) */
 static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i, j;
-  casadi_real **res1=res+3, *rr, *w00=w+2551, *w01=w+2554, *w02=w+2556, w03, *w05=w+2558, *w06=w+2858, *w07=w+2870, *w08=w+2882, *w09=w+2894, *w10=w+3182;
-  casadi_real *w11=w+3206, *w12=w+3284, *w14=w+3362;
-  const casadi_real **arg1=arg+3, *cs, *wr04, *wr13;
-  /* #0: @0 = input[2][0] */
-  casadi_copy(arg[2], 3, w00);
-  /* #1: {@1, @2} = rov4dof_ukf_weights(@0) */
-  arg1[0]=w00;
-  res1[0]=w01;
-  res1[1]=w02;
-  if (casadi_f1(arg1, res1, iw, w, 0)) return 1;
-  /* #2: @3 = @1[0] */
-  for (rr=(&w03), cs=w01+0; cs!=w01+1; cs+=1) *rr++ = *cs;
-  /* #3: @4 = input[0][0] */
-  wr04 = arg[0] ? arg[0] : casadi_zeros;
-  /* #4: @5 = @4' */
-  for (i=0, rr=w05, cs=wr04; i<12; ++i) for (j=0; j<25; ++j) rr[i+j*12] = *cs++;
-  /* #5: @6 = @5[:12] */
-  for (rr=w06, cs=w05+0; cs!=w05+12; cs+=1) *rr++ = *cs;
-  /* #6: @7 = (@3*@6) */
-  for (i=0, rr=w07, cs=w06; i<12; ++i) (*rr++)  = (w03*(*cs++));
-  /* #7: @3 = @1[1] */
-  for (rr=(&w03), cs=w01+1; cs!=w01+2; cs+=1) *rr++ = *cs;
-  /* #8: @8 = zeros(12x1) */
-  casadi_clear(w08, 12);
-  /* #9: @9 = @5[12:300] */
-  for (rr=w09, cs=w05+12; cs!=w05+300; cs+=1) *rr++ = *cs;
-  /* #10: @10 = ones(24x1) */
-  casadi_fill(w10, 24, 1.);
-  /* #11: @8 = mac(@9,@10,@8) */
-  casadi_mtimes_dense(w09, 12, 24, w10, 1, w08, 0);
-  /* #12: @8 = (@3*@8) */
-  for (i=0, rr=w08, cs=w08; i<12; ++i) (*rr++)  = (w03*(*cs++));
-  /* #13: @7 = (@7+@8) */
-  for (i=0, rr=w07, cs=w08; i<12; ++i) (*rr++) += (*cs++);
-  /* #14: output[0][0] = @7 */
-  casadi_copy(w07, 12, res[0]);
-  /* #15: @3 = @2[0] */
-  for (rr=(&w03), cs=w02+0; cs!=w02+1; cs+=1) *rr++ = *cs;
-  /* #16: @11 = rov4dof_outer_0_1(@6, @7) */
-  arg1[0]=w06;
-  arg1[1]=w07;
-  res1[0]=w11;
+  casadi_real **res1=res+2, *w0=w+4, *w1=w+7, *w2=w+32;
+  const casadi_real **arg1=arg+1;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 3, w0);
+  /* #1: {@1, @2} = rov4dof_ukf_point_weights(@0) */
+  arg1[0]=w0;
+  res1[0]=w1;
+  res1[1]=w2;
   if (casadi_f23(arg1, res1, iw, w, 0)) return 1;
-  /* #17: @11 = (@3*@11) */
-  for (i=0, rr=w11, cs=w11; i<78; ++i) (*rr++)  = (w03*(*cs++));
-  /* #18: @3 = @2[1] */
-  for (rr=(&w03), cs=w02+1; cs!=w02+2; cs+=1) *rr++ = *cs;
-  /* #19: @12 = rov4dof_outer_1_25(@9, @7) */
-  arg1[0]=w09;
-  arg1[1]=w07;
-  res1[0]=w12;
-  if (casadi_f24(arg1, res1, iw, w, 0)) return 1;
-  /* #20: @12 = (@3*@12) */
-  for (i=0, rr=w12, cs=w12; i<78; ++i) (*rr++)  = (w03*(*cs++));
-  /* #21: @11 = (@11+@12) */
-  for (i=0, rr=w11, cs=w12; i<78; ++i) (*rr++) += (*cs++);
-  /* #22: @13 = input[1][0] */
-  wr13 = arg[1] ? arg[1] : casadi_zeros;
-  /* #23: {@14, @3} = rov4dof_predicted(@7, @11, @13) */
-  arg1[0]=w07;
-  arg1[1]=w11;
-  arg1[2]=wr13;
-  res1[0]=w14;
-  res1[1]=(&w03);
-  if (casadi_f11(arg1, res1, iw, w, 0)) return 1;
-  /* #24: output[1][0] = @14 */
-  casadi_copy(w14, 144, res[1]);
-  /* #25: output[2][0] = @3 */
-  if (res[2]) res[2][0] = w03;
+  /* #2: output[0][0] = @1 */
+  casadi_copy(w1, 25, res[0]);
+  /* #3: output[1][0] = @2 */
+  casadi_copy(w2, 25, res[1]);
   return 0;
 }
 
-CASADI_SYMBOL_EXPORT int rov4dof_ukf_predict_moments(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+CASADI_SYMBOL_EXPORT int rov4dof_ukf_predict_weights(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
   return casadi_f22(arg, res, iw, w, mem);
 }
 
-CASADI_SYMBOL_EXPORT int rov4dof_ukf_predict_moments_checkout(void) {
+CASADI_SYMBOL_EXPORT int rov4dof_ukf_predict_weights_checkout(void) {
   return 0;
 }
 
-CASADI_SYMBOL_EXPORT void rov4dof_ukf_predict_moments_release(int mem) {
+CASADI_SYMBOL_EXPORT void rov4dof_ukf_predict_weights_release(int mem) {
 }
 
-CASADI_SYMBOL_EXPORT void rov4dof_ukf_predict_moments_incref(void) {
+CASADI_SYMBOL_EXPORT void rov4dof_ukf_predict_weights_incref(void) {
 }
 
-CASADI_SYMBOL_EXPORT void rov4dof_ukf_predict_moments_decref(void) {
+CASADI_SYMBOL_EXPORT void rov4dof_ukf_predict_weights_decref(void) {
 }
 
-CASADI_SYMBOL_EXPORT casadi_int rov4dof_ukf_predict_moments_n_in(void) { return 3;}
+CASADI_SYMBOL_EXPORT casadi_int rov4dof_ukf_predict_weights_n_in(void) { return 1;}
 
-CASADI_SYMBOL_EXPORT casadi_int rov4dof_ukf_predict_moments_n_out(void) { return 3;}
+CASADI_SYMBOL_EXPORT casadi_int rov4dof_ukf_predict_weights_n_out(void) { return 2;}
 
-CASADI_SYMBOL_EXPORT casadi_real rov4dof_ukf_predict_moments_default_in(casadi_int i) {
+CASADI_SYMBOL_EXPORT casadi_real rov4dof_ukf_predict_weights_default_in(casadi_int i) {
   switch (i) {
     default: return 0;
   }
 }
 
-CASADI_SYMBOL_EXPORT const char* rov4dof_ukf_predict_moments_name_in(casadi_int i) {
+CASADI_SYMBOL_EXPORT const char* rov4dof_ukf_predict_weights_name_in(casadi_int i) {
   switch (i) {
-    case 0: return "Y";
-    case 1: return "Q";
-    case 2: return "abk";
+    case 0: return "abk";
     default: return 0;
   }
 }
 
-CASADI_SYMBOL_EXPORT const char* rov4dof_ukf_predict_moments_name_out(casadi_int i) {
+CASADI_SYMBOL_EXPORT const char* rov4dof_ukf_predict_weights_name_out(casadi_int i) {
   switch (i) {
-    case 0: return "x_pred";
-    case 1: return "P_pred";
-    case 2: return "ok";
+    case 0: return "wm";
+    case 1: return "wc";
     default: return 0;
   }
 }
 
-CASADI_SYMBOL_EXPORT const casadi_int* rov4dof_ukf_predict_moments_sparsity_in(casadi_int i) {
+CASADI_SYMBOL_EXPORT const casadi_int* rov4dof_ukf_predict_weights_sparsity_in(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s7;
-    case 1: return casadi_s1;
-    case 2: return casadi_s5;
+    case 0: return casadi_s5;
     default: return 0;
   }
 }
 
-CASADI_SYMBOL_EXPORT const casadi_int* rov4dof_ukf_predict_moments_sparsity_out(casadi_int i) {
+CASADI_SYMBOL_EXPORT const casadi_int* rov4dof_ukf_predict_weights_sparsity_out(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s0;
-    case 1: return casadi_s1;
-    case 2: return casadi_s4;
+    case 0: return casadi_s8;
+    case 1: return casadi_s8;
     default: return 0;
   }
 }
 
-CASADI_SYMBOL_EXPORT int rov4dof_ukf_predict_moments_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 9;
-  if (sz_res) *sz_res = 6;
+CASADI_SYMBOL_EXPORT int rov4dof_ukf_predict_weights_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 2;
+  if (sz_res) *sz_res = 4;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 3506;
+  if (sz_w) *sz_w = 57;
   return 0;
 }
 
-CASADI_SYMBOL_EXPORT int rov4dof_ukf_predict_moments_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 9*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 6*sizeof(casadi_real*);
+CASADI_SYMBOL_EXPORT int rov4dof_ukf_predict_weights_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 2*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 4*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 3506*sizeof(casadi_real);
+  if (sz_w) *sz_w = 57*sizeof(casadi_real);
   return 0;
 }
 
 /* rov4dof_residual_0_1:(z_k[4],z_pred[4])->(dz[4],dzdzT[4x4]) */
-static int casadi_f26(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i, j;
   casadi_real **res1=res+2, *w0=w+7, *w1=w+11, *w2=w+15, *w3=w+19, *w4=w+35;
   const casadi_real **arg1=arg+2;
@@ -7855,7 +7810,7 @@ static int casadi_f26(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* rov4dof_residual_1_25:(z_k[4x24],z_pred[4])->(dz[4x24],dzdzT[4x4]) */
-static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f26(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i, j;
   casadi_real **res1=res+2, *w1=w+7, *w2=w+11, *w3=w+107, *w4=w+203, *w5=w+587;
   const casadi_real **arg1=arg+2, *wr0;
@@ -7888,7 +7843,7 @@ static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* rov4dof_mcc_noise:(R[4x4],mask[4],Pzz[4x4],innovation[4],sigma)->(R_used[4x4],ok) */
-static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34;
@@ -8139,7 +8094,7 @@ static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* rov4dof_mcukf_update:(x[12],P[12x12],z[4],p[17],R[4x4],mask[4],abk[3],sigma)->(x_post[12],P_post[12x12],innovation[4],S[4x4],ok) */
-static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
   casadi_real **res1=res+5, *rr, *w02=w+699, w03, *w05=w+843, *w06=w+846, *w07=w+946, *w08=w+950, *w09=w+952, w10, *w11=w+954, *w12=w+958;
   casadi_real *w13=w+962, *w14=w+1058, *w15=w+1082, *w16=w+1098, *w17=w+1194, *w18=w+1210, *w19=w+1214, *w20=w+1262, w21, *w22=w+1278;
@@ -8194,13 +8149,13 @@ static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[1]=w11;
   res1[0]=w12;
   res1[1]=w15;
-  if (casadi_f26(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f25(arg1, res1, iw, w, 0)) return 1;
   /* #18: {@16, @17} = rov4dof_residual_1_25(@13, @11) */
   arg1[0]=w13;
   arg1[1]=w11;
   res1[0]=w16;
   res1[1]=w17;
-  if (casadi_f27(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f26(arg1, res1, iw, w, 0)) return 1;
   /* #19: @6 = horzcat(@12, @16) */
   rr=w06;
   for (i=0, cs=w12; i<4; ++i) *rr++ = *cs++;
@@ -8243,7 +8198,7 @@ static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[4]=(&w10);
   res1[0]=w20;
   res1[1]=(&w21);
-  if (casadi_f28(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f27(arg1, res1, iw, w, 0)) return 1;
   /* #31: {@22, @2, @15, @10} = rov4dof_kalman(@0, @1, @17, @19, @20, @18) */
   arg1[0]=wr00;
   arg1[1]=wr01;
@@ -8274,7 +8229,7 @@ static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int rov4dof_mcukf_update(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f25(arg, res, iw, w, mem);
+  return casadi_f24(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int rov4dof_mcukf_update_checkout(void) {
@@ -8367,7 +8322,7 @@ CASADI_SYMBOL_EXPORT int rov4dof_mcukf_update_work_bytes(casadi_int *sz_arg, cas
 }
 
 /* rov4dof_residual_0_1:(z_k[4],z_pred[4])->(dz[4],dzdzT[4x4]) */
-static int casadi_f30(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i, j;
   casadi_real **res1=res+2, *w0=w+7, *w1=w+11, *w2=w+15, *w3=w+19, *w4=w+35;
   const casadi_real **arg1=arg+2;
@@ -8396,7 +8351,7 @@ static int casadi_f30(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* rov4dof_residual_1_25:(z_k[4x24],z_pred[4])->(dz[4x24],dzdzT[4x4]) */
-static int casadi_f31(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f30(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i, j;
   casadi_real **res1=res+2, *w1=w+7, *w2=w+11, *w3=w+107, *w4=w+203, *w5=w+587;
   const casadi_real **arg1=arg+2, *wr0;
@@ -8429,7 +8384,7 @@ static int casadi_f31(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* rov4dof_huber_noise:(R[4x4],mask[4],Pzz[4x4],innovation[4],gamma)->(R_used[4x4],ok) */
-static int casadi_f32(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f31(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -9098,7 +9053,7 @@ static int casadi_f32(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* rov4dof_huber_ukf_update:(x[12],P[12x12],z[4],p[17],R[4x4],mask[4],abk[3],gamma)->(x_post[12],P_post[12x12],innovation[4],S[4x4],ok) */
-static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
   casadi_real **res1=res+5, *rr, *w02=w+699, w03, *w05=w+843, *w06=w+846, *w07=w+946, *w08=w+950, *w09=w+952, w10, *w11=w+954, *w12=w+958;
   casadi_real *w13=w+962, *w14=w+1058, *w15=w+1082, *w16=w+1098, *w17=w+1194, *w18=w+1210, *w19=w+1214, *w20=w+1262, w21, *w22=w+1278;
@@ -9153,13 +9108,13 @@ static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[1]=w11;
   res1[0]=w12;
   res1[1]=w15;
-  if (casadi_f30(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f29(arg1, res1, iw, w, 0)) return 1;
   /* #18: {@16, @17} = rov4dof_residual_1_25(@13, @11) */
   arg1[0]=w13;
   arg1[1]=w11;
   res1[0]=w16;
   res1[1]=w17;
-  if (casadi_f31(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f30(arg1, res1, iw, w, 0)) return 1;
   /* #19: @6 = horzcat(@12, @16) */
   rr=w06;
   for (i=0, cs=w12; i<4; ++i) *rr++ = *cs++;
@@ -9202,7 +9157,7 @@ static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[4]=(&w10);
   res1[0]=w20;
   res1[1]=(&w21);
-  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f31(arg1, res1, iw, w, 0)) return 1;
   /* #31: {@22, @2, @15, @10} = rov4dof_kalman(@0, @1, @17, @19, @20, @18) */
   arg1[0]=wr00;
   arg1[1]=wr01;
@@ -9233,7 +9188,7 @@ static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int rov4dof_huber_ukf_update(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f29(arg, res, iw, w, mem);
+  return casadi_f28(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int rov4dof_huber_ukf_update_checkout(void) {
@@ -9326,7 +9281,7 @@ CASADI_SYMBOL_EXPORT int rov4dof_huber_ukf_update_work_bytes(casadi_int *sz_arg,
 }
 
 /* rov4dof_ckf_points:(x[12],L[12x12])->(X[12x24]) */
-static int casadi_f34(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -10031,7 +9986,7 @@ static int casadi_f34(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* map24_rov4dof_step:(x[12x24],u[4x24],p[17x24],dt[1x24])->(x_next[12x24]) */
-static int casadi_f36(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f35(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
   casadi_real* *res1;
   const casadi_real* *arg1;
@@ -10051,7 +10006,7 @@ static int casadi_f36(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* rov4dof_step_columns:(x[12x24],u[4],p[17],dt)->(x_next[12x24]) */
-static int casadi_f35(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f34(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
   casadi_real **res1=res+1, *w1=w+80, *w2=w+84, *w4=w+180, w5, *w6=w+588, *w7=w+612;
   const casadi_real **arg1=arg+4, *wr0, *wr3;
@@ -10081,14 +10036,14 @@ static int casadi_f35(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[2]=w4;
   arg1[3]=w6;
   res1[0]=w7;
-  if (casadi_f36(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f35(arg1, res1, iw, w, 0)) return 1;
   /* #8: output[0][0] = @7 */
   casadi_copy(w7, 288, res[0]);
   return 0;
 }
 
 /* rov4dof_outer_0_24:(y[12x24],mean[12])->(ddT[12x12,78nz]) */
-static int casadi_f37(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f36(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i, j;
   casadi_real **res1=res+1, *w2=w+13, *w3=w+301, *w4=w+2173;
   const casadi_real **arg1=arg+2, *wr0, *wr1;
@@ -10118,7 +10073,7 @@ static int casadi_f37(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* rov4dof_ckf_predict:(x[12],P[12x12],u[4],p[17],dt,Q[12x12])->(x_pred[12],P_pred[12x12],ok) */
-static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f32(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
   casadi_real **res1=res+3, *rr, w00, *w01=w+2551, *w03=w+2563, *w04=w+2707, w05, *w06=w+2851, *w07=w+3139, w09, *w10=w+3143, *w11=w+3431;
   casadi_real *w12=w+3455;
@@ -10140,7 +10095,7 @@ static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[0]=wr02;
   arg1[1]=w04;
   res1[0]=w06;
-  if (casadi_f34(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
   /* #6: @7 = input[2][0] */
   casadi_copy(arg[2], 4, w07);
   /* #7: @8 = input[3][0] */
@@ -10153,7 +10108,7 @@ static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[2]=wr08;
   arg1[3]=(&w09);
   res1[0]=w10;
-  if (casadi_f35(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f34(arg1, res1, iw, w, 0)) return 1;
   /* #10: @11 = ones(24x1) */
   casadi_fill(w11, 24, 1.);
   /* #11: @1 = mac(@10,@11,@1) */
@@ -10166,7 +10121,7 @@ static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[0]=w10;
   arg1[1]=w01;
   res1[0]=w12;
-  if (casadi_f37(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f36(arg1, res1, iw, w, 0)) return 1;
   /* #15: @12 = (@0*@12) */
   for (i=0, rr=w12, cs=w12; i<78; ++i) (*rr++)  = (w00*(*cs++));
   /* #16: @4 = input[5][0] */
@@ -10188,7 +10143,7 @@ static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int rov4dof_ckf_predict(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f33(arg, res, iw, w, mem);
+  return casadi_f32(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int rov4dof_ckf_predict_checkout(void) {
@@ -10273,7 +10228,7 @@ CASADI_SYMBOL_EXPORT int rov4dof_ckf_predict_work_bytes(casadi_int *sz_arg, casa
 }
 
 /* rov4dof_ckf_measured_points:(x[12],L[12x12],p[17])->(Z[4x24]) */
-static int casadi_f39(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f38(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14;
   a00=arg[0]? arg[0][0] : 0;
@@ -10432,7 +10387,7 @@ static int casadi_f39(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* rov4dof_residual_0_24:(z_k[4x24],z_pred[4])->(dz[4x24],dzdzT[4x4]) */
-static int casadi_f40(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f39(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i, j;
   casadi_real **res1=res+2, *w1=w+7, *w2=w+11, *w3=w+107, *w4=w+203, *w5=w+587;
   const casadi_real **arg1=arg+2, *wr0;
@@ -10465,7 +10420,7 @@ static int casadi_f40(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* rov4dof_ckf_moments:(L[12x12],DZ[4x24],Czz[4x4],z_pred[4],z[4],mask[4])->(innovation[4],Pzz[4x4],Pxz[12x4]) */
-static int casadi_f41(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f40(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -11553,7 +11508,7 @@ static int casadi_f41(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* rov4dof_ckf_update:(x[12],P[12x12],z[4],p[17],R[4x4],mask[4])->(x_post[12],P_post[12x12],innovation[4],S[4x4],ok) */
-static int casadi_f38(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f37(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
   casadi_real **res1=res+5, *rr, *w02=w+699, w03, *w05=w+843, w06, *w07=w+939, *w08=w+943, *w09=w+967, *w10=w+1063, *w11=w+1079, *w12=w+1083;
   casadi_real *w13=w+1087, *w14=w+1091, *w15=w+1107, *w16=w+1155, *w17=w+1171, w18;
@@ -11574,7 +11529,7 @@ static int casadi_f38(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[1]=w02;
   arg1[2]=wr04;
   res1[0]=w05;
-  if (casadi_f39(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f38(arg1, res1, iw, w, 0)) return 1;
   /* #5: @6 = 0.0416667 */
   w06 = 4.1666666666666664e-02;
   /* #6: @7 = zeros(4x1) */
@@ -11590,7 +11545,7 @@ static int casadi_f38(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[1]=w07;
   res1[0]=w09;
   res1[1]=w10;
-  if (casadi_f40(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f39(arg1, res1, iw, w, 0)) return 1;
   /* #11: @10 = (@6*@10) */
   for (i=0, rr=w10, cs=w10; i<16; ++i) (*rr++)  = (w06*(*cs++));
   /* #12: @11 = input[2][0] */
@@ -11607,7 +11562,7 @@ static int casadi_f38(const casadi_real** arg, casadi_real** res, casadi_int* iw
   res1[0]=w13;
   res1[1]=w14;
   res1[2]=w15;
-  if (casadi_f41(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f40(arg1, res1, iw, w, 0)) return 1;
   /* #15: @10 = input[4][0] */
   wr10 = arg[4] ? arg[4] : casadi_zeros;
   /* #16: {@16, @6} = rov4dof_noise(@10, @12, @14, @13) */
@@ -11648,7 +11603,7 @@ static int casadi_f38(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int rov4dof_ckf_update(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f38(arg, res, iw, w, mem);
+  return casadi_f37(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int rov4dof_ckf_update_checkout(void) {
@@ -11737,7 +11692,7 @@ CASADI_SYMBOL_EXPORT int rov4dof_ckf_update_work_bytes(casadi_int *sz_arg, casad
 }
 
 /* rov4dof_ckf_step:(x[12],P[12x12],u[4],p[17],dt,Q[12x12],z[4],R[4x4],mask[4])->(x_post[12],P_post[12x12],innovation[4],S[4x4],ok) */
-static int casadi_f42(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f41(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real **res1=res+5, *w00=w+3565, *w01=w+3577, *w02=w+3721, w04, *w06=w+3725, *w07=w+3737, w08, *w10=w+3881, *w11=w+3885, *w12=w+3889;
   const casadi_real **arg1=arg+9, *wr00, *wr01, *wr03, *wr05, *wr09;
   /* #0: @0 = input[0][0] */
@@ -11762,7 +11717,7 @@ static int casadi_f42(const casadi_real** arg, casadi_real** res, casadi_int* iw
   res1[0]=w06;
   res1[1]=w07;
   res1[2]=(&w08);
-  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
   /* #7: @2 = input[6][0] */
   casadi_copy(arg[6], 4, w02);
   /* #8: @9 = input[7][0] */
@@ -11781,7 +11736,7 @@ static int casadi_f42(const casadi_real** arg, casadi_real** res, casadi_int* iw
   res1[2]=w11;
   res1[3]=w12;
   res1[4]=(&w04);
-  if (casadi_f38(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f37(arg1, res1, iw, w, 0)) return 1;
   /* #11: output[0][0] = @0 */
   casadi_copy(w00, 12, res[0]);
   /* #12: output[1][0] = @1 */
@@ -11798,7 +11753,7 @@ static int casadi_f42(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int rov4dof_ckf_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f42(arg, res, iw, w, mem);
+  return casadi_f41(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int rov4dof_ckf_step_checkout(void) {
@@ -11893,7 +11848,7 @@ CASADI_SYMBOL_EXPORT int rov4dof_ckf_step_work_bytes(casadi_int *sz_arg, casadi_
 }
 
 /* rov4dof_ckf_predict_points:(x[12],P[12x12])->(X[24x12],ok) */
-static int casadi_f43(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f42(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i, j;
   casadi_real **res1=res+2, *rr, *w2=w+91, w3, *w4=w+235, *w5=w+523;
   const casadi_real **arg1=arg+2, *cs, *wr0, *wr1;
@@ -11910,7 +11865,7 @@ static int casadi_f43(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[0]=wr0;
   arg1[1]=w2;
   res1[0]=w4;
-  if (casadi_f34(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
   /* #4: @5 = @4' */
   for (i=0, rr=w5, cs=w4; i<24; ++i) for (j=0; j<12; ++j) rr[i+j*24] = *cs++;
   /* #5: output[0][0] = @5 */
@@ -11921,7 +11876,7 @@ static int casadi_f43(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int rov4dof_ckf_predict_points(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f43(arg, res, iw, w, mem);
+  return casadi_f42(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int rov4dof_ckf_predict_points_checkout(void) {
@@ -11973,7 +11928,7 @@ CASADI_SYMBOL_EXPORT const casadi_int* rov4dof_ckf_predict_points_sparsity_in(ca
 
 CASADI_SYMBOL_EXPORT const casadi_int* rov4dof_ckf_predict_points_sparsity_out(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s8;
+    case 0: return casadi_s9;
     case 1: return casadi_s4;
     default: return 0;
   }
@@ -11995,154 +11950,86 @@ CASADI_SYMBOL_EXPORT int rov4dof_ckf_predict_points_work_bytes(casadi_int *sz_ar
   return 0;
 }
 
-/* rov4dof_outer_0_24:(y[12x24],mean[12])->(ddT[12x12,78nz]) */
-static int casadi_f45(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i, j;
-  casadi_real **res1=res+1, *w2=w+13, *w3=w+301, *w4=w+2173;
-  const casadi_real **arg1=arg+2, *wr0, *wr1;
-  /* #0: @0 = input[0][0] */
-  wr0 = arg[0] ? arg[0] : casadi_zeros;
-  /* #1: @1 = input[1][0] */
-  wr1 = arg[1] ? arg[1] : casadi_zeros;
-  /* #2: @2 = repmat(@1, 24) */
-  for (i=0;i<24;++i) {
-    casadi_copy(wr1, 12, w2+ i*12);
-  }
-  /* #3: @3 = map24_rov4dof_outer(@0, @2) */
-  arg1[0]=wr0;
-  arg1[1]=w2;
-  res1[0]=w3;
-  if (casadi_f10(arg1, res1, iw, w, 0)) return 1;
-  /* #4: @4 = repsum(@3, 24) */
-  casadi_clear(w4, 78);
-    for (i=0;i<24;++i) {
-        for (j=0;j<78;++j) {
-            w4[j] += w3[j+i*78];
-          }
-      }
-  /* #5: output[0][0] = @4 */
-  casadi_copy(w4, 78, res[0]);
+/* rov4dof_ckf_predict_weights:()->(wm[24],wc[24]) */
+static int casadi_f43(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real *w0=w+0;
+  /* #0: @0 = all_0.0416667(24x1) */
+  casadi_fill(w0, 24, 4.1666666666666664e-02);
+  /* #1: output[0][0] = @0 */
+  casadi_copy(w0, 24, res[0]);
+  /* #2: output[1][0] = @0 */
+  casadi_copy(w0, 24, res[1]);
   return 0;
 }
 
-/* rov4dof_ckf_predict_moments:(Y[24x12],Q[12x12])->(x_pred[12],P_pred[12x12],ok) */
-static int casadi_f44(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i, j;
-  casadi_real **res1=res+3, *rr, w0, *w1=w+2551, *w3=w+2563, *w4=w+2851, *w5=w+2875, *w7=w+2953;
-  const casadi_real **arg1=arg+2, *cs, *wr2, *wr6;
-  /* #0: @0 = 0.0416667 */
-  w0 = 4.1666666666666664e-02;
-  /* #1: @1 = zeros(12x1) */
-  casadi_clear(w1, 12);
-  /* #2: @2 = input[0][0] */
-  wr2 = arg[0] ? arg[0] : casadi_zeros;
-  /* #3: @3 = @2' */
-  for (i=0, rr=w3, cs=wr2; i<12; ++i) for (j=0; j<24; ++j) rr[i+j*12] = *cs++;
-  /* #4: @4 = ones(24x1) */
-  casadi_fill(w4, 24, 1.);
-  /* #5: @1 = mac(@3,@4,@1) */
-  casadi_mtimes_dense(w3, 12, 24, w4, 1, w1, 0);
-  /* #6: @1 = (@0*@1) */
-  for (i=0, rr=w1, cs=w1; i<12; ++i) (*rr++)  = (w0*(*cs++));
-  /* #7: output[0][0] = @1 */
-  casadi_copy(w1, 12, res[0]);
-  /* #8: @5 = rov4dof_outer_0_24(@3, @1) */
-  arg1[0]=w3;
-  arg1[1]=w1;
-  res1[0]=w5;
-  if (casadi_f45(arg1, res1, iw, w, 0)) return 1;
-  /* #9: @5 = (@0*@5) */
-  for (i=0, rr=w5, cs=w5; i<78; ++i) (*rr++)  = (w0*(*cs++));
-  /* #10: @6 = input[1][0] */
-  wr6 = arg[1] ? arg[1] : casadi_zeros;
-  /* #11: {@7, @0} = rov4dof_predicted(@1, @5, @6) */
-  arg1[0]=w1;
-  arg1[1]=w5;
-  arg1[2]=wr6;
-  res1[0]=w7;
-  res1[1]=(&w0);
-  if (casadi_f11(arg1, res1, iw, w, 0)) return 1;
-  /* #12: output[1][0] = @7 */
-  casadi_copy(w7, 144, res[1]);
-  /* #13: output[2][0] = @0 */
-  if (res[2]) res[2][0] = w0;
+CASADI_SYMBOL_EXPORT int rov4dof_ckf_predict_weights(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f43(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int rov4dof_ckf_predict_weights_checkout(void) {
   return 0;
 }
 
-CASADI_SYMBOL_EXPORT int rov4dof_ckf_predict_moments(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f44(arg, res, iw, w, mem);
+CASADI_SYMBOL_EXPORT void rov4dof_ckf_predict_weights_release(int mem) {
 }
 
-CASADI_SYMBOL_EXPORT int rov4dof_ckf_predict_moments_checkout(void) {
-  return 0;
+CASADI_SYMBOL_EXPORT void rov4dof_ckf_predict_weights_incref(void) {
 }
 
-CASADI_SYMBOL_EXPORT void rov4dof_ckf_predict_moments_release(int mem) {
+CASADI_SYMBOL_EXPORT void rov4dof_ckf_predict_weights_decref(void) {
 }
 
-CASADI_SYMBOL_EXPORT void rov4dof_ckf_predict_moments_incref(void) {
-}
+CASADI_SYMBOL_EXPORT casadi_int rov4dof_ckf_predict_weights_n_in(void) { return 0;}
 
-CASADI_SYMBOL_EXPORT void rov4dof_ckf_predict_moments_decref(void) {
-}
+CASADI_SYMBOL_EXPORT casadi_int rov4dof_ckf_predict_weights_n_out(void) { return 2;}
 
-CASADI_SYMBOL_EXPORT casadi_int rov4dof_ckf_predict_moments_n_in(void) { return 2;}
-
-CASADI_SYMBOL_EXPORT casadi_int rov4dof_ckf_predict_moments_n_out(void) { return 3;}
-
-CASADI_SYMBOL_EXPORT casadi_real rov4dof_ckf_predict_moments_default_in(casadi_int i) {
+CASADI_SYMBOL_EXPORT casadi_real rov4dof_ckf_predict_weights_default_in(casadi_int i) {
   switch (i) {
     default: return 0;
   }
 }
 
-CASADI_SYMBOL_EXPORT const char* rov4dof_ckf_predict_moments_name_in(casadi_int i) {
+CASADI_SYMBOL_EXPORT const char* rov4dof_ckf_predict_weights_name_in(casadi_int i) {
   switch (i) {
-    case 0: return "Y";
-    case 1: return "Q";
     default: return 0;
   }
 }
 
-CASADI_SYMBOL_EXPORT const char* rov4dof_ckf_predict_moments_name_out(casadi_int i) {
+CASADI_SYMBOL_EXPORT const char* rov4dof_ckf_predict_weights_name_out(casadi_int i) {
   switch (i) {
-    case 0: return "x_pred";
-    case 1: return "P_pred";
-    case 2: return "ok";
+    case 0: return "wm";
+    case 1: return "wc";
     default: return 0;
   }
 }
 
-CASADI_SYMBOL_EXPORT const casadi_int* rov4dof_ckf_predict_moments_sparsity_in(casadi_int i) {
+CASADI_SYMBOL_EXPORT const casadi_int* rov4dof_ckf_predict_weights_sparsity_in(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s8;
-    case 1: return casadi_s1;
     default: return 0;
   }
 }
 
-CASADI_SYMBOL_EXPORT const casadi_int* rov4dof_ckf_predict_moments_sparsity_out(casadi_int i) {
+CASADI_SYMBOL_EXPORT const casadi_int* rov4dof_ckf_predict_weights_sparsity_out(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s0;
-    case 1: return casadi_s1;
-    case 2: return casadi_s4;
+    case 0: return casadi_s10;
+    case 1: return casadi_s10;
     default: return 0;
   }
 }
 
-CASADI_SYMBOL_EXPORT int rov4dof_ckf_predict_moments_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 8;
-  if (sz_res) *sz_res = 6;
+CASADI_SYMBOL_EXPORT int rov4dof_ckf_predict_weights_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 0;
+  if (sz_res) *sz_res = 3;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 3097;
+  if (sz_w) *sz_w = 24;
   return 0;
 }
 
-CASADI_SYMBOL_EXPORT int rov4dof_ckf_predict_moments_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 8*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 6*sizeof(casadi_real*);
+CASADI_SYMBOL_EXPORT int rov4dof_ckf_predict_weights_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 0*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 3*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 3097*sizeof(casadi_real);
+  if (sz_w) *sz_w = 24*sizeof(casadi_real);
   return 0;
 }
 
@@ -12208,22 +12095,22 @@ CASADI_SYMBOL_EXPORT int rov4dof_ukf_predict_points_batch(casadi_int N, const ca
   return 0;
 }
 
-/* rov4dof_ukf_predict_moments_batch: evaluate rov4dof_ukf_predict_moments for j = 0..N-1 on slices arg[k] + j*arg_step[k] and
+/* rov4dof_ukf_predict_weights_batch: evaluate rov4dof_ukf_predict_weights for j = 0..N-1 on slices arg[k] + j*arg_step[k] and
  * res[k] + j*res_step[k] (a step of 0 shares the argument). Returns 0, or 1 + j of the first
  * failing evaluation. */
-CASADI_SYMBOL_EXPORT int rov4dof_ukf_predict_moments_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
+CASADI_SYMBOL_EXPORT int rov4dof_ukf_predict_weights_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
-  const casadi_real* a[9];
-  casadi_real* r[6];
+  const casadi_real* a[2];
+  casadi_real* r[4];
   casadi_int iw[1];
-  casadi_real w[3951];
+  casadi_real w[57];
   casadi_int j, k;
-  for (k = 0; k < 9; ++k) a[k] = 0;
-  for (k = 0; k < 6; ++k) r[k] = 0;
+  for (k = 0; k < 2; ++k) a[k] = 0;
+  for (k = 0; k < 4; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
-    for (k = 0; k < 3; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
-    for (k = 0; k < 3; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
-    if (rov4dof_ukf_predict_moments(a, r, iw, w, 0)) return (int)(1 + j);
+    for (k = 0; k < 1; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
+    for (k = 0; k < 2; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
+    if (rov4dof_ukf_predict_weights(a, r, iw, w, 0)) return (int)(1 + j);
   }
   return 0;
 }
@@ -12348,22 +12235,22 @@ CASADI_SYMBOL_EXPORT int rov4dof_ckf_predict_points_batch(casadi_int N, const ca
   return 0;
 }
 
-/* rov4dof_ckf_predict_moments_batch: evaluate rov4dof_ckf_predict_moments for j = 0..N-1 on slices arg[k] + j*arg_step[k] and
+/* rov4dof_ckf_predict_weights_batch: evaluate rov4dof_ckf_predict_weights for j = 0..N-1 on slices arg[k] + j*arg_step[k] and
  * res[k] + j*res_step[k] (a step of 0 shares the argument). Returns 0, or 1 + j of the first
  * failing evaluation. */
-CASADI_SYMBOL_EXPORT int rov4dof_ckf_predict_moments_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
+CASADI_SYMBOL_EXPORT int rov4dof_ckf_predict_weights_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
-  const casadi_real* a[8];
-  casadi_real* r[6];
+  const casadi_real* a[1];
+  casadi_real* r[3];
   casadi_int iw[1];
-  casadi_real w[3530];
+  casadi_real w[24];
   casadi_int j, k;
-  for (k = 0; k < 8; ++k) a[k] = 0;
-  for (k = 0; k < 6; ++k) r[k] = 0;
+  for (k = 0; k < 1; ++k) a[k] = 0;
+  for (k = 0; k < 3; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
-    for (k = 0; k < 2; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
-    for (k = 0; k < 3; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
-    if (rov4dof_ckf_predict_moments(a, r, iw, w, 0)) return (int)(1 + j);
+    for (k = 0; k < 0; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
+    for (k = 0; k < 2; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
+    if (rov4dof_ckf_predict_weights(a, r, iw, w, 0)) return (int)(1 + j);
   }
   return 0;
 }

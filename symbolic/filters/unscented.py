@@ -7,9 +7,9 @@
     <m>_ukf_update(x, P, z, p, R, mask, abk)   -> (x_post, P_post, innovation, S, ok)
     <m>_ckf_step(x, P, u, p, dt, Q, z, R, mask) -> (x_post, P_post, innovation, S, ok)
                                                   calls predict then update (one C call)
-    <m>_ckf_predict_points(x, P)               -> (X, ok)           the predict in two halves, for the C
-    <m>_ckf_predict_moments(Y, Q)              -> (x_pred, P_pred, ok)   runtime (generated/c): it propagates
-    <m>_ukf_predict_points(x, P, abk), <m>_ukf_predict_moments(Y, Q, abk)  X through <m>_f_soa (Y)
+    <m>_ckf_predict_points(x, P)               -> (X, ok)           the points and weights of a predict, for
+    <m>_ckf_predict_weights()                  -> (wm, wc)          the C runtime (generated/c): it propagates
+    <m>_ukf_predict_points(x, P, abk), <m>_ukf_predict_weights(abk)  X through <m>_f_soa and forms the moments
 
 Predict (seed 000 eqs. 22-24, seed 002 eqs. 7-10): points from the symmetrised P by a guarded
 Cholesky factor, propagated through f, weighted mean, covariance of the residuals + Q (the
@@ -222,19 +222,15 @@ class SigmaPointFamily:
         L, ok = self.shared.cholesky(s["P"])
         return exported(name, s, {"X": self.points(s["x"], L, *rule).T, "ok": ok})
 
-    def predict_moments_function(self, name: str) -> ca.Function:
-        """(Y, Q, *rule_args) -> (x_pred, P_pred, ok): the second half, the moments of the propagated points Y
-        (n_points, n_x, the layout of predict_points' X) plus Q; the same leaves as predict_function's."""
-        n = self.model.n_x
-        inputs = {"Y": ca.MX.sym("Y", self.rule.n_points, n), "Q": ca.MX.sym("Q", n, n)}
-        inputs.update({name_: ca.MX.sym(name_, *arg.shape) for name_, arg in zip(self.rule_names, self.rule_args)})
-        rule = [inputs[name_] for name_ in self.rule_names]
-        Y = inputs["Y"].T
-        wm, wc = self._group_weights(rule)
-        x_pred = self._mean(wm, Y)
-        C, = self._looped(wc, self.shared.outer, [Y], [x_pred], summed=(0,))
-        P_pred, ok = self.shared.predicted(x_pred, C, inputs["Q"])
-        return exported(name, inputs, {"x_pred": x_pred, "P_pred": P_pred, "ok": ok})
+    def predict_weights_function(self, name: str) -> ca.Function:
+        """(*rule_args) -> (wm, wc): the mean and covariance weight of each point, in the order of predict_points'
+        rows (the C runtime forms the predicted moments of the propagated points with them, in loops over the
+        points that the compiler vectorises)."""
+        inputs = {name_: ca.MX.sym(name_, *arg.shape) for name_, arg in zip(self.rule_names, self.rule_args)}
+        rule = ca.Function(f"{self.prefix}_point_weights", self.rule_args,
+                           [ca.vertcat(*self.rule.wm), ca.vertcat(*self.rule.wc)], self.rule_names, ["wm", "wc"])
+        wm, wc = rule(*inputs.values()) if inputs else (ca.MX(ca.DM(rule()["wm"])), ca.MX(ca.DM(rule()["wc"])))
+        return exported(name, inputs, {"wm": wm, "wc": wc})
 
     def update_function(self, name: str, noise: ca.Function | None = None, extra_args=(), extra_names=()) -> ca.Function:
         """(x, P, z, p, R, mask, *rule_args, *extra) -> (x_post, P_post, innovation, S, ok).
@@ -276,7 +272,7 @@ def ckf_functions(model: Model, shared: SharedLeaves | None = None) -> tuple[ca.
     update = family.update_function(f"{m}_{names['update']}")
     return (predict, update, fused_step(f"{m}_{names['step']}", model, predict, update),
             family.predict_points_function(f"{m}_{names['predict_points']}"),
-            family.predict_moments_function(f"{m}_{names['predict_moments']}"))
+            family.predict_weights_function(f"{m}_{names['predict_weights']}"))
 
 
 def unscented_family(model: Model, shared: SharedLeaves | None = None) -> SigmaPointFamily:
@@ -293,4 +289,4 @@ def ukf_functions(model: Model, family: SigmaPointFamily | None = None) -> tuple
     names = FUNCTIONS["ukf"]
     return (family.predict_function(f"{m}_{names['predict']}"), family.update_function(f"{m}_{names['update']}"),
             family.predict_points_function(f"{m}_{names['predict_points']}"),
-            family.predict_moments_function(f"{m}_{names['predict_moments']}"))
+            family.predict_weights_function(f"{m}_{names['predict_weights']}"))

@@ -11,8 +11,8 @@ One implementation. Every rule of these filters -- the input checks, the missing
 gate with patience and inflation, covariance repair, dt substepping and its refusal, the transaction that
 leaves a refused call without effect, the reports -- is the C runtime of generated/c (abyssal_kalman.h),
 compiled into the model's library beside its generated steps, and shipped by `abyssal export`: a filter here
-is a filter object in a NumPy buffer (its memory), and each call is one call of ``abyssal_kalman_call``
-through the fast binding (casadi.external + Function.buffer, bound once). Python keeps the contract's
+is a filter object in a NumPy buffer (its memory), and each call is one call of the runtime's entry point for it
+(abyssal_kalman_binding.c) through the fast binding (casadi.external + Function.buffer, bound once). Python keeps the contract's
 shapes and types (a wrong shape or a complex array is refused here, naming the argument), the lock, the
 parameter buffer and the wording of the errors.
 
@@ -127,17 +127,21 @@ class KalmanFilter(FilterBase):
             raise ValueError(f"{type(self).__name__}: {runtime.message(code)}")
         self._runtime, self._memory, self.options = runtime, memory, values
         self._view(runtime, n, m)
-        # the call block [command, dt, u, z, p] and the return code, bound once to abyssal_kalman_call
+        # the call block [dt, u, z, p] and the return code, bound once to each of the runtime's calls
         n_u, n_p = model.n_u, model.n_p
-        self._io = np.zeros(2 + n_u + m + n_p)
-        self._u, self._z = self._io[2:2 + n_u], self._io[2 + n_u:2 + n_u + m]
-        self._init_contract(model, p_buffer=self._io[2 + n_u + m:])
+        self._io = np.zeros(1 + n_u + m + n_p)
+        self._u, self._z = self._io[1:1 + n_u], self._io[1 + n_u:1 + n_u + m]
+        self._init_contract(model, p_buffer=self._io[1 + n_u + m:])
         self._code = np.zeros(1)
-        buffer, self._call = runtime.call_function.buffer()
-        buffer.set_arg(0, memoryview(self._memory))
-        buffer.set_arg(1, memoryview(self._io))
-        buffer.set_res(0, memoryview(self._code))
-        self._buffer = buffer  # the evaluation holds a raw pointer to it (and it to the arrays above)
+        self._buffers, calls = [], {}
+        for name in kr.CALLS:
+            buffer, calls[name] = runtime.call_function(name).buffer()
+            buffer.set_arg(0, memoryview(self._memory))
+            buffer.set_arg(1, memoryview(self._io))
+            buffer.set_res(0, memoryview(self._code))
+            self._buffers.append(buffer)  # an evaluation holds a raw pointer to its buffer (and it to the arrays)
+        self._call_step, self._call_predict = calls["step"], calls["predict"]
+        self._call_update, self._call_check_p = calls["update"], calls["check_p"]
         # memoryviews: the cheapest way to move a few floats in and out on the hot path. The slice assignment
         # view[:] = u takes u's buffer directly and checks that u is exactly a float64 vector of the right
         # length: another format or shape raises ValueError, an object without a buffer (list, None) TypeError.
@@ -304,11 +308,12 @@ class KalmanFilter(FilterBase):
             self._u[:] = _vector(u, self.model.n_u, "u")
             if z is not None:
                 self._z[:] = _vector(z, self.model.n_y, "z")
-        io = self._io_view
-        io[1] = dt if type(dt) in _PLAIN_NUMBERS else check_dt(dt)
-        io[0] = kr.CALL_PREDICT if z is None else kr.CALL_STEP
+        self._io_view[0] = dt if type(dt) in _PLAIN_NUMBERS else check_dt(dt)
         saved = None if p is None and self._p_is_default else self._use_p(p)
-        self._call()
+        if z is None:
+            self._call_predict()
+        else:
+            self._call_step()
         code = self._code_view[0]
         if code >= 0.0:
             return code == 1.0
@@ -319,11 +324,9 @@ class KalmanFilter(FilterBase):
             self._u_view[:] = u
         except (TypeError, ValueError):
             self._u[:] = _vector(u, self.model.n_u, "u")
-        io = self._io_view
-        io[1] = dt if type(dt) in _PLAIN_NUMBERS else check_dt(dt)
-        io[0] = kr.CALL_PREDICT
+        self._io_view[0] = dt if type(dt) in _PLAIN_NUMBERS else check_dt(dt)
         saved = None if p is None and self._p_is_default else self._use_p(p)
-        self._call()
+        self._call_predict()
         if self._code_view[0] < 0.0:
             raise self._refusal(self._code_view[0], saved, "predict")
 
@@ -333,9 +336,11 @@ class KalmanFilter(FilterBase):
                 self._z_view[:] = z
             except (TypeError, ValueError):
                 self._z[:] = _vector(z, self.model.n_y, "z")
-        self._io_view[0] = kr.CALL_CHECK_P if z is None else kr.CALL_UPDATE
         saved = None if p is None and self._p_is_default else self._use_p(p)
-        self._call()
+        if z is None:
+            self._call_check_p()
+        else:
+            self._call_update()
         code = self._code_view[0]
         if code < 0.0:
             raise self._refusal(code, saved, "update")
@@ -359,7 +364,7 @@ class KalmanFilter(FilterBase):
         if saved_p is not None:
             self._p[:], self._p_is_default = saved_p
         n_u, m = self.model.n_u, self.model.n_y
-        u, z, p, dt = io[2:2 + n_u], io[2 + n_u:2 + n_u + m], io[2 + n_u + m:], float(io[1])
+        u, z, p, dt = io[1:1 + n_u], io[1 + n_u:1 + n_u + m], io[1 + n_u + m:], float(io[0])
         name = f"{type(self).__name__}.{call}"
         if code == kr.E_U:
             return ValueError(f"{name}: {_nonfinite('u', u)}")
