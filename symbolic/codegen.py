@@ -138,27 +138,53 @@ def _c_constant(value: float) -> str:
     return repr(value)
 
 
+#: operations that give the same bits wherever they are evaluated (IEEE correctly rounded, or exact): the SoA
+#: kernels evaluate those of them whose inputs are all shared once, before the loop. sin, cos, pow, ... stay in the
+#: loop, where libmvec's vector versions evaluate them as before.
+_HOISTABLE = {ca.OP_ASSIGN, ca.OP_ADD, ca.OP_SUB, ca.OP_MUL, ca.OP_DIV, ca.OP_NEG, ca.OP_SQRT, ca.OP_SQ, ca.OP_TWICE,
+              ca.OP_INV, ca.OP_LT, ca.OP_LE, ca.OP_EQ, ca.OP_NE, ca.OP_NOT, ca.OP_AND, ca.OP_OR, ca.OP_FABS,
+              ca.OP_FMIN, ca.OP_FMAX, ca.OP_COPYSIGN, ca.OP_SIGN, ca.OP_IF_ELSE_ZERO, ca.OP_FLOOR, ca.OP_CEIL}
+
+
 def soa_kernel(fn: ca.Function, batched: tuple[bool, ...]) -> str:
     """C of ``<name>_soa(N, ld, arg, res)``: fn for j < N, structure-of-arrays layout.
 
     Element i of a batched input k (and of every output) for particle j is at
-    ``arg[k][i*ld + j]``, i.e. an (rows, ld) C-ordered array; shared inputs are plain vectors.
+    ``arg[k][i*ld + j]``, i.e. an (rows, ld) C-ordered array; shared inputs are plain vectors, read once
+    (they must not alias an output). What depends only on shared inputs and constants through the operations
+    of _HOISTABLE (parameter-only masses, time constants, dt fractions and their quotients) is computed once,
+    before the loop, into ``c<k>``; the results are bit for bit those of evaluating it per particle.
     """
-    body = []
+    head, body, slots = [], [], set()
+    value: dict[int, str] = {}  # work slot -> the C name of its current value: "c<k>" (before the loop) or "w<slot>"
     for k in range(fn.n_instructions()):
         op, ins, outs = fn.instruction_id(k), fn.instruction_input(k), fn.instruction_output(k)
         if op == ca.OP_INPUT:
-            source = f"a{ins[0]}[{ins[1]}*ld+j]" if batched[ins[0]] else f"a{ins[0]}[{ins[1]}]"
-            body.append(f"w{outs[0]}={source};")
+            if batched[ins[0]]:
+                body.append(f"w{outs[0]}=a{ins[0]}[{ins[1]}*ld+j];")
+                value[outs[0]] = f"w{outs[0]}"
+                slots.add(outs[0])
+            else:
+                head.append(f"const casadi_real c{k}=a{ins[0]}[{ins[1]}];")
+                value[outs[0]] = f"c{k}"
         elif op == ca.OP_OUTPUT:
-            body.append(f"r{outs[0]}[{outs[1]}*ld+j]=w{ins[0]};")
+            body.append(f"r{outs[0]}[{outs[1]}*ld+j]={value[ins[0]]};")
         elif op == ca.OP_CONST:
-            body.append(f"w{outs[0]}={_c_constant(fn.instruction_constant(k))};")
+            head.append(f"const casadi_real c{k}={_c_constant(fn.instruction_constant(k))};")
+            value[outs[0]] = f"c{k}"
         elif op in _C_OPERATIONS:
-            body.append(f"w{outs[0]}=" + _C_OPERATIONS[op].format(*[f"w{a}" for a in ins]) + ";")
+            args = [value[a] for a in ins]
+            expression = _C_OPERATIONS[op].format(*args)
+            if op in _HOISTABLE and all(a.startswith("c") for a in args):
+                head.append(f"const casadi_real c{k}={expression};")
+                value[outs[0]] = f"c{k}"
+            else:
+                body.append(f"w{outs[0]}={expression};")
+                value[outs[0]] = f"w{outs[0]}"
+                slots.add(outs[0])
         else:
             raise NotImplementedError(f"{fn.name()}: SX operation {op} has no SoA translation")
-    work = ", ".join(f"w{m}" for m in range(max(1, fn.sz_w())))
+    work = ", ".join(f"w{m}" for m in sorted(slots))
     read = {fn.instruction_input(k)[0] for k in range(fn.n_instructions()) if fn.instruction_id(k) == ca.OP_INPUT}
     pointers = [f"  const casadi_real* a{k} = arg[{k}];" for k in range(fn.n_in()) if k in read]
     pointers += [f"  casadi_real* r{k} = res[{k}];" for k in range(fn.n_out())]
@@ -167,8 +193,10 @@ def soa_kernel(fn: ca.Function, batched: tuple[bool, ...]) -> str:
         f"\n/* {fn.name()}_soa({roles}): inputs marked [] vary per particle. */\n"
         f"CASADI_SYMBOL_EXPORT int {fn.name()}_soa(casadi_int N, casadi_int ld, const casadi_real** arg, casadi_real** res) {{\n"
         + "\n".join(pointers)
-        + "\n  casadi_int j;\n  ABYSSAL_SIMD_LOOP\n  for (j = 0; j < N; ++j) {\n"
-        + f"    casadi_real {work};\n    "
+        + "\n  casadi_int j;\n"
+        + "".join(f"  {line}\n" for line in head)
+        + "  ABYSSAL_SIMD_LOOP\n  for (j = 0; j < N; ++j) {\n"
+        + (f"    casadi_real {work};\n    " if slots else "    ")
         + "\n    ".join(body)
         + "\n  }\n  return 0;\n}\n"
     )

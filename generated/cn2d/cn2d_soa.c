@@ -50,11 +50,11 @@ CASADI_SYMBOL_EXPORT int cn2d_f_soa(casadi_int N, casadi_int ld, const casadi_re
   const casadi_real* a3 = arg[3];
   casadi_real* r0 = res[0];
   casadi_int j;
+  const casadi_real c1=a3[0];
   ABYSSAL_SIMD_LOOP
   for (j = 0; j < N; ++j) {
     casadi_real w0, w1, w2, w3, w4, w5, w6, w7;
     w0=a0[0*ld+j];
-    w1=a3[0];
     w2=a1[0*ld+j];
     w3=a1[2*ld+j];
     w4=cos(w3);
@@ -63,14 +63,14 @@ CASADI_SYMBOL_EXPORT int cn2d_f_soa(casadi_int N, casadi_int ld, const casadi_re
     w3=sin(w3);
     w7=w6*w3;
     w5=w5+w7;
-    w5=w1*w5;
+    w5=c1*w5;
     w0=w0+w5;
     r0[0*ld+j]=w0;
     w0=a0[1*ld+j];
     w2=w2*w3;
     w6=w6*w4;
     w2=w2-w6;
-    w1=w1*w2;
+    w1=c1*w2;
     w0=w0+w1;
     r0[1*ld+j]=w0;
   }
@@ -83,16 +83,16 @@ CASADI_SYMBOL_EXPORT int cn2d_h_soa(casadi_int N, casadi_int ld, const casadi_re
   const casadi_real* a1 = arg[1];
   casadi_real* r0 = res[0];
   casadi_int j;
+  const casadi_real c1=a1[0];
+  const casadi_real c5=a1[1];
   ABYSSAL_SIMD_LOOP
   for (j = 0; j < N; ++j) {
-    casadi_real w0, w1, w2;
+    casadi_real w0, w1;
     w0=a0[0*ld+j];
-    w1=a1[0];
-    w0=w0-w1;
+    w0=w0-c1;
     w0=w0*w0;
     w1=a0[1*ld+j];
-    w2=a1[1];
-    w1=w1-w2;
+    w1=w1-c5;
     w1=w1*w1;
     w0=w0+w1;
     w0=sqrt(w0);
