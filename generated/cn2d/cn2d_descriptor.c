@@ -60,10 +60,10 @@ const abyssal_model cn2d_descriptor = {
   {cn2d_ekf_step, 19, 10, 0, 60},
   {cn2d_ckf_predict_points, 4, 4, 0, 35},
   {cn2d_ckf_predict_weights, 0, 3, 0, 4},
-  {cn2d_ckf_update, 12, 11, 0, 48},
+  {cn2d_ckf_update, 12, 9, 0, 38},
   {cn2d_ukf_predict_points, 6, 4, 0, 42},
   {cn2d_ukf_predict_weights, 2, 4, 0, 17},
-  {cn2d_ukf_update, 14, 11, 0, 56},
-  {cn2d_mcukf_update, 15, 11, 0, 57},
-  {cn2d_huber_ukf_update, 15, 11, 0, 57}
+  {cn2d_ukf_update, 14, 9, 0, 45},
+  {cn2d_mcukf_update, 15, 9, 0, 46},
+  {cn2d_huber_ukf_update, 15, 9, 0, 46}
 };

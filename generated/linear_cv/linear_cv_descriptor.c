@@ -60,10 +60,10 @@ const abyssal_model linear_cv_descriptor = {
   {linear_cv_ekf_step, 19, 10, 0, 156},
   {linear_cv_ckf_predict_points, 4, 4, 0, 118},
   {linear_cv_ckf_predict_weights, 0, 3, 0, 8},
-  {linear_cv_ckf_update, 12, 11, 0, 192},
+  {linear_cv_ckf_update, 12, 9, 0, 114},
   {linear_cv_ukf_predict_points, 6, 4, 0, 129},
   {linear_cv_ukf_predict_weights, 2, 4, 0, 25},
-  {linear_cv_ukf_update, 14, 11, 0, 213},
-  {linear_cv_mcukf_update, 15, 11, 0, 213},
-  {linear_cv_huber_ukf_update, 15, 11, 0, 213}
+  {linear_cv_ukf_update, 14, 9, 0, 119},
+  {linear_cv_mcukf_update, 15, 9, 0, 119},
+  {linear_cv_huber_ukf_update, 15, 9, 0, 120}
 };

@@ -29,7 +29,9 @@ import casadi as ca
 from ..model import Model
 from .common import call_columns, exported, leaf, measurement, step_inputs, transition
 from .families import FUNCTIONS
-from .linalg import all_finite, guarded_cholesky, symmetrise, upper_mirrored, weight_groups, weighted_outer
+from .linalg import (
+    all_finite, guarded_cholesky, symmetrise, upper_mirrored, weight_groups, weighted_outer, weighted_sum,
+)
 from .measurement import gain_update, masked_columns, masked_covariance, masked_innovation, residual
 from .sigma_points import SigmaPointRule, cubature_rule, scaled_unscented_rule
 
@@ -42,6 +44,11 @@ STEP_IN = PREDICT_IN + ["z", "R", "mask"]
 #: a measurement of at most this many SX instructions (a selection of states, a range) is inlined at every
 #: point of an update instead of called in a loop: the loop's copies would cost more than h (benchmarks/README.md)
 INLINE_MEASUREMENT = 64
+#: an update whose measurement is inlined (INLINE_MEASUREMENT) and whose residual products m (m + 1) / 2 per point,
+#: times the points, are at most this many computes h at the points, their mean, the residuals and their weighted
+#: outer products in one leaf (straight-line SX) instead of a loop of calls over the points, whose calls and copies
+#: cost more than the few products (rov4dof: 240 products)
+INLINE_RESIDUALS = 1000
 
 
 def noise_leaf(model: Model, name: str, measurement_noise, extra_args=(), extra_names=()) -> ca.Function:
@@ -108,6 +115,9 @@ class SigmaPointFamily:
         <prefix>_measured_points(x, L, p, *rule_args) -> Z h at every point, inlined (a measurement of
                                                            at most INLINE_MEASUREMENT instructions;
                                                            a costlier h is called in a loop instead)
+        <prefix>_measured_moments(x, L, p, *rule_args) -> (z_pred, DZ, Czz)   instead, when the residuals'
+                                                           products are few (INLINE_RESIDUALS): h, the mean,
+                                                           the residuals and sum_k wc_k dz_k dz_k^T in one leaf
         <prefix>_weights(*rule_args) -> (wm, wc)           one mean and one covariance weight per
                                                            group of points with equal weights
         <prefix>_moments(L, DZ, Czz, z_pred, z, mask, *rule_args) -> (innovation, Pzz, Pxz)   masked,
@@ -132,13 +142,21 @@ class SigmaPointFamily:
         x, L = ca.SX.sym("x", n), ca.SX.sym("L", n, n)
         X = self.rule.points(x, ca.tril(L))
         self.points = leaf(f"{prefix}_points", [x, L, *self.rule_args], [X], ["x", "L", *self.rule_names], ["X"])
-        self.measured_points = None
+        self.measured_points = self.measured_moments = None
+        m, points = model.n_y, self.rule.n_points
         if self.shared.h.n_instructions() <= INLINE_MEASUREMENT:
             p = ca.SX.sym("p", model.n_p)
             h = ca.Function("h", [model.x, model.p], [model.y])  # inlined at each point
-            Z = ca.horzcat(*[h(X[:, k], p) for k in range(self.rule.n_points)])
-            self.measured_points = leaf(f"{prefix}_measured_points", [x, L, p, *self.rule_args], [Z],
-                                        ["x", "L", "p", *self.rule_names], ["Z"])
+            Z = ca.horzcat(*[h(X[:, k], p) for k in range(points)])
+            if m * (m + 1) // 2 * points <= INLINE_RESIDUALS:
+                z_pred = weighted_sum(Z, self.rule.wm)
+                DZ = ca.horzcat(*[residual(Z[:, k], z_pred, model.angle_outputs) for k in range(points)])
+                self.measured_moments = leaf(f"{prefix}_measured_moments", [x, L, p, *self.rule_args],
+                                             [z_pred, DZ, weighted_outer(DZ, self.rule.wc)],
+                                             ["x", "L", "p", *self.rule_names], ["z_pred", "DZ", "Czz"])
+            else:
+                self.measured_points = leaf(f"{prefix}_measured_points", [x, L, p, *self.rule_args], [Z],
+                                            ["x", "L", "p", *self.rule_names], ["Z"])
         groups_m, groups_c = weight_groups(self.rule.wm), weight_groups(self.rule.wc)
         self.ranges = [(ks[0], ks[-1] + 1) for _, ks in groups_m]
         if [list(range(a, b)) for a, b in self.ranges] != [ks for _, ks in groups_m] or \
@@ -240,13 +258,16 @@ class SigmaPointFamily:
         """
         s, rule, extra = self._inputs(UPDATE_IN, extra_args, extra_names)
         L, ok_points = self.shared.cholesky(s["P"])
-        if self.measured_points is not None:
-            Z = self.measured_points(s["x"], L, s["p"], *rule)
+        if self.measured_moments is not None:
+            z_pred, DZ, Czz = self.measured_moments(s["x"], L, s["p"], *rule)
         else:
-            Z = call_columns(self.shared.h, self.points(s["x"], L, *rule), s["p"])
-        wm, wc = self._group_weights(rule)
-        z_pred = self._mean(wm, Z)
-        DZ, Czz = self._looped(wc, self.shared.residual, [Z], [z_pred], summed=(1,))
+            if self.measured_points is not None:
+                Z = self.measured_points(s["x"], L, s["p"], *rule)
+            else:
+                Z = call_columns(self.shared.h, self.points(s["x"], L, *rule), s["p"])
+            wm, wc = self._group_weights(rule)
+            z_pred = self._mean(wm, Z)
+            DZ, Czz = self._looped(wc, self.shared.residual, [Z], [z_pred], summed=(1,))
         innovation, Pzz, Pxz = self.measurement_moments(L, DZ, Czz, z_pred, s["z"], s["mask"], *rule)
         R_used, ok_noise = (noise or self.shared.noise)(s["R"], s["mask"], Pzz, innovation, *extra)
         x_post, P_post, S, ok = self.shared.kalman(s["x"], s["P"], Pzz, Pxz, R_used, innovation)
