@@ -6,9 +6,10 @@
 
 ``load`` reads ``<folder>/manifest.json``, checks it against its own integrity record (integrity.py:
 a hand-edited manifest is refused, naming the field) and every source against the manifest's sha256
-(a hand-edited, truncated or missing file is refused, naming the file), compiles the sources on
-first use through the shared per-user cache (see build.py) and returns a ModelBundle. The cache
-entry is named by the manifest's model name (a checked C identifier), never by the path given.
+(a hand-edited, truncated or missing file is refused, naming the file), compiles the sources with the
+C runtime of the Kalman family (generated/c) on first use through the shared per-user cache (see
+build.py) and returns a ModelBundle. The cache entry is named by the manifest's model name (a checked C
+identifier), never by the path given.
 """
 from __future__ import annotations
 
@@ -20,7 +21,7 @@ import threading
 from pathlib import Path
 
 from . import integrity
-from .build import BuildError, CompilerNotFoundError, build
+from .build import BuildError, CompilerNotFoundError, build, runtime_sources
 from .bundle import BatchBinding, Binding, CompiledFunction, ModelBundle
 
 GENERATED_DIR = Path(__file__).resolve().parent
@@ -181,7 +182,7 @@ def load(name_or_path) -> ModelBundle:
         bundle = _BUNDLES.get(key)
         if bundle is None:
             manifest, sources = read_folder(folder)
-            bundle = ModelBundle(manifest, build(manifest["model"], sources))
+            bundle = ModelBundle(manifest, build(manifest["model"], {**sources, **runtime_sources()}))
             bundle.folder = folder
             _BUNDLES[key] = bundle
     return bundle

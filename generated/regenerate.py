@@ -67,7 +67,7 @@ def model_files(model, families=DEFAULT_FILTERS, origin=None) -> dict[str, str]:
     carried = {fn.name() for unit in filters for fn in unit.functions}
     units = [codegen.Unit("model", tuple(fn for fn in codegen.model_functions(model) if fn.name() not in carried)),
              *filters]
-    generated = {fn.name() for unit in units for fn in unit.functions}
+    generated = {fn.name() for unit in units for fn in unit.functions} | {f"{model.name}_descriptor"}
     clashes = sorted(fn.name() for fn in model.functions if fn.name() in generated)
     if clashes:
         raise ValueError(f"model {model.name!r}: functions {clashes} have the names of generated model or filter "

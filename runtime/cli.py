@@ -1,4 +1,4 @@
-"""The `abyssal` command: regenerate, verify, reproduce, bench, cache."""
+"""The `abyssal` command: regenerate, verify, export, reproduce, bench, cache."""
 from __future__ import annotations
 
 import argparse
@@ -142,6 +142,17 @@ def _bench(args) -> int:
     return importlib.import_module("bench").main(json_output=args.json, out=args.out, quick=args.quick)
 
 
+def _export(args) -> int:
+    """`abyssal export NAME|DIR --filter F --out DIR`: a self-contained C project of the filter (abyssal/export.py)."""
+    import importlib
+
+    export = importlib.import_module("abyssal.export")  # the module (the package exports a function `export`)
+    folder = export.export(args.target, filter=args.filter, out=args.out, steps=args.steps, seed=args.seed)
+    print(f"wrote {folder}: cmake -S {folder} -B {folder}/build && cmake --build {folder}/build && "
+          f"(cd {folder}/build && ctest)")
+    return 0
+
+
 def _reproduce(args) -> int:
     from abyssal.runtime.experiments import reproduce
 
@@ -213,6 +224,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quick", action="store_true", help="fewer repetitions (smoke run)")
     p.add_argument("folders", nargs="*", metavar="DIR", help="model folders to time (default: the built-in benchmarks)")
     p.set_defaults(run=_bench)
+
+    p = sub.add_parser("export", help="a self-contained C99 project of a filter for the vehicle (no Python needed)",
+                       description="Writes the model's generated C, the C runtime of the Kalman family, a header with "
+                                   "the model's layout and units, CMakeLists.txt, the example run_csv, a C++17 wrapper "
+                                   "and test vectors recorded from the Python filter (ctest runs them).")
+    p.add_argument("target", metavar="NAME|DIR", help="a built-in model name or a model folder written by abyssal.generate")
+    p.add_argument("--filter", required=True, choices=["ekf", "ukf", "ckf", "mcukf", "huber"])
+    p.add_argument("--out", required=True, metavar="DIR", help="a new or empty folder (or an earlier export)")
+    p.add_argument("--steps", type=int, default=10_000, help="steps of the recorded test vectors (default: %(default)s)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the recorded run (default: %(default)s)")
+    p.set_defaults(run=_export)
 
     from .experiments.reproduce import EXPERIMENTS  # the registry (light: the experiments load when run)
 
