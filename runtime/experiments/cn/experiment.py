@@ -498,7 +498,7 @@ def figures(rows, out, config: CnConfig, seed: int = 0, prepared=None, settings:
                     label=f"leader {k}")
         ax.set(xlabel="east (m)", ylabel="north (m)", title=f"{geometry}: {_leaders_text(geometry)}", aspect="equal")
         ax.title.set_fontsize(8)
-        ax.legend(fontsize=7, loc="center right")
+        ax.legend(fontsize=7, loc="best")  # the least-covered corner: the tracks differ per geometry and duration
         ax = axes[1, j]
         angle = crossing_angles(trial)
         ax.plot(trial.t, angle, color="black", lw=1)

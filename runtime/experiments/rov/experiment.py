@@ -254,6 +254,10 @@ def _cell(stats: dict | None, axis: str, width: int) -> str:
 
 #: the unit of each pose axis in our tables (psi as the state: rad)
 UNITS = {"x": "m", "y": "m", "z": "m", "psi": "rad"}
+#: how the paper's psi column is read (it prints no unit)
+PSI_READING = ("psi: ours in rad, the error wrapped to (-pi, pi]. The paper prints no unit for psi; we read it as rad, "
+               "the unit of its SI model (its R and Q), its errors then not wrapped (its values reach 14.6, more than "
+               "pi). A reading in deg cannot be ruled out: its psi cells are this reading, not a printed unit.")
 
 
 def table3(rows: list[dict], reading: str = "plain") -> str:
@@ -265,8 +269,7 @@ def table3(rows: list[dict], reading: str = "plain") -> str:
     runs = max((v["runs"] for v in stats.values()), default=0)
     lines = [f"Table 3 (seed 000): RMSE, truth under the '{reading}' process-noise reading, {runs} run(s)",
              f"ours: {MEAN_SD}; paper: Table 3 as printed (how many runs it averages is not stated; its CKF is one "
-             "column: compare both of ours). psi: ours in rad; the paper prints no unit for psi (its values reach "
-             "14.6, more than pi: not a wrapped RMSE in rad), so its psi cells are not ours' unit for certain.", ""]
+             f"column: compare both of ours). {PSI_READING}", ""]
     head = f"{'sea':<5}{'axis':<8}" + "".join(f"{label[:27]:>28}" for label in labels)
     lines += [head, f"{'':<13}" + "".join(f"{'ours':>19}{'paper':>9}" for _ in labels), "-" * len(head)]
     for sea in seas:
@@ -394,8 +397,8 @@ def document(rows: list[dict], config: RovConfig, prepared=None) -> dict:
 def figures(rows: list[dict], out: Path, config: RovConfig | None = None, seed: int = 0, prepared=None,
             settings: str | None = None) -> list[Path]:
     """Per sea state: ``rov_rmse_sea_<s>.png``, RMSE bars (the paper's Figs. 11-12) from the rows, x, y, z (m) and
-    psi (rad) in panels of their own, the paper's Table 3 values as markers on x, y, z (it prints no unit for
-    psi); ``rov_errors_sea_<s>.png``, the pose error over time of the paper's filters in run 0 (its Figs. 5, 7,
+    psi (rad) in panels of their own, the paper's Table 3 values as markers (its psi read as rad: PSI_READING);
+    ``rov_errors_sea_<s>.png``, the pose error over time of the paper's filters in run 0 (its Figs. 5, 7,
     9), re-run here from the same seed, so it shows a run that is in the table."""
     from abyssal.generated import load
 
@@ -412,7 +415,7 @@ def figures(rows: list[dict], out: Path, config: RovConfig | None = None, seed: 
     runs = len({r["run"] for r in rows})
     stamp = (f"{settings}: " if settings else "") + (f"{runs} run(s), seed {seed}, {config.scenario.duration:g} s of the "
                                                       f"path, N = {config.n_particles}")
-    note = {1: "paper's psi not drawn: Table 3 prints no unit for psi\n(its values reach 14.6 > pi)"}
+    note = {1: "paper's psi: no unit printed, read as rad\n(its SI model; 14.6 > pi: errors not wrapped)"}
     written = []
     for sea in SEA_STATES:
         metrics = {k[2]: v for k, v in stats.items() if k[0] == main and k[1] == sea}
@@ -423,7 +426,7 @@ def figures(rows: list[dict], out: Path, config: RovConfig | None = None, seed: 
         written.append(plots.rmse_bars(
             metrics, theirs, f"RMSE, sea state {sea}, '{main}' reading: mean of the per-run RMSE ± sd over runs "
             "(cf. the paper's Figs. 11-12)", out / f"rov_rmse_sea_{sea.replace('-', '_')}.png",
-            paper_axes=("x", "y", "z"), paper_label="paper, Table 3 (quoted)", notes=note, ordered=labels, settings=stamp))
+            paper_label="paper, Table 3 (quoted)", notes=note, ordered=labels, settings=stamp))
     shown = tuple(spec for spec in config.filters if spec.label in PAPER_COLUMN)
     seed0 = run_seeds(seed, 1)[0]
     for case, sea, reading in config.cases():
