@@ -439,8 +439,9 @@ def test_an_accepted_input_glitch_is_integrated_in_substeps_not_left_absurd(rov,
 
 @pytest.mark.parametrize("name", ["UKF", "CKF"])
 def test_an_input_that_blows_up_every_substep_is_refused_naming_u(rov, name):
-    """u = 1e8 N: no subdivision makes the sigma-point predict stable (the EKF's is, in 64 substeps); the step is refused naming u (not dt, which was stable
-    before), the filter is unchanged and goes on as a twin that never saw it."""
+    """u = 1e8 N: no subdivision makes the sigma-point predict stable (the EKF's is, in 64 substeps); the step is
+    refused naming u (not dt, which was stable before), the filter is unchanged and goes on as a twin that never saw
+    it."""
     filt, twin = make(name, rov), make(name, rov)
     for f in (filt, twin):
         f.step(np.array([10.0, 5.0, 2.0, 0.2]), 0.1, np.zeros(4))
