@@ -146,8 +146,9 @@ def rmse_vs_size(rows, ordered, path: Path, stamp: str, written: list) -> None:
            ylabel="horizontal position RMSE (m)",
            title="Horizontal position RMSE per GP size and training draw\n(filtered x, y: our reading of the paper's "
            "'prediction')")
-    if sizes:
-        ax.set_xticks(sizes, [str(n) for n in sizes])
+    ticks = sorted(set(sizes) | {paper.REGRESSORS})
+    ax.set_xticks(ticks, [str(n) for n in ticks])
+    ax.set_xticks([], minor=True)
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=6.5, loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=2, frameon=False)
     fig.set_size_inches(9, 7.5)
