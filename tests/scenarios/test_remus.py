@@ -266,3 +266,34 @@ def test_report_names_its_statistics_and_computes_the_paper_checks():
     assert "sd (ddof 1)" in text and "BETWEEN training draws" in text and "ORACLE" in text
     assert "sigma 14.6908 m exceeds sqrt(20) x mean = 10.8 m" in text and "sigma 8.5834 m exceeds" in text
     assert "closest: UKF (oracle); no reading is within a factor 2" in text   # rmse_x is 2.5x the paper's
+
+
+def test_resume_refuses_a_bad_table_before_the_gps_are_trained(tmp_path, monkeypatch):
+    import argparse
+
+    from abyssal.runtime.experiments import campaign, reproduce
+    from abyssal.runtime.experiments.remus import experiment
+
+    def no_training(*args, **kwargs):
+        raise AssertionError("prepare ran: the GPs were trained before the table was checked")
+
+    monkeypatch.setattr(experiment, "prepare", no_training)
+    args = argparse.Namespace(runs=1, seed=0, particles=None, workers=0, scheduler=None, resume=True, quick=False,
+                              out=str(tmp_path), json=False)
+    table = tmp_path / "remus.csv"
+    table.write_text("run,case,filter,metric,value\n0,draw 4,GP-UKF N=100,prediction,1.0\n")
+    with pytest.raises(campaign.TableRefused, match="no sidecar"):        # a table abyssal did not write
+        reproduce.run("remus", args)
+    rows = [{"run": 0, "case": "draw 4", "filter": "GP-UKF N=100", "metric": "prediction", "value": 1.0},
+            {"run": 0, "case": "draw 4", "filter": "GP-UKF N=100", "metric": "rmse_x", "value": 0.5}]
+    campaign.run_campaign(lambda config, seed: rows, "any config", 1, 0, workers=0, csv_path=table, experiment="remus",
+                          progress=False)
+    campaign.check_resume(table, "remus", 0)                               # as written: accepted
+    with pytest.raises(campaign.TableRefused, match="different seed"):
+        campaign.check_resume(table, "remus", 1)
+    table.write_text(table.read_text().replace("0.5", "0.6"))               # a changed value
+    with pytest.raises(campaign.TableRefused, match="line 3"):
+        reproduce.run("remus", args)
+    args.resume = False                                                     # a fresh start needs no check: prepare runs
+    with pytest.raises(AssertionError, match="prepare ran"):
+        reproduce.run("remus", args)
