@@ -509,11 +509,12 @@ def document(rows, config: RemusConfig, prepared: dict) -> dict:
 
 
 # ------------------------------------------------------------------------------------------ figures
-def figures(rows, out: Path, config: RemusConfig, seed: int, prepared: dict) -> list[Path]:
-    """The figures (figures.py of this folder), from the rows and a rerun of run 0 (the same numbers as the table's)."""
+def figures(rows, out: Path, config: RemusConfig, seed: int, prepared: dict, settings: str | None = None) -> list[Path]:
+    """The figures (figures.py of this folder), from the rows and a rerun of run 0 (the same numbers as the table's);
+    settings: the command that made the run (stamped into every figure)."""
     from . import figures as remus_figures
 
-    return remus_figures.all_figures(rows, Path(out), config, seed, prepared)
+    return remus_figures.all_figures(rows, Path(out), config, seed, prepared, settings)
 
 
 #: the name `abyssal reproduce` looks up (reproduce.py)

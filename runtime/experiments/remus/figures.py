@@ -7,8 +7,9 @@
 * remus_surge_error.png     surge error over time, run 0, with the sensor's error (cf. Fig. 5)
 
 Every figure uses one look per filter (``style``: runtime/plots.filter_style with the same ``ordered`` tuple
-everywhere; the oracle in the shared oracle look, GP sizes by line style, next-state targets dotted
-with hollow triangles: a local rule until plots.py has one for sizes), and says which run made it (stamp_settings).
+everywhere; the oracle in the shared oracle look; the UKF readings and the GP sizes in their family's colour
+with a line style and a marker each (VARIANT_MARKERS), next-state targets dotted with the size's marker hollow: a
+local rule until plots.py has one for sizes), and says which run made it (stamp_settings: the command, --quick).
 """
 from __future__ import annotations
 
@@ -26,6 +27,10 @@ ORACLE = READINGS["oracle"][0]
 plt = plots.plt
 
 
+#: markers of one family's variants (UKF readings, GP sizes), so markers alone tell them apart
+VARIANT_MARKERS = ("o", "s", "^", "P", "X")
+
+
 def style(name: str, ordered: tuple[str, ...]) -> dict:
     """The look of a filter in every remus figure (module docstring)."""
     if name == ORACLE:
@@ -33,9 +38,14 @@ def style(name: str, ordered: tuple[str, ...]) -> dict:
     s = plots.filter_style(name, ordered)
     if is_gp(name):
         sizes = sorted({int(n.split("N=")[1]) for n in ordered if is_gp(n)})
-        s["linestyle"] = plots.LINESTYLES[sizes.index(int(name.split("N=")[1])) % len(plots.LINESTYLES)]
+        k = sizes.index(int(name.split("N=")[1]))
+        s.update(linestyle=plots.LINESTYLES[k % len(plots.LINESTYLES)], marker=VARIANT_MARKERS[k % len(VARIANT_MARKERS)])
         if "(state)" in name:
-            s.update(marker="v", markerfacecolor="none", linestyle=":")
+            s.update(markerfacecolor="none", linestyle=":")
+    else:
+        readings = [n for n in ordered if not is_gp(n) and n != ORACLE]
+        k = readings.index(name) if name in readings else 0
+        s["marker"] = VARIANT_MARKERS[k % len(VARIANT_MARKERS)]
     return s
 
 
@@ -44,11 +54,13 @@ def _line(s: dict) -> dict:
     return {k: v for k, v in s.items() if k in ("color", "linestyle")}
 
 
-def settings_text(rows, config: RemusConfig, seed: int) -> str:
+def settings_text(rows, config: RemusConfig, seed: int, settings: str | None = None) -> str:
+    """The run's settings for every figure: the command (``settings``, from reproduce) or one read from the config."""
     runs = len({r["run"] for r in rows})
     quick = replace(config, ukfs=(), gps=()) == RemusConfig().quick()
-    return (f"abyssal reproduce remus{' --quick' if quick else ''}: {runs} run(s) x {config.duration:g} s, seed {seed}; "
-            f"GP training draws {', '.join(map(str, config.draws))}")
+    command = settings or f"abyssal reproduce remus{' --quick' if quick else ''} --seed {seed}"
+    return (f"{command}: {runs} run(s) x {config.duration:g} s{' (QUICK: a smoke version)' if quick else ''}; GP "
+            f"sizes {', '.join(map(str, config.sizes))}, training draws {', '.join(map(str, config.draws))}")
 
 
 def _save(fig, path: Path, stamp: str, written: list) -> None:
@@ -214,12 +226,12 @@ def surge_error(log, traces, ordered, path: Path, stamp: str, written: list, run
     _save(fig, path, stamp, written)
 
 
-def all_figures(rows, out: Path, config: RemusConfig, seed: int, prepared: dict) -> list[Path]:
+def all_figures(rows, out: Path, config: RemusConfig, seed: int, prepared: dict, settings: str | None = None) -> list[Path]:
     from ..campaign import run_seeds
 
     out.mkdir(parents=True, exist_ok=True)
     ordered = tuple(filter_names(rows))
-    stamp = settings_text(rows, config, seed)
+    stamp = settings_text(rows, config, seed, settings)
     written: list[Path] = []
     if prepared:
         training_data(prepared, config, out / "remus_training_data.png", stamp, written)
