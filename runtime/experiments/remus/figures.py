@@ -54,6 +54,14 @@ def _line(s: dict) -> dict:
     return {k: v for k, v in s.items() if k in ("color", "linestyle")}
 
 
+def _marked(s: dict, points: int, k: int) -> dict:
+    """A style for a long line: its marker every points/12 samples (offset by the line's index k, so markers of
+    lines that lie on each other do not overlap), which tells apart lines of one colour and line style."""
+    every = max(1, points // 12)
+    return {**_line(s), "marker": s["marker"], "markerfacecolor": s.get("markerfacecolor", s["color"]), "ms": 4,
+            "markevery": ((k * every) // 7 % every, every)}
+
+
 def settings_text(rows, config: RemusConfig, seed: int, settings: str | None = None) -> str:
     """The run's settings for every figure: the command (``settings``, from reproduce) or one read from the config."""
     runs = len({r["run"] for r in rows})
@@ -102,11 +110,11 @@ def position_error(log, traces, ordered, path: Path, stamp: str, written: list, 
               ("GP-UKF per GP size (regressors per state)", [n for n in traces if is_gp(n)], "GP-UKF"))
     t = log.t[1:]
     for ax, (title, names, kind) in zip(axes, groups):
-        for name in names:
+        for k, name in enumerate(names):
             X, P = traces[name]
             s = style(name, ordered)
             err = np.hypot(X[1:, 6] - log.x[1:, 6], X[1:, 7] - log.x[1:, 7])
-            ax.plot(t, err, lw=1.0, label=f"{name}: |error|", **_line(s))
+            ax.plot(t, err, lw=1.0, label=f"{name}: |error|", **_marked(s, len(t), k))
             ax.plot(t, np.sqrt(P[1:, 6, 6] + P[1:, 7, 7]), lw=0.8, alpha=0.6, color=s["color"], linestyle=(0, (1, 4)),
                     label=f"{name}: own 1-sigma (sparse dots)")
         theirs = paper.TABLE4[(kind, "prediction")]
@@ -216,8 +224,8 @@ def surge_error(log, traces, ordered, path: Path, stamp: str, written: list, run
     fig, ax = plt.subplots(figsize=(10, 4.2))
     t = log.t[1:][window - 1:]
     ax.plot(t, moving_rms(log.z[1:, 0] - log.x[1:, 0]), color="0.6", lw=1.2, label="DVL u: measured - true")
-    for name, (X, _) in traces.items():
-        ax.plot(t, moving_rms(X[1:, 0] - log.x[1:, 0]), lw=1.0, label=name, **_line(style(name, ordered)))
+    for k, (name, (X, _)) in enumerate(traces.items()):
+        ax.plot(t, moving_rms(X[1:, 0] - log.x[1:, 0]), lw=1.0, label=name, **_marked(style(name, ordered), len(t), k))
     ax.set_yscale("log")
     ax.set(xlabel="time t (s)", ylabel="surge error, 10 s moving RMS (m/s)",
            title=f"Surge speed error, {run_label} (cf. the paper's Fig. 5)")
