@@ -100,6 +100,15 @@ def _file_flags(name: str, flags: list[str]) -> list[str]:
     return [*flags, *SOA_FLAGS, *extra]
 
 
+#: the hand-written C runtime (C99), packaged beside the generated models (pyproject's package-data)
+RUNTIME_DIR = Path(__file__).resolve().parent / "c"
+
+
+def runtime_sources(*names: str) -> dict[str, str]:
+    """{name: text} of the named files of the C runtime (RUNTIME_DIR), for ``build``."""
+    return {name: (RUNTIME_DIR / name).read_text() for name in names}
+
+
 class CompilerNotFoundError(RuntimeError):
     """No C compiler could be found to build the generated sources (and no cached library exists)."""
 

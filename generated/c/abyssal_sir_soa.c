@@ -1,0 +1,1196 @@
+/* One compiled SIR step for any generated model: see abyssal_sir.h for what a step does and its buffers.
+ *
+ * Hand-written C99 of abyssal's runtime (not generated from equations). The file name ends in _soa.c so the
+ * cache builds it with the structure-of-arrays flags (-fopenmp-simd, libmvec's vector sin/cos/log).
+ *
+ * Inside a step, in three kinds of passes over blocks of ABYSSAL_SIR_BLOCK particles:
+ *   1. the block pass (move, pins, h, likelihood, and the block's weighted sums) -- once, or two or three
+ *      times when the gate leaves an entry out or every likelihood underflows (the block is then read back);
+ *   2. the normalisation pass (log-weights and weights);
+ *   3. the gather pass of resampling (when it resamples).
+ * Between them, thread 0 combines the blocks' sums in block order (Chan et al.'s pairwise formula for the
+ * covariances, each block's sums relative to its own largest log-weight), so sums never depend on the split.
+ */
+#define _POSIX_C_SOURCE 200809L
+#include "abyssal_sir.h"
+#include "abyssal_rng.h"
+
+#include <float.h>
+#include <math.h>
+#include <string.h>
+#ifndef ABYSSAL_SIR_NO_THREADS
+#include <pthread.h>
+#endif
+
+#if defined(__x86_64__) && defined(__GLIBC__) && !defined(ABYSSAL_NO_LIBMVEC)
+/* glibc's libmvec has vector variants of these: declaring them lets the particle loops vectorise; const:
+ * errno is never read here */
+#pragma omp declare simd notinbranch
+extern double exp(double) __attribute__((const));
+#pragma omp declare simd notinbranch
+extern float logf(float) __attribute__((const));
+#pragma omp declare simd notinbranch
+extern float sinf(float) __attribute__((const));
+#pragma omp declare simd notinbranch
+extern float cosf(float) __attribute__((const));
+#endif
+
+#define BLOCK ABYSSAL_SIR_BLOCK
+#define PI 3.14159265358979323846
+#define TWO_PI 6.28318530717958647692
+typedef abyssal_idx idx;
+
+enum { MODE_MOVE = 1, MODE_H = 2, MODE_LIK = 4, MODE_YSTATS = 8 };
+
+/* ------------------------------------------------------------------------------------------ layouts */
+abyssal_sir_in_offsets abyssal_sir_inputs(int n_x, int n_u, int n_y) {
+  abyssal_sir_in_offsets o;
+  o.u = ABYSSAL_SIR_IN_HEAD;
+  o.u_std = o.u + n_u;
+  o.z = o.u_std + n_u;
+  o.present = o.z + n_y;
+  o.thresholds = o.present + n_y;
+  o.pin_rows = o.thresholds + n_y + 1;
+  o.pin_values = o.pin_rows + n_x;
+  o.size = o.pin_values + n_x;
+  return o;
+}
+
+abyssal_sir_report_offsets abyssal_sir_report(int n_x, int n_y, int n_extra) {
+  abyssal_sir_report_offsets o;
+  o.gated = ABYSSAL_SIR_R_HEAD;
+  o.mean = o.gated + n_y;
+  o.cov = o.mean + n_x;
+  o.extra = o.cov + (idx)n_x * n_x;
+  o.nu = o.extra + n_extra;
+  o.S = o.nu + n_y;
+  o.size = o.S + (idx)n_y * n_y;
+  return o;
+}
+
+/* one block's sums: status, weights relative to the block's largest log-weight, the particles' mean and
+ * packed upper M2, extra rows' means, and the same over y with the prior weights (for the gate) */
+typedef struct {
+  idx status, peak, W, Q, max_ll, prior_peak, prior_W, w_sum, mean, m2, extra, ybar, m2y, stride;
+} block_layout;
+
+static idx packed(int d) { return (idx)d * (d + 1) / 2; }
+
+static block_layout block_offsets(int n_x, int n_y, int n_extra) {
+  block_layout o;
+  o.status = 0; o.peak = 1; o.W = 2; o.Q = 3; o.max_ll = 4; o.prior_peak = 5; o.prior_W = 6; o.w_sum = 7;
+  o.mean = 8;
+  o.m2 = o.mean + n_x;
+  o.extra = o.m2 + packed(n_x);
+  o.ybar = o.extra + n_extra;
+  o.m2y = o.ybar + n_y;
+  o.stride = o.m2y + packed(n_y);
+  return o;
+}
+
+static idx blocks_of(idx n) { return (n + BLOCK - 1) / BLOCK; }
+static int draw_rows(int n_u, int rank) { return n_u + rank; }
+static int y_rows(int n_y, int n_extra, int has_valid) { return n_y + n_extra + (has_valid ? 1 : 0); }
+
+/* per-thread scratch, in doubles */
+static idx scratch_size(int n_x, int n_u, int n_y, int n_extra, int has_valid, int rank, int r_components) {
+  const int rows = draw_rows(n_u, rank);
+  idx size = 2 * (idx)n_x * BLOCK;                      /* xa, xb */
+  size += (idx)n_u * BLOCK;                             /* per-particle inputs */
+  size += (idx)(rows > 0 ? rows : 1) * BLOCK;           /* normals */
+  size += 2 * (idx)BLOCK;                               /* 4 uint32 per particle */
+  size += (idx)y_rows(n_y, n_extra, has_valid) * BLOCK; /* y */
+  size += (idx)(n_y > 0 ? n_y : 1) * BLOCK;             /* residuals */
+  size += (idx)(r_components > 1 ? r_components : 1) * BLOCK; /* per-component log-densities */
+  size += 7 * (idx)BLOCK;                               /* lp, l, ll, s, e, ancestors, uniforms */
+  return size;
+}
+
+/* the likelihood plan (see lik_plan), its entries, and two n_y x n_y temporaries */
+static idx plan_size(int n_y, int r_components) {
+  return (idx)r_components * ((idx)n_y * n_y + n_y + 1) + n_y + 2 * (idx)n_y * n_y;
+}
+
+/* Each thread's scratch starts on a 64-byte boundary (and its arrays, multiples of BLOCK doubles, too): a
+ * vectorised sum then groups the same elements whichever thread runs it (its alignment peeling is the same). */
+#define ALIGN_DOUBLES 8
+static double* aligned(double* p) {
+  const uintptr_t a = (uintptr_t)p, mask = (uintptr_t)(ALIGN_DOUBLES * sizeof(double) - 1);
+  return (double*)((a + mask) & ~mask);
+}
+
+abyssal_idx abyssal_sir_work_size(abyssal_idx n, int n_x, int n_u, int n_y, int n_extra, int has_valid, int rank,
+                                  int r_components, int threads) {
+  const idx nb = blocks_of(n);
+  const block_layout L = block_offsets(n_x, n_y, n_extra);
+  if (threads < 1) threads = 1;
+  return nb * L.stride + (nb + 1) + plan_size(n_y, r_components < 1 ? 1 : r_components) + ALIGN_DOUBLES +
+         (idx)threads * scratch_size(n_x, n_u, n_y, n_extra, has_valid, rank, r_components);
+}
+
+const char* abyssal_sir_message(int code) {
+  switch (code) {
+    case ABYSSAL_SIR_OK: return "ok";
+    case ABYSSAL_SIR_NONFINITE_PARTICLE: return "a particle left the finite range";
+    case ABYSSAL_SIR_NONFINITE_MEASUREMENT: return "the measurement function gave a non-finite value";
+    case ABYSSAL_SIR_NONFINITE_WEIGHT: return "a log-weight is NaN or +inf";
+    case ABYSSAL_SIR_MODEL_FAILED: return "the model's generated function failed";
+    case ABYSSAL_SIR_BAD_ARGUMENT: return "sizes, buffers or inputs of the step are out of range";
+    default: return "unknown return code";
+  }
+}
+
+/* ------------------------------------------------------------------------------------------ random numbers */
+/* Normal rows row0..rows-1 (row0 a multiple of 4) of particles i0..i0+n-1 (n <= BLOCK) into
+ * out[(row - row0) * ld + j]: group g of four rows is
+ * Philox4x32-10 of the counter (particle, tag << 16 | g, step counter) under the key, two Box-Muller pairs.
+ * Single-precision log/sqrt/sin/cos (16 lanes per 512-bit vector): each normal to ~1e-7 relative, the tail
+ * reaching sqrt(-2 log 2^-33) = 6.8. */
+static void normals_block(uint64_t key, uint64_t counter, uint32_t tag, idx i0, idx n, int row0, int rows,
+                          double* restrict out, idx ld, uint32_t* restrict bits) {
+  const uint32_t key0 = (uint32_t)key, key1 = (uint32_t)(key >> 32);
+  const uint32_t ctr2 = (uint32_t)counter, ctr3 = (uint32_t)(counter >> 32);
+  uint32_t* restrict b0 = bits;
+  uint32_t* restrict b1 = bits + BLOCK;
+  uint32_t* restrict b2 = bits + 2 * BLOCK;
+  uint32_t* restrict b3 = bits + 3 * BLOCK;
+  for (int g = row0 / 4; 4 * g < rows; ++g) {
+    const uint32_t ctr1 = (tag << 16) | (uint32_t)g;
+#pragma omp simd
+    for (idx j = 0; j < n; ++j) {
+      uint32_t c0 = (uint32_t)(i0 + j), c1 = ctr1, c2 = ctr2, c3 = ctr3, k0 = key0, k1 = key1;
+      ABYSSAL_PHILOX_10(c0, c1, c2, c3, k0, k1);
+      b0[j] = c0;
+      b1[j] = c1;
+      b2[j] = c2;
+      b3[j] = c3;
+    }
+    for (int pair = 0; pair < 2; ++pair) {
+      const int row = 4 * g + 2 * pair;
+      if (row >= rows) break;
+      const uint32_t* restrict ua = pair ? b2 : b0;
+      const uint32_t* restrict ub = pair ? b3 : b1;
+      double* restrict a = out + (idx)(row - row0) * ld;
+      if (row + 1 < rows) {
+        double* restrict c = out + (idx)(row + 1 - row0) * ld;
+#pragma omp simd
+        for (idx j = 0; j < n; ++j) {
+          const float r = sqrtf(-2.0f * logf((float)ua[j] * 0x1p-32f + 0x1p-33f));
+          const float angle = (float)ub[j] * (float)(TWO_PI * 0x1p-32);
+          a[j] = (double)(r * cosf(angle));
+          c[j] = (double)(r * sinf(angle));
+        }
+      } else {
+#pragma omp simd
+        for (idx j = 0; j < n; ++j) {
+          const float r = sqrtf(-2.0f * logf((float)ua[j] * 0x1p-32f + 0x1p-33f));
+          const float angle = (float)ub[j] * (float)(TWO_PI * 0x1p-32);
+          a[j] = (double)(r * cosf(angle));
+        }
+      }
+    }
+  }
+}
+
+/* Uniforms in (0, 1) of particles i0..i0+n-1: word 0 of Philox4x32-10 of (particle, tag << 16, step counter). */
+static void uniforms_block(uint64_t key, uint64_t counter, uint32_t tag, idx i0, idx n, double* restrict out) {
+  const uint32_t key0 = (uint32_t)key, key1 = (uint32_t)(key >> 32);
+  const uint32_t ctr1 = tag << 16, ctr2 = (uint32_t)counter, ctr3 = (uint32_t)(counter >> 32);
+#pragma omp simd
+  for (idx j = 0; j < n; ++j) {
+    uint32_t c0 = (uint32_t)(i0 + j), c1 = ctr1, c2 = ctr2, c3 = ctr3, k0 = key0, k1 = key1;
+    ABYSSAL_PHILOX_10(c0, c1, c2, c3, k0, k1);
+    out[j] = ((double)c0 + 0.5) * 0x1p-32;
+  }
+}
+
+/* (through aligned scratch, like a step: the same values whatever the alignment of out) */
+void abyssal_sir_normals(uint64_t key, uint64_t counter, uint32_t tag, abyssal_idx i0, abyssal_idx n, int rows,
+                         double* out, abyssal_idx ld) {
+  uint32_t bits[4 * BLOCK];
+  double scratch[4 * BLOCK + ALIGN_DOUBLES];
+  double* four = aligned(scratch);
+  for (idx j0 = 0; j0 < n; j0 += BLOCK) {
+    const idx nb = n - j0 < BLOCK ? n - j0 : BLOCK;
+    for (int g = 0; 4 * g < rows; ++g) {
+      const int count = rows - 4 * g < 4 ? rows - 4 * g : 4;
+      normals_block(key, counter, tag, i0 + j0, nb, 4 * g, 4 * g + count, four, BLOCK, bits);
+      for (int r = 0; r < count; ++r) memcpy(out + (idx)(4 * g + r) * ld + j0, four + (idx)r * BLOCK, (size_t)nb * sizeof(double));
+    }
+  }
+}
+
+void abyssal_sir_uniforms(uint64_t key, uint64_t counter, uint32_t tag, abyssal_idx i0, abyssal_idx n, double* out) {
+  for (idx j0 = 0; j0 < n; j0 += BLOCK) uniforms_block(key, counter, tag, i0 + j0, n - j0 < BLOCK ? n - j0 : BLOCK, out + j0);
+}
+
+void abyssal_sir_philox(const uint32_t counter[4], const uint32_t key[2], uint32_t out[4]) {
+  abyssal_philox4x32_10(counter, key, out);
+}
+
+int abyssal_sir_soa_measure(const void* ctx, abyssal_idx n, abyssal_idx ld, const double* x, const double* p,
+                            double* y) {
+  const abyssal_soa_measure* m = (const abyssal_soa_measure*)ctx;
+  const double* arg[2];
+  double* res[1];
+  arg[0] = x;
+  arg[1] = p;
+  res[0] = y;
+  return m->h(n, ld, arg, res);
+}
+
+/* ------------------------------------------------------------------------------------------ the step's context */
+typedef struct {
+  double *xa, *xb, *u, *nrm, *y, *res, *lk, *lp, *l, *ll, *s, *e, *uni;
+  uint32_t* bits;
+  idx* anc;
+} scratch;
+
+typedef struct {
+  int m;             /* entries used */
+  int rows[ABYSSAL_SIR_MAX_OUTPUTS]; /* (m) their indices in z */
+  double* linv;      /* (K, m, m) inverse lower Cholesky factors of the components' covariances on them */
+  double* mu;        /* (K, m) the components' means on them */
+  double* cst;       /* (K) log weight - log det / 2 - m log(2 pi) / 2 */
+} lik_plan;
+
+typedef struct step_ctx {
+  const abyssal_sir* s;
+  abyssal_sir_in_offsets io;
+  abyssal_sir_report_offsets ro;
+  block_layout bl;
+  idx n, nblocks;
+  int T;
+  /* this step's buffers */
+  const double* x_in;
+  double *x_prop, *x_out;
+  const double* lw_in;
+  double *lw_next, *w_next, *rep, *stats, *offsets;
+  const double *u, *u_std, *z, *thresholds, *pin_values;
+  int n_pins, pin_rows[ABYSSAL_SIR_MAX_STATES];
+  double dt_piece;
+  int pieces, move, ratio, draws;
+  uint64_t key, counter;
+  lik_plan plan;
+  int present_rows[ABYSSAL_SIR_MAX_OUTPUTS], n_present;
+  double *tmp_a, *tmp_l; /* n_y x n_y temporaries of thread 0 */
+  /* decisions of thread 0, read by every thread after a barrier */
+  int mode, status, resample, pass, phase;
+  idx next[8]; /* next block of each phase (blocks are handed out one at a time: any thread may take any) */
+  double peak, W, log_z, u0, total;
+  double* scratch_base;
+  idx scratch_stride;
+#ifndef ABYSSAL_SIR_NO_THREADS
+  pthread_barrier_t barrier;
+  pthread_mutex_t lock;
+  pthread_cond_t go_cond;
+  int go;
+#endif
+} step_ctx;
+
+static scratch scratch_of(const step_ctx* c, int t) {
+  const abyssal_sir* s = c->s;
+  double* p = c->scratch_base + (idx)t * c->scratch_stride;
+  scratch sc;
+  const int rows = draw_rows(s->n_u, s->rank);
+  sc.xa = p; p += (idx)s->n_x * BLOCK;
+  sc.xb = p; p += (idx)s->n_x * BLOCK;
+  sc.u = p; p += (idx)s->n_u * BLOCK;
+  sc.nrm = p; p += (idx)(rows > 0 ? rows : 1) * BLOCK;
+  sc.bits = (uint32_t*)p; p += 2 * (idx)BLOCK;
+  sc.y = p; p += (idx)y_rows(s->n_y, s->n_extra, s->has_valid) * BLOCK;
+  sc.res = p; p += (idx)(s->n_y > 0 ? s->n_y : 1) * BLOCK;
+  sc.lk = p; p += (idx)(s->r_components > 1 ? s->r_components : 1) * BLOCK;
+  sc.lp = p; p += BLOCK;
+  sc.l = p; p += BLOCK;
+  sc.ll = p; p += BLOCK;
+  sc.s = p; p += BLOCK;
+  sc.e = p; p += BLOCK;
+  sc.anc = (idx*)p; p += BLOCK;
+  sc.uni = p;
+  return sc;
+}
+
+static void sync_threads(step_ctx* c) {
+#ifndef ABYSSAL_SIR_NO_THREADS
+  if (c->T > 1) pthread_barrier_wait(&c->barrier);
+#else
+  (void)c;
+#endif
+}
+
+/* ------------------------------------------------------------------------------------------ small algebra */
+/* Lower Cholesky factor of the m x m matrix a (row-major, stride m) into l; 0 if not positive definite. */
+static int cholesky(const double* a, int m, double* l) {
+  for (int i = 0; i < m; ++i) {
+    for (int j = 0; j <= i; ++j) {
+      double v = a[i * m + j];
+      for (int k = 0; k < j; ++k) v -= l[i * m + k] * l[j * m + k];
+      if (i == j) {
+        if (!(v > 0.0) || !isfinite(v)) return 0;
+        l[i * m + i] = sqrt(v);
+      } else {
+        l[i * m + j] = v / l[j * m + j];
+      }
+    }
+    for (int j = i + 1; j < m; ++j) l[i * m + j] = 0.0;
+  }
+  return 1;
+}
+
+/* inverse of a lower-triangular l (m x m) into v (lower) */
+static void lower_inverse(const double* l, int m, double* v) {
+  for (int j = 0; j < m; ++j) {
+    for (int i = 0; i < m; ++i) v[i * m + j] = 0.0;
+    v[j * m + j] = 1.0 / l[j * m + j];
+    for (int i = j + 1; i < m; ++i) {
+      double acc = 0.0;
+      for (int k = j; k < i; ++k) acc += l[i * m + k] * v[k * m + j];
+      v[i * m + j] = -acc / l[i * m + i];
+    }
+  }
+}
+
+/* numpy's wrap_to_pi: pi - remainder(pi - a, 2 pi) (remainder with the divisor's sign) */
+static double wrap_pi(double a) {
+  double r = fmod(PI - a, TWO_PI);
+  if (r != 0.0 && r < 0.0) r += TWO_PI;
+  return PI - r;
+}
+
+static int is_angle(const abyssal_sir* s, int row) {
+  for (int i = 0; i < s->n_angles; ++i)
+    if (s->angle_outputs[i] == row) return 1;
+  return 0;
+}
+
+/* The likelihood plan of the entries rows[0..m-1]: 0 if a component's covariance is not positive definite. */
+static int make_plan(step_ctx* c, const int* rows, int m) {
+  const abyssal_sir* s = c->s;
+  lik_plan* plan = &c->plan;
+  double* tmp_a = c->tmp_a;
+  double* tmp_l = c->tmp_l;
+  const int K = s->r_components, ny = s->n_y;
+  plan->m = m;
+  for (int i = 0; i < m; ++i) plan->rows[i] = rows[i];
+  for (int k = 0; k < K; ++k) {
+    const double* cov = s->r_covs + (idx)k * ny * ny;
+    for (int i = 0; i < m; ++i)
+      for (int j = 0; j < m; ++j) tmp_a[i * m + j] = cov[rows[i] * ny + rows[j]];
+    if (!cholesky(tmp_a, m, tmp_l)) return 0;
+    double* linv = plan->linv + (idx)k * m * m;
+    lower_inverse(tmp_l, m, linv);
+    double log_det = 0.0;
+    for (int i = 0; i < m; ++i) log_det += 2.0 * log(tmp_l[i * m + i]);
+    for (int i = 0; i < m; ++i) plan->mu[k * m + i] = s->r_means[k * ny + rows[i]];
+    plan->cst[k] = log(s->r_weights[k]) - 0.5 * log_det - 0.5 * m * log(TWO_PI);
+  }
+  return 1;
+}
+
+/* ------------------------------------------------------------------------------------------ block sums */
+/* e = exp(l - peak) over a block; peak = max l (-inf: every weight zero, e = 0); W = sum e, Q = sum e^2 */
+static void block_weights(const double* restrict l, idx nb, double* restrict e, double* peak_out, double* W_out,
+                          double* Q_out) {
+  double peak = -INFINITY;
+#pragma omp simd reduction(max : peak)
+  for (idx j = 0; j < nb; ++j) peak = l[j] > peak ? l[j] : peak;
+  double W = 0.0, Q = 0.0;
+  if (peak > -INFINITY) {
+#pragma omp simd reduction(+ : W, Q)
+    for (idx j = 0; j < nb; ++j) {
+      e[j] = exp(l[j] - peak);
+      W += e[j];
+      Q += e[j] * e[j];
+    }
+  } else {
+    for (idx j = 0; j < nb; ++j) e[j] = 0.0;
+  }
+  *peak_out = peak;
+  *W_out = W;
+  if (Q_out) *Q_out = Q;
+}
+
+/* Weighted mean and packed upper M2 = sum e (x - mean)(x - mean)^T of d rows (stride BLOCK) of a block; the rows
+ * are centred in place. Nothing when W = 0. */
+static void block_moments(const double* restrict e, double W, idx nb, double* rows, int d, double* mean, double* m2,
+                          double* restrict ed) {
+  if (!(W > 0.0)) {
+    for (int r = 0; r < d; ++r) mean[r] = 0.0;
+    for (idx k = 0; k < packed(d); ++k) m2[k] = 0.0;
+    return;
+  }
+  for (int r = 0; r < d; ++r) {
+    double* restrict x = rows + (idx)r * BLOCK;
+    double acc = 0.0;
+#pragma omp simd reduction(+ : acc)
+    for (idx j = 0; j < nb; ++j) acc += e[j] * x[j];
+    const double m = acc / W;
+    mean[r] = m;
+#pragma omp simd
+    for (idx j = 0; j < nb; ++j) x[j] -= m;
+  }
+  idx k = 0;
+  for (int r = 0; r < d; ++r) {
+    const double* restrict xr = rows + (idx)r * BLOCK;
+#pragma omp simd
+    for (idx j = 0; j < nb; ++j) ed[j] = e[j] * xr[j];
+    for (int c = r; c < d; ++c) {
+      const double* restrict xc = rows + (idx)c * BLOCK;
+      double acc = 0.0;
+#pragma omp simd reduction(+ : acc)
+      for (idx j = 0; j < nb; ++j) acc += ed[j] * xc[j];
+      m2[k++] = acc;
+    }
+  }
+}
+
+/* 0 when every entry of the d rows (stride ld) of a block is finite */
+static int nonfinite_rows(const double* rows, int d, idx ld, idx nb) {
+  double check = 0.0; /* x - x is NaN exactly when x is inf or NaN */
+  for (int r = 0; r < d; ++r) {
+    const double* restrict x = rows + (idx)r * ld;
+#pragma omp simd reduction(+ : check)
+    for (idx j = 0; j < nb; ++j) check += x[j] - x[j];
+  }
+  return check != 0.0;
+}
+
+/* ------------------------------------------------------------------------------------------ the block pass */
+/* x_k = f(x_{k-1}, u) + w of the block's particles into sc->xa (ld BLOCK); returns a status */
+static int move_block(const step_ctx* c, const scratch* sc, idx j0, idx nb) {
+  const abyssal_sir* s = c->s;
+  const int nx = s->n_x, nu = s->n_u;
+  const idx n = c->n;
+  for (int r = 0; r < nx; ++r) memcpy(sc->xa + (idx)r * BLOCK, c->x_in + (idx)r * n + j0, (size_t)nb * sizeof(double));
+  if (c->draws > 0) normals_block(c->key, c->counter, 0, j0, nb, 0, c->draws, sc->nrm, BLOCK, sc->bits);
+  for (int r = 0; r < nu; ++r) {
+    double* restrict ur = sc->u + (idx)r * BLOCK;
+    const double mean = c->u[r];
+    if (s->input_noise) {
+      const double sd = c->u_std[r];
+      const double* restrict noise = sc->nrm + (idx)r * BLOCK;
+#pragma omp simd
+      for (idx j = 0; j < nb; ++j) ur[j] = mean + sd * noise[j];
+    } else {
+#pragma omp simd
+      for (idx j = 0; j < nb; ++j) ur[j] = mean;
+    }
+  }
+  double* from = sc->xa;
+  double* to = sc->xb;
+  for (int piece = 0; piece < c->pieces; ++piece) {
+    const double* arg[4];
+    double* res[1];
+    arg[0] = from;
+    arg[1] = sc->u;
+    arg[2] = s->p;
+    arg[3] = &c->dt_piece;
+    res[0] = to;
+    if (s->f(nb, BLOCK, arg, res)) return ABYSSAL_SIR_MODEL_FAILED;
+    double* t = from;
+    from = to;
+    to = t;
+  }
+  if (from != sc->xa) memcpy(sc->xa, from, (size_t)nx * BLOCK * sizeof(double));
+  /* process noise */
+  const double* restrict y = sc->nrm + (idx)(s->input_noise ? nu : 0) * BLOCK;
+  if (s->q_components > 1) {
+    double* restrict uni = sc->uni;
+    uniforms_block(c->key, c->counter, 1, j0, nb, uni);
+    for (int k = 0; k < s->q_components; ++k) {
+      const double lo = k == 0 ? 0.0 : s->q_cumulative[k - 1];
+      const double hi = k == s->q_components - 1 ? 2.0 : s->q_cumulative[k];
+      const double* mean = s->q_means + (idx)k * nx;
+      const double* L = s->q_factors + (idx)k * nx * nx;
+      for (int r = 0; r < nx; ++r) {
+        double* restrict xr = sc->xa + (idx)r * BLOCK;
+        for (idx j = 0; j < nb; ++j) {
+          if (!(uni[j] >= lo && uni[j] < hi)) continue;
+          double acc = mean[r];
+          for (int q = 0; q <= r; ++q) acc += L[r * nx + q] * y[(idx)q * BLOCK + j];
+          xr[j] += acc;
+        }
+      }
+    }
+  } else if (s->support) {
+    for (int q = 0; q < s->rank; ++q) {
+      double* restrict xr = sc->xa + (idx)s->support[q] * BLOCK;
+      const double* restrict yq = y + (idx)q * BLOCK;
+      const double sd = s->factor[q];
+#pragma omp simd
+      for (idx j = 0; j < nb; ++j) xr[j] += sd * yq[j];
+    }
+  } else {
+    for (int r = 0; r < nx; ++r) {
+      double* restrict xr = sc->xa + (idx)r * BLOCK;
+      for (int q = 0; q < s->rank; ++q) {
+        const double a = s->factor[(idx)r * s->rank + q];
+        if (a == 0.0) continue;
+        const double* restrict yq = y + (idx)q * BLOCK;
+#pragma omp simd
+        for (idx j = 0; j < nb; ++j) xr[j] += a * yq[j];
+      }
+    }
+  }
+  if (s->noise_mean && s->q_components <= 1) {
+    for (int r = 0; r < nx; ++r) {
+      const double m = s->noise_mean[r];
+      if (m == 0.0) continue;
+      double* restrict xr = sc->xa + (idx)r * BLOCK;
+#pragma omp simd
+      for (idx j = 0; j < nb; ++j) xr[j] += m;
+    }
+  }
+  return ABYSSAL_SIR_OK;
+}
+
+/* log-likelihood of the plan's entries at the block's particles (y in sc->y) into sc->ll */
+static void likelihood_block(const step_ctx* c, const scratch* sc, idx nb) {
+  const abyssal_sir* s = c->s;
+  const lik_plan* plan = &c->plan;
+  const int m = plan->m, K = s->r_components;
+  for (int i = 0; i < m; ++i) {
+    const int row = plan->rows[i];
+    const double z = c->z[row];
+    const double* restrict y = sc->y + (idx)row * BLOCK;
+    double* restrict r = sc->res + (idx)i * BLOCK;
+    double big = 0.0;
+#pragma omp simd reduction(max : big)
+    for (idx j = 0; j < nb; ++j) {
+      r[j] = z - y[j];
+      const double a = fabs(r[j]);
+      big = a > big ? a : big;
+    }
+    if (big > PI && is_angle(s, row))
+      for (idx j = 0; j < nb; ++j)
+        if (fabs(r[j]) > PI) r[j] = wrap_pi(r[j]);
+  }
+  for (int k = 0; k < K; ++k) {
+    double* restrict q = K > 1 ? sc->lk + (idx)k * BLOCK : sc->ll;
+    const double* linv = plan->linv + (idx)k * m * m;
+    const double* mu = plan->mu + (idx)k * m;
+    double* restrict t = sc->s;
+#pragma omp simd
+    for (idx j = 0; j < nb; ++j) q[j] = 0.0;
+    for (int i = 0; i < m; ++i) {
+#pragma omp simd
+      for (idx j = 0; j < nb; ++j) t[j] = 0.0;
+      for (int a = 0; a <= i; ++a) {
+        const double v = linv[i * m + a], shift = mu[a];
+        const double* restrict r = sc->res + (idx)a * BLOCK;
+#pragma omp simd
+        for (idx j = 0; j < nb; ++j) t[j] += v * (r[j] - shift);
+      }
+#pragma omp simd
+      for (idx j = 0; j < nb; ++j) q[j] += t[j] * t[j];
+    }
+    const double cst = plan->cst[k];
+#pragma omp simd
+    for (idx j = 0; j < nb; ++j) q[j] = cst - 0.5 * q[j];
+  }
+  if (K > 1) {
+    double* restrict ll = sc->ll;
+#pragma omp simd
+    for (idx j = 0; j < nb; ++j) {
+      double top = sc->lk[j];
+      for (int k = 1; k < K; ++k) top = sc->lk[(idx)k * BLOCK + j] > top ? sc->lk[(idx)k * BLOCK + j] : top;
+      double sum = 0.0;
+      for (int k = 0; k < K; ++k) sum += exp(sc->lk[(idx)k * BLOCK + j] - top);
+      ll[j] = top > -INFINITY ? top + log(sum) : -INFINITY;
+    }
+  }
+  if (s->has_valid) {
+    const double* restrict valid = sc->y + (idx)(s->n_y + s->n_extra) * BLOCK;
+    double* restrict ll = sc->ll;
+    const double out = s->invalid_log_lik;
+#pragma omp simd
+    for (idx j = 0; j < nb; ++j) ll[j] = valid[j] != 0.0 ? ll[j] : out;
+  }
+}
+
+static void block_pass(step_ctx* c, const scratch* sc, idx b, int mode) {
+  const abyssal_sir* s = c->s;
+  const idx n = c->n, j0 = b * BLOCK, nb = n - j0 < BLOCK ? n - j0 : BLOCK;
+  const int nx = s->n_x;
+  double* st = c->stats + b * c->bl.stride;
+  int status = ABYSSAL_SIR_OK;
+  st[c->bl.status] = 0.0;
+  /* the block's particles into sc->xa */
+  if (mode & MODE_MOVE) {
+    if (c->move == ABYSSAL_SIR_MOVE_TRANSITION) {
+      status = move_block(c, sc, j0, nb);
+    } else {
+      const double* from = c->move == ABYSSAL_SIR_MOVE_NONE ? c->x_in : c->x_prop;
+      for (int r = 0; r < nx; ++r) memcpy(sc->xa + (idx)r * BLOCK, from + (idx)r * n + j0, (size_t)nb * sizeof(double));
+    }
+    for (int i = 0; i < c->n_pins; ++i) {
+      double* restrict xr = sc->xa + (idx)c->pin_rows[i] * BLOCK;
+      const double v = c->pin_values[i];
+      for (idx j = 0; j < nb; ++j) xr[j] = v;
+    }
+    if (c->move != ABYSSAL_SIR_MOVE_GIVEN || c->n_pins)
+      for (int r = 0; r < nx; ++r) memcpy(c->x_prop + (idx)r * n + j0, sc->xa + (idx)r * BLOCK, (size_t)nb * sizeof(double));
+  } else {
+    for (int r = 0; r < nx; ++r) memcpy(sc->xa + (idx)r * BLOCK, c->x_prop + (idx)r * n + j0, (size_t)nb * sizeof(double));
+  }
+  if (status == ABYSSAL_SIR_OK && nonfinite_rows(sc->xa, nx, BLOCK, nb)) status = ABYSSAL_SIR_NONFINITE_PARTICLE;
+  if (status != ABYSSAL_SIR_OK) {
+    st[c->bl.status] = status;
+    return;
+  }
+  /* prior log-weights */
+  double* restrict lp = sc->lp;
+  const double* restrict lw = c->lw_in + j0;
+  if (c->ratio) {
+    const double* restrict lr = s->log_ratio + j0;
+#pragma omp simd
+    for (idx j = 0; j < nb; ++j) lp[j] = lw[j] + lr[j];
+  } else {
+    memcpy(lp, lw, (size_t)nb * sizeof(double));
+  }
+  const int yr = y_rows(s->n_y, s->n_extra, s->has_valid);
+  if (mode & MODE_H) {
+    if (s->h(s->h_ctx, nb, BLOCK, sc->xa, s->p, sc->y)) {
+      st[c->bl.status] = ABYSSAL_SIR_MODEL_FAILED;
+      return;
+    }
+    if (nonfinite_rows(sc->y, yr, BLOCK, nb)) {
+      st[c->bl.status] = ABYSSAL_SIR_NONFINITE_MEASUREMENT;
+      return;
+    }
+  }
+  double* restrict l = sc->l;
+  double max_ll = -INFINITY;
+  if (mode & MODE_LIK) {
+    likelihood_block(c, sc, nb);
+    const double* restrict ll = sc->ll;
+#pragma omp simd reduction(max : max_ll)
+    for (idx j = 0; j < nb; ++j) {
+      l[j] = lp[j] + ll[j];
+      max_ll = ll[j] > max_ll ? ll[j] : max_ll;
+    }
+  } else {
+    memcpy(l, lp, (size_t)nb * sizeof(double));
+  }
+  st[c->bl.max_ll] = max_ll;
+  if (mode & MODE_YSTATS) {
+    double W;
+    block_weights(lp, nb, sc->e, st + c->bl.prior_peak, &W, NULL);
+    st[c->bl.prior_W] = W;
+    block_moments(sc->e, W, nb, sc->y, s->n_y, st + c->bl.ybar, st + c->bl.m2y, sc->s);
+  }
+  /* posterior log-weights: NaN or +inf is an error (a -inf is a zero weight) */
+  double bad = 0.0;
+#pragma omp simd reduction(+ : bad)
+  for (idx j = 0; j < nb; ++j) bad += (l[j] != l[j] || l[j] == INFINITY) ? 1.0 : 0.0;
+  if (bad != 0.0) {
+    st[c->bl.status] = ABYSSAL_SIR_NONFINITE_WEIGHT;
+    return;
+  }
+  memcpy(c->lw_next + j0, l, (size_t)nb * sizeof(double));
+  double W;
+  block_weights(l, nb, sc->e, st + c->bl.peak, &W, st + c->bl.Q);
+  st[c->bl.W] = W;
+  block_moments(sc->e, W, nb, sc->xa, nx, st + c->bl.mean, st + c->bl.m2, sc->s);
+  for (int r = 0; r < s->n_extra; ++r) {
+    const double* restrict yr_ = sc->y + (idx)(s->n_y + r) * BLOCK;
+    const double* restrict e = sc->e;
+    double acc = 0.0;
+#pragma omp simd reduction(+ : acc)
+    for (idx j = 0; j < nb; ++j) acc += e[j] * yr_[j];
+    st[c->bl.extra + r] = W > 0.0 ? acc / W : 0.0;
+  }
+}
+
+/* Combine the blocks' sums of d rows (mean at offset `mo`, packed M2 at `m2o`, weights peak/W at `po`/`wo`):
+ * the global peak, W = sum exp(l - peak), mean and covariance (full, row-major); Q likewise when qo >= 0. */
+static void combine(const step_ctx* c, idx po, idx wo, idx qo, idx mo, idx m2o, int d, double* peak_out, double* W_out,
+                    double* Q_out, double* mean, double* cov, idx eo, int n_extra, double* extra) {
+  const double* stats = c->stats;
+  const idx stride = c->bl.stride;
+  double peak = -INFINITY;
+  for (idx b = 0; b < c->nblocks; ++b) {
+    const double p = stats[b * stride + po];
+    peak = p > peak ? p : peak;
+  }
+  double W = 0.0, Q = 0.0;
+  for (int r = 0; r < d; ++r) mean[r] = 0.0;
+  for (int r = 0; r < n_extra; ++r) extra[r] = 0.0;
+  if (peak > -INFINITY) {
+    for (idx b = 0; b < c->nblocks; ++b) {
+      const double* st = stats + b * stride;
+      if (!(st[po] > -INFINITY)) continue;
+      const double scale = exp(st[po] - peak), wb = scale * st[wo];
+      W += wb;
+      if (qo >= 0) Q += scale * scale * st[qo];
+      for (int r = 0; r < d; ++r) mean[r] += wb * st[mo + r];
+      for (int r = 0; r < n_extra; ++r) extra[r] += wb * st[eo + r];
+    }
+    for (int r = 0; r < d; ++r) mean[r] /= W;
+    for (int r = 0; r < n_extra; ++r) extra[r] /= W;
+  }
+  if (cov) {
+    for (idx k = 0; k < (idx)d * d; ++k) cov[k] = 0.0;
+    if (peak > -INFINITY) {
+      for (idx b = 0; b < c->nblocks; ++b) {
+        const double* st = stats + b * stride;
+        if (!(st[po] > -INFINITY)) continue;
+        const double scale = exp(st[po] - peak), wb = scale * st[wo];
+        idx k = 0;
+        for (int r = 0; r < d; ++r) {
+          const double dr = st[mo + r] - mean[r];
+          for (int q = r; q < d; ++q) cov[r * d + q] += scale * st[m2o + k++] + wb * dr * (st[mo + q] - mean[q]);
+        }
+      }
+      for (int r = 0; r < d; ++r)
+        for (int q = r; q < d; ++q) {
+          cov[r * d + q] /= W;
+          cov[q * d + r] = cov[r * d + q];
+        }
+    }
+  }
+  *peak_out = peak;
+  *W_out = W;
+  if (Q_out) *Q_out = Q;
+}
+
+static int first_error(const step_ctx* c) {
+  for (idx b = 0; b < c->nblocks; ++b) {
+    const int status = (int)c->stats[b * c->bl.stride + c->bl.status];
+    if (status) return status;
+  }
+  return ABYSSAL_SIR_OK;
+}
+
+/* ------------------------------------------------------------------------------------------ the gate */
+/* nu^T S^-1 nu <= threshold over the entries rows[0..m-1] (S from the full n_y x n_y matrix) */
+static int gate_passes(const double* nu, const double* S, int ny, const int* rows, int m, double threshold, double* a,
+                       double* l) {
+  if (!(threshold < INFINITY)) return 1;
+  for (int i = 0; i < m; ++i)
+    for (int j = 0; j < m; ++j) a[i * m + j] = S[rows[i] * ny + rows[j]];
+  if (!cholesky(a, m, l)) return 0;
+  double nis = 0.0;
+  double v[ABYSSAL_SIR_MAX_OUTPUTS];
+  for (int i = 0; i < m; ++i) { /* forward substitution: L v = nu */
+    double acc = nu[rows[i]];
+    for (int k = 0; k < i; ++k) acc -= l[i * m + k] * v[k];
+    v[i] = acc / l[i * m + i];
+    nis += v[i] * v[i];
+  }
+  return isfinite(nis) && nis <= threshold;
+}
+
+/* InnovationGate.select (runtime/filters/kalman/gate.py) on the present entries: the entries used (rows, count),
+ * gated[] flags the entries left out. */
+static int gate_select(const step_ctx* c, const double* nu, const double* S, int* rows, int m, double* gated, double* a,
+                       double* l) {
+  const abyssal_sir* s = c->s;
+  const int ny = s->n_y;
+  const double* thr = c->thresholds;
+  for (int attempt = 0; attempt < 2; ++attempt) {
+    if (gate_passes(nu, S, ny, rows, m, thr[m], a, l)) return m;
+    int outliers = 0;
+    for (int i = 0; i < m; ++i) {
+      const int r = rows[i];
+      if (!(nu[r] * nu[r] <= thr[1] * S[r * ny + r])) ++outliers; /* NaN and inf count as outliers */
+    }
+    if (outliers == 0 || outliers == m) break;
+    int kept = 0;
+    for (int i = 0; i < m; ++i) {
+      const int r = rows[i];
+      if (!(nu[r] * nu[r] <= thr[1] * S[r * ny + r]))
+        gated[r] = 1.0;
+      else
+        rows[kept++] = r;
+    }
+    m = kept;
+  }
+  for (int i = 0; i < m; ++i) gated[rows[i]] = 1.0;
+  return 0;
+}
+
+/* ------------------------------------------------------------------------------------------ thread 0's decisions */
+/* After the first block pass: the gate decides the entries; returns whether a second pass is needed (its mode in
+ * c->mode). */
+static int after_first_pass(step_ctx* c) {
+  const abyssal_sir* s = c->s;
+  const int ny = s->n_y;
+  double* rep = c->rep;
+  double* gated = rep + c->ro.gated;
+  for (int i = 0; i < ny; ++i) gated[i] = 0.0;
+  for (idx k = 0; k < (idx)ny + (idx)ny * ny; ++k) rep[c->ro.nu + k] = 0.0;
+  rep[ABYSSAL_SIR_R_GATED] = 0.0;
+  if (!(c->mode & MODE_YSTATS)) return 0;
+  /* the cloud's predicted measurement with the prior weights */
+  double peak, W;
+  double* ybar = c->tmp_a;
+  double* cyy = c->tmp_l;
+  combine(c, c->bl.prior_peak, c->bl.prior_W, -1, c->bl.ybar, c->bl.m2y, ny, &peak, &W, NULL, ybar, cyy, 0, 0, NULL);
+  double* nu = rep + c->ro.nu;
+  double* S = rep + c->ro.S;
+  for (int i = 0; i < c->n_present; ++i) {
+    const int r = c->present_rows[i];
+    double v = c->z[r] - ybar[r] - s->R_mean[r];
+    if (fabs(v) > PI && is_angle(s, r)) v = wrap_pi(v);
+    nu[r] = v;
+    for (int j = 0; j < c->n_present; ++j) {
+      const int q = c->present_rows[j];
+      S[r * ny + q] = cyy[r * ny + q] + s->R[r * ny + q];
+    }
+  }
+  int rows[ABYSSAL_SIR_MAX_OUTPUTS];
+  for (int i = 0; i < c->n_present; ++i) rows[i] = c->present_rows[i];
+  const int m = gate_select(c, nu, S, rows, c->n_present, gated, c->tmp_a, c->tmp_l);
+  int n_gated = 0;
+  for (int i = 0; i < ny; ++i) n_gated += gated[i] != 0.0;
+  rep[ABYSSAL_SIR_R_GATED] = n_gated;
+  if (n_gated == 0) return 0;
+  c->plan.m = 0;
+  c->mode = (s->n_extra || s->has_valid) ? MODE_H : 0;
+  if (m > 0) {
+    if (!make_plan(c, rows, m)) {
+      c->status = ABYSSAL_SIR_BAD_ARGUMENT;
+      return 0;
+    }
+    c->mode = MODE_H | MODE_LIK;
+  }
+  return 1;
+}
+
+/* The next block of this phase for the calling thread (nblocks: none left). Blocks are handed out on demand, so
+ * a thread slowed by a busy core takes fewer; a block's results do not depend on which thread computes it. */
+static idx grab(step_ctx* c, int phase) {
+#ifndef ABYSSAL_SIR_NO_THREADS
+  if (c->T > 1) {
+    pthread_mutex_lock(&c->lock);
+    const idx b = c->next[phase]++;
+    pthread_mutex_unlock(&c->lock);
+    return b;
+  }
+#endif
+  return c->next[phase]++;
+}
+
+static void run_blocks(step_ctx* c, int t, int mode, int phase) {
+  const scratch sc = scratch_of(c, t);
+  for (idx b = grab(c, phase); b < c->nblocks; b = grab(c, phase)) block_pass(c, &sc, b, mode);
+}
+
+/* The weights' exp runs on the thread's aligned scratch, never on the caller's buffers: a vectorised loop's
+ * alignment peeling sends some elements through the scalar exp, which may differ from the vector one by an ulp,
+ * and the results must not depend on where the caller's buffers happen to be aligned. */
+static void normalise_blocks(step_ctx* c, int t, int phase) {
+  const scratch sc = scratch_of(c, t);
+  const double peak = c->peak, inv_W = 1.0 / c->W, log_z = c->log_z;
+  for (idx b = grab(c, phase); b < c->nblocks; b = grab(c, phase)) {
+    const idx j0 = b * BLOCK, nb = c->n - j0 < BLOCK ? c->n - j0 : BLOCK;
+    double* restrict lw = c->lw_next + j0;
+    double* restrict e = sc.e;
+    double sum = 0.0;
+#pragma omp simd
+    for (idx j = 0; j < nb; ++j) e[j] = lw[j] - peak;
+#pragma omp simd reduction(+ : sum)
+    for (idx j = 0; j < nb; ++j) {
+      e[j] = exp(e[j]) * inv_W;
+      sum += e[j];
+    }
+    memcpy(c->w_next + j0, e, (size_t)nb * sizeof(double));
+#pragma omp simd
+    for (idx j = 0; j < nb; ++j) lw[j] -= log_z;
+    c->stats[b * c->bl.stride + c->bl.w_sum] = sum;
+  }
+}
+
+/* Ancestors of outputs k0..k0+nk-1: the particle j where the cumulative weight first exceeds the target
+ * (k + u_k) total / n; the cumulative weight inside block b is offsets[b] + the running sum of the block. */
+static void gather_blocks(step_ctx* c, int t, int phase) {
+  const abyssal_sir* s = c->s;
+  const scratch sc = scratch_of(c, t);
+  const idx n = c->n;
+  const double* restrict w = c->w_next;
+  const double* off = c->offsets;
+  const double step = c->total / (double)n, log_uniform = -log((double)n);
+  const int stratified = (int)c->s->in[ABYSSAL_SIR_IN_SCHEME] == ABYSSAL_SIR_STRATIFIED;
+  for (idx ob = grab(c, phase); ob < c->nblocks; ob = grab(c, phase)) {
+    const idx k0 = ob * BLOCK, nk = n - k0 < BLOCK ? n - k0 : BLOCK;
+    if (stratified) uniforms_block(c->key, c->counter, 2, k0, nk, sc.uni);
+    double target = ((double)k0 + (stratified ? sc.uni[0] : c->u0)) * step;
+    /* the first block whose cumulative end exceeds the first target */
+    idx b = 0, top = c->nblocks - 1;
+    while (b < top) {
+      const idx mid = (b + top) / 2;
+      if (off[mid + 1] > target) top = mid; else b = mid + 1;
+    }
+    idx j = b * BLOCK;
+    double cum = off[b] + w[j];
+    for (idx k = 0; k < nk; ++k) {
+      target = ((double)(k0 + k) + (stratified ? sc.uni[k] : c->u0)) * step;
+      while (cum <= target && j < n - 1) {
+        ++j;
+        cum = (j % BLOCK == 0) ? off[j / BLOCK] + w[j] : cum + w[j];
+      }
+      sc.anc[k] = j;
+    }
+    for (int r = 0; r < s->n_x; ++r) {
+      const double* restrict from = c->x_prop + (idx)r * n;
+      double* restrict to = c->x_out + (idx)r * n + k0;
+      const idx* restrict anc = sc.anc;
+#pragma omp simd
+      for (idx k = 0; k < nk; ++k) to[k] = from[anc[k]];
+    }
+    double* restrict lw = c->lw_next + k0;
+#pragma omp simd
+    for (idx k = 0; k < nk; ++k) lw[k] = log_uniform;
+  }
+}
+
+/* thread 0: the posterior's sums into the report; 0 when a block failed */
+static int finish_weights(step_ctx* c) {
+  const abyssal_sir* s = c->s;
+  double* rep = c->rep;
+  double Q;
+  combine(c, c->bl.peak, c->bl.W, c->bl.Q, c->bl.mean, c->bl.m2, s->n_x, &c->peak, &c->W, &Q, rep + c->ro.mean,
+          rep + c->ro.cov, c->bl.extra, s->n_extra, rep + c->ro.extra);
+  if (!(c->peak > -INFINITY) || !(c->W > 0.0)) {
+    c->status = ABYSSAL_SIR_NONFINITE_WEIGHT;
+    return 0;
+  }
+  c->log_z = c->peak + log(c->W);
+  rep[ABYSSAL_SIR_R_ESS] = c->W * c->W / Q;
+  rep[ABYSSAL_SIR_R_LOG_MEAN] = c->log_z - log((double)c->n);
+  return 1;
+}
+
+static double max_log_lik(const step_ctx* c) {
+  double top = -INFINITY;
+  for (idx b = 0; b < c->nblocks; ++b) {
+    const double v = c->stats[b * c->bl.stride + c->bl.max_ll];
+    top = v > top ? v : top;
+  }
+  return top;
+}
+
+/* a block pass over the thread's blocks, then thread 0 checks them; 0 when a block failed (all threads) */
+static int pass_blocks(step_ctx* c, int t, int mode, int phase) {
+  run_blocks(c, t, mode, phase);
+  sync_threads(c);
+  if (t == 0) {
+    c->status = first_error(c);
+    c->rep[ABYSSAL_SIR_R_PASSES] += 1.0;
+  }
+  sync_threads(c);
+  return c->status == ABYSSAL_SIR_OK;
+}
+
+/* every thread runs this; thread 0 takes the decisions between the barriers */
+static void drive(step_ctx* c, int t) {
+  const abyssal_sir* s = c->s;
+  double* rep = c->rep;
+  if (!pass_blocks(c, t, c->mode, 0)) return;
+  /* the gate: a second pass without the entries it leaves out */
+  if (t == 0) c->pass = after_first_pass(c);
+  sync_threads(c);
+  if (c->status || (c->pass && !pass_blocks(c, t, c->mode, 1))) return;
+  /* every likelihood underflowed: the weights stay (a pass without the likelihood) */
+  if (t == 0) {
+    const int used = c->plan.m;
+    const double top = used ? max_log_lik(c) : -INFINITY;
+    rep[ABYSSAL_SIR_R_MAX_LOG_LIK] = top;
+    rep[ABYSSAL_SIR_R_USED] = used;
+    rep[ABYSSAL_SIR_R_UNINFORMATIVE] = used && !(top >= log(DBL_MIN));
+    c->pass = rep[ABYSSAL_SIR_R_UNINFORMATIVE] != 0.0;
+    c->mode = (s->n_extra || s->has_valid) ? MODE_H : 0;
+  }
+  sync_threads(c);
+  if (c->pass && !pass_blocks(c, t, c->mode, 2)) return;
+  if (t == 0) finish_weights(c);
+  sync_threads(c);
+  if (c->status) return;
+  normalise_blocks(c, t, 3);
+  sync_threads(c);
+  if (t == 0) {
+    const double ess = rep[ABYSSAL_SIR_R_ESS], below = s->in[ABYSSAL_SIR_IN_RESAMPLE_BELOW];
+    const int wanted = ess < below || below == INFINITY;
+    rep[ABYSSAL_SIR_R_RESAMPLE] = wanted;
+    c->resample = wanted && (int)s->in[ABYSSAL_SIR_IN_SCHEME] != ABYSSAL_SIR_CALLER;
+    rep[ABYSSAL_SIR_R_RESAMPLED] = c->resample;
+    if (c->resample) {
+      c->offsets[0] = 0.0;
+      for (idx b = 0; b < c->nblocks; ++b) c->offsets[b + 1] = c->offsets[b] + c->stats[b * c->bl.stride + c->bl.w_sum];
+      c->total = c->offsets[c->nblocks];
+      double u0;
+      uniforms_block(c->key, c->counter, 2, 0, 1, &u0);
+      c->u0 = u0;
+    }
+  }
+  sync_threads(c);
+  if (c->resample) gather_blocks(c, t, 4);
+}
+
+#ifndef ABYSSAL_SIR_NO_THREADS
+typedef struct {
+  step_ctx* c;
+  int t;
+} worker_arg;
+
+static void* worker(void* a) {
+  worker_arg* arg = (worker_arg*)a;
+  step_ctx* c = arg->c;
+  pthread_mutex_lock(&c->lock);
+  while (c->go == 0) pthread_cond_wait(&c->go_cond, &c->lock);
+  const int go = c->go;
+  pthread_mutex_unlock(&c->lock);
+  if (go > 0) drive(c, arg->t);
+  return NULL;
+}
+
+/* drive() on T threads (this one and T - 1 started here); if a thread cannot be started, on this one alone
+ * (the results do not depend on it) */
+static void drive_threads(step_ctx* c) {
+  pthread_t threads[ABYSSAL_SIR_MAX_THREADS];
+  worker_arg args[ABYSSAL_SIR_MAX_THREADS];
+  const int T = c->T;
+  int started = 0;
+  pthread_mutex_init(&c->lock, NULL);
+  pthread_cond_init(&c->go_cond, NULL);
+  c->go = 0;
+  for (int t = 1; t < T; ++t) {
+    args[t].c = c;
+    args[t].t = t;
+    if (pthread_create(&threads[t], NULL, worker, &args[t]) != 0) break;
+    ++started;
+  }
+  const int all = started == T - 1;
+  if (all) pthread_barrier_init(&c->barrier, NULL, (unsigned)T);
+  pthread_mutex_lock(&c->lock);
+  c->go = all ? 1 : -1;
+  pthread_cond_broadcast(&c->go_cond);
+  pthread_mutex_unlock(&c->lock);
+  if (all) drive(c, 0);
+  for (int t = 1; t <= started; ++t) pthread_join(threads[t], NULL);
+  if (all) pthread_barrier_destroy(&c->barrier);
+  pthread_cond_destroy(&c->go_cond);
+  pthread_mutex_destroy(&c->lock);
+  if (!all) {
+    c->T = 1;
+    drive(c, 0);
+  }
+}
+#endif
+
+/* ------------------------------------------------------------------------------------------ the step */
+static int flag(double v) { return v == 0.0 || v == 1.0; }
+
+int abyssal_sir_step(const abyssal_sir* s) {
+  step_ctx ctx;
+  step_ctx* c = &ctx;
+  memset(c, 0, sizeof ctx);
+  if (!s || !s->in || !s->rng || !s->work || !s->p || s->n < 1 || s->n > (idx)UINT32_MAX || s->n_x < 1 ||
+      s->n_x > ABYSSAL_SIR_MAX_STATES || s->n_u < 0 || s->n_y < 0 || s->n_y > ABYSSAL_SIR_MAX_OUTPUTS ||
+      s->n_extra < 0 || s->rank < 0 || s->max_threads < 1 || s->max_threads > ABYSSAL_SIR_MAX_THREADS)
+    return ABYSSAL_SIR_BAD_ARGUMENT;
+  const double* in = s->in;
+  c->s = s;
+  c->io = abyssal_sir_inputs(s->n_x, s->n_u, s->n_y);
+  c->ro = abyssal_sir_report(s->n_x, s->n_y, s->n_extra);
+  c->bl = block_offsets(s->n_x, s->n_y, s->n_extra);
+  c->n = s->n;
+  c->nblocks = blocks_of(s->n);
+  const double cur = in[ABYSSAL_SIR_IN_CUR], move = in[ABYSSAL_SIR_IN_MOVE], pieces = in[ABYSSAL_SIR_IN_PIECES];
+  const double threads = in[ABYSSAL_SIR_IN_THREADS], pins = in[ABYSSAL_SIR_IN_PINS];
+  if (!(cur == 0.0 || cur == 1.0 || cur == 2.0) || !flag(in[ABYSSAL_SIR_IN_SIDE]) ||
+      !(move == 0.0 || move == 1.0 || move == 2.0) || !flag(in[ABYSSAL_SIR_IN_MEASURE]) ||
+      !flag(in[ABYSSAL_SIR_IN_RATIO]) || !(pieces >= 1.0 && pieces <= 1024.0 && pieces == floor(pieces)) ||
+      !(threads >= 1.0) || !(pins >= 0.0 && pins <= s->n_x && pins == floor(pins)) ||
+      !isfinite(in[ABYSSAL_SIR_IN_DT]) || in[ABYSSAL_SIR_IN_RESAMPLE_BELOW] != in[ABYSSAL_SIR_IN_RESAMPLE_BELOW] ||
+      !(in[ABYSSAL_SIR_IN_SCHEME] == 0.0 || in[ABYSSAL_SIR_IN_SCHEME] == 1.0 || in[ABYSSAL_SIR_IN_SCHEME] == 2.0))
+    return ABYSSAL_SIR_BAD_ARGUMENT;
+  const int side = in[ABYSSAL_SIR_IN_SIDE] != 0.0;
+  c->move = (int)move;
+  c->pieces = (int)pieces;
+  c->dt_piece = in[ABYSSAL_SIR_IN_DT] / c->pieces;
+  c->ratio = in[ABYSSAL_SIR_IN_RATIO] != 0.0;
+  c->x_in = s->particles[(int)cur];
+  c->x_prop = s->particles[((int)cur + 1) % 3];
+  c->x_out = s->particles[((int)cur + 2) % 3];
+  c->lw_in = s->log_w[side];
+  c->lw_next = s->log_w[1 - side];
+  c->w_next = s->w[1 - side];
+  c->rep = s->report[1 - side];
+  c->u = in + c->io.u;
+  c->u_std = in + c->io.u_std;
+  c->z = in + c->io.z;
+  c->thresholds = in + c->io.thresholds;
+  c->pin_values = in + c->io.pin_values;
+  c->n_pins = (int)pins;
+  for (int i = 0; i < c->n_pins; ++i) {
+    const double r = in[c->io.pin_rows + i];
+    if (!(r >= 0.0 && r < s->n_x && r == floor(r))) return ABYSSAL_SIR_BAD_ARGUMENT;
+    c->pin_rows[i] = (int)r;
+  }
+  c->key = s->rng[0];
+  c->counter = s->rng[1];
+  c->draws = c->move == ABYSSAL_SIR_MOVE_TRANSITION ? (s->input_noise ? s->n_u : 0) + s->rank : 0;
+  if (!c->x_in || !c->x_prop || !c->x_out || !c->lw_in || !c->lw_next || !c->w_next || !c->rep ||
+      (c->ratio && !s->log_ratio))
+    return ABYSSAL_SIR_BAD_ARGUMENT;
+  if (c->move == ABYSSAL_SIR_MOVE_TRANSITION) {
+    const int mixture_ok = s->q_cumulative && s->q_means && s->q_factors && s->rank == s->n_x;
+    if (!s->f || (s->q_components > 1 ? !mixture_ok : (s->rank > 0 && !s->factor)))
+      return ABYSSAL_SIR_BAD_ARGUMENT;
+    for (int q = 0; s->support && q < s->rank; ++q)
+      if (s->support[q] < 0 || s->support[q] >= s->n_x) return ABYSSAL_SIR_BAD_ARGUMENT;
+  }
+  /* work: block sums, resampling offsets, the likelihood plan and temporaries, then per-thread scratch */
+  const int K = s->r_components < 1 ? 1 : s->r_components;
+  if (abyssal_sir_work_size(s->n, s->n_x, s->n_u, s->n_y, s->n_extra, s->has_valid, s->rank, K, s->max_threads) >
+      s->work_size)
+    return ABYSSAL_SIR_BAD_ARGUMENT;
+  c->stats = s->work;
+  c->offsets = c->stats + c->nblocks * c->bl.stride;
+  double* plan = c->offsets + c->nblocks + 1;
+  c->plan.linv = plan;
+  c->plan.mu = plan + (idx)K * s->n_y * s->n_y;
+  c->plan.cst = c->plan.mu + (idx)K * s->n_y;
+  c->tmp_a = c->plan.cst + K + s->n_y;
+  c->tmp_l = c->tmp_a + (idx)s->n_y * s->n_y;
+  c->scratch_base = aligned(plan + plan_size(s->n_y, K));
+  c->scratch_stride = scratch_size(s->n_x, s->n_u, s->n_y, s->n_extra, s->has_valid, s->rank, K);
+  /* the first pass: move, and the likelihood of every present entry (the gate may leave some out after it) */
+  c->mode = MODE_MOVE;
+  if (in[ABYSSAL_SIR_IN_MEASURE] != 0.0 && s->n_y > 0) {
+    if (!s->h || !s->r_weights || !s->r_means || !s->r_covs || !s->R || !s->R_mean || s->r_components < 1 ||
+        (s->n_angles && !s->angle_outputs))
+      return ABYSSAL_SIR_BAD_ARGUMENT;
+    for (int i = 0; i < s->n_y; ++i) {
+      const double present = in[c->io.present + i];
+      if (!flag(present)) return ABYSSAL_SIR_BAD_ARGUMENT;
+      if (present != 0.0) {
+        if (!isfinite(c->z[i])) return ABYSSAL_SIR_BAD_ARGUMENT;
+        c->present_rows[c->n_present++] = i;
+      }
+    }
+    if (c->n_present) {
+      if (!make_plan(c, c->present_rows, c->n_present)) return ABYSSAL_SIR_BAD_ARGUMENT;
+      c->mode |= MODE_H | MODE_LIK;
+      if (c->thresholds[c->n_present] < INFINITY) c->mode |= MODE_YSTATS;
+    }
+  }
+  if (s->n_extra || s->has_valid) c->mode |= MODE_H;
+  if ((c->mode & MODE_H) && !s->h) return ABYSSAL_SIR_BAD_ARGUMENT;
+  c->rep[ABYSSAL_SIR_R_PASSES] = 0.0;
+  int T = threads > s->max_threads ? s->max_threads : (int)threads;
+  c->T = (idx)T > c->nblocks ? (int)c->nblocks : T;
+#ifndef ABYSSAL_SIR_NO_THREADS
+  if (c->T > 1)
+    drive_threads(c);
+  else
+    drive(c, 0);
+#else
+  c->T = 1;
+  drive(c, 0);
+#endif
+  return c->status;
+}
