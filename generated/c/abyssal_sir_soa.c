@@ -28,6 +28,8 @@
 #pragma omp declare simd notinbranch
 extern double exp(double) __attribute__((const));
 #pragma omp declare simd notinbranch
+extern double log(double) __attribute__((const));
+#pragma omp declare simd notinbranch
 extern float logf(float) __attribute__((const));
 #pragma omp declare simd notinbranch
 extern float sinf(float) __attribute__((const));
@@ -244,6 +246,7 @@ typedef struct {
   double *xa, *xb, *u, *nrm, *y, *res, *lk, *lp, *l, *ll, *s, *e, *uni;
   uint32_t* bits;
   idx* anc;
+  int u_filled; /* the inputs without input noise are the same for every block: filled once per pass */
 } scratch;
 
 typedef struct {
@@ -308,6 +311,7 @@ static scratch scratch_of(const step_ctx* c, int t) {
   sc.e = p; p += BLOCK;
   sc.anc = (idx*)p; p += BLOCK;
   sc.uni = p;
+  sc.u_filled = 0;
   return sc;
 }
 
@@ -411,8 +415,10 @@ static void block_weights(const double* restrict l, idx nb, double* restrict e, 
   if (Q_out) *Q_out = Q;
 }
 
-/* Weighted mean and packed upper M2 = sum e (x - mean)(x - mean)^T of d rows (stride BLOCK) of a block; the rows
- * are centred in place. Nothing when W = 0. */
+/* Weighted mean and packed upper M2 = sum e (x - mean)(x - mean)^T of d rows (stride BLOCK) of a block, in one
+ * pass over the rows shifted by the block's first particle (a point of the cloud: the subtraction of the mean's
+ * outer product then cancels no more digits than the spread itself has); the rows are shifted in place. Four
+ * columns of M2 per sweep share the loads of a row and the loop. Nothing when W = 0. */
 static void block_moments(const double* restrict e, double W, idx nb, double* rows, int d, double* mean, double* m2,
                           double* restrict ed) {
   if (!(W > 0.0)) {
@@ -420,27 +426,50 @@ static void block_moments(const double* restrict e, double W, idx nb, double* ro
     for (idx k = 0; k < packed(d); ++k) m2[k] = 0.0;
     return;
   }
+  double s1[ABYSSAL_SIR_MAX_STATES > ABYSSAL_SIR_MAX_OUTPUTS ? ABYSSAL_SIR_MAX_STATES : ABYSSAL_SIR_MAX_OUTPUTS];
   for (int r = 0; r < d; ++r) {
     double* restrict x = rows + (idx)r * BLOCK;
+    const double shift = x[0];
     double acc = 0.0;
 #pragma omp simd reduction(+ : acc)
-    for (idx j = 0; j < nb; ++j) acc += e[j] * x[j];
-    const double m = acc / W;
-    mean[r] = m;
-#pragma omp simd
-    for (idx j = 0; j < nb; ++j) x[j] -= m;
+    for (idx j = 0; j < nb; ++j) {
+      x[j] -= shift;
+      acc += e[j] * x[j];
+    }
+    s1[r] = acc;
+    mean[r] = shift + acc / W;
   }
   idx k = 0;
   for (int r = 0; r < d; ++r) {
     const double* restrict xr = rows + (idx)r * BLOCK;
 #pragma omp simd
     for (idx j = 0; j < nb; ++j) ed[j] = e[j] * xr[j];
-    for (int c = r; c < d; ++c) {
+    int c = r;
+    for (; c + 4 <= d; c += 4) {
+      const double* restrict x0 = rows + (idx)c * BLOCK;
+      const double* restrict x1 = x0 + BLOCK;
+      const double* restrict x2 = x1 + BLOCK;
+      const double* restrict x3 = x2 + BLOCK;
+      double a0 = 0.0, a1 = 0.0, a2 = 0.0, a3 = 0.0;
+#pragma omp simd reduction(+ : a0, a1, a2, a3)
+      for (idx j = 0; j < nb; ++j) {
+        const double v = ed[j];
+        a0 += v * x0[j];
+        a1 += v * x1[j];
+        a2 += v * x2[j];
+        a3 += v * x3[j];
+      }
+      m2[k++] = a0 - s1[r] * s1[c] / W;
+      m2[k++] = a1 - s1[r] * s1[c + 1] / W;
+      m2[k++] = a2 - s1[r] * s1[c + 2] / W;
+      m2[k++] = a3 - s1[r] * s1[c + 3] / W;
+    }
+    for (; c < d; ++c) {
       const double* restrict xc = rows + (idx)c * BLOCK;
       double acc = 0.0;
 #pragma omp simd reduction(+ : acc)
       for (idx j = 0; j < nb; ++j) acc += ed[j] * xc[j];
-      m2[k++] = acc;
+      m2[k++] = acc - s1[r] * s1[c] / W;
     }
   }
 }
@@ -457,8 +486,9 @@ static int nonfinite_rows(const double* rows, int d, idx ld, idx nb) {
 }
 
 /* ------------------------------------------------------------------------------------------ the block pass */
-/* x_k = f(x_{k-1}, u) + w of the block's particles into sc->xa (ld BLOCK); returns a status */
-static int move_block(const step_ctx* c, const scratch* sc, idx j0, idx nb) {
+/* x_k = f(x_{k-1}, u) + w of the block's particles into sc->xa (ld BLOCK; f ping-pongs between the thread's
+ * xa and xb, which swap places); returns a status */
+static int move_block(const step_ctx* c, scratch* sc, idx j0, idx nb) {
   const abyssal_sir* s = c->s;
   const int nx = s->n_x, nu = s->n_u;
   const idx n = c->n;
@@ -472,11 +502,12 @@ static int move_block(const step_ctx* c, const scratch* sc, idx j0, idx nb) {
       const double* restrict noise = sc->nrm + (idx)r * BLOCK;
 #pragma omp simd
       for (idx j = 0; j < nb; ++j) ur[j] = mean + sd * noise[j];
-    } else {
+    } else if (!sc->u_filled) {
 #pragma omp simd
-      for (idx j = 0; j < nb; ++j) ur[j] = mean;
+      for (idx j = 0; j < BLOCK; ++j) ur[j] = mean;
     }
   }
+  sc->u_filled = !s->input_noise;
   double* from = sc->xa;
   double* to = sc->xb;
   for (int piece = 0; piece < c->pieces; ++piece) {
@@ -492,7 +523,8 @@ static int move_block(const step_ctx* c, const scratch* sc, idx j0, idx nb) {
     from = to;
     to = t;
   }
-  if (from != sc->xa) memcpy(sc->xa, from, (size_t)nx * BLOCK * sizeof(double));
+  sc->xb = to;
+  sc->xa = from;
   /* process noise */
   const double* restrict y = sc->nrm + (idx)(s->input_noise ? nu : 0) * BLOCK;
   if (s->q_components > 1) {
@@ -571,34 +603,52 @@ static void likelihood_block(const step_ctx* c, const scratch* sc, idx nb) {
     const double* linv = plan->linv + (idx)k * m * m;
     const double* mu = plan->mu + (idx)k * m;
     double* restrict t = sc->s;
+    for (int i = 0; i < m; ++i) { /* q = |L^-1 (r - mu)|^2, row by row of L^-1 */
+      {
+        const double v = linv[i * m], shift = mu[0];
+        const double* restrict r = sc->res;
 #pragma omp simd
-    for (idx j = 0; j < nb; ++j) q[j] = 0.0;
-    for (int i = 0; i < m; ++i) {
-#pragma omp simd
-      for (idx j = 0; j < nb; ++j) t[j] = 0.0;
-      for (int a = 0; a <= i; ++a) {
+        for (idx j = 0; j < nb; ++j) t[j] = v * (r[j] - shift);
+      }
+      for (int a = 1; a <= i; ++a) {
         const double v = linv[i * m + a], shift = mu[a];
         const double* restrict r = sc->res + (idx)a * BLOCK;
 #pragma omp simd
         for (idx j = 0; j < nb; ++j) t[j] += v * (r[j] - shift);
       }
+      if (i == 0) {
 #pragma omp simd
-      for (idx j = 0; j < nb; ++j) q[j] += t[j] * t[j];
+        for (idx j = 0; j < nb; ++j) q[j] = t[j] * t[j];
+      } else {
+#pragma omp simd
+        for (idx j = 0; j < nb; ++j) q[j] += t[j] * t[j];
+      }
     }
     const double cst = plan->cst[k];
 #pragma omp simd
     for (idx j = 0; j < nb; ++j) q[j] = cst - 0.5 * q[j];
   }
-  if (K > 1) {
-    double* restrict ll = sc->ll;
+  if (K > 1) { /* log sum_k exp(lk_k), per particle, component by component (vectorised over particles) */
+    double* restrict top = sc->ll;
+    double* restrict sum = sc->s;
+    memcpy(top, sc->lk, (size_t)nb * sizeof(double));
+    for (int k = 1; k < K; ++k) {
+      const double* restrict lk = sc->lk + (idx)k * BLOCK;
 #pragma omp simd
-    for (idx j = 0; j < nb; ++j) {
-      double top = sc->lk[j];
-      for (int k = 1; k < K; ++k) top = sc->lk[(idx)k * BLOCK + j] > top ? sc->lk[(idx)k * BLOCK + j] : top;
-      double sum = 0.0;
-      for (int k = 0; k < K; ++k) sum += exp(sc->lk[(idx)k * BLOCK + j] - top);
-      ll[j] = top > -INFINITY ? top + log(sum) : -INFINITY;
+      for (idx j = 0; j < nb; ++j) top[j] = lk[j] > top[j] ? lk[j] : top[j];
     }
+#pragma omp simd
+    for (idx j = 0; j < nb; ++j) { /* every component -inf: then sum = 0 and the result -inf */
+      top[j] = top[j] > -INFINITY ? top[j] : 0.0;
+      sum[j] = 0.0;
+    }
+    for (int k = 0; k < K; ++k) {
+      const double* restrict lk = sc->lk + (idx)k * BLOCK;
+#pragma omp simd
+      for (idx j = 0; j < nb; ++j) sum[j] += exp(lk[j] - top[j]);
+    }
+#pragma omp simd
+    for (idx j = 0; j < nb; ++j) top[j] += log(sum[j]);
   }
   if (s->has_valid) {
     const double* restrict valid = sc->y + (idx)(s->n_y + s->n_extra) * BLOCK;
@@ -609,7 +659,7 @@ static void likelihood_block(const step_ctx* c, const scratch* sc, idx nb) {
   }
 }
 
-static void block_pass(step_ctx* c, const scratch* sc, idx b, int mode) {
+static void block_pass(step_ctx* c, scratch* sc, idx b, int mode) {
   const abyssal_sir* s = c->s;
   const idx n = c->n, j0 = b * BLOCK, nb = n - j0 < BLOCK ? n - j0 : BLOCK;
   const int nx = s->n_x;
@@ -692,6 +742,7 @@ static void block_pass(step_ctx* c, const scratch* sc, idx b, int mode) {
   double W;
   block_weights(l, nb, sc->e, st + c->bl.peak, &W, st + c->bl.Q);
   st[c->bl.W] = W;
+  memcpy(c->w_next + j0, sc->e, (size_t)nb * sizeof(double)); /* exp(l - the block's peak): normalised later */
   block_moments(sc->e, W, nb, sc->xa, nx, st + c->bl.mean, st + c->bl.m2, sc->s);
   for (int r = 0; r < s->n_extra; ++r) {
     const double* restrict yr_ = sc->y + (idx)(s->n_y + r) * BLOCK;
@@ -874,32 +925,28 @@ static idx grab(step_ctx* c, int phase) {
 }
 
 static void run_blocks(step_ctx* c, int t, int mode, int phase) {
-  const scratch sc = scratch_of(c, t);
+  scratch sc = scratch_of(c, t);
   for (idx b = grab(c, phase); b < c->nblocks; b = grab(c, phase)) block_pass(c, &sc, b, mode);
 }
 
-/* The weights' exp runs on the thread's aligned scratch, never on the caller's buffers: a vectorised loop's
- * alignment peeling sends some elements through the scalar exp, which may differ from the vector one by an ulp,
- * and the results must not depend on where the caller's buffers happen to be aligned. */
-static void normalise_blocks(step_ctx* c, int t, int phase) {
-  const scratch sc = scratch_of(c, t);
+/* Normalised weights: the block pass left exp(l - the block's peak) in w_next (computed on aligned scratch:
+ * a vectorised loop's alignment peeling sends some elements through the scalar exp, which may differ from the
+ * vector one by an ulp, and results must not depend on the alignment of the caller's buffers); one factor per
+ * block scales them. A block's weight sum (for resampling's offsets) is that factor times its W. */
+static void normalise_blocks(step_ctx* c, int phase) {
   const double peak = c->peak, inv_W = 1.0 / c->W, log_z = c->log_z;
   for (idx b = grab(c, phase); b < c->nblocks; b = grab(c, phase)) {
     const idx j0 = b * BLOCK, nb = c->n - j0 < BLOCK ? c->n - j0 : BLOCK;
+    double* st = c->stats + b * c->bl.stride;
+    const double factor = st[c->bl.peak] > -INFINITY ? exp(st[c->bl.peak] - peak) * inv_W : 0.0;
     double* restrict lw = c->lw_next + j0;
-    double* restrict e = sc.e;
-    double sum = 0.0;
+    double* restrict w = c->w_next + j0;
 #pragma omp simd
-    for (idx j = 0; j < nb; ++j) e[j] = lw[j] - peak;
-#pragma omp simd reduction(+ : sum)
     for (idx j = 0; j < nb; ++j) {
-      e[j] = exp(e[j]) * inv_W;
-      sum += e[j];
+      w[j] *= factor;
+      lw[j] -= log_z;
     }
-    memcpy(c->w_next + j0, e, (size_t)nb * sizeof(double));
-#pragma omp simd
-    for (idx j = 0; j < nb; ++j) lw[j] -= log_z;
-    c->stats[b * c->bl.stride + c->bl.w_sum] = sum;
+    st[c->bl.w_sum] = factor * st[c->bl.W];
   }
 }
 
@@ -1008,7 +1055,7 @@ static void drive(step_ctx* c, int t) {
   if (t == 0) finish_weights(c);
   sync_threads(c);
   if (c->status) return;
-  normalise_blocks(c, t, 3);
+  normalise_blocks(c, 3);
   sync_threads(c);
   if (t == 0) {
     const double ess = rep[ABYSSAL_SIR_R_ESS], below = s->in[ABYSSAL_SIR_IN_RESAMPLE_BELOW];
