@@ -42,7 +42,11 @@ extern float cosf(float) __attribute__((const));
 #define TWO_PI 6.28318530717958647692
 typedef abyssal_idx idx;
 
-enum { MODE_MOVE = 1, MODE_H = 2, MODE_LIK = 4, MODE_YSTATS = 8 };
+/* what a block pass does: produce the particles (else read the proposals back), call h, the likelihood, the
+ * prior-weighted mean of y (for the gate's innovation), its M2 too (the gate's S), and the posterior sums */
+/* block passes (at most four), normalisation, gather */
+#define PHASES 6
+enum { MODE_MOVE = 1, MODE_H = 2, MODE_LIK = 4, MODE_YMEAN = 8, MODE_YM2 = 16, MODE_POST = 32 };
 
 /* ------------------------------------------------------------------------------------------ layouts */
 abyssal_sir_in_offsets abyssal_sir_inputs(int n_x, int n_u, int n_y) {
@@ -278,8 +282,8 @@ typedef struct step_ctx {
   int present_rows[ABYSSAL_SIR_MAX_OUTPUTS], n_present;
   double *tmp_a, *tmp_l; /* n_y x n_y temporaries of thread 0 */
   /* decisions of thread 0, read by every thread after a barrier */
-  int mode, status, resample, pass, phase;
-  idx next[8]; /* next block of each phase (blocks are handed out one at a time: any thread may take any) */
+  int mode, status, resample, stage;
+  idx next[PHASES]; /* next block of each phase (blocks are handed out one at a time: any thread may take any) */
   double peak, W, log_z, u0, total;
   double* scratch_base;
   idx scratch_stride;
@@ -393,14 +397,22 @@ static int make_plan(step_ctx* c, const int* rows, int m) {
 }
 
 /* ------------------------------------------------------------------------------------------ block sums */
-/* e = exp(l - peak) over a block; peak = max l (-inf: every weight zero, e = 0); W = sum e, Q = sum e^2 */
+/* e = exp(l - peak) over a block; peak = max l (-inf: every weight zero, e = 0); W = sum e, Q = sum e^2. A block
+ * of equal log-weights (after resampling) has e = 1 exactly: no exp. */
 static void block_weights(const double* restrict l, idx nb, double* restrict e, double* peak_out, double* W_out,
                           double* Q_out) {
-  double peak = -INFINITY;
-#pragma omp simd reduction(max : peak)
-  for (idx j = 0; j < nb; ++j) peak = l[j] > peak ? l[j] : peak;
+  double peak = -INFINITY, low = INFINITY;
+#pragma omp simd reduction(max : peak) reduction(min : low)
+  for (idx j = 0; j < nb; ++j) {
+    peak = l[j] > peak ? l[j] : peak;
+    low = l[j] < low ? l[j] : low;
+  }
   double W = 0.0, Q = 0.0;
-  if (peak > -INFINITY) {
+  if (peak == low && peak > -INFINITY) {
+#pragma omp simd
+    for (idx j = 0; j < nb; ++j) e[j] = 1.0;
+    W = Q = (double)nb;
+  } else if (peak > -INFINITY) {
 #pragma omp simd reduction(+ : W, Q)
     for (idx j = 0; j < nb; ++j) {
       e[j] = exp(l[j] - peak);
@@ -413,6 +425,17 @@ static void block_weights(const double* restrict l, idx nb, double* restrict e, 
   *peak_out = peak;
   *W_out = W;
   if (Q_out) *Q_out = Q;
+}
+
+/* the weighted mean of d rows (stride BLOCK) of a block (0 when W = 0) */
+static void block_mean(const double* restrict e, double W, idx nb, const double* rows, int d, double* mean) {
+  for (int r = 0; r < d; ++r) {
+    const double* restrict x = rows + (idx)r * BLOCK;
+    double acc = 0.0;
+#pragma omp simd reduction(+ : acc)
+    for (idx j = 0; j < nb; ++j) acc += e[j] * x[j];
+    mean[r] = W > 0.0 ? acc / W : 0.0;
+  }
 }
 
 /* Weighted mean and packed upper M2 = sum e (x - mean)(x - mean)^T of d rows (stride BLOCK) of a block, in one
@@ -711,25 +734,30 @@ static void block_pass(step_ctx* c, scratch* sc, idx b, int mode) {
     }
   }
   double* restrict l = sc->l;
-  double max_ll = -INFINITY;
   if (mode & MODE_LIK) {
     likelihood_block(c, sc, nb);
     const double* restrict ll = sc->ll;
+    double max_ll = -INFINITY;
 #pragma omp simd reduction(max : max_ll)
     for (idx j = 0; j < nb; ++j) {
       l[j] = lp[j] + ll[j];
       max_ll = ll[j] > max_ll ? ll[j] : max_ll;
     }
-  } else {
+    st[c->bl.max_ll] = max_ll;
+  } else if (mode & MODE_POST) {
     memcpy(l, lp, (size_t)nb * sizeof(double));
+    st[c->bl.max_ll] = -INFINITY;
   }
-  st[c->bl.max_ll] = max_ll;
-  if (mode & MODE_YSTATS) {
+  if (mode & (MODE_YMEAN | MODE_YM2)) { /* the cloud's predicted measurement, with the prior weights */
     double W;
     block_weights(lp, nb, sc->e, st + c->bl.prior_peak, &W, NULL);
     st[c->bl.prior_W] = W;
-    block_moments(sc->e, W, nb, sc->y, s->n_y, st + c->bl.ybar, st + c->bl.m2y, sc->s);
+    if (mode & MODE_YM2)
+      block_moments(sc->e, W, nb, sc->y, s->n_y, st + c->bl.ybar, st + c->bl.m2y, sc->s);
+    else
+      block_mean(sc->e, W, nb, sc->y, s->n_y, st + c->bl.ybar);
   }
+  if (!(mode & MODE_POST)) return;
   /* posterior log-weights: NaN or +inf is an error (a -inf is a zero weight) */
   double bad = 0.0;
 #pragma omp simd reduction(+ : bad)
@@ -744,14 +772,7 @@ static void block_pass(step_ctx* c, scratch* sc, idx b, int mode) {
   st[c->bl.W] = W;
   memcpy(c->w_next + j0, sc->e, (size_t)nb * sizeof(double)); /* exp(l - the block's peak): normalised later */
   block_moments(sc->e, W, nb, sc->xa, nx, st + c->bl.mean, st + c->bl.m2, sc->s);
-  for (int r = 0; r < s->n_extra; ++r) {
-    const double* restrict yr_ = sc->y + (idx)(s->n_y + r) * BLOCK;
-    const double* restrict e = sc->e;
-    double acc = 0.0;
-#pragma omp simd reduction(+ : acc)
-    for (idx j = 0; j < nb; ++j) acc += e[j] * yr_[j];
-    st[c->bl.extra + r] = W > 0.0 ? acc / W : 0.0;
-  }
+  block_mean(sc->e, W, nb, sc->y + (idx)s->n_y * BLOCK, s->n_extra, st + c->bl.extra);
 }
 
 /* Combine the blocks' sums of d rows (mean at offset `mo`, packed M2 at `m2o`, weights peak/W at `po`/`wo`):
@@ -863,51 +884,120 @@ static int gate_select(const step_ctx* c, const double* nu, const double* S, int
 }
 
 /* ------------------------------------------------------------------------------------------ thread 0's decisions */
-/* After the first block pass: the gate decides the entries; returns whether a second pass is needed (its mode in
- * c->mode). */
-static int after_first_pass(step_ctx* c) {
+/* The stages of the weighing, decided by thread 0 after each block pass (next_pass). Usually one pass does all:
+ * the move, the likelihood of every present entry, the prior-weighted mean of y and the posterior's sums, and
+ * the gate's bound (S >= R, so nu^T R^-1 nu <= threshold passes without S) settles it. Otherwise a pass forms S,
+ * the gate selects the entries (gate_select), and a pass weighs again without the entries it left out; a pass
+ * without the likelihood follows when every likelihood underflowed. */
+enum { STAGE_FIRST, STAGE_S, STAGE_REWEIGHED, STAGE_KEPT };
+
+/* nu^T R^-1 nu <= threshold over the present entries (R their measurement covariance, S >= R) */
+static int gate_bound_passes(step_ctx* c, const double* nu) {
+  const abyssal_sir* s = c->s;
+  const int m = c->n_present;
+  double* a = c->tmp_a;
+  double* l = c->tmp_l;
+  const double threshold = c->thresholds[m];
+  for (int i = 0; i < m; ++i)
+    for (int j = 0; j < m; ++j) a[i * m + j] = s->R[c->present_rows[i] * s->n_y + c->present_rows[j]];
+  if (!cholesky(a, m, l)) return 0;
+  double q = 0.0, v[ABYSSAL_SIR_MAX_OUTPUTS];
+  for (int i = 0; i < m; ++i) {
+    double acc = nu[c->present_rows[i]];
+    for (int k = 0; k < i; ++k) acc -= l[i * m + k] * v[k];
+    v[i] = acc / l[i * m + i];
+    q += v[i] * v[i];
+  }
+  return q <= threshold;
+}
+
+/* the mode of the pass that weighs again with the likelihood plan's entries (none: no likelihood) */
+static int reweigh_mode(const step_ctx* c) {
+  const abyssal_sir* s = c->s;
+  return (c->plan.m > 0 ? MODE_H | MODE_LIK : ((s->n_extra || s->has_valid) ? MODE_H : 0)) | MODE_POST;
+}
+
+static double max_log_lik(const step_ctx* c) {
+  double top = -INFINITY;
+  for (idx b = 0; b < c->nblocks; ++b) {
+    const double v = c->stats[b * c->bl.stride + c->bl.max_ll];
+    top = v > top ? v : top;
+  }
+  return top;
+}
+
+/* the last weighing stands unless every likelihood underflowed: then a pass keeps the weights */
+static int underflow_check(step_ctx* c) {
+  double* rep = c->rep;
+  const int used = c->plan.m;
+  const double top = used ? max_log_lik(c) : -INFINITY;
+  rep[ABYSSAL_SIR_R_MAX_LOG_LIK] = top;
+  rep[ABYSSAL_SIR_R_USED] = used;
+  rep[ABYSSAL_SIR_R_UNINFORMATIVE] = used && !(top >= log(DBL_MIN));
+  if (rep[ABYSSAL_SIR_R_UNINFORMATIVE] == 0.0) return 0;
+  c->plan.m = 0;
+  c->stage = STAGE_KEPT;
+  return reweigh_mode(c);
+}
+
+/* After a block pass (thread 0): the mode of the next one, 0 when the weighing is done. */
+static int next_pass(step_ctx* c) {
   const abyssal_sir* s = c->s;
   const int ny = s->n_y;
   double* rep = c->rep;
   double* gated = rep + c->ro.gated;
-  for (int i = 0; i < ny; ++i) gated[i] = 0.0;
-  for (idx k = 0; k < (idx)ny + (idx)ny * ny; ++k) rep[c->ro.nu + k] = 0.0;
-  rep[ABYSSAL_SIR_R_GATED] = 0.0;
-  if (!(c->mode & MODE_YSTATS)) return 0;
-  /* the cloud's predicted measurement with the prior weights */
-  double peak, W;
-  double* ybar = c->tmp_a;
-  double* cyy = c->tmp_l;
-  combine(c, c->bl.prior_peak, c->bl.prior_W, -1, c->bl.ybar, c->bl.m2y, ny, &peak, &W, NULL, ybar, cyy, 0, 0, NULL);
   double* nu = rep + c->ro.nu;
   double* S = rep + c->ro.S;
-  for (int i = 0; i < c->n_present; ++i) {
-    const int r = c->present_rows[i];
-    double v = c->z[r] - ybar[r] - s->R_mean[r];
-    if (fabs(v) > PI && is_angle(s, r)) v = wrap_pi(v);
-    nu[r] = v;
-    for (int j = 0; j < c->n_present; ++j) {
-      const int q = c->present_rows[j];
-      S[r * ny + q] = cyy[r * ny + q] + s->R[r * ny + q];
+  double peak, W;
+  switch (c->stage) {
+    case STAGE_FIRST: {
+      for (int i = 0; i < ny; ++i) gated[i] = 0.0;
+      for (idx k = 0; k < (idx)ny + (idx)ny * ny; ++k) rep[c->ro.nu + k] = 0.0;
+      rep[ABYSSAL_SIR_R_GATED] = 0.0;
+      if (!(c->mode & MODE_YMEAN)) return underflow_check(c);
+      double* ybar = c->tmp_a;
+      combine(c, c->bl.prior_peak, c->bl.prior_W, -1, c->bl.ybar, c->bl.m2y, ny, &peak, &W, NULL, ybar, NULL, 0, 0, NULL);
+      for (int i = 0; i < c->n_present; ++i) {
+        const int r = c->present_rows[i];
+        double v = c->z[r] - ybar[r] - s->R_mean[r];
+        if (fabs(v) > PI && is_angle(s, r)) v = wrap_pi(v);
+        nu[r] = v;
+      }
+      if (gate_bound_passes(c, nu)) return underflow_check(c);
+      c->stage = STAGE_S;
+      return MODE_H | MODE_YM2;
     }
-  }
-  int rows[ABYSSAL_SIR_MAX_OUTPUTS];
-  for (int i = 0; i < c->n_present; ++i) rows[i] = c->present_rows[i];
-  const int m = gate_select(c, nu, S, rows, c->n_present, gated, c->tmp_a, c->tmp_l);
-  int n_gated = 0;
-  for (int i = 0; i < ny; ++i) n_gated += gated[i] != 0.0;
-  rep[ABYSSAL_SIR_R_GATED] = n_gated;
-  if (n_gated == 0) return 0;
-  c->plan.m = 0;
-  c->mode = (s->n_extra || s->has_valid) ? MODE_H : 0;
-  if (m > 0) {
-    if (!make_plan(c, rows, m)) {
-      c->status = ABYSSAL_SIR_BAD_ARGUMENT;
+    case STAGE_S: {
+      double* ybar = c->tmp_a;
+      double* cyy = c->tmp_l;
+      combine(c, c->bl.prior_peak, c->bl.prior_W, -1, c->bl.ybar, c->bl.m2y, ny, &peak, &W, NULL, ybar, cyy, 0, 0, NULL);
+      for (int i = 0; i < c->n_present; ++i) {
+        const int r = c->present_rows[i];
+        for (int j = 0; j < c->n_present; ++j) {
+          const int q = c->present_rows[j];
+          S[r * ny + q] = cyy[r * ny + q] + s->R[r * ny + q];
+        }
+      }
+      int rows[ABYSSAL_SIR_MAX_OUTPUTS];
+      for (int i = 0; i < c->n_present; ++i) rows[i] = c->present_rows[i];
+      const int m = gate_select(c, nu, S, rows, c->n_present, gated, c->tmp_a, c->tmp_l);
+      int n_gated = 0;
+      for (int i = 0; i < ny; ++i) n_gated += gated[i] != 0.0;
+      rep[ABYSSAL_SIR_R_GATED] = n_gated;
+      if (n_gated == 0) return underflow_check(c); /* the first pass's weighing stands */
+      c->plan.m = 0;
+      if (m > 0 && !make_plan(c, rows, m)) {
+        c->status = ABYSSAL_SIR_BAD_ARGUMENT;
+        return 0;
+      }
+      c->stage = STAGE_REWEIGHED;
+      return reweigh_mode(c);
+    }
+    case STAGE_REWEIGHED:
+      return underflow_check(c);
+    default:
       return 0;
-    }
-    c->mode = MODE_H | MODE_LIK;
   }
-  return 1;
 }
 
 /* The next block of this phase for the calling thread (nblocks: none left). Blocks are handed out on demand, so
@@ -1010,15 +1100,6 @@ static int finish_weights(step_ctx* c) {
   return 1;
 }
 
-static double max_log_lik(const step_ctx* c) {
-  double top = -INFINITY;
-  for (idx b = 0; b < c->nblocks; ++b) {
-    const double v = c->stats[b * c->bl.stride + c->bl.max_ll];
-    top = v > top ? v : top;
-  }
-  return top;
-}
-
 /* a block pass over the thread's blocks, then thread 0 checks them; 0 when a block failed (all threads) */
 static int pass_blocks(step_ctx* c, int t, int mode, int phase) {
   run_blocks(c, t, mode, phase);
@@ -1035,27 +1116,19 @@ static int pass_blocks(step_ctx* c, int t, int mode, int phase) {
 static void drive(step_ctx* c, int t) {
   const abyssal_sir* s = c->s;
   double* rep = c->rep;
-  if (!pass_blocks(c, t, c->mode, 0)) return;
-  /* the gate: a second pass without the entries it leaves out */
-  if (t == 0) c->pass = after_first_pass(c);
-  sync_threads(c);
-  if (c->status || (c->pass && !pass_blocks(c, t, c->mode, 1))) return;
-  /* every likelihood underflowed: the weights stay (a pass without the likelihood) */
-  if (t == 0) {
-    const int used = c->plan.m;
-    const double top = used ? max_log_lik(c) : -INFINITY;
-    rep[ABYSSAL_SIR_R_MAX_LOG_LIK] = top;
-    rep[ABYSSAL_SIR_R_USED] = used;
-    rep[ABYSSAL_SIR_R_UNINFORMATIVE] = used && !(top >= log(DBL_MIN));
-    c->pass = rep[ABYSSAL_SIR_R_UNINFORMATIVE] != 0.0;
-    c->mode = (s->n_extra || s->has_valid) ? MODE_H : 0;
+  int phase = 0;
+  if (!pass_blocks(c, t, c->mode, phase++)) return;
+  for (;;) { /* further passes as the gate and the underflow rule ask (at most three) */
+    if (t == 0) c->mode = c->status ? 0 : next_pass(c);
+    sync_threads(c);
+    if (c->status) return;
+    if (!c->mode) break;
+    if (!pass_blocks(c, t, c->mode, phase++)) return;
   }
-  sync_threads(c);
-  if (c->pass && !pass_blocks(c, t, c->mode, 2)) return;
   if (t == 0) finish_weights(c);
   sync_threads(c);
   if (c->status) return;
-  normalise_blocks(c, 3);
+  normalise_blocks(c, PHASES - 2);
   sync_threads(c);
   if (t == 0) {
     const double ess = rep[ABYSSAL_SIR_R_ESS], below = s->in[ABYSSAL_SIR_IN_RESAMPLE_BELOW];
@@ -1073,7 +1146,7 @@ static void drive(step_ctx* c, int t) {
     }
   }
   sync_threads(c);
-  if (c->resample) gather_blocks(c, t, 4);
+  if (c->resample) gather_blocks(c, t, PHASES - 1);
 }
 
 #ifndef ABYSSAL_SIR_NO_THREADS
@@ -1206,7 +1279,8 @@ int abyssal_sir_step(const abyssal_sir* s) {
   c->scratch_base = aligned(plan + plan_size(s->n_y, K));
   c->scratch_stride = scratch_size(s->n_x, s->n_u, s->n_y, s->n_extra, s->has_valid, s->rank, K);
   /* the first pass: move, and the likelihood of every present entry (the gate may leave some out after it) */
-  c->mode = MODE_MOVE;
+  c->mode = MODE_MOVE | MODE_POST;
+  c->stage = STAGE_FIRST;
   if (in[ABYSSAL_SIR_IN_MEASURE] != 0.0 && s->n_y > 0) {
     if (!s->h || !s->r_weights || !s->r_means || !s->r_covs || !s->R || !s->R_mean || s->r_components < 1 ||
         (s->n_angles && !s->angle_outputs))
@@ -1222,7 +1296,7 @@ int abyssal_sir_step(const abyssal_sir* s) {
     if (c->n_present) {
       if (!make_plan(c, c->present_rows, c->n_present)) return ABYSSAL_SIR_BAD_ARGUMENT;
       c->mode |= MODE_H | MODE_LIK;
-      if (c->thresholds[c->n_present] < INFINITY) c->mode |= MODE_YSTATS;
+      if (c->thresholds[c->n_present] < INFINITY) c->mode |= MODE_YMEAN;
     }
   }
   if (s->n_extra || s->has_valid) c->mode |= MODE_H;

@@ -40,6 +40,8 @@ SOURCES = ("abyssal_rng.h", "abyssal_sir.h", "abyssal_sir_soa.c", "abyssal_sir_t
 #: particles per block of the C step (ABYSSAL_SIR_BLOCK)
 BLOCK = 512
 MAX_THREADS = 64
+#: serial steps timed before the thread count is chosen (threads_for)
+TIMED_STEPS = 3
 
 # in[] scalars (abyssal_sir.h: ABYSSAL_SIR_IN_*)
 (IN_CUR, IN_SIDE, IN_MOVE, IN_MEASURE, IN_DT, IN_PIECES, IN_RESAMPLE_BELOW, IN_SCHEME, IN_THREADS, IN_RATIO,
@@ -224,13 +226,18 @@ class CompiledSIR:
         self.pin_rows, self.pin_values = self.inputs[io.pin_rows:io.pin_rows + n_x], self.inputs[io.pin_values:io.pin_values + n_x]
         self.inputs[IN_PIECES] = 1.0
         self.inputs[IN_THREADS] = 1.0
-        self._ro = ro
+        #: offsets of the inputs' vectors (u, u_std, z, present, thresholds, pin_rows, pin_values) and the report's
+        self.io, self._ro = io, ro
         self.particles = [np.zeros((n_x, n)) for _ in range(3)]
         self.log_w = [np.full(n, -math.log(n)) for _ in range(2)]
         self.w = [np.full(n, 1.0 / n) for _ in range(2)]
         self.report = [np.zeros(ro.size) for _ in range(2)]
         for r in self.report:
             r[R_ESS] = n
+        ro_ = ro
+        self._means = [r[ro_.mean:ro_.mean + n_x] for r in self.report]
+        self._covs = [r[ro_.cov:ro_.cov + n_x * n_x].reshape(n_x, n_x) for r in self.report]
+        self._extras = [r[ro_.extra:ro_.extra + n_extra] for r in self.report]
         self.log_ratio = np.zeros(n)
         self.rng = np.zeros(2, dtype=np.uint64)
         self.cur, self.side = 0, 0
@@ -274,13 +281,16 @@ class CompiledSIR:
 
     # ------------------------------------------------------------------ views of the sides
     def mean(self, side: int) -> np.ndarray:
-        return self.report[side][self._ro.mean:self._ro.mean + self.n_x]
+        """The weighted mean (n_x,) of a side's step (a view)."""
+        return self._means[side]
 
     def cov(self, side: int) -> np.ndarray:
-        return self.report[side][self._ro.cov:self._ro.cov + self.n_x * self.n_x].reshape(self.n_x, self.n_x)
+        """The weighted covariance (n_x, n_x) of a side's step (a view)."""
+        return self._covs[side]
 
     def extra(self, side: int) -> np.ndarray:
-        return self.report[side][self._ro.extra:self._ro.extra + self.n_extra]
+        """The posterior means of the measurement's extra rows (n_extra,) of a side's step (a view)."""
+        return self._extras[side]
 
     def gated(self, side: int) -> np.ndarray:
         return self.report[side][self._ro.gated:self._ro.gated + self.n_y]
@@ -297,7 +307,7 @@ class CompiledSIR:
 
     # ------------------------------------------------------------------ the step
     def threads_for(self) -> int:
-        """Threads for the next step: all cores once a serial step is measured to take SPLIT_MIN_SECONDS."""
+        """Threads for a step: every core once a serial step was measured to take SPLIT_MIN_SECONDS or more."""
         if self.max_threads > 1 and self.particle_seconds is not None and self.n > BLOCK:
             if self.n * self.particle_seconds >= SPLIT_MIN_SECONDS:
                 return self.max_threads
@@ -305,18 +315,24 @@ class CompiledSIR:
 
     def __call__(self) -> int:
         """One step on the uncommitted side; returns the C status (0: ok, see MESSAGES)."""
-        inputs = self.inputs
-        inputs[IN_CUR], inputs[IN_SIDE] = self.cur, self.side
-        threads = self.threads_for()
-        inputs[IN_THREADS] = threads
-        if threads == 1 and self._timed < 5 and self.max_threads > 1 and self.n > BLOCK:
-            start = time.perf_counter()
-            status = self._fn(self._arg)
-            seconds = (time.perf_counter() - start) / self.n
-            self._timed += 1
-            self.particle_seconds = seconds if self.particle_seconds is None else min(self.particle_seconds, seconds)
-            return status
+        self.inputs[IN_CUR:IN_SIDE + 1] = (self.cur, self.side)
+        if self._timed < TIMED_STEPS:
+            return self._timed_call()
         return self._fn(self._arg)
+
+    def _timed_call(self) -> int:
+        """A serial step timed (the first TIMED_STEPS of a cloud that could be split); then the thread count is fixed."""
+        if self.max_threads == 1 or self.n <= BLOCK:
+            self._timed = TIMED_STEPS
+            return self._fn(self._arg)
+        start = time.perf_counter()
+        status = self._fn(self._arg)
+        seconds = (time.perf_counter() - start) / self.n
+        self.particle_seconds = seconds if self.particle_seconds is None else min(self.particle_seconds, seconds)
+        self._timed += 1
+        if self._timed == TIMED_STEPS:
+            self.inputs[IN_THREADS] = self.threads_for()
+        return status
 
     def commit(self) -> None:
         """The step's side becomes the committed one (particles: the resampled buffer when it resampled) and the

@@ -181,6 +181,16 @@ def numpy_sir_step(model, X, log_w, u, dt, p, process, mixture, z, present, angl
     return out
 
 
+def ref_innovation(model, X, lw, u, dt, p, process, z, key, counter):
+    """nu = z - sum_i w_i h(x_i) - E[v] of the proposed cloud with the prior weights (NumPy)."""
+    ref = reference_models.REFERENCES[model.name]
+    Y = sir.normals(key, counter, process.rank, X.shape[1])
+    Xn = reference_models.step(ref, X, u[:, None], p, dt, model.manifest["discretisation"], model.manifest["substeps"])
+    Xn = Xn + process_noise_draws(process, X.shape[0], Y, sir.uniforms(key, counter, sir.TAG_COMPONENTS, X.shape[1]))
+    w = np.exp(lw - lw.max())
+    return z - ref.h(Xn, p) @ (w / w.sum()) - sea_mixture().mean()
+
+
 # ------------------------------------------------------------------------------------------- set-ups
 def rov_noise(kind):
     """Process noises of rov4dof: the seed-000 'plain' Q (singular on the pose), a dense singular Q, a mixture."""
@@ -298,7 +308,16 @@ def test_the_gate_leaves_an_outlier_entry_out_like_the_kalman_gate(rov):
     ref = numpy_sir_step(rov, X, lw, u, dt, p, process, mixture, z, np.isfinite(z), [3], *step.rng, gate_probability=1e-10)
     assert list(ref["gated"]) == [False, True, False, False]
     compare(step, ref)
-    assert step.report[1][sir.R_GATED] == 1 and step.report[1][sir.R_USED] == 3 and step.report[1][sir.R_PASSES] == 2
+    # three passes: the first, one forming S (the bound nu^T R^-1 nu did not settle it), one without the entry
+    assert step.report[1][sir.R_GATED] == 1 and step.report[1][sir.R_USED] == 3 and step.report[1][sir.R_PASSES] == 3
+    nu, S = step.innovation(1)
+    assert nu[1] == pytest.approx(ref_innovation(rov, X, lw, u, 0.1, p, process, z, *step.rng)[1], rel=1e-9)
+    assert S[1, 1] > mixture.covariance()[1, 1]
+    # an ordinary measurement: the bound settles the gate in the first pass, and nothing is left out
+    ordinary, *_ = make_step(rov, 1200)
+    set_inputs(ordinary, u, dt, np.array([0.2, -0.1, 0.05, -np.pi + 0.05]), gate=1e-10)
+    assert ordinary() == 0
+    assert ordinary.report[1][sir.R_PASSES] == 1 and ordinary.report[1][sir.R_GATED] == 0
     # every present entry an outlier: nothing is used, the weights stay
     step2, *_ = make_step(rov, 1200)
     set_inputs(step2, u, dt, np.array([1e3, 1e3, 1e3, np.nan]), gate=1e-10)
