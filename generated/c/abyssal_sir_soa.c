@@ -51,14 +51,14 @@ enum { MODE_MOVE = 1, MODE_H = 2, MODE_LIK = 4, MODE_YMEAN = 8, MODE_YM2 = 16, M
 /* ------------------------------------------------------------------------------------------ layouts */
 abyssal_sir_in_offsets abyssal_sir_inputs(int n_x, int n_u, int n_y) {
   abyssal_sir_in_offsets o;
-  o.u = ABYSSAL_SIR_IN_HEAD;
+  o.pin_values = ABYSSAL_SIR_IN_HEAD;
+  o.pin_rows = o.pin_values + n_x;
+  o.u = o.pin_rows + n_x;
   o.u_std = o.u + n_u;
   o.z = o.u_std + n_u;
   o.present = o.z + n_y;
   o.thresholds = o.present + n_y;
-  o.pin_rows = o.thresholds + n_y + 1;
-  o.pin_values = o.pin_rows + n_x;
-  o.size = o.pin_values + n_x;
+  o.size = o.thresholds + n_y + 1;
   return o;
 }
 
@@ -164,12 +164,12 @@ static void normals_block(uint64_t key, uint64_t counter, uint32_t tag, idx i0, 
     const uint32_t ctr1 = (tag << 16) | (uint32_t)g;
 #pragma omp simd
     for (idx j = 0; j < n; ++j) {
-      uint32_t c0 = (uint32_t)(i0 + j), c1 = ctr1, c2 = ctr2, c3 = ctr3, k0 = key0, k1 = key1;
+      uint64_t c0 = (uint32_t)(i0 + j), c1 = ctr1, c2 = ctr2, c3 = ctr3, k0 = key0, k1 = key1; /* 64-bit lanes */
       ABYSSAL_PHILOX_10(c0, c1, c2, c3, k0, k1);
-      b0[j] = c0;
-      b1[j] = c1;
-      b2[j] = c2;
-      b3[j] = c3;
+      b0[j] = (uint32_t)c0;
+      b1[j] = (uint32_t)c1;
+      b2[j] = (uint32_t)c2;
+      b3[j] = (uint32_t)c3;
     }
     for (int pair = 0; pair < 2; ++pair) {
       const int row = 4 * g + 2 * pair;
@@ -204,7 +204,7 @@ static void uniforms_block(uint64_t key, uint64_t counter, uint32_t tag, idx i0,
   const uint32_t ctr1 = tag << 16, ctr2 = (uint32_t)counter, ctr3 = (uint32_t)(counter >> 32);
 #pragma omp simd
   for (idx j = 0; j < n; ++j) {
-    uint32_t c0 = (uint32_t)(i0 + j), c1 = ctr1, c2 = ctr2, c3 = ctr3, k0 = key0, k1 = key1;
+    uint64_t c0 = (uint32_t)(i0 + j), c1 = ctr1, c2 = ctr2, c3 = ctr3, k0 = key0, k1 = key1;
     ABYSSAL_PHILOX_10(c0, c1, c2, c3, k0, k1);
     out[j] = ((double)c0 + 0.5) * 0x1p-32;
   }
@@ -271,12 +271,12 @@ typedef struct step_ctx {
   /* this step's buffers */
   const double* x_in;
   double *x_prop, *x_out;
-  const double* lw_in;
+  const double *lw_in, *w_in;
   double *lw_next, *w_next, *rep, *stats, *offsets;
   const double *u, *u_std, *z, *thresholds, *pin_values;
   int n_pins, pin_rows[ABYSSAL_SIR_MAX_STATES];
   double dt_piece;
-  int pieces, move, ratio, draws;
+  int pieces, move, ratio, prior_w, draws;
   uint64_t key, counter;
   lik_plan plan;
   int present_rows[ABYSSAL_SIR_MAX_OUTPUTS], n_present;
@@ -749,8 +749,16 @@ static void block_pass(step_ctx* c, scratch* sc, idx b, int mode) {
     st[c->bl.max_ll] = -INFINITY;
   }
   if (mode & (MODE_YMEAN | MODE_YM2)) { /* the cloud's predicted measurement, with the prior weights */
-    double W;
-    block_weights(lp, nb, sc->e, st + c->bl.prior_peak, &W, NULL);
+    double W = 0.0;
+    if (c->prior_w) { /* the committed weights themselves (exp(log_w) with peak 0), through aligned scratch */
+      double* restrict e = sc->e;
+      memcpy(e, c->w_in + j0, (size_t)nb * sizeof(double));
+#pragma omp simd reduction(+ : W)
+      for (idx j = 0; j < nb; ++j) W += e[j];
+      st[c->bl.prior_peak] = 0.0;
+    } else {
+      block_weights(lp, nb, sc->e, st + c->bl.prior_peak, &W, NULL);
+    }
     st[c->bl.prior_W] = W;
     if (mode & MODE_YM2)
       block_moments(sc->e, W, nb, sc->y, s->n_y, st + c->bl.ybar, st + c->bl.m2y, sc->s);
@@ -1222,7 +1230,7 @@ int abyssal_sir_step(const abyssal_sir* s) {
   const double threads = in[ABYSSAL_SIR_IN_THREADS], pins = in[ABYSSAL_SIR_IN_PINS];
   if (!(cur == 0.0 || cur == 1.0 || cur == 2.0) || !flag(in[ABYSSAL_SIR_IN_SIDE]) ||
       !(move == 0.0 || move == 1.0 || move == 2.0) || !flag(in[ABYSSAL_SIR_IN_MEASURE]) ||
-      !flag(in[ABYSSAL_SIR_IN_RATIO]) || !(pieces >= 1.0 && pieces <= 1024.0 && pieces == floor(pieces)) ||
+      !flag(in[ABYSSAL_SIR_IN_RATIO]) || !flag(in[ABYSSAL_SIR_IN_PRIOR]) || !(pieces >= 1.0 && pieces <= 1024.0 && pieces == floor(pieces)) ||
       !(threads >= 1.0) || !(pins >= 0.0 && pins <= s->n_x && pins == floor(pins)) ||
       !isfinite(in[ABYSSAL_SIR_IN_DT]) || in[ABYSSAL_SIR_IN_RESAMPLE_BELOW] != in[ABYSSAL_SIR_IN_RESAMPLE_BELOW] ||
       !(in[ABYSSAL_SIR_IN_SCHEME] == 0.0 || in[ABYSSAL_SIR_IN_SCHEME] == 1.0 || in[ABYSSAL_SIR_IN_SCHEME] == 2.0))
@@ -1232,10 +1240,12 @@ int abyssal_sir_step(const abyssal_sir* s) {
   c->pieces = (int)pieces;
   c->dt_piece = in[ABYSSAL_SIR_IN_DT] / c->pieces;
   c->ratio = in[ABYSSAL_SIR_IN_RATIO] != 0.0;
+  c->prior_w = in[ABYSSAL_SIR_IN_PRIOR] != 0.0 && !c->ratio;
   c->x_in = s->particles[(int)cur];
   c->x_prop = s->particles[((int)cur + 1) % 3];
   c->x_out = s->particles[((int)cur + 2) % 3];
   c->lw_in = s->log_w[side];
+  c->w_in = s->w[side];
   c->lw_next = s->log_w[1 - side];
   c->w_next = s->w[1 - side];
   c->rep = s->report[1 - side];

@@ -44,8 +44,8 @@ MAX_THREADS = 64
 TIMED_STEPS = 3
 
 # in[] scalars (abyssal_sir.h: ABYSSAL_SIR_IN_*)
-(IN_CUR, IN_SIDE, IN_MOVE, IN_MEASURE, IN_DT, IN_PIECES, IN_RESAMPLE_BELOW, IN_SCHEME, IN_THREADS, IN_RATIO,
- IN_PINS, IN_HEAD) = range(12)
+(IN_CUR, IN_SIDE, IN_PRIOR, IN_THREADS, IN_SCHEME, IN_RESAMPLE_BELOW, IN_RATIO, IN_MOVE, IN_MEASURE, IN_DT,
+ IN_PIECES, IN_PINS, IN_HEAD) = range(13)
 MOVE_NONE, MOVE_TRANSITION, MOVE_GIVEN = 0, 1, 2
 SYSTEMATIC, STRATIFIED, CALLER = 0, 1, 2
 SCHEMES = {"systematic": SYSTEMATIC, "stratified": STRATIFIED}
@@ -61,8 +61,8 @@ MESSAGES = {1: "a particle left the finite range", 2: "the measurement function 
 
 
 class _InOffsets(ctypes.Structure):
-    _fields_ = [(name, ctypes.c_longlong) for name in ("u", "u_std", "z", "present", "thresholds", "pin_rows",
-                                                       "pin_values", "size")]
+    _fields_ = [(name, ctypes.c_longlong) for name in ("pin_values", "pin_rows", "u", "u_std", "z", "present",
+                                                       "thresholds", "size")]
 
 
 class _ReportOffsets(ctypes.Structure):
@@ -218,7 +218,13 @@ class CompiledSIR:
         self.n, self.n_x, self.n_u, self.n_y, self.n_extra = n, n_x, n_u, n_y, n_extra
         self.max_threads = min(MAX_THREADS, os.cpu_count() or 1) if max_threads is None else int(max_threads)
         io, ro = lib.abyssal_sir_inputs(n_x, n_u, n_y), lib.abyssal_sir_report(n_x, n_y, n_extra)
-        self.inputs = np.zeros(io.size)
+        # the inputs, then the process noise's factor (an input too: a filter may change it every step, e.g. a
+        # sigma of its own; the struct points at it), so a filter writes all it changes in one slice
+        factor_at = io.size
+        self.inputs = np.zeros(io.size + process.factor.size)
+        #: the process noise's factor as the step reads it (write new values here, not into process.factor)
+        self.factor = self.inputs[factor_at:].reshape(process.factor.shape)
+        self.factor[...] = process.factor
         self.u, self.u_std = self.inputs[io.u:io.u + n_u], self.inputs[io.u_std:io.u_std + n_u]
         self.z, self.present = self.inputs[io.z:io.z + n_y], self.inputs[io.present:io.present + n_y]
         self.thresholds = self.inputs[io.thresholds:io.thresholds + n_y + 1]
@@ -241,11 +247,13 @@ class CompiledSIR:
         self.log_ratio = np.zeros(n)
         self.rng = np.zeros(2, dtype=np.uint64)
         self.cur, self.side = 0, 0
+        #: the committed weights are exp(the committed log-weights) (no resampling since): see IN_PRIOR
+        self.weights_match = True
         # noises
         self.process = process
         mixture = measurement
         k = mixture.n_components
-        self._keep = [p, process.factor, process.support, process.mean, process.cumulative, process.means, process.factors]
+        self._keep = [p, process.support, process.mean, process.cumulative, process.means, process.factors]
         r_weights, r_means = _array(mixture.weights), _array(mixture.means)
         r_covs, R, R_mean = _array(mixture.covariances), _array(mixture.covariance()), _array(mixture.mean())
         angles = _array(list(angle_outputs) or [0], np.int32)
@@ -262,7 +270,7 @@ class CompiledSIR:
             n=n, n_x=n_x, n_u=n_u, n_y=n_y, n_p=p.shape[0], n_extra=n_extra, has_valid=int(has_valid),
             max_threads=self.max_threads, f=f, h=h, h_ctx=None if h_ctx is None else ctypes.addressof(h_ctx),
             p=p.ctypes.data, rank=rank, q_components=1 if process.cumulative is None else len(process.cumulative),
-            support=_ptr(process.support), factor=_ptr(process.factor), noise_mean=_ptr(process.mean),
+            support=_ptr(process.support), factor=self.factor.ctypes.data, noise_mean=_ptr(process.mean),
             q_cumulative=_ptr(process.cumulative), q_means=_ptr(process.means), q_factors=_ptr(process.factors),
             input_noise=int(input_noise), r_components=k, n_angles=len(angle_outputs), angle_outputs=_ptr(angles),
             r_weights=_ptr(r_weights), r_means=_ptr(r_means), r_covs=_ptr(r_covs), R=_ptr(R), R_mean=_ptr(R_mean),
@@ -315,7 +323,7 @@ class CompiledSIR:
 
     def __call__(self) -> int:
         """One step on the uncommitted side; returns the C status (0: ok, see MESSAGES)."""
-        self.inputs[IN_CUR:IN_SIDE + 1] = (self.cur, self.side)
+        self.inputs[IN_CUR:IN_PRIOR + 1] = (self.cur, self.side, self.weights_match)
         if self._timed < TIMED_STEPS:
             return self._timed_call()
         return self._fn(self._arg)
@@ -338,9 +346,11 @@ class CompiledSIR:
         """The step's side becomes the committed one (particles: the resampled buffer when it resampled) and the
         generator's counter advances."""
         nxt = 1 - self.side
-        self.cur = (self.cur + (2 if self.report[nxt][R_RESAMPLED] else 1)) % 3
+        resampled = self.report[nxt].item(R_RESAMPLED) != 0.0
+        self.cur = (self.cur + (2 if resampled else 1)) % 3
         self.side = nxt
-        self.rng[1] += np.uint64(1)
+        self.weights_match = not resampled
+        self.rng[1] = int(self.rng[1]) + 1
 
     def message(self, status: int) -> str:
         return MESSAGES.get(status, f"unknown status {status}")

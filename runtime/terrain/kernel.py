@@ -20,23 +20,30 @@ from ..compiled.sir import address, library
 class TerrainMeasure(ctypes.Structure):
     """abyssal_sir_terrain: a map bound for the SIR step's measurement (depth [, slope along the heading], inside).
 
-    ``heading`` (2,): [1 when every particle has the heading heading[1] (a pinned compass), else 0, heading];
-    the filter writes it each step.
+    ``heading`` (2,) is read at every call: [1 when every particle has the heading heading[1] (a pinned compass),
+    else 0, heading] -- the SIR step's inputs [pins, first pinned value] (CompiledSIR.inputs[IN_PINS:]).
     """
 
     _fields_ = [("grid", ctypes.c_void_p), ("nx", ctypes.c_longlong), ("ny", ctypes.c_longlong),
                 ("x0", ctypes.c_double), ("y0", ctypes.c_double), ("inv_res", ctypes.c_double),
-                ("slope", ctypes.c_int), ("heading_ptr", ctypes.c_void_p)]
+                ("slope", ctypes.c_int), ("heading", ctypes.c_void_p)]
 
     @classmethod
     def bind(cls, terrain, slope: bool) -> "TerrainMeasure":
+        """The map bound; ``read_heading_from`` must name the heading's two values before a step calls it."""
         ny, nx = terrain.depth.shape
-        heading = np.zeros(2)
         m = cls(grid=terrain.depth.ctypes.data, nx=nx, ny=ny, x0=terrain.origin[0], y0=terrain.origin[1],
-                inv_res=1.0 / terrain.resolution, slope=int(slope), heading_ptr=heading.ctypes.data)
-        m.heading = heading
-        m._keep = terrain.depth
+                inv_res=1.0 / terrain.resolution, slope=int(slope), heading=None)
+        m._keep = [terrain.depth]
         return m
+
+    def read_heading_from(self, values: np.ndarray) -> None:
+        """Read [pinned, heading] from `values` (a contiguous float64 array of at least 2, kept alive here)."""
+        if not (isinstance(values, np.ndarray) and values.dtype == np.float64 and values.shape[0] >= 2
+                and values.flags.c_contiguous):
+            raise ValueError("the heading must be a contiguous float64 view of at least 2 values")
+        self.heading = values.ctypes.data
+        self._keep.append(values)
 
     @staticmethod
     def function() -> int:

@@ -231,6 +231,7 @@ def make_step(model, N, process_kind="support", mixture=None, threads=1, seed=0,
     lw -= np.log(np.exp(lw).sum())
     step.log_w[0][...] = lw
     step.rng[0], step.rng[1] = 0xC0FFEE1234, 41
+    step.weights_match = False  # log_w above are not log(w)
     return step, process, mixture, p
 
 

@@ -145,25 +145,28 @@ class TerrainParticleFilter(FilterBase):
         # compass = a pinned heading, the altimeter = the map lookup with out-of-map particles invalid
         p = np.zeros(model.n_p)
         self._init_contract(self.model, p_buffer=p)
-        self._measure = TerrainMeasure.bind(terrain, slope=self.fuzzy)
-        self._env = sir.ProcessNoise(rank=2, factor=np.zeros(2), support=np.array([0, 1], dtype=np.int32))
         log_norm = -math.log(self.altimeter_sigma) - 0.5 * LOG_2PI
+        self._measure = TerrainMeasure.bind(terrain, slope=self.fuzzy)
         self._sir = sir.CompiledSIR(
             N, model.n_x, model.n_u, 1, p, f=f.soa_address, measure=(TerrainMeasure.function(), self._measure),
-            process=self._env, measurement=GaussianMixture.gaussian(np.zeros(1), np.array([[self.altimeter_sigma ** 2]])),
+            process=sir.ProcessNoise(rank=2, factor=np.zeros(2), support=np.array([0, 1], dtype=np.int32)),
+            measurement=GaussianMixture.gaussian(np.zeros(1), np.array([[self.altimeter_sigma ** 2]])),
             input_noise=True, n_extra=1 if self.fuzzy else 0, has_valid=True,
             invalid_log_lik=log_norm - 0.5 * out_of_map_sigmas ** 2)
         step, inputs = self._sir, self._sir.inputs
-        inputs[sir.IN_PIECES] = 1.0
+        # the lookup reads [pins, first pinned value]: whether every particle has the compass heading, and which
+        self._measure.read_heading_from(inputs[sir.IN_PINS:sir.IN_PINS + 2])
         inputs[sir.IN_SCHEME] = sir.SCHEMES[policy.scheme]
         inputs[sir.IN_RESAMPLE_BELOW] = math.inf if policy.threshold >= 1.0 else policy.threshold * N
-        step.pin_rows[0] = 2
-        self._gate_on = step.thresholds.copy()
-        if gate_probability > 0:
-            self._gate_on[1] = chi2.isf(gate_probability, 1)
-        self._gate_off = np.full(2, math.inf)
-        # inputs written each step as one slice each (see _advance)
-        self._io = (sir.IN_MOVE, sir.IN_PIECES, step.io.u)
+        # everything a step changes is one slice of the inputs, MOVE .. the end (the process noise factor last):
+        # [MOVE, MEASURE, DT, PIECES, PINS, heading, 0, 0, pin rows 2, 0, 0, v, omega, sd_v, sd_omega, depth,
+        #  present, gate thresholds (2), sigma, sigma]
+        gate = chi2.isf(gate_probability, 1) if gate_probability > 0 else math.inf
+        self._slice = [0.0, 0.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 2.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, math.inf,
+                       gate, 0.0, 0.0]
+        self._gate = gate
+        if len(self._slice) != inputs.shape[0] - sir.IN_MOVE or step.io.u - sir.IN_MOVE != 11:
+            raise RuntimeError("the compiled SIR step's input layout changed: update TerrainParticleFilter._slice")
         step.particles[0][...] = gaussian_draws(x0, P0, self.rng, N)
         step.rng[0] = sir.draw_key(self.rng)
         self._x, self._P = step.mean(0), step.cov(0)
@@ -205,11 +208,11 @@ class TerrainParticleFilter(FilterBase):
 
     def checkpoint(self) -> dict:
         state = super().checkpoint()
-        state["sides"] = (self._sir.cur, self._sir.side)
+        state["sides"] = (self._sir.cur, self._sir.side, self._sir.weights_match)
         return state
 
     def restore(self, checkpoint: dict) -> None:
-        self._sir.cur, self._sir.side = checkpoint["sides"]
+        self._sir.cur, self._sir.side, self._sir.weights_match = checkpoint["sides"]
         self._x, self._P = self._sir.mean(self._sir.side), self._sir.cov(self._sir.side)
         super().restore(checkpoint)  # into the buffers of the restored sides
 
@@ -235,18 +238,16 @@ class TerrainParticleFilter(FilterBase):
         v, omega = u.tolist() if move else (0.0, 0.0)
         a1, a2, a3, a4 = self.body_noise
         step = self._sir
-        inputs = step.inputs
-        first, pieces, at_u = self._io
-        # [MOVE, MEASURE, DT]; [u (2), u_std (2), z (1), present (1)]; the heading pin; sigma; the gate
-        inputs[first:pieces] = (sir.MOVE_TRANSITION if move else sir.MOVE_NONE, depth_present, dt if move else 1.0)
-        inputs[at_u:at_u + 6] = (v, omega, math.sqrt(a1 * v * v + a2 * omega * omega),   # eq. 2
-                                 math.sqrt(a3 * v * v + a4 * omega * omega), z_depth, 1.0)
-        inputs[sir.IN_PINS] = heading_present
-        step.pin_values[0] = z_heading
-        self._measure.heading[:] = (heading_present, z_heading)
-        self._env.factor[:] = self.sigma                                                     # eq. 3
-        bypass = self._gate_streak >= self.gate_patience
-        step.thresholds[:] = self._gate_off if bypass else self._gate_on
+        values = self._slice  # see __init__: the step's inputs from MOVE on
+        values[0], values[1], values[2] = (sir.MOVE_TRANSITION if move else sir.MOVE_NONE), depth_present, (dt if move else 1.0)
+        values[4], values[5] = heading_present, z_heading                                      # the compass, pinned
+        values[11], values[12] = v, omega
+        values[13] = math.sqrt(a1 * v * v + a2 * omega * omega)                                # eq. 2
+        values[14] = math.sqrt(a3 * v * v + a4 * omega * omega)
+        values[15] = z_depth
+        values[18] = math.inf if self._gate_streak >= self.gate_patience else self._gate    # patience: ungated
+        values[19] = values[20] = self.sigma                                                   # eq. 3
+        step.inputs[sir.IN_MOVE:] = values
         status = step()
         if status:
             raise ValueError(f"TerrainParticleFilter: {step.message(status)} (u, dt, z or p out of the model's "
@@ -267,13 +268,13 @@ class TerrainParticleFilter(FilterBase):
             fuzzy_state = (travelled, (travelled, gradient), dropped, gradient, rate, self._fuzzy_sigma(gradient, rate))
         # commit: nothing below can fail
         step.commit()
-        gated = report.item(sir.R_GATED)
+        ess, resampled, _, uninformative, _, gated = report[:sir.R_GATED + 1].tolist()
         if depth_present:
             self._gate_streak = self._gate_streak + 1 if gated else 0
         self.gated += int(gated)
-        self.uninformative += report.item(sir.R_UNINFORMATIVE) > 0.0
-        self.resamples += report.item(sir.R_RESAMPLED) > 0.0
-        self.ess = report.item(sir.R_ESS)
+        self.uninformative += uninformative > 0.0
+        self.resamples += resampled > 0.0
+        self.ess = ess
         self._x, self._P = step.mean(nxt), step.cov(nxt)
         if fuzzy_state is not None:
             self._travelled, entry, dropped, self.gradient, self.gradient_rate, self.sigma = fuzzy_state
