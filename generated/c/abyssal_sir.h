@@ -28,7 +28,7 @@
  * twice (particles: three buffers, the committed one, the proposals and the resampled ones), so a caller
  * that does not commit a step has nothing to undo. It never allocates.
  *
- * Layouts: particles (n_x, n) row-major (row r of particle j at r * n + j); matrices row-major.
+ * Layouts: particles (n_x, n) with row stride ld (row r of particle j at r * ld + j); matrices row-major.
  */
 #ifndef ABYSSAL_SIR_H
 #define ABYSSAL_SIR_H
@@ -116,6 +116,7 @@ typedef struct {
 typedef struct abyssal_sir {
   /* sizes */
   abyssal_idx n;          /* particles (1 .. 2^32 - 1) */
+  abyssal_idx ld;         /* row stride of the particle buffers (>= n; a multiple of 8 keeps rows 64-byte aligned) */
   int n_x, n_u, n_y, n_p;
   int n_extra;            /* measurement rows after the n_y outputs, averaged with the posterior weights */
   int has_valid;          /* 1: one more row, 0 marks a particle outside h's domain (log-likelihood = invalid_log_lik) */
@@ -159,9 +160,10 @@ typedef struct abyssal_sir {
 
 abyssal_sir_in_offsets abyssal_sir_inputs(int n_x, int n_u, int n_y);
 abyssal_sir_report_offsets abyssal_sir_report(int n_x, int n_y, int n_extra);
-/* doubles of work for a model of these sizes, n particles and up to `threads` threads */
-abyssal_idx abyssal_sir_work_size(abyssal_idx n, int n_x, int n_u, int n_y, int n_extra, int has_valid, int rank,
-                                  int r_components, int threads);
+/* doubles of work for a model of these sizes, n particles (row stride ld) and up to `threads` threads (most of it
+ * address space: per thread, rows of stride ld of which only the first ABYSSAL_SIR_BLOCK columns are touched) */
+abyssal_idx abyssal_sir_work_size(abyssal_idx n, abyssal_idx ld, int n_x, int n_u, int n_y, int n_extra, int has_valid,
+                                  int rank, int r_components, int threads);
 /* one step (see the top of this file); ABYSSAL_SIR_OK or an error code, the committed buffers untouched */
 int abyssal_sir_step(const abyssal_sir* s);
 /* a message for a return code */

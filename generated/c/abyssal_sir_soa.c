@@ -98,17 +98,23 @@ static idx blocks_of(idx n) { return (n + BLOCK - 1) / BLOCK; }
 static int draw_rows(int n_u, int rank) { return n_u + rank; }
 static int y_rows(int n_y, int n_extra, int has_valid) { return n_y + n_extra + (has_valid ? 1 : 0); }
 
-/* per-thread scratch, in doubles */
-static idx scratch_size(int n_x, int n_u, int n_y, int n_extra, int has_valid, int rank, int r_components) {
+/* per-thread scratch, in doubles (multiples of 8). The inputs u and the measurement y are rows of stride ld (the
+ * particle buffers' row stride), as the generated kernels take one stride for every per-particle argument: only
+ * their first BLOCK columns are ever touched (the rest is address space, never written). */
+static idx rows_at_stride(int rows, idx ld) { return rows > 0 ? (idx)(rows - 1) * ld + BLOCK : 0; }
+
+static idx scratch_size(int n_x, int n_u, int n_y, int n_extra, int has_valid, int rank, int r_components, idx ld) {
   const int rows = draw_rows(n_u, rank);
-  idx size = 2 * (idx)n_x * BLOCK;                      /* xa, xb */
-  size += (idx)n_u * BLOCK;                             /* per-particle inputs */
+  idx size = 2 * (idx)n_x * BLOCK;                      /* xa, xb: substeps, and the shifted rows of the moments */
+  size += (idx)n_u * BLOCK;                             /* per-particle inputs of the substep path (stride BLOCK) */
+  size += (rows_at_stride(n_u, ld) + 7) / 8 * 8;        /* per-particle inputs (stride ld) */
+  size += (rows_at_stride(y_rows(n_y, n_extra, has_valid), ld) + 7) / 8 * 8; /* y (stride ld) */
+  size += (idx)(n_y > 0 ? n_y : 1) * BLOCK;             /* the shifted rows of y */
   size += (idx)(rows > 0 ? rows : 1) * BLOCK;           /* normals */
   size += 2 * (idx)BLOCK;                               /* 4 uint32 per particle */
-  size += (idx)y_rows(n_y, n_extra, has_valid) * BLOCK; /* y */
   size += (idx)(n_y > 0 ? n_y : 1) * BLOCK;             /* residuals */
   size += (idx)(r_components > 1 ? r_components : 1) * BLOCK; /* per-component log-densities */
-  size += 7 * (idx)BLOCK;                               /* lp, l, ll, s, e, ancestors, uniforms */
+  size += 8 * (idx)BLOCK;                               /* lp, l, ll, s, e, ancestors (two), uniforms */
   return size;
 }
 
@@ -125,13 +131,13 @@ static double* aligned(double* p) {
   return (double*)((a + mask) & ~mask);
 }
 
-abyssal_idx abyssal_sir_work_size(abyssal_idx n, int n_x, int n_u, int n_y, int n_extra, int has_valid, int rank,
-                                  int r_components, int threads) {
+abyssal_idx abyssal_sir_work_size(abyssal_idx n, abyssal_idx ld, int n_x, int n_u, int n_y, int n_extra, int has_valid,
+                                  int rank, int r_components, int threads) {
   const idx nb = blocks_of(n);
   const block_layout L = block_offsets(n_x, n_y, n_extra);
   if (threads < 1) threads = 1;
   return nb * L.stride + (nb + 1) + plan_size(n_y, r_components < 1 ? 1 : r_components) + ALIGN_DOUBLES +
-         (idx)threads * scratch_size(n_x, n_u, n_y, n_extra, has_valid, rank, r_components);
+         (idx)threads * scratch_size(n_x, n_u, n_y, n_extra, has_valid, rank, r_components, ld);
 }
 
 const char* abyssal_sir_message(int code) {
@@ -247,10 +253,10 @@ int abyssal_sir_soa_measure(const void* ctx, abyssal_idx n, abyssal_idx ld, cons
 
 /* ------------------------------------------------------------------------------------------ the step's context */
 typedef struct {
-  double *xa, *xb, *u, *nrm, *y, *res, *lk, *lp, *l, *ll, *s, *e, *uni;
+  double *xa, *xb, *ub, *u, *y, *yd, *nrm, *res, *lk, *lp, *l, *ll, *s, *e, *uni;
   uint32_t* bits;
   idx* anc;
-  int u_filled; /* the inputs without input noise are the same for every block: filled once per pass */
+  int u_filled, ub_filled; /* the inputs without input noise are the same for every block: filled once per pass */
 } scratch;
 
 typedef struct {
@@ -266,7 +272,7 @@ typedef struct step_ctx {
   abyssal_sir_in_offsets io;
   abyssal_sir_report_offsets ro;
   block_layout bl;
-  idx n, nblocks;
+  idx n, ld, nblocks;
   int T;
   /* this step's buffers */
   const double* x_in;
@@ -302,10 +308,12 @@ static scratch scratch_of(const step_ctx* c, int t) {
   const int rows = draw_rows(s->n_u, s->rank);
   sc.xa = p; p += (idx)s->n_x * BLOCK;
   sc.xb = p; p += (idx)s->n_x * BLOCK;
-  sc.u = p; p += (idx)s->n_u * BLOCK;
+  sc.ub = p; p += (idx)s->n_u * BLOCK;
+  sc.u = p; p += (rows_at_stride(s->n_u, c->ld) + 7) / 8 * 8;
+  sc.y = p; p += (rows_at_stride(y_rows(s->n_y, s->n_extra, s->has_valid), c->ld) + 7) / 8 * 8;
+  sc.yd = p; p += (idx)(s->n_y > 0 ? s->n_y : 1) * BLOCK;
   sc.nrm = p; p += (idx)(rows > 0 ? rows : 1) * BLOCK;
   sc.bits = (uint32_t*)p; p += 2 * (idx)BLOCK;
-  sc.y = p; p += (idx)y_rows(s->n_y, s->n_extra, s->has_valid) * BLOCK;
   sc.res = p; p += (idx)(s->n_y > 0 ? s->n_y : 1) * BLOCK;
   sc.lk = p; p += (idx)(s->r_components > 1 ? s->r_components : 1) * BLOCK;
   sc.lp = p; p += BLOCK;
@@ -313,9 +321,9 @@ static scratch scratch_of(const step_ctx* c, int t) {
   sc.ll = p; p += BLOCK;
   sc.s = p; p += BLOCK;
   sc.e = p; p += BLOCK;
-  sc.anc = (idx*)p; p += BLOCK;
+  sc.anc = (idx*)p; p += 2 * BLOCK;
   sc.uni = p;
-  sc.u_filled = 0;
+  sc.u_filled = sc.ub_filled = 0;
   return sc;
 }
 
@@ -427,10 +435,10 @@ static void block_weights(const double* restrict l, idx nb, double* restrict e, 
   if (Q_out) *Q_out = Q;
 }
 
-/* the weighted mean of d rows (stride BLOCK) of a block (0 when W = 0) */
-static void block_mean(const double* restrict e, double W, idx nb, const double* rows, int d, double* mean) {
+/* the weighted mean of d rows (stride ld) of a block (0 when W = 0) */
+static void block_mean(const double* restrict e, double W, idx nb, const double* rows, idx ld, int d, double* mean) {
   for (int r = 0; r < d; ++r) {
-    const double* restrict x = rows + (idx)r * BLOCK;
+    const double* restrict x = rows + (idx)r * ld;
     double acc = 0.0;
 #pragma omp simd reduction(+ : acc)
     for (idx j = 0; j < nb; ++j) acc += e[j] * x[j];
@@ -438,12 +446,12 @@ static void block_mean(const double* restrict e, double W, idx nb, const double*
   }
 }
 
-/* Weighted mean and packed upper M2 = sum e (x - mean)(x - mean)^T of d rows (stride BLOCK) of a block, in one
+/* Weighted mean and packed upper M2 = sum e (x - mean)(x - mean)^T of d rows (stride ld) of a block, in one
  * pass over the rows shifted by the block's first particle (a point of the cloud: the subtraction of the mean's
- * outer product then cancels no more digits than the spread itself has); the rows are shifted in place. Four
+ * outer product then cancels no more digits than the spread itself has) into dev (d rows of stride BLOCK). Four
  * columns of M2 per sweep share the loads of a row and the loop. Nothing when W = 0. */
-static void block_moments(const double* restrict e, double W, idx nb, double* rows, int d, double* mean, double* m2,
-                          double* restrict ed) {
+static void block_moments(const double* restrict e, double W, idx nb, const double* rows, idx ld, int d, double* mean,
+                          double* m2, double* dev, double* restrict ed) {
   if (!(W > 0.0)) {
     for (int r = 0; r < d; ++r) mean[r] = 0.0;
     for (idx k = 0; k < packed(d); ++k) m2[k] = 0.0;
@@ -451,25 +459,26 @@ static void block_moments(const double* restrict e, double W, idx nb, double* ro
   }
   double s1[ABYSSAL_SIR_MAX_STATES > ABYSSAL_SIR_MAX_OUTPUTS ? ABYSSAL_SIR_MAX_STATES : ABYSSAL_SIR_MAX_OUTPUTS];
   for (int r = 0; r < d; ++r) {
-    double* restrict x = rows + (idx)r * BLOCK;
+    const double* restrict x = rows + (idx)r * ld;
+    double* restrict dx = dev + (idx)r * BLOCK;
     const double shift = x[0];
     double acc = 0.0;
 #pragma omp simd reduction(+ : acc)
     for (idx j = 0; j < nb; ++j) {
-      x[j] -= shift;
-      acc += e[j] * x[j];
+      dx[j] = x[j] - shift;
+      acc += e[j] * dx[j];
     }
     s1[r] = acc;
     mean[r] = shift + acc / W;
   }
   idx k = 0;
   for (int r = 0; r < d; ++r) {
-    const double* restrict xr = rows + (idx)r * BLOCK;
+    const double* restrict xr = dev + (idx)r * BLOCK;
 #pragma omp simd
     for (idx j = 0; j < nb; ++j) ed[j] = e[j] * xr[j];
     int c = r;
     for (; c + 4 <= d; c += 4) {
-      const double* restrict x0 = rows + (idx)c * BLOCK;
+      const double* restrict x0 = dev + (idx)c * BLOCK;
       const double* restrict x1 = x0 + BLOCK;
       const double* restrict x2 = x1 + BLOCK;
       const double* restrict x3 = x2 + BLOCK;
@@ -488,7 +497,7 @@ static void block_moments(const double* restrict e, double W, idx nb, double* ro
       m2[k++] = a3 - s1[r] * s1[c + 3] / W;
     }
     for (; c < d; ++c) {
-      const double* restrict xc = rows + (idx)c * BLOCK;
+      const double* restrict xc = dev + (idx)c * BLOCK;
       double acc = 0.0;
 #pragma omp simd reduction(+ : acc)
       for (idx j = 0; j < nb; ++j) acc += ed[j] * xc[j];
@@ -509,47 +518,63 @@ static int nonfinite_rows(const double* rows, int d, idx ld, idx nb) {
 }
 
 /* ------------------------------------------------------------------------------------------ the block pass */
-/* x_k = f(x_{k-1}, u) + w of the block's particles into sc->xa (ld BLOCK; f ping-pongs between the thread's
- * xa and xb, which swap places); returns a status */
-static int move_block(const step_ctx* c, scratch* sc, idx j0, idx nb) {
+/* Per-particle inputs of a block into rows of the given stride: u + u_std n (input noise), or u in every column
+ * (filled once per pass: *filled). */
+static void fill_inputs(const step_ctx* c, const scratch* sc, double* u, idx ld, idx nb, int* filled) {
   const abyssal_sir* s = c->s;
-  const int nx = s->n_x, nu = s->n_u;
-  const idx n = c->n;
-  for (int r = 0; r < nx; ++r) memcpy(sc->xa + (idx)r * BLOCK, c->x_in + (idx)r * n + j0, (size_t)nb * sizeof(double));
-  if (c->draws > 0) normals_block(c->key, c->counter, 0, j0, nb, 0, c->draws, sc->nrm, BLOCK, sc->bits);
-  for (int r = 0; r < nu; ++r) {
-    double* restrict ur = sc->u + (idx)r * BLOCK;
+  for (int r = 0; r < s->n_u; ++r) {
+    double* restrict ur = u + (idx)r * ld;
     const double mean = c->u[r];
     if (s->input_noise) {
       const double sd = c->u_std[r];
       const double* restrict noise = sc->nrm + (idx)r * BLOCK;
 #pragma omp simd
       for (idx j = 0; j < nb; ++j) ur[j] = mean + sd * noise[j];
-    } else if (!sc->u_filled) {
+    } else if (!*filled) {
 #pragma omp simd
       for (idx j = 0; j < BLOCK; ++j) ur[j] = mean;
     }
   }
-  sc->u_filled = !s->input_noise;
-  double* from = sc->xa;
-  double* to = sc->xb;
-  for (int piece = 0; piece < c->pieces; ++piece) {
-    const double* arg[4];
-    double* res[1];
-    arg[0] = from;
+  *filled = !s->input_noise;
+}
+
+/* x_k = f(x_{k-1}, u) + w of the block's particles, written into the proposals (x_prop + j0, stride ld): the
+ * kernel reads the committed particles and writes the proposals itself; with substeps it ping-pongs between the
+ * thread's xa and xb (stride BLOCK). Returns a status. */
+static int move_block(const step_ctx* c, scratch* sc, idx j0, idx nb) {
+  const abyssal_sir* s = c->s;
+  const int nx = s->n_x;
+  const idx ld = c->ld;
+  double* x = c->x_prop + j0;
+  if (c->draws > 0) normals_block(c->key, c->counter, 0, j0, nb, 0, c->draws, sc->nrm, BLOCK, sc->bits);
+  const double* arg[4];
+  double* res[1];
+  arg[2] = s->p;
+  arg[3] = &c->dt_piece;
+  if (c->pieces == 1) {
+    fill_inputs(c, sc, sc->u, ld, nb, &sc->u_filled);
+    arg[0] = c->x_in + j0;
     arg[1] = sc->u;
-    arg[2] = s->p;
-    arg[3] = &c->dt_piece;
-    res[0] = to;
-    if (s->f(nb, BLOCK, arg, res)) return ABYSSAL_SIR_MODEL_FAILED;
-    double* t = from;
-    from = to;
-    to = t;
+    res[0] = x;
+    if (s->f(nb, ld, arg, res)) return ABYSSAL_SIR_MODEL_FAILED;
+  } else {
+    fill_inputs(c, sc, sc->ub, BLOCK, nb, &sc->ub_filled);
+    for (int r = 0; r < nx; ++r) memcpy(sc->xa + (idx)r * BLOCK, c->x_in + (idx)r * ld + j0, (size_t)nb * sizeof(double));
+    double* from = sc->xa;
+    double* to = sc->xb;
+    arg[1] = sc->ub;
+    for (int piece = 0; piece < c->pieces; ++piece) {
+      arg[0] = from;
+      res[0] = to;
+      if (s->f(nb, BLOCK, arg, res)) return ABYSSAL_SIR_MODEL_FAILED;
+      double* tmp = from;
+      from = to;
+      to = tmp;
+    }
+    for (int r = 0; r < nx; ++r) memcpy(x + (idx)r * ld, from + (idx)r * BLOCK, (size_t)nb * sizeof(double));
   }
-  sc->xb = to;
-  sc->xa = from;
   /* process noise */
-  const double* restrict y = sc->nrm + (idx)(s->input_noise ? nu : 0) * BLOCK;
+  const double* restrict y = sc->nrm + (idx)(s->input_noise ? s->n_u : 0) * BLOCK;
   if (s->q_components > 1) {
     double* restrict uni = sc->uni;
     uniforms_block(c->key, c->counter, 1, j0, nb, uni);
@@ -559,7 +584,7 @@ static int move_block(const step_ctx* c, scratch* sc, idx j0, idx nb) {
       const double* mean = s->q_means + (idx)k * nx;
       const double* L = s->q_factors + (idx)k * nx * nx;
       for (int r = 0; r < nx; ++r) {
-        double* restrict xr = sc->xa + (idx)r * BLOCK;
+        double* restrict xr = x + (idx)r * ld;
         for (idx j = 0; j < nb; ++j) {
           if (!(uni[j] >= lo && uni[j] < hi)) continue;
           double acc = mean[r];
@@ -570,7 +595,7 @@ static int move_block(const step_ctx* c, scratch* sc, idx j0, idx nb) {
     }
   } else if (s->support) {
     for (int q = 0; q < s->rank; ++q) {
-      double* restrict xr = sc->xa + (idx)s->support[q] * BLOCK;
+      double* restrict xr = x + (idx)s->support[q] * ld;
       const double* restrict yq = y + (idx)q * BLOCK;
       const double sd = s->factor[q];
 #pragma omp simd
@@ -578,7 +603,7 @@ static int move_block(const step_ctx* c, scratch* sc, idx j0, idx nb) {
     }
   } else {
     for (int r = 0; r < nx; ++r) {
-      double* restrict xr = sc->xa + (idx)r * BLOCK;
+      double* restrict xr = x + (idx)r * ld;
       for (int q = 0; q < s->rank; ++q) {
         const double a = s->factor[(idx)r * s->rank + q];
         if (a == 0.0) continue;
@@ -592,7 +617,7 @@ static int move_block(const step_ctx* c, scratch* sc, idx j0, idx nb) {
     for (int r = 0; r < nx; ++r) {
       const double m = s->noise_mean[r];
       if (m == 0.0) continue;
-      double* restrict xr = sc->xa + (idx)r * BLOCK;
+      double* restrict xr = x + (idx)r * ld;
 #pragma omp simd
       for (idx j = 0; j < nb; ++j) xr[j] += m;
     }
@@ -608,7 +633,7 @@ static void likelihood_block(const step_ctx* c, const scratch* sc, idx nb) {
   for (int i = 0; i < m; ++i) {
     const int row = plan->rows[i];
     const double z = c->z[row];
-    const double* restrict y = sc->y + (idx)row * BLOCK;
+    const double* restrict y = sc->y + (idx)row * c->ld;
     double* restrict r = sc->res + (idx)i * BLOCK;
     double big = 0.0;
 #pragma omp simd reduction(max : big)
@@ -635,6 +660,7 @@ static void likelihood_block(const step_ctx* c, const scratch* sc, idx nb) {
       }
       for (int a = 1; a <= i; ++a) {
         const double v = linv[i * m + a], shift = mu[a];
+        if (v == 0.0) continue; /* (a diagonal covariance: one product per entry) */
         const double* restrict r = sc->res + (idx)a * BLOCK;
 #pragma omp simd
         for (idx j = 0; j < nb; ++j) t[j] += v * (r[j] - shift);
@@ -674,7 +700,7 @@ static void likelihood_block(const step_ctx* c, const scratch* sc, idx nb) {
     for (idx j = 0; j < nb; ++j) top[j] += log(sum[j]);
   }
   if (s->has_valid) {
-    const double* restrict valid = sc->y + (idx)(s->n_y + s->n_extra) * BLOCK;
+    const double* restrict valid = sc->y + (idx)(s->n_y + s->n_extra) * c->ld;
     double* restrict ll = sc->ll;
     const double out = s->invalid_log_lik;
 #pragma omp simd
@@ -684,30 +710,24 @@ static void likelihood_block(const step_ctx* c, const scratch* sc, idx nb) {
 
 static void block_pass(step_ctx* c, scratch* sc, idx b, int mode) {
   const abyssal_sir* s = c->s;
-  const idx n = c->n, j0 = b * BLOCK, nb = n - j0 < BLOCK ? n - j0 : BLOCK;
+  const idx n = c->n, ld = c->ld, j0 = b * BLOCK, nb = n - j0 < BLOCK ? n - j0 : BLOCK;
   const int nx = s->n_x;
   double* st = c->stats + b * c->bl.stride;
+  double* x = c->x_prop + j0; /* the block's particles: rows of stride ld */
   int status = ABYSSAL_SIR_OK;
   st[c->bl.status] = 0.0;
-  /* the block's particles into sc->xa */
   if (mode & MODE_MOVE) {
-    if (c->move == ABYSSAL_SIR_MOVE_TRANSITION) {
+    if (c->move == ABYSSAL_SIR_MOVE_TRANSITION)
       status = move_block(c, sc, j0, nb);
-    } else {
-      const double* from = c->move == ABYSSAL_SIR_MOVE_NONE ? c->x_in : c->x_prop;
-      for (int r = 0; r < nx; ++r) memcpy(sc->xa + (idx)r * BLOCK, from + (idx)r * n + j0, (size_t)nb * sizeof(double));
-    }
+    else if (c->move == ABYSSAL_SIR_MOVE_NONE)
+      for (int r = 0; r < nx; ++r) memcpy(x + (idx)r * ld, c->x_in + (idx)r * ld + j0, (size_t)nb * sizeof(double));
     for (int i = 0; i < c->n_pins; ++i) {
-      double* restrict xr = sc->xa + (idx)c->pin_rows[i] * BLOCK;
+      double* restrict xr = x + (idx)c->pin_rows[i] * ld;
       const double v = c->pin_values[i];
       for (idx j = 0; j < nb; ++j) xr[j] = v;
     }
-    if (c->move != ABYSSAL_SIR_MOVE_GIVEN || c->n_pins)
-      for (int r = 0; r < nx; ++r) memcpy(c->x_prop + (idx)r * n + j0, sc->xa + (idx)r * BLOCK, (size_t)nb * sizeof(double));
-  } else {
-    for (int r = 0; r < nx; ++r) memcpy(sc->xa + (idx)r * BLOCK, c->x_prop + (idx)r * n + j0, (size_t)nb * sizeof(double));
   }
-  if (status == ABYSSAL_SIR_OK && nonfinite_rows(sc->xa, nx, BLOCK, nb)) status = ABYSSAL_SIR_NONFINITE_PARTICLE;
+  if (status == ABYSSAL_SIR_OK && nonfinite_rows(x, nx, ld, nb)) status = ABYSSAL_SIR_NONFINITE_PARTICLE;
   if (status != ABYSSAL_SIR_OK) {
     st[c->bl.status] = status;
     return;
@@ -724,11 +744,11 @@ static void block_pass(step_ctx* c, scratch* sc, idx b, int mode) {
   }
   const int yr = y_rows(s->n_y, s->n_extra, s->has_valid);
   if (mode & MODE_H) {
-    if (s->h(s->h_ctx, nb, BLOCK, sc->xa, s->p, sc->y)) {
+    if (s->h(s->h_ctx, nb, ld, x, s->p, sc->y)) {
       st[c->bl.status] = ABYSSAL_SIR_MODEL_FAILED;
       return;
     }
-    if (nonfinite_rows(sc->y, yr, BLOCK, nb)) {
+    if (nonfinite_rows(sc->y, yr, ld, nb)) {
       st[c->bl.status] = ABYSSAL_SIR_NONFINITE_MEASUREMENT;
       return;
     }
@@ -761,9 +781,9 @@ static void block_pass(step_ctx* c, scratch* sc, idx b, int mode) {
     }
     st[c->bl.prior_W] = W;
     if (mode & MODE_YM2)
-      block_moments(sc->e, W, nb, sc->y, s->n_y, st + c->bl.ybar, st + c->bl.m2y, sc->s);
+      block_moments(sc->e, W, nb, sc->y, ld, s->n_y, st + c->bl.ybar, st + c->bl.m2y, sc->yd, sc->s);
     else
-      block_mean(sc->e, W, nb, sc->y, s->n_y, st + c->bl.ybar);
+      block_mean(sc->e, W, nb, sc->y, ld, s->n_y, st + c->bl.ybar);
   }
   if (!(mode & MODE_POST)) return;
   /* posterior log-weights: NaN or +inf is an error (a -inf is a zero weight) */
@@ -779,8 +799,8 @@ static void block_pass(step_ctx* c, scratch* sc, idx b, int mode) {
   block_weights(l, nb, sc->e, st + c->bl.peak, &W, st + c->bl.Q);
   st[c->bl.W] = W;
   memcpy(c->w_next + j0, sc->e, (size_t)nb * sizeof(double)); /* exp(l - the block's peak): normalised later */
-  block_moments(sc->e, W, nb, sc->xa, nx, st + c->bl.mean, st + c->bl.m2, sc->s);
-  block_mean(sc->e, W, nb, sc->y + (idx)s->n_y * BLOCK, s->n_extra, st + c->bl.extra);
+  block_moments(sc->e, W, nb, x, ld, nx, st + c->bl.mean, st + c->bl.m2, sc->xa, sc->s);
+  block_mean(sc->e, W, nb, sc->y + (idx)s->n_y * ld, ld, s->n_extra, st + c->bl.extra);
 }
 
 /* Combine the blocks' sums of d rows (mean at offset `mo`, packed M2 at `m2o`, weights peak/W at `po`/`wo`):
@@ -1050,37 +1070,82 @@ static void normalise_blocks(step_ctx* c, int phase) {
 
 /* Ancestors of outputs k0..k0+nk-1: the particle j where the cumulative weight first exceeds the target
  * (k + u_k) total / n; the cumulative weight inside block b is offsets[b] + the running sum of the block. */
+static idx first_ancestor(const step_ctx* c, double target, double* cum_out) {
+  const double* restrict w = c->w_next;
+  const double* off = c->offsets;
+  idx b = 0, top = c->nblocks - 1; /* the first block whose cumulative end exceeds the target */
+  while (b < top) {
+    const idx mid = (b + top) / 2;
+    if (off[mid + 1] > target) top = mid; else b = mid + 1;
+  }
+  idx j = b * BLOCK;
+  double cum = off[b] + w[j];
+  while (cum <= target && j < c->n - 1) {
+    ++j;
+    cum = (j % BLOCK == 0) ? off[j / BLOCK] + w[j] : cum + w[j];
+  }
+  *cum_out = cum;
+  return j;
+}
+
+/* Systematic: the targets are evenly spaced, so particle j is the ancestor of the outputs k with
+ * e_{j-1} <= k < e_j, e_j = ceil(cum_j / step - u0): a marker at e_{j-1} for every particle (in order: of the
+ * particles sharing one, the last, the one with copies, stays) and a running maximum give every output its
+ * ancestor without a branch per particle. */
+static void systematic_ancestors(const step_ctx* c, idx k0, idx nk, idx* restrict anc) {
+  const double* restrict w = c->w_next;
+  const double* off = c->offsets;
+  const double step = c->total / (double)c->n, u0 = c->u0;
+  double cum;
+  idx j = first_ancestor(c, ((double)k0 + u0) * step, &cum);
+  for (idx k = 0; k <= nk; ++k) anc[k] = 0;
+  anc[0] = j;
+  const idx last = c->n - 1;
+  while (j < last) {
+    /* outputs before e_j have ancestors <= j; the next particle starts at e_j */
+    const double e = ceil(cum / step - u0) - (double)k0;
+    if (!(e < (double)nk)) break;
+    ++j;
+    anc[e > 1.0 ? (idx)e : 1] = j; /* (e >= 1 but for rounding: output k0 is j's predecessor's) */
+    cum = (j % BLOCK == 0) ? off[j / BLOCK] + w[j] : cum + w[j];
+  }
+  for (idx k = 1; k < nk; ++k) anc[k] = anc[k] > anc[k - 1] ? anc[k] : anc[k - 1];
+}
+
+/* Stratified: a target per output, walked. */
+static void stratified_ancestors(const step_ctx* c, idx k0, idx nk, const double* restrict u, idx* restrict anc) {
+  const double* restrict w = c->w_next;
+  const double* off = c->offsets;
+  const double step = c->total / (double)c->n;
+  double cum;
+  idx j = first_ancestor(c, ((double)k0 + u[0]) * step, &cum);
+  for (idx k = 0; k < nk; ++k) {
+    const double target = ((double)(k0 + k) + u[k]) * step;
+    while (cum <= target && j < c->n - 1) {
+      ++j;
+      cum = (j % BLOCK == 0) ? off[j / BLOCK] + w[j] : cum + w[j];
+    }
+    anc[k] = j;
+  }
+}
+
 static void gather_blocks(step_ctx* c, int t, int phase) {
   const abyssal_sir* s = c->s;
   const scratch sc = scratch_of(c, t);
   const idx n = c->n;
-  const double* restrict w = c->w_next;
-  const double* off = c->offsets;
-  const double step = c->total / (double)n, log_uniform = -log((double)n);
+  const double log_uniform = -log((double)n);
   const int stratified = (int)c->s->in[ABYSSAL_SIR_IN_SCHEME] == ABYSSAL_SIR_STRATIFIED;
   for (idx ob = grab(c, phase); ob < c->nblocks; ob = grab(c, phase)) {
     const idx k0 = ob * BLOCK, nk = n - k0 < BLOCK ? n - k0 : BLOCK;
-    if (stratified) uniforms_block(c->key, c->counter, 2, k0, nk, sc.uni);
-    double target = ((double)k0 + (stratified ? sc.uni[0] : c->u0)) * step;
-    /* the first block whose cumulative end exceeds the first target */
-    idx b = 0, top = c->nblocks - 1;
-    while (b < top) {
-      const idx mid = (b + top) / 2;
-      if (off[mid + 1] > target) top = mid; else b = mid + 1;
-    }
-    idx j = b * BLOCK;
-    double cum = off[b] + w[j];
-    for (idx k = 0; k < nk; ++k) {
-      target = ((double)(k0 + k) + (stratified ? sc.uni[k] : c->u0)) * step;
-      while (cum <= target && j < n - 1) {
-        ++j;
-        cum = (j % BLOCK == 0) ? off[j / BLOCK] + w[j] : cum + w[j];
-      }
-      sc.anc[k] = j;
+    if (stratified) {
+      uniforms_block(c->key, c->counter, 2, k0, nk, sc.uni);
+      stratified_ancestors(c, k0, nk, sc.uni, sc.anc);
+    } else {
+      systematic_ancestors(c, k0, nk, sc.anc);
     }
     for (int r = 0; r < s->n_x; ++r) {
-      const double* restrict from = c->x_prop + (idx)r * n;
-      double* restrict to = c->x_out + (idx)r * n + k0;
+      const double* restrict from = c->x_prop + (idx)r * c->ld;
+      double* restrict to = c->x_out + (idx)r * c->ld + k0;
       const idx* restrict anc = sc.anc;
 #pragma omp simd
       for (idx k = 0; k < nk; ++k) to[k] = from[anc[k]];
@@ -1217,7 +1282,7 @@ int abyssal_sir_step(const abyssal_sir* s) {
   memset(c, 0, sizeof ctx);
   if (!s || !s->in || !s->rng || !s->work || !s->p || s->n < 1 || s->n > (idx)UINT32_MAX || s->n_x < 1 ||
       s->n_x > ABYSSAL_SIR_MAX_STATES || s->n_u < 0 || s->n_y < 0 || s->n_y > ABYSSAL_SIR_MAX_OUTPUTS ||
-      s->n_extra < 0 || s->rank < 0 || s->max_threads < 1 || s->max_threads > ABYSSAL_SIR_MAX_THREADS)
+      s->ld < s->n || s->n_extra < 0 || s->rank < 0 || s->max_threads < 1 || s->max_threads > ABYSSAL_SIR_MAX_THREADS)
     return ABYSSAL_SIR_BAD_ARGUMENT;
   const double* in = s->in;
   c->s = s;
@@ -1225,6 +1290,7 @@ int abyssal_sir_step(const abyssal_sir* s) {
   c->ro = abyssal_sir_report(s->n_x, s->n_y, s->n_extra);
   c->bl = block_offsets(s->n_x, s->n_y, s->n_extra);
   c->n = s->n;
+  c->ld = s->ld;
   c->nblocks = blocks_of(s->n);
   const double cur = in[ABYSSAL_SIR_IN_CUR], move = in[ABYSSAL_SIR_IN_MOVE], pieces = in[ABYSSAL_SIR_IN_PIECES];
   const double threads = in[ABYSSAL_SIR_IN_THREADS], pins = in[ABYSSAL_SIR_IN_PINS];
@@ -1275,8 +1341,8 @@ int abyssal_sir_step(const abyssal_sir* s) {
   }
   /* work: block sums, resampling offsets, the likelihood plan and temporaries, then per-thread scratch */
   const int K = s->r_components < 1 ? 1 : s->r_components;
-  if (abyssal_sir_work_size(s->n, s->n_x, s->n_u, s->n_y, s->n_extra, s->has_valid, s->rank, K, s->max_threads) >
-      s->work_size)
+  if (abyssal_sir_work_size(s->n, s->ld, s->n_x, s->n_u, s->n_y, s->n_extra, s->has_valid, s->rank, K,
+                            s->max_threads) > s->work_size)
     return ABYSSAL_SIR_BAD_ARGUMENT;
   c->stats = s->work;
   c->offsets = c->stats + c->nblocks * c->bl.stride;
@@ -1287,7 +1353,7 @@ int abyssal_sir_step(const abyssal_sir* s) {
   c->tmp_a = c->plan.cst + K + s->n_y;
   c->tmp_l = c->tmp_a + (idx)s->n_y * s->n_y;
   c->scratch_base = aligned(plan + plan_size(s->n_y, K));
-  c->scratch_stride = scratch_size(s->n_x, s->n_u, s->n_y, s->n_extra, s->has_valid, s->rank, K);
+  c->scratch_stride = scratch_size(s->n_x, s->n_u, s->n_y, s->n_extra, s->has_valid, s->rank, K, s->ld);
   /* the first pass: move, and the likelihood of every present entry (the gate may leave some out after it) */
   c->mode = MODE_MOVE | MODE_POST;
   c->stage = STAGE_FIRST;

@@ -73,7 +73,7 @@ class _Sir(ctypes.Structure):
     """struct abyssal_sir (abyssal_sir.h), field for field."""
 
     _fields_ = [
-        ("n", ctypes.c_longlong), ("n_x", ctypes.c_int), ("n_u", ctypes.c_int), ("n_y", ctypes.c_int),
+        ("n", ctypes.c_longlong), ("ld", ctypes.c_longlong), ("n_x", ctypes.c_int), ("n_u", ctypes.c_int), ("n_y", ctypes.c_int),
         ("n_p", ctypes.c_int), ("n_extra", ctypes.c_int), ("has_valid", ctypes.c_int), ("max_threads", ctypes.c_int),
         ("f", ctypes.c_void_p), ("h", ctypes.c_void_p), ("h_ctx", ctypes.c_void_p), ("p", ctypes.c_void_p),
         ("rank", ctypes.c_int), ("q_components", ctypes.c_int), ("support", ctypes.c_void_p),
@@ -103,7 +103,7 @@ def library() -> ctypes.CDLL:
                                 symbols=("abyssal_sir_step", "abyssal_sir_normals", "abyssal_terrain_bilinear"))))
     lib.abyssal_sir_step.restype = ctypes.c_int
     lib.abyssal_sir_work_size.restype = ctypes.c_longlong
-    lib.abyssal_sir_work_size.argtypes = [ctypes.c_longlong] + [ctypes.c_int] * 8
+    lib.abyssal_sir_work_size.argtypes = [ctypes.c_longlong, ctypes.c_longlong] + [ctypes.c_int] * 8
     lib.abyssal_sir_inputs.restype = _InOffsets
     lib.abyssal_sir_inputs.argtypes = [ctypes.c_int] * 3
     lib.abyssal_sir_report.restype = _ReportOffsets
@@ -193,6 +193,15 @@ class ProcessNoise:
         return cls(rank=transition.rank, factor=np.ascontiguousarray(transition.basis * std[None, :]), mean=mean)
 
 
+def aligned_zeros(shape, alignment: int = 64) -> np.ndarray:
+    """A zeroed float64 array whose data starts on an `alignment`-byte boundary (vectorised loops then split a
+    row the same way in every instance, so results never depend on where an allocation landed)."""
+    count = int(np.prod(shape))
+    raw = np.zeros(count + alignment // 8)
+    start = (-raw.ctypes.data % alignment) // 8
+    return raw[start:start + count].reshape(shape)
+
+
 def _array(a, dtype=np.float64) -> np.ndarray | None:
     return None if a is None else np.ascontiguousarray(a, dtype=dtype)
 
@@ -234,7 +243,10 @@ class CompiledSIR:
         self.inputs[IN_THREADS] = 1.0
         #: offsets of the inputs' vectors (u, u_std, z, present, thresholds, pin_rows, pin_values) and the report's
         self.io, self._ro = io, ro
-        self.particles = [np.zeros((n_x, n)) for _ in range(3)]
+        #: row stride of the particle buffers: n rounded up to 8 doubles, so every row starts 64-byte aligned
+        self.ld = ld = -(-n // 8) * 8
+        #: the three particle buffers, (n_x, n) views of (n_x, ld) aligned arrays (rows contiguous)
+        self.particles = [aligned_zeros((n_x, ld))[:, :n] for _ in range(3)]
         self.log_w = [np.full(n, -math.log(n)) for _ in range(2)]
         self.w = [np.full(n, 1.0 / n) for _ in range(2)]
         self.report = [np.zeros(ro.size) for _ in range(2)]
@@ -259,7 +271,8 @@ class CompiledSIR:
         angles = _array(list(angle_outputs) or [0], np.int32)
         self._keep += [r_weights, r_means, r_covs, R, R_mean, angles]
         rank = process.rank
-        self.work = np.zeros(lib.abyssal_sir_work_size(n, n_x, n_u, n_y, n_extra, int(has_valid), rank, k,
+        # the work buffer: mostly address space (np.zeros of a large array maps zero pages only when touched)
+        self.work = np.zeros(lib.abyssal_sir_work_size(n, ld, n_x, n_u, n_y, n_extra, int(has_valid), rank, k,
                                                        self.max_threads))
         if measure is None:
             h, h_ctx = None, None
@@ -267,7 +280,7 @@ class CompiledSIR:
             h, h_ctx = measure
             self._keep.append(h_ctx)
         self._struct = _Sir(
-            n=n, n_x=n_x, n_u=n_u, n_y=n_y, n_p=p.shape[0], n_extra=n_extra, has_valid=int(has_valid),
+            n=n, ld=ld, n_x=n_x, n_u=n_u, n_y=n_y, n_p=p.shape[0], n_extra=n_extra, has_valid=int(has_valid),
             max_threads=self.max_threads, f=f, h=h, h_ctx=None if h_ctx is None else ctypes.addressof(h_ctx),
             p=p.ctypes.data, rank=rank, q_components=1 if process.cumulative is None else len(process.cumulative),
             support=_ptr(process.support), factor=self.factor.ctypes.data, noise_mean=_ptr(process.mean),
