@@ -16,8 +16,8 @@ import platform
 import time
 from pathlib import Path
 
-SECTIONS = ("bench_models", "bench_filters", "bench_particles", "bench_soak", "bench_campaign", "bench_remus", "bench_tan",
-            "bench_cn")
+SECTIONS = ("bench_models", "bench_filters", "bench_particles", "bench_sir", "bench_soak", "bench_campaign", "bench_remus",
+            "bench_tan", "bench_cn")
 
 
 def median_time(fn, repeat: int = 7, min_time: float = 0.05) -> float:

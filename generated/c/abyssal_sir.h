@@ -67,18 +67,15 @@ enum { ABYSSAL_SIR_MOVE_NONE = 0, ABYSSAL_SIR_MOVE_TRANSITION = 1, ABYSSAL_SIR_M
 /* resampling schemes done in C (others: the caller resamples when the report says ESS is below threshold) */
 enum { ABYSSAL_SIR_SYSTEMATIC = 0, ABYSSAL_SIR_STRATIFIED = 1, ABYSSAL_SIR_CALLER = 2 };
 
-/* The step's inputs, in[] (doubles): these scalars, then the vectors at abyssal_sir_in_offsets(). Ordered so that
- * what a filter changes every step (from MOVE on) is one contiguous slice, and the pinned count is followed by
- * the pinned values (a measurement function may read both, e.g. a compass heading copied into every particle). */
+/* The step's inputs, in[] (doubles): these scalars, then the vectors and settings at abyssal_sir_in_offsets().
+ * Ordered so that what a filter changes every step (CUR .. the thresholds) is one contiguous slice, and the pinned
+ * count is followed by the pinned values (a measurement function may read both, e.g. a compass heading copied
+ * into every particle); the settings a filter keeps come last. */
 enum {
   ABYSSAL_SIR_IN_CUR,             /* committed particle buffer, 0..2 (proposals go to cur+1, resampled to cur+2) */
   ABYSSAL_SIR_IN_SIDE,            /* committed side of log_w, w, report: 0 or 1 (the step writes 1 - side) */
   ABYSSAL_SIR_IN_PRIOR,           /* 1: the committed w are exp(committed log_w) (no resampling since): the gate's
                                    * prior weights are read, not recomputed; 0: recomputed */
-  ABYSSAL_SIR_IN_THREADS,         /* threads to use (>= 1; at most the blocks, and max_threads) */
-  ABYSSAL_SIR_IN_SCHEME,          /* ABYSSAL_SIR_SYSTEMATIC / _STRATIFIED / _CALLER */
-  ABYSSAL_SIR_IN_RESAMPLE_BELOW,  /* resample when ESS < this (inf: always, 0: never) */
-  ABYSSAL_SIR_IN_RATIO,           /* 1: add log_ratio (a proposal's log importance ratios) to the log-weights */
   ABYSSAL_SIR_IN_MOVE,            /* ABYSSAL_SIR_MOVE_* */
   ABYSSAL_SIR_IN_MEASURE,         /* 1: weigh by z (present entries), 0: no measurement */
   ABYSSAL_SIR_IN_DT,              /* the model's dt */
@@ -87,10 +84,19 @@ enum {
   ABYSSAL_SIR_IN_HEAD
 };
 
+/* settings, at abyssal_sir_in_offsets().settings + these */
+enum {
+  ABYSSAL_SIR_SET_THREADS,        /* threads to use (>= 1; at most the blocks, and max_threads) */
+  ABYSSAL_SIR_SET_SCHEME,         /* ABYSSAL_SIR_SYSTEMATIC / _STRATIFIED / _CALLER */
+  ABYSSAL_SIR_SET_RESAMPLE_BELOW, /* resample when ESS < this (inf: always, 0: never) */
+  ABYSSAL_SIR_SET_RATIO,          /* 1: add log_ratio (a proposal's log importance ratios) to the log-weights */
+  ABYSSAL_SIR_SET_COUNT
+};
+
 /* Offsets of the vectors of in[]: pin values (n_x), pin rows (n_x), u (n_u), u_std (n_u), z (n_y), present (n_y:
- * 1 or 0), thresholds (n_y + 1: chi-square quantile by degrees of freedom, inf for no gate); total size. */
+ * 1 or 0), thresholds (n_y + 1: chi-square quantile by degrees of freedom, inf for no gate), the settings; size. */
 typedef struct {
-  abyssal_idx pin_values, pin_rows, u, u_std, z, present, thresholds, size;
+  abyssal_idx pin_values, pin_rows, u, u_std, z, present, thresholds, settings, size;
 } abyssal_sir_in_offsets;
 
 /* The report (doubles), one per side: these scalars, then the vectors at abyssal_sir_report_offsets(). */

@@ -58,7 +58,8 @@ abyssal_sir_in_offsets abyssal_sir_inputs(int n_x, int n_u, int n_y) {
   o.z = o.u_std + n_u;
   o.present = o.z + n_y;
   o.thresholds = o.present + n_y;
-  o.size = o.thresholds + n_y + 1;
+  o.settings = o.thresholds + n_y + 1;
+  o.size = o.settings + ABYSSAL_SIR_SET_COUNT;
   return o;
 }
 
@@ -446,6 +447,35 @@ static void block_mean(const double* restrict e, double W, idx nb, const double*
   }
 }
 
+/* block_moments for d <= 4 in one pass (all sums in registers; rows beyond d read row 0 and are discarded) */
+static void block_moments_small(const double* restrict e, double W, idx nb, const double* rows, idx ld, int d,
+                                double* mean, double* m2) {
+  const double* restrict x0 = rows;
+  const double* restrict x1 = d > 1 ? rows + ld : rows;
+  const double* restrict x2 = d > 2 ? rows + 2 * ld : rows;
+  const double* restrict x3 = d > 3 ? rows + 3 * ld : rows;
+  const double c0 = x0[0], c1 = x1[0], c2 = x2[0], c3 = x3[0];
+  double s0 = 0, s1 = 0, s2 = 0, s3 = 0, p00 = 0, p01 = 0, p02 = 0, p03 = 0, p11 = 0, p12 = 0, p13 = 0, p22 = 0, p23 = 0,
+         p33 = 0;
+#pragma omp simd reduction(+ : s0, s1, s2, s3, p00, p01, p02, p03, p11, p12, p13, p22, p23, p33)
+  for (idx j = 0; j < nb; ++j) {
+    const double d0 = x0[j] - c0, d1 = x1[j] - c1, d2 = x2[j] - c2, d3 = x3[j] - c3, ej = e[j];
+    const double e0 = ej * d0, e1 = ej * d1, e2 = ej * d2, e3 = ej * d3;
+    s0 += e0; s1 += e1; s2 += e2; s3 += e3;
+    p00 += e0 * d0; p01 += e0 * d1; p02 += e0 * d2; p03 += e0 * d3;
+    p11 += e1 * d1; p12 += e1 * d2; p13 += e1 * d3;
+    p22 += e2 * d2; p23 += e2 * d3;
+    p33 += e3 * d3;
+  }
+  const double c[4] = {c0, c1, c2, c3}, s[4] = {s0, s1, s2, s3};
+  const double pr[4][4] = {{p00, p01, p02, p03}, {p01, p11, p12, p13}, {p02, p12, p22, p23}, {p03, p13, p23, p33}};
+  idx k = 0;
+  for (int r = 0; r < d; ++r) {
+    mean[r] = c[r] + s[r] / W;
+    for (int q = r; q < d; ++q) m2[k++] = pr[r][q] - s[r] * s[q] / W;
+  }
+}
+
 /* Weighted mean and packed upper M2 = sum e (x - mean)(x - mean)^T of d rows (stride ld) of a block, in one
  * pass over the rows shifted by the block's first particle (a point of the cloud: the subtraction of the mean's
  * outer product then cancels no more digits than the spread itself has) into dev (d rows of stride BLOCK). Four
@@ -455,6 +485,10 @@ static void block_moments(const double* restrict e, double W, idx nb, const doub
   if (!(W > 0.0)) {
     for (int r = 0; r < d; ++r) mean[r] = 0.0;
     for (idx k = 0; k < packed(d); ++k) m2[k] = 0.0;
+    return;
+  }
+  if (d <= 4) {
+    block_moments_small(e, W, nb, rows, ld, d, mean, m2);
     return;
   }
   double s1[ABYSSAL_SIR_MAX_STATES > ABYSSAL_SIR_MAX_OUTPUTS ? ABYSSAL_SIR_MAX_STATES : ABYSSAL_SIR_MAX_OUTPUTS];
@@ -630,6 +664,27 @@ static void likelihood_block(const step_ctx* c, const scratch* sc, idx nb) {
   const abyssal_sir* s = c->s;
   const lik_plan* plan = &c->plan;
   const int m = plan->m, K = s->r_components;
+  if (m == 1 && K == 1 && !is_angle(s, plan->rows[0])) { /* one Gaussian entry (a depth, a range): one pass */
+    const double z = c->z[plan->rows[0]], v = plan->linv[0], shift = plan->mu[0], cst = plan->cst[0];
+    const double* restrict y = sc->y + (idx)plan->rows[0] * c->ld;
+    double* restrict ll = sc->ll;
+    if (s->has_valid) {
+      const double* restrict valid = sc->y + (idx)(s->n_y + s->n_extra) * c->ld;
+      const double out = s->invalid_log_lik;
+#pragma omp simd
+      for (idx j = 0; j < nb; ++j) {
+        const double q = v * ((z - y[j]) - shift);
+        ll[j] = valid[j] != 0.0 ? cst - 0.5 * q * q : out;
+      }
+    } else {
+#pragma omp simd
+      for (idx j = 0; j < nb; ++j) {
+        const double q = v * ((z - y[j]) - shift);
+        ll[j] = cst - 0.5 * q * q;
+      }
+    }
+    return;
+  }
   for (int i = 0; i < m; ++i) {
     const int row = plan->rows[i];
     const double z = c->z[row];
@@ -732,15 +787,20 @@ static void block_pass(step_ctx* c, scratch* sc, idx b, int mode) {
     st[c->bl.status] = status;
     return;
   }
-  /* prior log-weights */
-  double* restrict lp = sc->lp;
-  const double* restrict lw = c->lw_in + j0;
+  /* prior log-weights: the committed ones, plus a proposal's log ratios (in scratch when a sum or exp needs them:
+   * those run on aligned scratch only) */
+  const double* lp = c->lw_in + j0;
+  const int prior_exp = (mode & (MODE_YMEAN | MODE_YM2)) && !c->prior_w;
   if (c->ratio) {
+    const double* restrict lw = c->lw_in + j0;
     const double* restrict lr = s->log_ratio + j0;
+    double* restrict sum = sc->lp;
 #pragma omp simd
-    for (idx j = 0; j < nb; ++j) lp[j] = lw[j] + lr[j];
-  } else {
-    memcpy(lp, lw, (size_t)nb * sizeof(double));
+    for (idx j = 0; j < nb; ++j) sum[j] = lw[j] + lr[j];
+    lp = sc->lp;
+  } else if (prior_exp) {
+    memcpy(sc->lp, lp, (size_t)nb * sizeof(double));
+    lp = sc->lp;
   }
   const int yr = y_rows(s->n_y, s->n_extra, s->has_valid);
   if (mode & MODE_H) {
@@ -753,19 +813,34 @@ static void block_pass(step_ctx* c, scratch* sc, idx b, int mode) {
       return;
     }
   }
+  /* posterior log-weights l = lp (+ log-likelihood) into scratch and into lw_next (normalised later); NaN or +inf
+   * is an error (a -inf is a zero weight) */
   double* restrict l = sc->l;
+  double* restrict l_out = c->lw_next + j0;
+  double bad = 0.0;
   if (mode & MODE_LIK) {
     likelihood_block(c, sc, nb);
     const double* restrict ll = sc->ll;
+    const double* restrict prior = lp;
     double max_ll = -INFINITY;
-#pragma omp simd reduction(max : max_ll)
+#pragma omp simd reduction(max : max_ll) reduction(+ : bad)
     for (idx j = 0; j < nb; ++j) {
-      l[j] = lp[j] + ll[j];
+      const double v = prior[j] + ll[j];
+      l[j] = v;
+      l_out[j] = v;
       max_ll = ll[j] > max_ll ? ll[j] : max_ll;
+      bad += (v != v || v == INFINITY) ? 1.0 : 0.0;
     }
     st[c->bl.max_ll] = max_ll;
   } else if (mode & MODE_POST) {
-    memcpy(l, lp, (size_t)nb * sizeof(double));
+    const double* restrict prior = lp;
+#pragma omp simd reduction(+ : bad)
+    for (idx j = 0; j < nb; ++j) {
+      const double v = prior[j];
+      l[j] = v;
+      l_out[j] = v;
+      bad += (v != v || v == INFINITY) ? 1.0 : 0.0;
+    }
     st[c->bl.max_ll] = -INFINITY;
   }
   if (mode & (MODE_YMEAN | MODE_YM2)) { /* the cloud's predicted measurement, with the prior weights */
@@ -786,15 +861,10 @@ static void block_pass(step_ctx* c, scratch* sc, idx b, int mode) {
       block_mean(sc->e, W, nb, sc->y, ld, s->n_y, st + c->bl.ybar);
   }
   if (!(mode & MODE_POST)) return;
-  /* posterior log-weights: NaN or +inf is an error (a -inf is a zero weight) */
-  double bad = 0.0;
-#pragma omp simd reduction(+ : bad)
-  for (idx j = 0; j < nb; ++j) bad += (l[j] != l[j] || l[j] == INFINITY) ? 1.0 : 0.0;
   if (bad != 0.0) {
     st[c->bl.status] = ABYSSAL_SIR_NONFINITE_WEIGHT;
     return;
   }
-  memcpy(c->lw_next + j0, l, (size_t)nb * sizeof(double));
   double W;
   block_weights(l, nb, sc->e, st + c->bl.peak, &W, st + c->bl.Q);
   st[c->bl.W] = W;
@@ -1134,7 +1204,7 @@ static void gather_blocks(step_ctx* c, int t, int phase) {
   const scratch sc = scratch_of(c, t);
   const idx n = c->n;
   const double log_uniform = -log((double)n);
-  const int stratified = (int)c->s->in[ABYSSAL_SIR_IN_SCHEME] == ABYSSAL_SIR_STRATIFIED;
+  const int stratified = (int)c->s->in[c->io.settings + ABYSSAL_SIR_SET_SCHEME] == ABYSSAL_SIR_STRATIFIED;
   for (idx ob = grab(c, phase); ob < c->nblocks; ob = grab(c, phase)) {
     const idx k0 = ob * BLOCK, nk = n - k0 < BLOCK ? n - k0 : BLOCK;
     if (stratified) {
@@ -1204,10 +1274,10 @@ static void drive(step_ctx* c, int t) {
   normalise_blocks(c, PHASES - 2);
   sync_threads(c);
   if (t == 0) {
-    const double ess = rep[ABYSSAL_SIR_R_ESS], below = s->in[ABYSSAL_SIR_IN_RESAMPLE_BELOW];
+    const double ess = rep[ABYSSAL_SIR_R_ESS], below = s->in[c->io.settings + ABYSSAL_SIR_SET_RESAMPLE_BELOW];
     const int wanted = ess < below || below == INFINITY;
     rep[ABYSSAL_SIR_R_RESAMPLE] = wanted;
-    c->resample = wanted && (int)s->in[ABYSSAL_SIR_IN_SCHEME] != ABYSSAL_SIR_CALLER;
+    c->resample = wanted && (int)s->in[c->io.settings + ABYSSAL_SIR_SET_SCHEME] != ABYSSAL_SIR_CALLER;
     rep[ABYSSAL_SIR_R_RESAMPLED] = c->resample;
     if (c->resample) {
       c->offsets[0] = 0.0;
@@ -1293,19 +1363,20 @@ int abyssal_sir_step(const abyssal_sir* s) {
   c->ld = s->ld;
   c->nblocks = blocks_of(s->n);
   const double cur = in[ABYSSAL_SIR_IN_CUR], move = in[ABYSSAL_SIR_IN_MOVE], pieces = in[ABYSSAL_SIR_IN_PIECES];
-  const double threads = in[ABYSSAL_SIR_IN_THREADS], pins = in[ABYSSAL_SIR_IN_PINS];
+  const double* set = in + c->io.settings;
+  const double threads = set[ABYSSAL_SIR_SET_THREADS], pins = in[ABYSSAL_SIR_IN_PINS];
   if (!(cur == 0.0 || cur == 1.0 || cur == 2.0) || !flag(in[ABYSSAL_SIR_IN_SIDE]) ||
       !(move == 0.0 || move == 1.0 || move == 2.0) || !flag(in[ABYSSAL_SIR_IN_MEASURE]) ||
-      !flag(in[ABYSSAL_SIR_IN_RATIO]) || !flag(in[ABYSSAL_SIR_IN_PRIOR]) || !(pieces >= 1.0 && pieces <= 1024.0 && pieces == floor(pieces)) ||
+      !flag(set[ABYSSAL_SIR_SET_RATIO]) || !flag(in[ABYSSAL_SIR_IN_PRIOR]) || !(pieces >= 1.0 && pieces <= 1024.0 && pieces == floor(pieces)) ||
       !(threads >= 1.0) || !(pins >= 0.0 && pins <= s->n_x && pins == floor(pins)) ||
-      !isfinite(in[ABYSSAL_SIR_IN_DT]) || in[ABYSSAL_SIR_IN_RESAMPLE_BELOW] != in[ABYSSAL_SIR_IN_RESAMPLE_BELOW] ||
-      !(in[ABYSSAL_SIR_IN_SCHEME] == 0.0 || in[ABYSSAL_SIR_IN_SCHEME] == 1.0 || in[ABYSSAL_SIR_IN_SCHEME] == 2.0))
+      !isfinite(in[ABYSSAL_SIR_IN_DT]) || set[ABYSSAL_SIR_SET_RESAMPLE_BELOW] != set[ABYSSAL_SIR_SET_RESAMPLE_BELOW] ||
+      !(set[ABYSSAL_SIR_SET_SCHEME] == 0.0 || set[ABYSSAL_SIR_SET_SCHEME] == 1.0 || set[ABYSSAL_SIR_SET_SCHEME] == 2.0))
     return ABYSSAL_SIR_BAD_ARGUMENT;
   const int side = in[ABYSSAL_SIR_IN_SIDE] != 0.0;
   c->move = (int)move;
   c->pieces = (int)pieces;
   c->dt_piece = in[ABYSSAL_SIR_IN_DT] / c->pieces;
-  c->ratio = in[ABYSSAL_SIR_IN_RATIO] != 0.0;
+  c->ratio = set[ABYSSAL_SIR_SET_RATIO] != 0.0;
   c->prior_w = in[ABYSSAL_SIR_IN_PRIOR] != 0.0 && !c->ratio;
   c->x_in = s->particles[(int)cur];
   c->x_prop = s->particles[((int)cur + 1) % 3];

@@ -27,6 +27,7 @@ from __future__ import annotations
 import ctypes
 import math
 import os
+import struct
 import time
 from dataclasses import dataclass
 from functools import lru_cache
@@ -43,9 +44,9 @@ MAX_THREADS = 64
 #: serial steps timed before the thread count is chosen (threads_for)
 TIMED_STEPS = 3
 
-# in[] scalars (abyssal_sir.h: ABYSSAL_SIR_IN_*)
-(IN_CUR, IN_SIDE, IN_PRIOR, IN_THREADS, IN_SCHEME, IN_RESAMPLE_BELOW, IN_RATIO, IN_MOVE, IN_MEASURE, IN_DT,
- IN_PIECES, IN_PINS, IN_HEAD) = range(13)
+# in[] scalars (abyssal_sir.h: ABYSSAL_SIR_IN_*) and settings (ABYSSAL_SIR_SET_*, at CompiledSIR.io.settings)
+IN_CUR, IN_SIDE, IN_PRIOR, IN_MOVE, IN_MEASURE, IN_DT, IN_PIECES, IN_PINS, IN_HEAD = range(9)
+SET_THREADS, SET_SCHEME, SET_RESAMPLE_BELOW, SET_RATIO, SET_COUNT = range(5)
 MOVE_NONE, MOVE_TRANSITION, MOVE_GIVEN = 0, 1, 2
 SYSTEMATIC, STRATIFIED, CALLER = 0, 1, 2
 SCHEMES = {"systematic": SYSTEMATIC, "stratified": STRATIFIED}
@@ -62,7 +63,7 @@ MESSAGES = {1: "a particle left the finite range", 2: "the measurement function 
 
 class _InOffsets(ctypes.Structure):
     _fields_ = [(name, ctypes.c_longlong) for name in ("pin_values", "pin_rows", "u", "u_std", "z", "present",
-                                                       "thresholds", "size")]
+                                                       "thresholds", "settings", "size")]
 
 
 class _ReportOffsets(ctypes.Structure):
@@ -239,8 +240,13 @@ class CompiledSIR:
         self.thresholds = self.inputs[io.thresholds:io.thresholds + n_y + 1]
         self.thresholds[...] = math.inf
         self.pin_rows, self.pin_values = self.inputs[io.pin_rows:io.pin_rows + n_x], self.inputs[io.pin_values:io.pin_values + n_x]
+        #: [threads, scheme, resample below, use log ratio] (see the properties)
+        self.settings = self.inputs[io.settings:io.settings + SET_COUNT]
         self.inputs[IN_PIECES] = 1.0
-        self.inputs[IN_THREADS] = 1.0
+        self.settings[SET_THREADS] = 1.0
+        # the step's inputs CUR .. the thresholds as one struct write (run)
+        self._head = struct.Struct(f"{io.settings}d")
+        self._inputs_bytes = memoryview(self.inputs).cast("B")
         #: offsets of the inputs' vectors (u, u_std, z, present, thresholds, pin_rows, pin_values) and the report's
         self.io, self._ro = io, ro
         #: row stride of the particle buffers: n rounded up to 8 doubles, so every row starts 64-byte aligned
@@ -253,11 +259,15 @@ class CompiledSIR:
         for r in self.report:
             r[R_ESS] = n
         ro_ = ro
-        self._means = [r[ro_.mean:ro_.mean + n_x] for r in self.report]
-        self._covs = [r[ro_.cov:ro_.cov + n_x * n_x].reshape(n_x, n_x) for r in self.report]
-        self._extras = [r[ro_.extra:ro_.extra + n_extra] for r in self.report]
+        #: per side: the weighted mean (n_x,), covariance (n_x, n_x) and extra rows' means (n_extra,) (views)
+        self.means = [r[ro_.mean:ro_.mean + n_x] for r in self.report]
+        self.covs = [r[ro_.cov:ro_.cov + n_x * n_x].reshape(n_x, n_x) for r in self.report]
+        self.extras = [r[ro_.extra:ro_.extra + n_extra] for r in self.report]
+        self._report_bytes = [memoryview(r).cast("B") for r in self.report]
+        self._report_head = struct.Struct(f"{R_HEAD}d")
         self.log_ratio = np.zeros(n)
         self.rng = np.zeros(2, dtype=np.uint64)
+        self._counter = ctypes.c_uint64.from_buffer(self.rng, 8)  # rng[1], written without a numpy call
         self.cur, self.side = 0, 0
         #: the committed weights are exp(the committed log-weights) (no resampling since): see IN_PRIOR
         self.weights_match = True
@@ -303,15 +313,15 @@ class CompiledSIR:
     # ------------------------------------------------------------------ views of the sides
     def mean(self, side: int) -> np.ndarray:
         """The weighted mean (n_x,) of a side's step (a view)."""
-        return self._means[side]
+        return self.means[side]
 
     def cov(self, side: int) -> np.ndarray:
         """The weighted covariance (n_x, n_x) of a side's step (a view)."""
-        return self._covs[side]
+        return self.covs[side]
 
     def extra(self, side: int) -> np.ndarray:
         """The posterior means of the measurement's extra rows (n_extra,) of a side's step (a view)."""
-        return self._extras[side]
+        return self.extras[side]
 
     def gated(self, side: int) -> np.ndarray:
         return self.report[side][self._ro.gated:self._ro.gated + self.n_y]
@@ -326,6 +336,50 @@ class CompiledSIR:
         """Where a step writes (or a proposal wrote) the moved particles: buffer cur + 1."""
         return self.particles[(self.cur + 1) % 3]
 
+    # ------------------------------------------------------------------ settings
+    @property
+    def threads(self) -> int:
+        return int(self.settings[SET_THREADS])
+
+    @threads.setter
+    def threads(self, value: int) -> None:
+        """Threads for every step from now on (no timing; 1 .. max_threads)."""
+        if not 1 <= int(value) <= self.max_threads:
+            raise ValueError(f"threads must be between 1 and {self.max_threads}, got {value!r}")
+        self.settings[SET_THREADS] = int(value)
+        self._timed = TIMED_STEPS
+
+    @property
+    def scheme(self) -> int:
+        return int(self.settings[SET_SCHEME])
+
+    @scheme.setter
+    def scheme(self, value: int) -> None:
+        """SYSTEMATIC, STRATIFIED or CALLER (the caller resamples when the report says R_RESAMPLE)."""
+        if value not in (SYSTEMATIC, STRATIFIED, CALLER):
+            raise ValueError(f"scheme must be SYSTEMATIC, STRATIFIED or CALLER, got {value!r}")
+        self.settings[SET_SCHEME] = value
+
+    @property
+    def resample_below(self) -> float:
+        return float(self.settings[SET_RESAMPLE_BELOW])
+
+    @resample_below.setter
+    def resample_below(self, value: float) -> None:
+        """Resample when ESS < this (math.inf: every step, 0: never)."""
+        if not value >= 0:
+            raise ValueError(f"resample_below must be >= 0, got {value!r}")
+        self.settings[SET_RESAMPLE_BELOW] = value
+
+    @property
+    def use_log_ratio(self) -> bool:
+        return bool(self.settings[SET_RATIO])
+
+    @use_log_ratio.setter
+    def use_log_ratio(self, value: bool) -> None:
+        """Add ``log_ratio`` (a proposal's log importance ratios) to the log-weights of the next steps."""
+        self.settings[SET_RATIO] = bool(value)
+
     # ------------------------------------------------------------------ the step
     def threads_for(self) -> int:
         """Threads for a step: every core once a serial step was measured to take SPLIT_MIN_SECONDS or more."""
@@ -335,8 +389,16 @@ class CompiledSIR:
         return 1
 
     def __call__(self) -> int:
-        """One step on the uncommitted side; returns the C status (0: ok, see MESSAGES)."""
+        """One step on the uncommitted side with the inputs as they are; returns the C status (0: ok, MESSAGES)."""
         self.inputs[IN_CUR:IN_PRIOR + 1] = (self.cur, self.side, self.weights_match)
+        if self._timed < TIMED_STEPS:
+            return self._timed_call()
+        return self._fn(self._arg)
+
+    def run(self, values) -> int:
+        """One step whose inputs MOVE .. the thresholds are `values` (a sequence of that many numbers, written in
+        one go: the fast path of a filter that builds them each step); returns the C status."""
+        self._head.pack_into(self._inputs_bytes, 0, self.cur, self.side, self.weights_match, *values)
         if self._timed < TIMED_STEPS:
             return self._timed_call()
         return self._fn(self._arg)
@@ -352,18 +414,23 @@ class CompiledSIR:
         self.particle_seconds = seconds if self.particle_seconds is None else min(self.particle_seconds, seconds)
         self._timed += 1
         if self._timed == TIMED_STEPS:
-            self.inputs[IN_THREADS] = self.threads_for()
+            self.settings[SET_THREADS] = self.threads_for()
         return status
 
-    def commit(self) -> None:
+    def head(self, side: int) -> tuple:
+        """The report's scalars of a side (R_ESS .. R_PASSES) as a tuple of floats."""
+        return self._report_head.unpack_from(self._report_bytes[side])
+
+    def commit(self, resampled: bool | None = None) -> None:
         """The step's side becomes the committed one (particles: the resampled buffer when it resampled) and the
-        generator's counter advances."""
+        generator's counter advances. `resampled`: the step's R_RESAMPLED when the caller has read it already."""
         nxt = 1 - self.side
-        resampled = self.report[nxt].item(R_RESAMPLED) != 0.0
+        if resampled is None:
+            resampled = self.report[nxt].item(R_RESAMPLED) != 0.0
         self.cur = (self.cur + (2 if resampled else 1)) % 3
         self.side = nxt
         self.weights_match = not resampled
-        self.rng[1] = int(self.rng[1]) + 1
+        self._counter.value += 1
 
     def message(self, status: int) -> str:
         return MESSAGES.get(status, f"unknown status {status}")

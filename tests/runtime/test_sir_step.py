@@ -238,8 +238,8 @@ def make_step(model, N, process_kind="support", mixture=None, threads=1, seed=0,
 def set_inputs(step, u, dt, z, threshold=0.0, scheme="systematic", gate=0.0, move=sir.MOVE_TRANSITION):
     step.u[...] = u
     step.inputs[sir.IN_DT], step.inputs[sir.IN_MOVE] = dt, move
-    step.inputs[sir.IN_RESAMPLE_BELOW] = threshold
-    step.inputs[sir.IN_SCHEME] = sir.SCHEMES[scheme]
+    step.resample_below = threshold
+    step.scheme = sir.SCHEMES[scheme]
     if z is None:
         step.inputs[sir.IN_MEASURE] = 0.0
     else:
@@ -370,7 +370,7 @@ def test_a_proposal_moves_and_its_log_ratios_weigh(rov):
     step.log_ratio[...] = rng.normal(size=800)
     z = np.array([0.1, 0.2, 0.0, 2.9])
     set_inputs(step, np.zeros(4), 0.1, z, move=sir.MOVE_GIVEN)
-    step.inputs[sir.IN_RATIO] = 1.0
+    step.use_log_ratio = True
     assert step() == 0
     ref = numpy_sir_step(rov, moved, lw + step.log_ratio, None, 0.1, p, process, mixture, z, np.isfinite(z), [3],
                          *step.rng, move=False)
@@ -384,13 +384,11 @@ def test_results_do_not_depend_on_the_thread_count(rov, scheme):
     results = []
     for threads in (1, 2, 3):
         step, *_ = make_step(rov, N, "mixture", threads=threads)
-        step.inputs[sir.IN_THREADS] = threads
+        step.threads = threads
         for k in range(3):
             z = np.array([0.1 * k, -0.1, np.nan if k == 1 else 0.0, 3.0])
             set_inputs(step, np.array([20.0, 5.0, 10.0, 0.5]), 0.1, z, threshold=0.9 * N, scheme=scheme, gate=1e-10)
-            step.inputs[sir.IN_CUR], step.inputs[sir.IN_SIDE] = step.cur, step.side
-            step.inputs[sir.IN_THREADS] = threads
-            assert step._fn(step._arg) == 0  # the threads asked for, not threads_for()'s choice
+            assert step() == 0
             step.commit()
         results.append((step.particles[step.cur].copy(), step.log_w[step.side].copy(), step.w[step.side].copy(),
                         step.report[step.side].copy()))

@@ -156,17 +156,18 @@ class TerrainParticleFilter(FilterBase):
         step, inputs = self._sir, self._sir.inputs
         # the lookup reads [pins, first pinned value]: whether every particle has the compass heading, and which
         self._measure.read_heading_from(inputs[sir.IN_PINS:sir.IN_PINS + 2])
-        inputs[sir.IN_SCHEME] = sir.SCHEMES[policy.scheme]
-        inputs[sir.IN_RESAMPLE_BELOW] = math.inf if policy.threshold >= 1.0 else policy.threshold * N
-        # everything a step changes is one slice of the inputs, MOVE .. the end (the process noise factor last):
+        step.scheme = sir.SCHEMES[policy.scheme]
+        step.resample_below = math.inf if policy.threshold >= 1.0 else policy.threshold * N
+        # what a step changes is the inputs MOVE .. the thresholds (CompiledSIR.run), and the environment sigma:
         # [MOVE, MEASURE, DT, PIECES, PINS, heading, 0, 0, pin rows 2, 0, 0, v, omega, sd_v, sd_omega, depth,
-        #  present, gate thresholds (2), sigma, sigma]
+        #  present, gate thresholds (2)]
         gate = chi2.isf(gate_probability, 1) if gate_probability > 0 else math.inf
-        self._slice = [0.0, 0.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 2.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, math.inf,
-                       gate, 0.0, 0.0]
+        self._values = [0.0, 0.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 2.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, math.inf,
+                        gate]
         self._gate = gate
-        if len(self._slice) != inputs.shape[0] - sir.IN_MOVE or step.io.u - sir.IN_MOVE != 11:
-            raise RuntimeError("the compiled SIR step's input layout changed: update TerrainParticleFilter._slice")
+        if len(self._values) != step.io.settings - sir.IN_MOVE or step.io.u - sir.IN_MOVE != 11:
+            raise RuntimeError("the compiled SIR step's input layout changed: update TerrainParticleFilter._values")
+        self._sigma_in_step = None  # the sigma last written into the step's process noise factor
         step.particles[0][...] = gaussian_draws(x0, P0, self.rng, N)
         step.rng[0] = sir.draw_key(self.rng)
         self._x, self._P = step.mean(0), step.cov(0)
@@ -238,7 +239,7 @@ class TerrainParticleFilter(FilterBase):
         v, omega = u.tolist() if move else (0.0, 0.0)
         a1, a2, a3, a4 = self.body_noise
         step = self._sir
-        values = self._slice  # see __init__: the step's inputs from MOVE on
+        values = self._values  # see __init__: the step's inputs MOVE .. the thresholds
         values[0], values[1], values[2] = (sir.MOVE_TRANSITION if move else sir.MOVE_NONE), depth_present, (dt if move else 1.0)
         values[4], values[5] = heading_present, z_heading                                      # the compass, pinned
         values[11], values[12] = v, omega
@@ -246,17 +247,17 @@ class TerrainParticleFilter(FilterBase):
         values[14] = math.sqrt(a3 * v * v + a4 * omega * omega)
         values[15] = z_depth
         values[18] = math.inf if self._gate_streak >= self.gate_patience else self._gate    # patience: ungated
-        values[19] = values[20] = self.sigma                                                   # eq. 3
-        step.inputs[sir.IN_MOVE:] = values
-        status = step()
+        if self.sigma != self._sigma_in_step:                                                 # eq. 3
+            step.factor[:] = self._sigma_in_step = self.sigma
+        status = step.run(values)
         if status:
             raise ValueError(f"TerrainParticleFilter: {step.message(status)} (u, dt, z or p out of the model's "
                              "finite range); state left unchanged")
         nxt = 1 - step.side
-        report = step.report[nxt]
+        ess, resampled, _, uninformative, _, gated = step.head(nxt)[:sir.R_GATED + 1]
         fuzzy_state = None
         if self.fuzzy:
-            gradient = self.gradient_scale * step.extra(nxt).item(0)
+            gradient = self.gradient_scale * step.extras[nxt].item(0)
             travelled = self._travelled + (abs(v) * dt if move else 0.0)
             # the window's base: the newest history entry such that the one after it is < rate_window_m back
             # (history holds at least one entry; the new one is never a window back, rate_window_m > 0)
@@ -267,15 +268,14 @@ class TerrainParticleFilter(FilterBase):
             rate = (gradient - history[dropped][1]) / (window / self.rate_length_m)
             fuzzy_state = (travelled, (travelled, gradient), dropped, gradient, rate, self._fuzzy_sigma(gradient, rate))
         # commit: nothing below can fail
-        step.commit()
-        ess, resampled, _, uninformative, _, gated = report[:sir.R_GATED + 1].tolist()
+        step.commit(resampled != 0.0)
         if depth_present:
             self._gate_streak = self._gate_streak + 1 if gated else 0
         self.gated += int(gated)
         self.uninformative += uninformative > 0.0
         self.resamples += resampled > 0.0
         self.ess = ess
-        self._x, self._P = step.mean(nxt), step.cov(nxt)
+        self._x, self._P = step.means[nxt], step.covs[nxt]
         if fuzzy_state is not None:
             self._travelled, entry, dropped, self.gradient, self.gradient_rate, self.sigma = fuzzy_state
             self._history.append(entry)
