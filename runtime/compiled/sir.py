@@ -18,9 +18,11 @@ Random numbers: a step's draws are Philox4x32-10 of (particle, row, step counter
 thread count, the blocking or anything drawn before; the state is those two words. Normals by the
 Box-Muller transform in single precision (each to ~1e-7 relative, the tail to 6.8 sigma).
 
-Threads: a step runs on ``threads_for`` threads: one until a step's serial time, measured on its
-first calls, exceeds ``SPLIT_MIN_SECONDS`` (compiled.batches; threads are started per step, ~20-40
-us each), then every core. The results are bit-identical whatever the count (tests/runtime/test_sir_step.py).
+Threads: a step whose serial time exceeds ``SPLIT_MIN_SECONDS`` (compiled.batches) is timed on one
+thread and on every core (a few steps each, again every ``RETIME_STEPS``) and runs with the faster
+count: on a loaded machine the other core may be busy, and the step's threads (started per step,
+tens of microseconds) wait for each other at its barriers. The results are bit-identical whatever
+the count (tests/runtime/test_sir_step.py), so the choice never changes them.
 """
 from __future__ import annotations
 
@@ -41,8 +43,10 @@ SOURCES = ("abyssal_rng.h", "abyssal_sir.h", "abyssal_sir_soa.c", "abyssal_sir_t
 #: particles per block of the C step (ABYSSAL_SIR_BLOCK)
 BLOCK = 512
 MAX_THREADS = 64
-#: serial steps timed before the thread count is chosen (threads_for)
-TIMED_STEPS = 3
+#: steps timed on one thread, then on every core, to choose the thread count (CompiledSIR._probed_call) ...
+PROBE_STEPS = 3
+#: ... again after this many steps (the machine's load changes)
+RETIME_STEPS = 2000
 
 # in[] scalars (abyssal_sir.h: ABYSSAL_SIR_IN_*) and settings (ABYSSAL_SIR_SET_*, at CompiledSIR.io.settings)
 IN_CUR, IN_SIDE, IN_PRIOR, IN_MOVE, IN_MEASURE, IN_DT, IN_PIECES, IN_PINS, IN_HEAD = range(9)
@@ -306,9 +310,8 @@ class CompiledSIR:
             work=self.work.ctypes.data, work_size=self.work.shape[0])
         self._arg = ctypes.c_void_p(ctypes.addressof(self._struct))
         self._fn = lib.abyssal_sir_step
-        #: cheapest serial seconds per particle of the first steps (None: not measured yet), see threads_for
-        self.particle_seconds: float | None = None
-        self._timed = 0
+        # the thread count: chosen by timing (_probed_call) unless set (threads)
+        self._probes, self._forced, self._serial, self._split = 0, False, math.inf, math.inf
 
     # ------------------------------------------------------------------ views of the sides
     def mean(self, side: int) -> np.ndarray:
@@ -342,12 +345,15 @@ class CompiledSIR:
         return int(self.settings[SET_THREADS])
 
     @threads.setter
-    def threads(self, value: int) -> None:
-        """Threads for every step from now on (no timing; 1 .. max_threads)."""
+    def threads(self, value: int | None) -> None:
+        """Threads for every step from now on (1 .. max_threads), or None: chosen by timing (_probed_call)."""
+        if value is None:
+            self._forced, self._probes = False, 0
+            return
         if not 1 <= int(value) <= self.max_threads:
             raise ValueError(f"threads must be between 1 and {self.max_threads}, got {value!r}")
         self.settings[SET_THREADS] = int(value)
-        self._timed = TIMED_STEPS
+        self._forced, self._probes = True, 2 * PROBE_STEPS
 
     @property
     def scheme(self) -> int:
@@ -381,40 +387,52 @@ class CompiledSIR:
         self.settings[SET_RATIO] = bool(value)
 
     # ------------------------------------------------------------------ the step
-    def threads_for(self) -> int:
-        """Threads for a step: every core once a serial step was measured to take SPLIT_MIN_SECONDS or more."""
-        if self.max_threads > 1 and self.particle_seconds is not None and self.n > BLOCK:
-            if self.n * self.particle_seconds >= SPLIT_MIN_SECONDS:
-                return self.max_threads
-        return 1
-
     def __call__(self) -> int:
         """One step on the uncommitted side with the inputs as they are; returns the C status (0: ok, MESSAGES)."""
         self.inputs[IN_CUR:IN_PRIOR + 1] = (self.cur, self.side, self.weights_match)
-        if self._timed < TIMED_STEPS:
-            return self._timed_call()
+        if self._probes < 2 * PROBE_STEPS:
+            return self._probed_call()
+        self._probes += 1
+        if self._probes >= RETIME_STEPS:
+            self._probes = 0
         return self._fn(self._arg)
 
     def run(self, values) -> int:
         """One step whose inputs MOVE .. the thresholds are `values` (a sequence of that many numbers, written in
         one go: the fast path of a filter that builds them each step); returns the C status."""
         self._head.pack_into(self._inputs_bytes, 0, self.cur, self.side, self.weights_match, *values)
-        if self._timed < TIMED_STEPS:
-            return self._timed_call()
+        if self._probes < 2 * PROBE_STEPS:
+            return self._probed_call()
+        self._probes += 1
+        if self._probes >= RETIME_STEPS:
+            self._probes = 0
         return self._fn(self._arg)
 
-    def _timed_call(self) -> int:
-        """A serial step timed (the first TIMED_STEPS of a cloud that could be split); then the thread count is fixed."""
-        if self.max_threads == 1 or self.n <= BLOCK:
-            self._timed = TIMED_STEPS
+    def _probed_call(self) -> int:
+        """A step timed to choose the thread count: PROBE_STEPS on one thread, then (when those took at least
+        SPLIT_MIN_SECONDS) PROBE_STEPS on every core; the faster count stays for RETIME_STEPS steps. The results
+        do not depend on the count, so probing never changes them."""
+        probe = self._probes
+        if self.max_threads == 1 or self.n <= BLOCK or self._forced:
+            self._probes = 2 * PROBE_STEPS
             return self._fn(self._arg)
+        if probe == 0:
+            self._serial = self._split = math.inf
+        threads = 1 if probe < PROBE_STEPS else self.max_threads
+        self.settings[SET_THREADS] = threads
         start = time.perf_counter()
         status = self._fn(self._arg)
-        seconds = (time.perf_counter() - start) / self.n
-        self.particle_seconds = seconds if self.particle_seconds is None else min(self.particle_seconds, seconds)
-        self._timed += 1
-        if self._timed == TIMED_STEPS:
-            self.settings[SET_THREADS] = self.threads_for()
+        seconds = time.perf_counter() - start
+        if threads == 1:
+            self._serial = min(self._serial, seconds)
+        else:
+            self._split = min(self._split, seconds)
+        probe += 1
+        if probe == PROBE_STEPS and self._serial < SPLIT_MIN_SECONDS:
+            probe = 2 * PROBE_STEPS  # too short a step to gain from a split (batches.SPLIT_MIN_SECONDS)
+        if probe == 2 * PROBE_STEPS:
+            self.settings[SET_THREADS] = self.max_threads if self._split < self._serial else 1
+        self._probes = probe
         return status
 
     def head(self, side: int) -> tuple:
