@@ -12,8 +12,10 @@
  *   weigh     the measurement function h (a model's kernel or the caller's, e.g. a map lookup) and the exact
  *             (mixture) likelihood of the present entries of z, angle residuals wrapped to (-pi, pi], with the
  *             robust rule: an entry-wise chi-square gate on the cloud's predicted measurement
- *             (nu = z - sum_i w_i h(x_i) - E[v], S = sum_i w_i (h_i - ybar)(h_i - ybar)^T + R, the test of
- *             runtime/filters/kalman/gate.py with the caller's thresholds), and, when every likelihood
+ *             (nu = sum_i w_i r_i - E[v] and S = sum_i w_i (r_i - rbar)(r_i - rbar)^T + R, r_i = z - h(x_i)
+ *             with angle entries wrapped and w_i the weights before the step; the test of
+ *             runtime/filters/kalman/gate.py with the caller's thresholds, settled by its bound
+ *             nu^T R^-1 nu <= threshold when it holds, as S >= R), and, when every likelihood
  *             underflows (max log-likelihood < log DBL_MIN), the weights are kept (an uninformative step);
  *   report    normalised weights and log-weights, ESS, the weighted mean and covariance of the particles, the
  *             weighted means of the measurement's extra rows;
@@ -55,7 +57,7 @@ typedef int (*abyssal_measure_fn)(const void* ctx, abyssal_idx n, abyssal_idx ld
 /* return codes */
 enum {
   ABYSSAL_SIR_OK = 0,
-  ABYSSAL_SIR_NONFINITE_PARTICLE = 1,    /* a moved particle is inf or NaN */
+  ABYSSAL_SIR_NONFINITE_PARTICLE = 1,    /* a moved particle is inf or NaN, or beyond max_abs */
   ABYSSAL_SIR_NONFINITE_MEASUREMENT = 2, /* h gave inf or NaN */
   ABYSSAL_SIR_NONFINITE_WEIGHT = 3,      /* a log-weight is NaN or +inf (e.g. a NaN log importance ratio) */
   ABYSSAL_SIR_MODEL_FAILED = 4,          /* f or h returned non-zero */
@@ -152,6 +154,7 @@ typedef struct abyssal_sir {
   const double* R;        /* (n_y, n_y) its moment-matched covariance (the gate's S) */
   const double* R_mean;   /* (n_y) its mean */
   double invalid_log_lik; /* log-likelihood of a particle outside h's domain (has_valid) */
+  double max_abs;         /* a moved particle with an entry beyond +-max_abs (or not finite) fails the step (inf: finite) */
   /* state buffers (the committed ones are read, the others written) */
   double* particles[3];   /* (n_x, n) each */
   double* log_w[2];       /* (n) normalised log-weights */

@@ -540,6 +540,17 @@ static void block_moments(const double* restrict e, double W, idx nb, const doub
   }
 }
 
+/* 0 when every entry of the d rows (stride ld) of a block lies in [-bound, bound] (NaN does not) */
+static int outside_rows(const double* rows, int d, idx ld, idx nb, double bound) {
+  double count = 0.0;
+  for (int r = 0; r < d; ++r) {
+    const double* restrict x = rows + (idx)r * ld;
+#pragma omp simd reduction(+ : count)
+    for (idx j = 0; j < nb; ++j) count += fabs(x[j]) <= bound ? 0.0 : 1.0;
+  }
+  return count != 0.0;
+}
+
 /* 0 when every entry of the d rows (stride ld) of a block is finite */
 static int nonfinite_rows(const double* rows, int d, idx ld, idx nb) {
   double check = 0.0; /* x - x is NaN exactly when x is inf or NaN */
@@ -660,32 +671,12 @@ static int move_block(const step_ctx* c, scratch* sc, idx j0, idx nb) {
 }
 
 /* log-likelihood of the plan's entries at the block's particles (y in sc->y) into sc->ll */
-static void likelihood_block(const step_ctx* c, const scratch* sc, idx nb) {
+/* the residuals z - h(x) of the plan's entries into sc->res (rows in plan order, stride BLOCK), an angle entry's
+ * wrapped to (-pi, pi] where it lies beyond */
+static void residuals_block(const step_ctx* c, const scratch* sc, idx nb) {
   const abyssal_sir* s = c->s;
   const lik_plan* plan = &c->plan;
-  const int m = plan->m, K = s->r_components;
-  if (m == 1 && K == 1 && !is_angle(s, plan->rows[0])) { /* one Gaussian entry (a depth, a range): one pass */
-    const double z = c->z[plan->rows[0]], v = plan->linv[0], shift = plan->mu[0], cst = plan->cst[0];
-    const double* restrict y = sc->y + (idx)plan->rows[0] * c->ld;
-    double* restrict ll = sc->ll;
-    if (s->has_valid) {
-      const double* restrict valid = sc->y + (idx)(s->n_y + s->n_extra) * c->ld;
-      const double out = s->invalid_log_lik;
-#pragma omp simd
-      for (idx j = 0; j < nb; ++j) {
-        const double q = v * ((z - y[j]) - shift);
-        ll[j] = valid[j] != 0.0 ? cst - 0.5 * q * q : out;
-      }
-    } else {
-#pragma omp simd
-      for (idx j = 0; j < nb; ++j) {
-        const double q = v * ((z - y[j]) - shift);
-        ll[j] = cst - 0.5 * q * q;
-      }
-    }
-    return;
-  }
-  for (int i = 0; i < m; ++i) {
+  for (int i = 0; i < plan->m; ++i) {
     const int row = plan->rows[i];
     const double z = c->z[row];
     const double* restrict y = sc->y + (idx)row * c->ld;
@@ -700,6 +691,34 @@ static void likelihood_block(const step_ctx* c, const scratch* sc, idx nb) {
     if (big > PI && is_angle(s, row))
       for (idx j = 0; j < nb; ++j)
         if (fabs(r[j]) > PI) r[j] = wrap_pi(r[j]);
+  }
+}
+
+/* log-likelihood of the plan's entries at the block's particles (residuals in sc->res) into sc->ll */
+static void likelihood_block(const step_ctx* c, const scratch* sc, idx nb) {
+  const abyssal_sir* s = c->s;
+  const lik_plan* plan = &c->plan;
+  const int m = plan->m, K = s->r_components;
+  if (m == 1 && K == 1) { /* one Gaussian entry (a depth, a range): one pass */
+    const double v = plan->linv[0], shift = plan->mu[0], cst = plan->cst[0];
+    const double* restrict r = sc->res;
+    double* restrict ll = sc->ll;
+    if (s->has_valid) {
+      const double* restrict valid = sc->y + (idx)(s->n_y + s->n_extra) * c->ld;
+      const double out = s->invalid_log_lik;
+#pragma omp simd
+      for (idx j = 0; j < nb; ++j) {
+        const double q = v * (r[j] - shift);
+        ll[j] = valid[j] != 0.0 ? cst - 0.5 * q * q : out;
+      }
+    } else {
+#pragma omp simd
+      for (idx j = 0; j < nb; ++j) {
+        const double q = v * (r[j] - shift);
+        ll[j] = cst - 0.5 * q * q;
+      }
+    }
+    return;
   }
   for (int k = 0; k < K; ++k) {
     double* restrict q = K > 1 ? sc->lk + (idx)k * BLOCK : sc->ll;
@@ -782,7 +801,7 @@ static void block_pass(step_ctx* c, scratch* sc, idx b, int mode) {
       for (idx j = 0; j < nb; ++j) xr[j] = v;
     }
   }
-  if (status == ABYSSAL_SIR_OK && nonfinite_rows(x, nx, ld, nb)) status = ABYSSAL_SIR_NONFINITE_PARTICLE;
+  if (status == ABYSSAL_SIR_OK && outside_rows(x, nx, ld, nb, s->max_abs)) status = ABYSSAL_SIR_NONFINITE_PARTICLE;
   if (status != ABYSSAL_SIR_OK) {
     st[c->bl.status] = status;
     return;
@@ -818,6 +837,7 @@ static void block_pass(step_ctx* c, scratch* sc, idx b, int mode) {
   double* restrict l = sc->l;
   double* restrict l_out = c->lw_next + j0;
   double bad = 0.0;
+  if (mode & (MODE_LIK | MODE_YMEAN | MODE_YM2)) residuals_block(c, sc, nb);
   if (mode & MODE_LIK) {
     likelihood_block(c, sc, nb);
     const double* restrict ll = sc->ll;
@@ -843,7 +863,7 @@ static void block_pass(step_ctx* c, scratch* sc, idx b, int mode) {
     }
     st[c->bl.max_ll] = -INFINITY;
   }
-  if (mode & (MODE_YMEAN | MODE_YM2)) { /* the cloud's predicted measurement, with the prior weights */
+  if (mode & (MODE_YMEAN | MODE_YM2)) { /* the cloud's mean residual (z - its predicted measurement) and spread */
     double W = 0.0;
     if (c->prior_w) { /* the committed weights themselves (exp(log_w) with peak 0), through aligned scratch */
       double* restrict e = sc->e;
@@ -856,9 +876,9 @@ static void block_pass(step_ctx* c, scratch* sc, idx b, int mode) {
     }
     st[c->bl.prior_W] = W;
     if (mode & MODE_YM2)
-      block_moments(sc->e, W, nb, sc->y, ld, s->n_y, st + c->bl.ybar, st + c->bl.m2y, sc->yd, sc->s);
+      block_moments(sc->e, W, nb, sc->res, BLOCK, c->plan.m, st + c->bl.ybar, st + c->bl.m2y, sc->yd, sc->s);
     else
-      block_mean(sc->e, W, nb, sc->y, ld, s->n_y, st + c->bl.ybar);
+      block_mean(sc->e, W, nb, sc->res, BLOCK, c->plan.m, st + c->bl.ybar);
   }
   if (!(mode & MODE_POST)) return;
   if (bad != 0.0) {
@@ -1053,27 +1073,26 @@ static int next_pass(step_ctx* c) {
       for (idx k = 0; k < (idx)ny + (idx)ny * ny; ++k) rep[c->ro.nu + k] = 0.0;
       rep[ABYSSAL_SIR_R_GATED] = 0.0;
       if (!(c->mode & MODE_YMEAN)) return underflow_check(c);
-      double* ybar = c->tmp_a;
-      combine(c, c->bl.prior_peak, c->bl.prior_W, -1, c->bl.ybar, c->bl.m2y, ny, &peak, &W, NULL, ybar, NULL, 0, 0, NULL);
-      for (int i = 0; i < c->n_present; ++i) {
-        const int r = c->present_rows[i];
-        double v = c->z[r] - ybar[r] - s->R_mean[r];
-        if (fabs(v) > PI && is_angle(s, r)) v = wrap_pi(v);
-        nu[r] = v;
-      }
+      /* nu = the prior-weighted mean residual - E[v] (residuals of the present entries, in their order) */
+      double* rbar = c->tmp_a;
+      const int m = c->n_present;
+      combine(c, c->bl.prior_peak, c->bl.prior_W, -1, c->bl.ybar, c->bl.m2y, m, &peak, &W, NULL, rbar, NULL, 0, 0, NULL);
+      for (int i = 0; i < m; ++i) nu[c->present_rows[i]] = rbar[i] - s->R_mean[c->present_rows[i]];
       if (gate_bound_passes(c, nu)) return underflow_check(c);
       c->stage = STAGE_S;
       return MODE_H | MODE_YM2;
     }
     case STAGE_S: {
-      double* ybar = c->tmp_a;
-      double* cyy = c->tmp_l;
-      combine(c, c->bl.prior_peak, c->bl.prior_W, -1, c->bl.ybar, c->bl.m2y, ny, &peak, &W, NULL, ybar, cyy, 0, 0, NULL);
-      for (int i = 0; i < c->n_present; ++i) {
+      /* S = the prior-weighted spread of the residuals + R */
+      double* rbar = c->tmp_a;
+      double* crr = c->tmp_l;
+      const int m_p = c->n_present;
+      combine(c, c->bl.prior_peak, c->bl.prior_W, -1, c->bl.ybar, c->bl.m2y, m_p, &peak, &W, NULL, rbar, crr, 0, 0, NULL);
+      for (int i = 0; i < m_p; ++i) {
         const int r = c->present_rows[i];
-        for (int j = 0; j < c->n_present; ++j) {
+        for (int j = 0; j < m_p; ++j) {
           const int q = c->present_rows[j];
-          S[r * ny + q] = cyy[r * ny + q] + s->R[r * ny + q];
+          S[r * ny + q] = crr[i * m_p + j] + s->R[r * ny + q];
         }
       }
       int rows[ABYSSAL_SIR_MAX_OUTPUTS];

@@ -87,6 +87,7 @@ class _Sir(ctypes.Structure):
         ("r_components", ctypes.c_int), ("n_angles", ctypes.c_int), ("angle_outputs", ctypes.c_void_p),
         ("r_weights", ctypes.c_void_p), ("r_means", ctypes.c_void_p), ("r_covs", ctypes.c_void_p),
         ("R", ctypes.c_void_p), ("R_mean", ctypes.c_void_p), ("invalid_log_lik", ctypes.c_double),
+        ("max_abs", ctypes.c_double),
         ("particles", ctypes.c_void_p * 3), ("log_w", ctypes.c_void_p * 2), ("w", ctypes.c_void_p * 2),
         ("report", ctypes.c_void_p * 2), ("log_ratio", ctypes.c_void_p), ("rng", ctypes.c_void_p),
         ("inputs", ctypes.c_void_p), ("work", ctypes.c_void_p), ("work_size", ctypes.c_longlong),
@@ -221,7 +222,8 @@ class CompiledSIR:
 
     def __init__(self, n: int, n_x: int, n_u: int, n_y: int, p: np.ndarray, *, f: int | None, measure: tuple | None,
                  process: ProcessNoise, measurement, angle_outputs=(), input_noise: bool = False, n_extra: int = 0,
-                 has_valid: bool = False, invalid_log_lik: float = -math.inf, max_threads: int | None = None):
+                 has_valid: bool = False, invalid_log_lik: float = -math.inf, max_abs: float = math.inf,
+                 max_threads: int | None = None):
         if not 1 <= n < 2 ** 32:
             raise ValueError(f"n_particles must be between 1 and 2^32 - 1 for the compiled step, got {n}")
         if n_x > 64 or n_y > 64:
@@ -301,7 +303,7 @@ class CompiledSIR:
             q_cumulative=_ptr(process.cumulative), q_means=_ptr(process.means), q_factors=_ptr(process.factors),
             input_noise=int(input_noise), r_components=k, n_angles=len(angle_outputs), angle_outputs=_ptr(angles),
             r_weights=_ptr(r_weights), r_means=_ptr(r_means), r_covs=_ptr(r_covs), R=_ptr(R), R_mean=_ptr(R_mean),
-            invalid_log_lik=invalid_log_lik,
+            invalid_log_lik=invalid_log_lik, max_abs=max_abs,
             particles=(ctypes.c_void_p * 3)(*[a.ctypes.data for a in self.particles]),
             log_w=(ctypes.c_void_p * 2)(*[a.ctypes.data for a in self.log_w]),
             w=(ctypes.c_void_p * 2)(*[a.ctypes.data for a in self.w]),

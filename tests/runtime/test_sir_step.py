@@ -128,14 +128,16 @@ def numpy_sir_step(model, X, log_w, u, dt, p, process, mixture, z, present, angl
         y = ref.h(Xn, p)
         prior = np.exp(log_w - log_w.max())
         prior /= prior.sum()
-        ybar = y @ prior
-        dy = y - ybar[:, None]
-        Cyy = (dy * prior) @ dy.T
-        R, v_mean = mixture.covariance(), mixture.mean()
-        nu_full = z - ybar - v_mean
+        residuals = z[:, None] - y  # the gate's statistics: of the residuals, angle entries wrapped
         for a in angles:
-            if abs(nu_full[a]) > np.pi:
-                nu_full[a] = wrap(nu_full[a])
+            big = np.abs(residuals[a]) > np.pi
+            residuals[a, big] = wrap(residuals[a, big])
+        with np.errstate(over="ignore", invalid="ignore"):  # a residual of 1e300: S overflows, the gate judges it
+            centre = residuals @ prior
+            dr = residuals - centre[:, None]
+            Cyy = (dr * prior) @ dr.T
+        R, v_mean = mixture.covariance(), mixture.mean()
+        nu_full = centre - v_mean
         gate = InnovationGate(R, probability=gate_probability)
 
         def evaluate(entries):
@@ -182,13 +184,16 @@ def numpy_sir_step(model, X, log_w, u, dt, p, process, mixture, z, present, angl
 
 
 def ref_innovation(model, X, lw, u, dt, p, process, z, key, counter):
-    """nu = z - sum_i w_i h(x_i) - E[v] of the proposed cloud with the prior weights (NumPy)."""
+    """nu = sum_i w_i (z - h(x_i)) - E[v] of the proposed cloud with the prior weights, the heading's residuals
+    wrapped (NumPy)."""
     ref = reference_models.REFERENCES[model.name]
     Y = sir.normals(key, counter, process.rank, X.shape[1])
     Xn = reference_models.step(ref, X, u[:, None], p, dt, model.manifest["discretisation"], model.manifest["substeps"])
     Xn = Xn + process_noise_draws(process, X.shape[0], Y, sir.uniforms(key, counter, sir.TAG_COMPONENTS, X.shape[1]))
     w = np.exp(lw - lw.max())
-    return z - ref.h(Xn, p) @ (w / w.sum()) - sea_mixture().mean()
+    r = z[:, None] - ref.h(Xn, p)
+    r[3] = wrap(r[3])
+    return r @ (w / w.sum()) - sea_mixture().mean()
 
 
 # ------------------------------------------------------------------------------------------- set-ups
