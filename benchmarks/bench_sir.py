@@ -14,14 +14,16 @@ Rows:
 * ``abyssal ParticleFilter.step``: the public filter (the contract's checks around its step);
 * peers, each written carefully in its own idiom with the same model equations: a NumPy SIR (vectorised
   RK4 of the independent NumPy model of verify/reference_models.py, preallocated draws, BLAS pinned to one
-  thread), a jitted JAX SIR (float64, the whole step one XLA computation, rov4dof ported to jax.numpy and
-  checked against the NumPy model here), and the ``particles`` library (Chopin's SMC with a bootstrap
+  thread), a jitted JAX SIR (float64, one thread, the whole step one XLA computation, rov4dof ported to
+  jax.numpy and checked against the NumPy model here), and the ``particles`` library (Chopin's SMC with a bootstrap
   Feynman-Kac model; the transition and the mixture likelihood as its ProbDists, moments from its weights).
   A peer that is not installed is reported as "skipped, because ..." (``pip install -e '.[bench]'``).
 * the floor: the generated f kernel alone (the arithmetic a step cannot avoid), and the bytes a step moves
   over the measured copy bandwidth of this machine.
 
-Targets (issue "One compiled SIR step for every model"): the compiled step <= 100 ns per particle on one
+Single-threaded rows also report their process CPU time per particle (steadier than wall time on a loaded
+machine: what the row would take on an idle core, up to cache sharing). Targets (wall time; issue "One
+compiled SIR step for every model"): the compiled step <= 100 ns per particle on one
 core at N = 10^4 and 10^5, <= 60 ns on two; N = 10^6 within 1.3x of N = 10^4 per particle.
 Run alone: ``python benchmarks/bench_sir.py [--quick]``.
 """
@@ -29,6 +31,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import os
 import time
 
 import numpy as np
@@ -139,6 +142,11 @@ class NumpySIR:
 # ------------------------------------------------------------------------------------------- JAX peer
 def jax_sir(bundle, scen, sea, N: int, seed: int = 1):
     """A jitted JAX SIR step (float64); returns step(u, z) -> (mean, cov) with the state carried inside."""
+    import os
+    import sys
+
+    if "jax" not in sys.modules:  # one core, as the other single-threaded rows (XLA reads this when it loads)
+        os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1")
     import jax
     import jax.numpy as jnp
 
@@ -304,6 +312,7 @@ def floor(bundle, N: int, repeat: int, min_time: float) -> dict:
     u, p, dt, out = np.tile([[20.0], [5.0], [10.0], [0.5]], (1, N)), np.array(bundle.p_default), np.array([0.1]), np.empty((12, N))
     f = bundle.function("f").bind_soa([x, u, p, dt], [out])
     f_ns = 1e9 * median_time(lambda: f(N), repeat, min_time) / N
+    f_cpu = 1e9 * median_time(lambda: f(N), repeat, min_time, clock=time.process_time) / N
     big = np.ones(2 ** 24)  # 128 MB: beyond the caches
     dst = np.empty_like(big)
     copy_s = median_time(lambda: np.copyto(dst, big), repeat, min_time)
@@ -311,7 +320,7 @@ def floor(bundle, N: int, repeat: int, min_time: float) -> dict:
     # a step without resampling: read x (96 B) and the log-weights (8), write the proposals (96), log-weights and
     # weights (16, read back and written once more when normalised: 32); resampling adds a gather (96 + 96)
     moved, resample = 96 + 8 + 96 + 16 + 32, 192
-    return {"f kernel ns/particle": f_ns, "copy bandwidth GB/s": bandwidth / 1e9,
+    return {"f kernel ns/particle": f_ns, "f kernel CPU ns/particle": f_cpu, "copy bandwidth GB/s": bandwidth / 1e9,
             "bytes/particle (no resampling)": moved, "bytes/particle (resampling)": moved + resample,
             "memory floor ns/particle (no resampling)": 1e9 * moved / bandwidth,
             "memory floor ns/particle (resampling)": 1e9 * (moved + resample) / bandwidth}
@@ -329,7 +338,10 @@ def run(quick: bool = False, verbose: bool = True) -> dict:
         if verbose:
             print(text, flush=True)
 
-    def per_particle(fn, N):
+    cpu = results["cpu_ns_per_particle"] = {}
+
+    def per_particle(fn, N, name=None):
+        """Wall ns per particle; for a single-threaded row (name given) also its process CPU time per particle."""
         rows = itertools.cycle(range(STEPS))
 
         def step():
@@ -337,6 +349,8 @@ def run(quick: bool = False, verbose: bool = True) -> dict:
 
         for _ in range(5):  # warm-up (a jitted function compiles here)
             step()
+        if name is not None:
+            cpu.setdefault(N, {})[name] = 1e9 * median_time(step, repeat, min_time, clock=time.process_time) / N
         return 1e9 * median_time(step, repeat, min_time) / N
 
     try:
@@ -347,23 +361,26 @@ def run(quick: bool = False, verbose: bool = True) -> dict:
     for N in sizes:
         row = table.setdefault(N, {})
         for threads in (1, 2):
-            row[f"abyssal compiled step, {threads} thread{'s' if threads > 1 else ''}"] = per_particle(
-                compiled_step(bundle, scen, sea, truth, N, threads), N)
+            name = f"abyssal compiled step, {threads} thread{'s' if threads > 1 else ''}"
+            row[name] = per_particle(compiled_step(bundle, scen, sea, truth, N, threads), N, name if threads == 1 else None)
         if N <= PEER_MAX_N:
             from abyssal.runtime.experiments.rov.scenario import make_filter
 
             pf = make_filter("PF", bundle, scen, sea, N, np.random.default_rng(1))
-            row["abyssal ParticleFilter.step"] = per_particle(
-                lambda k: pf.step(truth.inputs[k], scen.dt, truth.measurements[k]), N)
+            name = "abyssal ParticleFilter.step"
+            row[name] = per_particle(lambda k: pf.step(truth.inputs[k], scen.dt, truth.measurements[k]), N, name)
             numpy_sir = NumpySIR(bundle, scen, sea, N)
             if threadpool_limits is not None:
                 with threadpool_limits(limits=1):
-                    row["NumPy SIR (BLAS 1 thread)"] = per_particle(lambda k: numpy_sir(truth.inputs[k], truth.measurements[k]), N)
+                    name = "NumPy SIR (BLAS 1 thread)"
+                    row[name] = per_particle(lambda k: numpy_sir(truth.inputs[k], truth.measurements[k]), N, name)
             else:
-                row["NumPy SIR"] = per_particle(lambda k: numpy_sir(truth.inputs[k], truth.measurements[k]), N)
+                name = "NumPy SIR"
+                row[name] = per_particle(lambda k: numpy_sir(truth.inputs[k], truth.measurements[k]), N, name)
             try:
                 jax_step = jax_sir(bundle, scen, sea, N)
-                row["JAX SIR (jit, float64)"] = per_particle(lambda k: jax_step(truth.inputs[k], truth.measurements[k]), N)
+                name = "JAX SIR (jit, float64, 1 thread)"
+                row[name] = per_particle(lambda k: jax_step(truth.inputs[k], truth.measurements[k]), N, name)
             except ImportError as exc:
                 results["skipped"]["JAX"] = f"skipped, because jax is not installed ({exc}); pip install -e '.[bench]'"
             try:
@@ -371,20 +388,25 @@ def run(quick: bool = False, verbose: bool = True) -> dict:
                 rows = itertools.count()
                 for _ in range(5):
                     smc_step()
-                seconds = []
+                seconds, cpu_seconds = [], []
                 for _ in range(repeat):  # the SMC iterator runs through the data once: a few steps per sample
-                    t0 = time.perf_counter()
+                    t0, c0 = time.perf_counter(), time.process_time()
                     for _ in range(4):
                         smc_step()
                         next(rows)
                     seconds.append((time.perf_counter() - t0) / 4)
-                row["particles (Chopin), bootstrap SMC"] = 1e9 * sorted(seconds)[len(seconds) // 2] / N
+                    cpu_seconds.append((time.process_time() - c0) / 4)
+                name = "particles (Chopin), bootstrap SMC"
+                row[name] = 1e9 * sorted(seconds)[len(seconds) // 2] / N
+                cpu.setdefault(N, {})[name] = 1e9 * sorted(cpu_seconds)[len(cpu_seconds) // 2] / N
             except ImportError as exc:
                 results["skipped"]["particles"] = (f"skipped, because the particles library is not installed ({exc}); "
                                                    "pip install -e '.[bench]'")
         for name, value in row.items():
-            say(f"  N = {N:>8}  {name:<40} {value:9.1f} ns/particle")
+            extra = f"   (CPU {cpu[N][name]:7.1f})" if name in cpu.get(N, {}) else ""
+            say(f"  N = {N:>8}  {name:<40} {value:9.1f} ns/particle{extra}")
     results["floor"] = fl = floor(bundle, 100_000, repeat, min_time)
+    results["load_average"] = os.getloadavg() if hasattr(os, "getloadavg") else None
     for name, value in fl.items():
         say(f"  floor: {name:<44} {value:9.2f}")
     for name, why in results["skipped"].items():

@@ -751,7 +751,22 @@ static void likelihood_block(const step_ctx* c, const scratch* sc, idx nb) {
 #pragma omp simd
     for (idx j = 0; j < nb; ++j) q[j] = cst - 0.5 * q[j];
   }
-  if (K > 1) { /* log sum_k exp(lk_k), per particle, component by component (vectorised over particles) */
+  if (K == 2) { /* log(exp(a) + exp(b)) = max + log(1 + exp(-|a - b|)): one exp and one log per particle */
+    const double* restrict a = sc->lk;
+    const double* restrict b = sc->lk + BLOCK;
+    double* restrict top = sc->ll;
+    double* restrict rest = sc->s;
+#pragma omp simd
+    for (idx j = 0; j < nb; ++j) {
+      const double hi = a[j] > b[j] ? a[j] : b[j], lo = a[j] > b[j] ? b[j] : a[j];
+      top[j] = hi;
+      rest[j] = hi > -INFINITY ? lo - hi : -INFINITY; /* (both -inf: the sum is 0) */
+    }
+#pragma omp simd
+    for (idx j = 0; j < nb; ++j) rest[j] = log(1.0 + exp(rest[j]));
+#pragma omp simd
+    for (idx j = 0; j < nb; ++j) top[j] += rest[j];
+  } else if (K > 1) { /* log sum_k exp(lk_k), per particle, component by component (vectorised over particles) */
     double* restrict top = sc->ll;
     double* restrict sum = sc->s;
     memcpy(top, sc->lk, (size_t)nb * sizeof(double));

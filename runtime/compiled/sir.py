@@ -279,11 +279,16 @@ class CompiledSIR:
         self.weights_match = True
         # noises
         self.process = process
-        mixture = measurement
-        k = mixture.n_components
+        mixture = measurement  # None: a model without measurement (n_y = 0; steps never weigh)
+        if mixture is None and n_y:
+            raise ValueError("measurement noise is needed for a model with outputs")
+        k = 1 if mixture is None else mixture.n_components
         self._keep = [p, process.support, process.mean, process.cumulative, process.means, process.factors]
-        r_weights, r_means = _array(mixture.weights), _array(mixture.means)
-        r_covs, R, R_mean = _array(mixture.covariances), _array(mixture.covariance()), _array(mixture.mean())
+        if mixture is None:
+            r_weights = r_means = r_covs = R = R_mean = None
+        else:
+            r_weights, r_means = _array(mixture.weights), _array(mixture.means)
+            r_covs, R, R_mean = _array(mixture.covariances), _array(mixture.covariance()), _array(mixture.mean())
         angles = _array(list(angle_outputs) or [0], np.int32)
         self._keep += [r_weights, r_means, r_covs, R, R_mean, angles]
         rank = process.rank

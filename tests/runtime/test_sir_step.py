@@ -403,6 +403,30 @@ def test_a_proposal_moves_and_its_log_ratios_weigh(rov):
     compare(step, ref)
 
 
+@pytest.mark.parametrize("n_x", [1, 3, 4, 5, 6, 7, 9, 12, 13])
+def test_the_weighted_moments_of_any_dimension(n_x):
+    """Mean and covariance of given particles (no move, no measurement) for every tiling of the moments: up to
+    four rows in one pass, beyond that 4 x 4 tiles with a partial last one; over three blocks, the last partial."""
+    N = 1234
+    rng = np.random.default_rng(n_x)
+    step = sir.CompiledSIR(N, n_x, 0, 0, np.zeros(1), f=None, measure=None,
+                           process=sir.ProcessNoise(rank=0, factor=np.zeros(1)), measurement=None)
+    X = 1e3 + rng.normal(size=(n_x, N)) * rng.uniform(0.1, 10.0, (n_x, 1))  # far from 0: the shift matters
+    step.next_particles[...] = X
+    lw = rng.normal(size=N)
+    step.log_w[0][...] = lw
+    step.inputs[sir.IN_MOVE], step.inputs[sir.IN_MEASURE] = sir.MOVE_GIVEN, 0.0
+    step.weights_match = False
+    assert step() == 0
+    w = np.exp(lw - lw.max())
+    w /= w.sum()
+    mean = X @ w
+    d = X - mean[:, None]
+    np.testing.assert_allclose(step.means[1], mean, rtol=1e-13)
+    np.testing.assert_allclose(step.covs[1], (d * w) @ d.T, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(step.w[1], w, rtol=1e-12)
+
+
 # ------------------------------------------------------------------------------------------- threads
 @pytest.mark.parametrize("scheme", ["systematic", "stratified"])
 def test_results_do_not_depend_on_the_thread_count(rov, scheme):
