@@ -280,3 +280,26 @@ def test_refusals_are_value_errors_that_leave_the_filter_unchanged(tan, arctic):
     pf.step([0.5, 0.0], 1.0, [arctic.depth_at(20e3 + 0.5, 20e3), 0.0])
     twin.step([0.5, 0.0], 1.0, [arctic.depth_at(20e3 + 0.5, 20e3), 0.0])
     assert pf.particles.tobytes() == twin.particles.tobytes()
+
+
+def test_a_compass_heading_is_wrapped_and_an_absurd_one_refused(tan, arctic):
+    """A heading of 2 pi + 0.25 is the heading 0.25 (bit-identical run); one of 1e300 rad, and a current p that
+    moves every particle past the covariance's finite range, are refused naming the argument, state unchanged."""
+    P0 = np.diag([100.0, 100.0, 0.0])
+    pf, twin = (TerrainParticleFilter(tan, [20e3, 20e3, 0.0], P0, 3.0, 5.0, 50, 4, terrain=arctic) for _ in range(2))
+    depth = arctic.depth_at(20e3, 20e3)
+    pf.step([0.5, 0.0], 1.0, [depth, 0.25 + 2.0 * np.pi])
+    twin.step([0.5, 0.0], 1.0, [depth, 0.25])
+    assert np.all(np.abs(pf.particles[2] - 0.25) < 1e-15)
+    assert np.allclose(pf.x, twin.x, rtol=0, atol=1e-9)
+    before = pf.checkpoint()
+    for z, p, match in (([depth, 1e300], None, r"z\[1\], the compass heading"),
+                        ([depth, 0.0], [1e308, 1e308], "not finite")):
+        with pytest.raises(ValueError, match=match):
+            pf.step([0.5, 0.0], 1.0, z, p)
+        after = pf.checkpoint()
+        for k in before:
+            a, b = before[k], after[k]
+            assert (np.array_equal(a, b) if isinstance(a, np.ndarray) else a == b), k
+    pf.step([0.5, 0.0], 1.0, [depth, -0.25 - 4.0 * np.pi])
+    assert np.all(np.abs(pf.particles[2] + 0.25) < 1e-14) and np.isfinite(pf.P).all()

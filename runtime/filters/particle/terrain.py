@@ -10,7 +10,8 @@ Decisions (the paper's Fig. 5 fixes the SIR loop, not these):
   entry may be NaN (left out). The depth likelihood is Gaussian, N(z_depth; map(x, y),
   altimeter_sigma^2), with the map bilinearly interpolated (eq. 4) by the compiled lookup.
 * Heading: the paper's filter estimates position only (Fig. 5: the process noise Sigma_m acts
-  in x and y). A measured heading is copied into every particle after the move; the arc of
+  in x and y). A measured heading, wrapped to (-pi, pi] (a heading beyond +-1e6 rad is refused
+  naming z), is copied into every particle after the move; the arc of
   the step still uses each particle's noisy turn rate (eq. 2). Without a heading entry the
   particles keep their own propagated headings.
 * Out-of-map particles: their likelihood is that of a residual of ``out_of_map_sigmas`` (5)
@@ -72,6 +73,8 @@ from ...terrain.kernel import TerrainMeasure
 #: seed 003, Table 2: (a1, a2, a3, a4) of eq. 2
 BODY_NOISE = (0.1, 0.1, 0.001, 0.1)
 LOG_2PI = math.log(2.0 * math.pi)
+#: the largest |compass heading| (rad) a step wraps; beyond it the step is refused (TerrainParticleFilter._wrapped_heading)
+MAX_HEADING = 1e6
 
 
 @register("particle")
@@ -227,6 +230,18 @@ class TerrainParticleFilter(FilterBase):
         self._fuzzy()
         return float(self._sigma_out[0])
 
+    @staticmethod
+    def _wrapped_heading(heading: float) -> float:
+        """A compass heading wrapped to (-pi, pi] (the particles' heading is an angle), or a ValueError naming z
+        beyond +-MAX_HEADING rad (there the wrap would be off by more than 1e-10 rad: 2 pi is not a double)."""
+        if not abs(heading) <= MAX_HEADING:
+            raise ValueError(f"TerrainParticleFilter: z[1], the compass heading, must be within +-{MAX_HEADING:g} rad, "
+                             f"got {heading!r}; state left unchanged")
+        if -math.pi < heading <= math.pi:
+            return heading
+        wrapped = math.remainder(heading, 2.0 * math.pi)
+        return math.pi if wrapped == -math.pi else wrapped
+
     def _advance(self, u, dt, measurement) -> bool:
         """The contract's move (FilterBase), one predict/update/step on checked inputs: one compiled call writing
         the uncommitted side, then the fuzzy inputs; only the step's inputs are written before the commit."""
@@ -241,6 +256,8 @@ class TerrainParticleFilter(FilterBase):
         step = self._sir
         values = self._values  # see __init__: the step's inputs MOVE .. the thresholds
         values[0], values[1], values[2] = (sir.MOVE_TRANSITION if move else sir.MOVE_NONE), depth_present, (dt if move else 1.0)
+        if heading_present:
+            z_heading = self._wrapped_heading(z_heading)
         values[4], values[5] = heading_present, z_heading                                      # the compass, pinned
         values[11], values[12] = v, omega
         values[13] = math.sqrt(a1 * v * v + a2 * omega * omega)                                # eq. 2
@@ -254,6 +271,8 @@ class TerrainParticleFilter(FilterBase):
             raise ValueError(f"TerrainParticleFilter: {step.message(status)} (u, dt, z or p out of the model's "
                              "finite range); state left unchanged")
         nxt = 1 - step.side
+        # finite in, finite out (e.g. a current p of 1e308 moves every particle past the covariance's range)
+        self._check_finite(step.means[nxt], step.covs[nxt], u, dt, measurement)
         ess, resampled, _, uninformative, _, gated = step.head(nxt)[:sir.R_GATED + 1]
         fuzzy_state = None
         if self.fuzzy:
