@@ -348,6 +348,18 @@ class CompiledSIR:
 
     # ------------------------------------------------------------------ settings
     @property
+    def count(self) -> int:
+        """The active particle number: a step runs over the first `count` columns of every buffer."""
+        return int(self._struct.n)
+
+    @count.setter
+    def count(self, value: int) -> None:
+        """At most the n the buffers were sized for (an adaptive particle number, e.g. KLD-resampling)."""
+        if not 1 <= int(value) <= self.n:
+            raise ValueError(f"count must be between 1 and {self.n}, got {value!r}")
+        self._struct.n = int(value)
+
+    @property
     def threads(self) -> int:
         return int(self.settings[SET_THREADS])
 
@@ -420,7 +432,7 @@ class CompiledSIR:
         SPLIT_MIN_SECONDS) PROBE_STEPS on every core; the faster count stays for RETIME_STEPS steps. The results
         do not depend on the count, so probing never changes them."""
         probe = self._probes
-        if self.max_threads == 1 or self.n <= BLOCK or self._forced:
+        if self.max_threads == 1 or self._struct.n <= BLOCK or self._forced:
             self._probes = 2 * PROBE_STEPS
             return self._fn(self._arg)
         if probe == 0:
