@@ -11,7 +11,8 @@ repeated loops (``bench.median_time``), reported per particle.
 Rows:
 * ``abyssal, compiled step``: the C step (runtime/compiled/sir.py) on 1 and 2 threads, with the innovation
   gate on (as every SIR filter has it);
-* ``abyssal ParticleFilter.step``: the public filter (the contract's checks around its step);
+* ``abyssal ParticleFilter.step``: the public filter (the SIR engine's bootstrap step, which is the same C call,
+  with the contract's checks and the gate's bookkeeping around it);
 * peers, each written carefully in its own idiom with the same model equations: a NumPy SIR (vectorised
   RK4 of the independent NumPy model of verify/reference_models.py, preallocated draws, BLAS pinned to one
   thread), a jitted JAX SIR (float64, one thread, the whole step one XLA computation, rov4dof ported to
@@ -25,7 +26,8 @@ Single-threaded rows also report their process CPU time per particle (steadier t
 machine: what the row would take on an idle core, up to cache sharing). Targets (wall time; issue "One
 compiled SIR step for every model"): the compiled step <= 100 ns per particle on one
 core at N = 10^4 and 10^5, <= 60 ns on two; N = 10^6 within 1.3x of N = 10^4 per particle.
-Run alone: ``python benchmarks/bench_sir.py [--quick]``.
+Run alone: ``python benchmarks/bench_sir.py [--quick]``; ``--steps N K`` runs K compiled steps at N particles and
+nothing else (for an instruction count under callgrind, benchmarks/README.md).
 """
 from __future__ import annotations
 
@@ -424,5 +426,19 @@ def run(quick: bool = False, verbose: bool = True) -> dict:
     return {"results": results, "targets": targets}
 
 
-if __name__ == "__main__":  # python benchmarks/bench_sir.py [--quick]
-    json_main(run, __doc__.splitlines()[0])
+def steps_only(N: int, steps: int) -> None:
+    """`steps` compiled steps at N particles on one thread and nothing else (for an instruction count under
+    callgrind: benchmarks/README.md)."""
+    bundle, scen, sea, truth = scenario()
+    one = compiled_step(bundle, scen, sea, truth, N, 1)
+    for k in range(steps):
+        one(k)
+
+
+if __name__ == "__main__":  # python benchmarks/bench_sir.py [--quick] | --steps N K
+    import sys
+
+    if len(sys.argv) == 4 and sys.argv[1] == "--steps":
+        steps_only(int(sys.argv[2]), int(sys.argv[3]))
+    else:
+        json_main(run, __doc__.splitlines()[0])

@@ -38,7 +38,6 @@ import numpy as np
 
 from .batches import SPLIT_MIN_SECONDS
 
-SOURCES = ("abyssal_rng.h", "abyssal_sir.h", "abyssal_sir_soa.c", "abyssal_sir_terrain.h", "abyssal_sir_terrain_soa.c")
 
 #: particles per block of the C step (ABYSSAL_SIR_BLOCK)
 BLOCK = 512
@@ -103,9 +102,9 @@ class SoaMeasure(ctypes.Structure):
 @lru_cache(maxsize=1)
 def library() -> ctypes.CDLL:
     """The compiled C runtime of the particle filters (built once through the cache of abyssal.generated.build)."""
-    from abyssal.generated.build import build, runtime_sources
+    from abyssal.generated.build import SIR_RUNTIME, build, runtime_sources
 
-    lib = ctypes.CDLL(str(build("abyssal_sir", runtime_sources(*SOURCES),
+    lib = ctypes.CDLL(str(build("abyssal_sir", runtime_sources(*SIR_RUNTIME),
                                 symbols=("abyssal_sir_step", "abyssal_sir_normals", "abyssal_terrain_bilinear"))))
     lib.abyssal_sir_step.restype = ctypes.c_int
     lib.abyssal_sir_work_size.restype = ctypes.c_longlong
@@ -409,17 +408,16 @@ class CompiledSIR:
     def __call__(self) -> int:
         """One step on the uncommitted side with the inputs as they are; returns the C status (0: ok, MESSAGES)."""
         self.inputs[IN_CUR:IN_PRIOR + 1] = (self.cur, self.side, self.weights_match)
-        if self._probes < 2 * PROBE_STEPS:
-            return self._probed_call()
-        self._probes += 1
-        if self._probes >= RETIME_STEPS:
-            self._probes = 0
-        return self._fn(self._arg)
+        return self._go()
 
     def run(self, values) -> int:
         """One step whose inputs MOVE .. the thresholds are `values` (a sequence of that many numbers, written in
         one go: the fast path of a filter that builds them each step); returns the C status."""
         self._head.pack_into(self._inputs_bytes, 0, self.cur, self.side, self.weights_match, *values)
+        return self._go()
+
+    def _go(self) -> int:
+        """The C call, on the thread count chosen by timing (re-timed every RETIME_STEPS steps)."""
         if self._probes < 2 * PROBE_STEPS:
             return self._probed_call()
         self._probes += 1
