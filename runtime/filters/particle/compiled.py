@@ -19,9 +19,9 @@ once from the filter's ``rng`` at construction; its key and step counter are in 
   to Python, so the widening (``SIRFilter._widen``) moves the moved particles before they are resampled, as in
   the engine; the ancestors then come from the same Philox uniforms the C step would have used;
 * KLD-resampling (and multinomial / residual): the C step does everything but the ancestors, which the policy
-  draws from the filter's ``rng`` (the C step's work is Fox's bound over the occupied bins, a sequential loop
-  with a growing bin set: ``kld_resample`` keeps it, vectorised in chunks); the active particle number changes
-  inside the capacity the buffers were sized for.
+  draws from the filter's ``rng`` with ``kld_resample`` (vectorised in chunks); the active particle number
+  changes inside the capacity the buffers were sized for. KLD in C (draws until Fox's bound over the occupied
+  bins holds: a set of bins growing draw by draw) is not written yet.
 
 A refused step (ValueError naming the cause) changes nothing: the C step writes only the uncommitted side of
 its buffers, and ``commit`` is the last line of ``advance``.
