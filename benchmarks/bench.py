@@ -16,28 +16,29 @@ import platform
 import time
 from pathlib import Path
 
-SECTIONS = ("bench_models", "bench_filters", "bench_particles", "bench_soak", "bench_campaign", "bench_remus", "bench_tan",
-            "bench_cn")
+SECTIONS = ("bench_models", "bench_filters", "bench_particles", "bench_sir", "bench_soak", "bench_campaign", "bench_remus",
+            "bench_tan", "bench_cn")
 
 
-def median_time(fn, repeat: int = 7, min_time: float = 0.05) -> float:
-    """Median seconds per call of fn(), timing loops of at least `min_time` seconds."""
+def median_time(fn, repeat: int = 7, min_time: float = 0.05, clock=time.perf_counter) -> float:
+    """Median seconds per call of fn(), timing loops of at least `min_time` seconds (of `clock`: wall time, or
+    time.process_time for the CPU time of a single-threaded fn, steadier on a loaded machine)."""
     fn()
     n = 1
     while True:
-        t0 = time.perf_counter()
+        t0 = clock()
         for _ in range(n):
             fn()
-        elapsed = time.perf_counter() - t0
+        elapsed = clock() - t0
         if elapsed >= min_time:
             break
         n *= 2 if elapsed == 0 else max(2, int(min_time / elapsed * 1.2))
     samples = []
     for _ in range(repeat):
-        t0 = time.perf_counter()
+        t0 = clock()
         for _ in range(n):
             fn()
-        samples.append((time.perf_counter() - t0) / n)
+        samples.append((clock() - t0) / n)
     samples.sort()
     return samples[len(samples) // 2]
 

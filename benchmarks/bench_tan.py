@@ -1,13 +1,14 @@
 """Bench section: seed 003's terrain-aided navigation step, map lookup and fuzzy logic.
 
-* TAN SIR step (``TerrainParticleFilter.step``: the contract's input checks, then one compiled
-  call -- body + environment noise draws, generated arc step over all particles, map lookup,
-  Gaussian likelihood, normalisation, ESS, moments, systematic resampling when N_eff < N/2 --
-  and for "fuzzy" the gradient-rate window and the generated fuzzy_sigma call) at N = 1000 on the
-  synthetic Arctic map's rough track, fixed sigma and fuzzy. Target <= 20 us per step (the
-  issue's; the paper: 0.76 ms in MATLAB). Parts timed alone: the compiled call with and without
-  its draws, the generated arc kernel, the map lookup, and NumPy's normal draws as the peer the
-  step's own generator replaced.
+* TAN SIR step (``TerrainParticleFilter.step``: the contract's input checks, then one call of the
+  compiled SIR step of every particle filter -- body + environment noise draws, generated arc step
+  over all particles, map lookup, the depth gate and Gaussian likelihood, normalisation, ESS,
+  moments, systematic resampling when N_eff < N/2 -- and for "fuzzy" the gradient-rate window and
+  the generated fuzzy_sigma call) at N = 1000 on the synthetic Arctic map's rough track, fixed
+  sigma and fuzzy. Target <= 20 us per step (the issue's; the paper: 0.76 ms in MATLAB). Parts
+  timed alone: the compiled call, the same call without a move (an update alone: no draws, no arc
+  step), the step's 4N normals (Philox4x32-10 + Box-Muller), the generated arc kernel, the map
+  lookup, and NumPy's normal draws as the peer the step's own generator replaced.
 * Scaling: the fixed-sigma step at N = 10^3 ... 10^6 (ns per particle; linear scaling means a flat
   ns/particle column).
 * Map lookup (compiled bilinear kernel): ns per particle at N = 1000 and 10^6; target <= 10 ns.
@@ -62,16 +63,19 @@ def run(quick: bool = False, verbose: bool = True) -> dict:
         steps[label] = 1e6 * step_time(_filter(bundle, terrain, sigma, 1000))
         say(f"  TAN SIR step, N = 1000, {label:<18} {steps[label]:8.1f} us")
     # parts, as peers
-    from abyssal.runtime.filters.particle import terrain_step
+    from abyssal.runtime.compiled import sir
 
     filt = _filter(bundle, terrain, 3.0, 1000)
     for k in range(50):
         filt.step(truth.inputs[k], 1.0, truth.measurements[k])
-    compiled = filt._compiled
-    parts = {"compiled step alone (one C call)": 1e6 * median_time(lambda: compiled.step(filt._side), repeat, min_time)}
-    compiled.scalars[terrain_step.S_DRAW] = 0.0  # the test hook: reuse the last noise instead of drawing
-    parts["compiled step without the 4N draws"] = 1e6 * median_time(lambda: compiled.step(filt._side), repeat, min_time)
-    compiled.scalars[terrain_step.S_DRAW] = 1.0
+    compiled = filt._sir
+    c_step, c_arg = compiled._fn, compiled._arg  # the C call alone: it writes the uncommitted side only
+    parts = {"compiled step alone (one C call)": 1e6 * median_time(lambda: c_step(c_arg), repeat, min_time)}
+    compiled.inputs[sir.IN_MOVE] = sir.MOVE_NONE
+    parts["compiled step without a move (update)"] = 1e6 * median_time(lambda: c_step(c_arg), repeat, min_time)
+    compiled.inputs[sir.IN_MOVE] = sir.MOVE_TRANSITION
+    key = int(compiled.rng[0])
+    parts["the step's 4N normals (Philox4x32-10)"] = 1e6 * median_time(lambda: sir.normals(key, 1, 4, 1000), repeat, min_time)
     x, u, p, dt, out = np.zeros((3, 1000)), np.full((2, 1000), 0.5), np.zeros(2), np.ones(1), np.zeros((3, 1000))
     arc = bundle.function("f").bind_soa([x, u, p, dt], [out])
     parts["generated arc step (SIMD kernel)"] = 1e6 * median_time(lambda: arc(1000), repeat, min_time)

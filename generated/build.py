@@ -77,6 +77,9 @@ RUNTIME_DIR = Path(__file__).resolve().parent / "c"
 KALMAN_RUNTIME = ("abyssal_model.h", "abyssal_kalman.h", "abyssal_kalman.c", "abyssal_kalman_gate.h",
                   "abyssal_kalman_gate.c", "abyssal_kalman_covariance.h", "abyssal_kalman_covariance.c",
                   "abyssal_kalman_binding.c")
+#: the C runtime of the particle filters (the SIR step, runtime/compiled/sir.py): its own library, compiled strictly
+#: too, its *_soa.c files with the structure-of-arrays flags
+SIR_RUNTIME = ("abyssal_rng.h", "abyssal_sir.h", "abyssal_sir_soa.c", "abyssal_sir_terrain.h", "abyssal_sir_terrain_soa.c")
 RUNTIME_FLAGS = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic"]
 
 #: seconds one build may take (all compile and link steps; a slow vehicle computer needs minutes for the largest model)
@@ -101,9 +104,10 @@ def _libraries() -> list[str]:
     return LIBS
 
 
-def runtime_sources() -> dict[str, str]:
-    """File name -> text of the Kalman runtime (KALMAN_RUNTIME), read from the package."""
-    return {name: (RUNTIME_DIR / name).read_text() for name in KALMAN_RUNTIME}
+def runtime_sources(*names: str) -> dict[str, str]:
+    """File name -> text of the named files of the C runtime (RUNTIME_DIR), by default the Kalman runtime
+    (KALMAN_RUNTIME), read from the package."""
+    return {name: (RUNTIME_DIR / name).read_text() for name in (names or KALMAN_RUNTIME)}
 
 
 def _file_flags(name: str, flags: list[str]) -> list[str]:
@@ -112,7 +116,9 @@ def _file_flags(name: str, flags: list[str]) -> list[str]:
     if not name.endswith("_soa.c"):
         return flags
     extra = [] if "-lmvec" in _libraries() else ["-DABYSSAL_NO_LIBMVEC"]
-    return [*flags, *SOA_FLAGS, *extra]
+    strict = RUNTIME_FLAGS if name in SIR_RUNTIME else []
+    return [*flags, *SOA_FLAGS, *extra, *strict]
+
 
 
 class CompilerNotFoundError(RuntimeError):

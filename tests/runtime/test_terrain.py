@@ -141,7 +141,7 @@ def test_gradient_rate_is_the_change_over_the_last_map_cell_travelled(tan, arcti
     assert 499.0 <= travelled - history[0][0] <= 500.5
 
 
-# ------------------------------------------------------------------ the compiled step (terrain_step)
+# ------------------------------------------------------------------ the compiled step (an instance of the SIR step)
 def numpy_sir_step(particles, log_w, u, dt, noise, uniform, sigma, z, terrain, body=(0.1, 0.1, 0.001, 0.1),
                    altimeter_sigma=5.0, out_of_map_ll=-12.5, resample_below=0.0):
     """Fig. 5 written out in NumPy, independent of the compiled step (exact arc in the v/omega form)."""
@@ -160,7 +160,10 @@ def numpy_sir_step(particles, log_w, u, dt, noise, uniform, sigma, z, terrain, b
                                       terrain.origin[0] + terrain.resolution * np.arange(terrain.shape[1])),
                                      terrain.depth, bounds_error=False, fill_value=None)
     depth = interp(np.column_stack([proposed[1], proposed[0]]))
-    log_w = log_w - 0.5 * ((z[0] - depth) / altimeter_sigma) ** 2
+    x_max, y_max = terrain.extent[1], terrain.extent[3]
+    inside = ((proposed[0] >= terrain.origin[0]) & (proposed[0] <= x_max) & (proposed[1] >= terrain.origin[1])
+              & (proposed[1] <= y_max))
+    log_w = log_w + np.where(inside, -0.5 * ((z[0] - depth) / altimeter_sigma) ** 2, out_of_map_ll)
     w = np.exp(log_w - log_w.max())
     w /= w.sum()
     ess = 1.0 / np.sum(w * w)
@@ -176,18 +179,17 @@ def numpy_sir_step(particles, log_w, u, dt, noise, uniform, sigma, z, terrain, b
 
 @pytest.mark.parametrize("resample", [False, True])
 def test_compiled_step_matches_an_independent_numpy_step(tan, arctic, resample):
-    from abyssal.runtime.filters.particle import terrain_step as ts
+    from abyssal.runtime.compiled import sir
     from abyssal.runtime.resampling import ResamplingPolicy
 
-    n = 400
+    n = 1400  # three blocks of the compiled step, the last one partial
     pf = TerrainParticleFilter(tan, [20e3, 20e3, 0.3], np.diag([200.0 ** 2, 200.0 ** 2, 0.0]), 3.0, 5.0, n, 5,
                                terrain=arctic, policy=ResamplingPolicy("systematic", 1.0 if resample else 0.0))
     pf.step([0.5, 0.02], 1.0, [arctic.depth_at(20e3, 20e3), 0.3])  # non-uniform weights to start from
     particles, log_w = pf.particles.copy(), pf.log_weights.copy()
-    rng = np.random.default_rng(11)
-    noise, uniform = rng.standard_normal((4, n)), 0.37
-    pf._compiled.noise[...] = noise
-    pf._scalars[ts.S_DRAW], pf._scalars[ts.S_UNIFORM] = 0.0, uniform
+    key, counter = (int(v) for v in pf.streams)
+    noise = sir.normals(key, counter, 4, n)  # the step's draws: body noise (v, omega), then environment (x, y)
+    uniform = sir.uniforms(key, counter, sir.TAG_RESAMPLING, 1)[0]
     z = [arctic.depth_at(20e3 + 0.5, 20e3 + 0.2) + 3.0, 0.31]
     pf.step([0.6, 0.05], 2.0, z)
     proposed, w, ess, mean, cov, resampled = numpy_sir_step(particles, log_w, (0.6, 0.05), 2.0, noise, uniform, 3.0,
@@ -203,30 +205,101 @@ def test_compiled_step_matches_an_independent_numpy_step(tan, arctic, resample):
         np.testing.assert_array_equal(pf.log_weights, -np.log(n))
 
 
-def test_the_steps_own_normals_are_standard_normal():
-    from scipy import stats
-
-    from abyssal.runtime.filters.particle import terrain_step as ts
-
-    state = ts.seed_streams(np.random.default_rng(3))
-    before = state.copy()
-    draws = ts.normals(state, 200_000)
-    assert not np.array_equal(state, before)  # the state advanced
-    assert abs(draws.mean()) < 4 / np.sqrt(draws.size)
-    assert abs(draws.var() - 1.0) < 4 * np.sqrt(2.0 / draws.size)
-    assert stats.kstest(draws, "norm").pvalue > 1e-3
-    # the two halves of the Box-Muller pairs, and neighbouring lanes, are uncorrelated
-    half = draws.size // 2
-    assert abs(np.corrcoef(draws[:half], draws[half:])[0, 1]) < 4 / np.sqrt(half)
-    assert abs(np.corrcoef(draws[:-1], draws[1:])[0, 1]) < 4 / np.sqrt(draws.size)
-    # a restored state replays the same draws (the filter's checkpoint relies on it)
-    replay = before.copy()
-    np.testing.assert_array_equal(ts.normals(replay, 200_000), draws)
-
-
-def test_the_compiled_step_refuses_non_systematic_resampling(tan, arctic):
+def test_the_compiled_step_resamples_systematically_or_stratified_only(tan, arctic):
     from abyssal.runtime.resampling import ResamplingPolicy
 
     with pytest.raises(ValueError, match="policy"):
         TerrainParticleFilter(tan, [20e3, 20e3, 0.0], np.eye(3), 3.0, 5.0, 10, 0, terrain=arctic,
                               policy=ResamplingPolicy("multinomial", 0.5))
+    TerrainParticleFilter(tan, [20e3, 20e3, 0.0], np.eye(3), 3.0, 5.0, 10, 0, terrain=arctic,
+                          policy=ResamplingPolicy("stratified", 0.5))
+
+
+# ------------------------------------------------------------------ one depth value cannot end the filter
+def faulty_track(arctic, T, fault, every=100, seed=100):
+    rng = np.random.default_rng(seed)
+    x, y = 20e3 + 0.5 * np.arange(1, T + 1), np.full(T, 20e3)
+    Z = np.column_stack([arctic.depth_at(x, y) + 5.0 * rng.standard_normal(T), np.zeros(T)])
+    faults = np.arange(every - 1, T, every)
+    Z[faults, 0] += fault
+    return Z, faults
+
+
+@pytest.mark.parametrize("fault", [100.0, 1e4, 1e300])
+def test_a_gated_depth_outlier_is_a_missing_depth(tan, arctic, fault):
+    """60 particles, a depth fault every 100 s: each fault is gated (counted), the ESS does not collapse, and
+    the run is bit-identical to one where those depths are missing (NaN)."""
+    Z, faults = faulty_track(arctic, 500, fault)
+    missing = Z.copy()
+    missing[faults, 0] = np.nan
+    P0 = np.diag([30.0 ** 2, 30.0 ** 2, 0.0])
+    pf, twin = (TerrainParticleFilter(tan, [20e3 + 30, 20e3 - 20, 0.0], P0, 2.0, 5.0, 60, 0, terrain=arctic)
+                for _ in range(2))
+    for k in range(500):
+        pf.step([0.5, 0.0], 1.0, Z[k])
+        twin.step([0.5, 0.0], 1.0, missing[k])
+        if k in faults:
+            assert pf.ess > 1.5
+    assert pf.gated == len(faults) and twin.gated == 0
+    assert pf.particles.tobytes() == twin.particles.tobytes() and pf.x.tobytes() == twin.x.tobytes()
+
+
+def test_without_the_gate_a_depth_no_particle_explains_keeps_the_weights(tan, arctic):
+    pf = TerrainParticleFilter(tan, [20e3, 20e3, 0.0], np.diag([30.0 ** 2, 30.0 ** 2, 0.0]), 2.0, 5.0, 60, 1,
+                               terrain=arctic, gate_probability=0.0)
+    for k in range(20):
+        pf.step([0.5, 0.0], 1.0, [arctic.depth_at(20e3 + 0.5 * k, 20e3), 0.0])
+    log_weights, resamples = pf.log_weights.copy(), pf.resamples
+    pf.update([arctic.depth_at(20e3 + 10.0, 20e3) + 1e4, 0.0])  # every likelihood underflows
+    assert pf.uninformative == 1 and pf.gated == 0 and pf.resamples == resamples
+    np.testing.assert_allclose(pf.log_weights, log_weights, rtol=1e-12, atol=1e-12)  # the weights stay
+    assert pf.ess > 1.5
+
+
+def test_a_gated_streak_ends_after_the_patience(tan, arctic):
+    """A depth offset that lasts (a map bias, or a lost filter) is used again after gate_patience gated depths."""
+    pf = TerrainParticleFilter(tan, [20e3, 20e3, 0.0], np.diag([10.0 ** 2, 10.0 ** 2, 0.0]), 2.0, 5.0, 100, 2,
+                               terrain=arctic, gate_patience=3)
+    for k in range(8):
+        pf.step([0.5, 0.0], 1.0, [arctic.depth_at(20e3 + 0.5 * k, 20e3) + 500.0, 0.0])
+    assert pf.gated == 6  # gated, gated, gated, used, then the same again
+
+
+def test_refusals_are_value_errors_that_leave_the_filter_unchanged(tan, arctic):
+    pf = TerrainParticleFilter(tan, [20e3, 20e3, 0.0], np.diag([100.0, 100.0, 0.0]), "fuzzy", 5.0, 50, 0, terrain=arctic)
+    pf.step([0.5, 0.0], 1.0, [arctic.depth_at(20e3, 20e3), 0.0])
+    before = pf.checkpoint()
+    with pytest.raises(ValueError, match="finite range"):
+        pf.step([1e308, 1e308], 1e300, [100.0, 0.0])
+    after = pf.checkpoint()
+    for k in before:
+        a, b = before[k], after[k]
+        assert (np.array_equal(a, b) if isinstance(a, np.ndarray) else a == b), k
+    twin = TerrainParticleFilter(tan, [20e3, 20e3, 0.0], np.diag([100.0, 100.0, 0.0]), "fuzzy", 5.0, 50, 0, terrain=arctic)
+    twin.step([0.5, 0.0], 1.0, [arctic.depth_at(20e3, 20e3), 0.0])
+    pf.step([0.5, 0.0], 1.0, [arctic.depth_at(20e3 + 0.5, 20e3), 0.0])
+    twin.step([0.5, 0.0], 1.0, [arctic.depth_at(20e3 + 0.5, 20e3), 0.0])
+    assert pf.particles.tobytes() == twin.particles.tobytes()
+
+
+def test_a_compass_heading_is_wrapped_and_an_absurd_one_refused(tan, arctic):
+    """A heading of 2 pi + 0.25 is the heading 0.25 (bit-identical run); one of 1e300 rad, and a current p that
+    moves every particle past the covariance's finite range, are refused naming the argument, state unchanged."""
+    P0 = np.diag([100.0, 100.0, 0.0])
+    pf, twin = (TerrainParticleFilter(tan, [20e3, 20e3, 0.0], P0, 3.0, 5.0, 50, 4, terrain=arctic) for _ in range(2))
+    depth = arctic.depth_at(20e3, 20e3)
+    pf.step([0.5, 0.0], 1.0, [depth, 0.25 + 2.0 * np.pi])
+    twin.step([0.5, 0.0], 1.0, [depth, 0.25])
+    assert np.all(np.abs(pf.particles[2] - 0.25) < 1e-15)
+    assert np.allclose(pf.x, twin.x, rtol=0, atol=1e-9)
+    before = pf.checkpoint()
+    for z, p, match in (([depth, 1e300], None, r"z\[1\], the compass heading"),
+                        ([depth, 0.0], [1e308, 1e308], "not finite")):
+        with pytest.raises(ValueError, match=match):
+            pf.step([0.5, 0.0], 1.0, z, p)
+        after = pf.checkpoint()
+        for k in before:
+            a, b = before[k], after[k]
+            assert (np.array_equal(a, b) if isinstance(a, np.ndarray) else a == b), k
+    pf.step([0.5, 0.0], 1.0, [depth, -0.25 - 4.0 * np.pi])
+    assert np.all(np.abs(pf.particles[2] + 0.25) < 1e-14) and np.isfinite(pf.P).all()

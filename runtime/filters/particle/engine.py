@@ -13,7 +13,9 @@ owns only where particles move and the importance ratio that move costs; a resam
 step runs with. PF and CPF (sir.py) and UPF / HRUPF / MCUPF (unscented.py) are this engine with
 a proposal and a policy.
 
-One step (``_advance``), in one place and in this order:
+One step (``_advance``), in one place and in this order (for the bootstrap proposal steps 1-6 are one
+compiled call, ``compiled.py``: the same rule, the process noise and resampling uniforms from the C
+step's own generator):
 
     1. move        proposal.move (a step), proposal.predict (a predict), or none (an update alone)
                    writes x_k of every particle into ``proposed`` and returns its log importance ratio
@@ -91,10 +93,10 @@ again after that counts in ``inflations`` and
   * "admit" (the proposals that use z: carried CPF, UPF family, locally optimal CPF): the entry is
     used by the next updates while it keeps failing the gate; the proposal moves every particle
     towards z, as an ungated Kalman filter would.
-Measured on a permanent jump of 47 m (56 sigma of R) of linear_cv's position, 6 runs
-(tests/runtime/test_sir_reliability.py): the PF re-acquires by widening in 6 of 6 and in 1 of 6
-without it (using the entry instead, the gate off, in 3 of 6: its likelihood underflows at every
-particle and the weights stay as they were); widening the carried proposals' particles or
+Measured on a permanent jump of 47 m (56 sigma of R) of linear_cv's position
+(tests/runtime/test_sir_reliability.py): the PF re-acquires by widening in 29 of 30 runs and in 12
+of 30 without it (using the entry instead, the gate off, in 17 of 30: its likelihood underflows at
+every particle and the weights stay as they were); the carried proposals, 6 runs: widening the carried proposals' particles or
 covariances instead made them run away (the carried CPF on rov4dof at sea state 3: unmeasured
 velocities widened until the dynamics overflowed), while admitting the entry brings the carried
 CPF and the UPF back in 4-5 steps, the HRUPF in 4-36, the locally optimal CPF in 21-66 (its moves
@@ -136,6 +138,7 @@ from ...noise.mixtures import LOG_2PI, GaussianMixture, weighted_moments
 from ...numerics import angle_indices, gaussian_draws, wrap_to_pi
 from ...resampling import KLDResampling, ResamplingPolicy, normalise_log_weights
 from ..kalman.gate import InnovationGate
+from .compiled import CompiledBootstrap
 
 __all__ = ["LOG_UNDERFLOW", "BootstrapProposal", "MeasurementNoise", "Proposal", "SIRFilter", "TransitionNoise",
            "check_noises", "informative", "measurement_residuals"]
@@ -366,23 +369,29 @@ class SIRFilter(FilterBase):
         self.N = N
         self.n_particles = float(N)
         self.angle_outputs = angle_indices(model, "outputs")
-        # Two particle buffers, each bound to its own f and h: ``particles`` (x_{k-1}) and ``proposed``
+        # The bootstrap proposal's step is one compiled call (compiled.py) over the buffers of its C step;
+        # otherwise two particle buffers, each bound to its own f and h: ``particles`` (x_{k-1}) and ``proposed``
         # (x_k, written by the proposal). A step without resampling commits by swapping them.
-        self._batches = [ModelBatch(model, self.capacity, self._p), ModelBatch(model, self.capacity, self._p)]
-        self._measures = [MeasureBatch(model, b.x, self._p) for b in self._batches]
+        self._compiled = CompiledBootstrap(self, self.capacity) if CompiledBootstrap.fits(self) else None
+        if self._compiled is None:
+            self._batches = [ModelBatch(model, self.capacity, self._p), ModelBatch(model, self.capacity, self._p)]
+            self._measures = [MeasureBatch(model, b.x, self._p) for b in self._batches]
         self._cur = 0
         self._ones = np.ones(self.capacity)
         self.particles[...] = gaussian_draws(x0, P0, rng, N)
         if not -MAX_STATE <= self.particles.min() <= self.particles.max() <= MAX_STATE:
             raise ValueError(f"{type(self).__name__}: x0 and P0 give particles beyond the finite range |x| <= {MAX_STATE:g}; "
                              f"max |x0| = {np.abs(x0).max():.3g}, max |P0| = {np.abs(P0).max():.3g}")
-        self.log_weights = np.full(N, -math.log(N))
-        self.weights = np.full(N, 1.0 / N)
-        self._prior = None  # the normalised weights of the particles, None when uniform
         self.ess = float(N)
         self.resamples = 0
         self.uninformative = 0
-        self._x, self._P = x0, np.array(P0)
+        if self._compiled is None:
+            self.log_weights = np.full(N, -math.log(N))
+            self.weights = np.full(N, 1.0 / N)
+            self._prior = None  # the normalised weights of the particles, None when uniform
+            self._x, self._P = x0, np.array(P0)
+        else:
+            self._compiled.start(self, x0, P0)
         self._checked_dt = 0.0  # f in one piece was checked stable up to this dt (see pieces())
         self._dt_pieces: dict[float, int] = {}
         self._sub = None  # scratch batch for substeps
@@ -394,14 +403,35 @@ class SIRFilter(FilterBase):
     @property
     def particles(self) -> np.ndarray:
         """The N particles x_k (n_x, N) after the last step (a view of the filter's buffer: do not write)."""
+        if self._compiled is not None:
+            return self._compiled.particles(self.N)
         x = self._batches[self._cur].x
         return x if self.N == self.capacity else x[:, :self.N]
 
     @property
     def proposed(self) -> np.ndarray:
         """The buffer a proposal writes the N moved particles into (n_x, N)."""
+        if self._compiled is not None:
+            return self._compiled.proposed(self.N)
         x = self._batches[1 - self._cur].x
         return x if self.N == self.capacity else x[:, :self.N]
+
+    @property
+    def streams(self) -> np.ndarray | None:
+        """The compiled step's generator state [Philox key, step counter] (None: the step is not compiled)."""
+        return None if self._compiled is None else self._compiled.step.rng
+
+    def checkpoint(self) -> dict:
+        state = super().checkpoint()
+        if self._compiled is not None:
+            state["compiled"] = self._compiled.checkpoint()
+        return state
+
+    def restore(self, checkpoint: dict) -> None:
+        if self._compiled is not None:  # the sides first: the arrays are restored into their views
+            self.N = checkpoint["N"]
+            self._compiled.restore(self, checkpoint["compiled"], checkpoint["weights"], checkpoint["_prior"])
+        super().restore(checkpoint)
 
     @property
     def gated(self) -> int:
@@ -569,6 +599,8 @@ class SIRFilter(FilterBase):
         (weights unchanged), an update alone reweights them by the likelihood of the kept entries of z, a
         step moves by the proposal and weights (module docstring, steps 1-7); commits only at its end
         (FilterBase restores the rest)."""
+        if self._compiled is not None:
+            return self._compiled.advance(self, u, dt, measurement)
         mode = "update" if u is None else "predict" if measurement is None else "step"
         z, present = measurement if measurement is not None else (None, None)
         N = self.N

@@ -10,7 +10,8 @@ Decisions (the paper's Fig. 5 fixes the SIR loop, not these):
   entry may be NaN (left out). The depth likelihood is Gaussian, N(z_depth; map(x, y),
   altimeter_sigma^2), with the map bilinearly interpolated (eq. 4) by the compiled lookup.
 * Heading: the paper's filter estimates position only (Fig. 5: the process noise Sigma_m acts
-  in x and y). A measured heading is copied into every particle after the move; the arc of
+  in x and y). A measured heading, wrapped to (-pi, pi] (a heading beyond +-1e6 rad is refused
+  naming z), is copied into every particle after the move; the arc of
   the step still uses each particle's noisy turn rate (eq. 2). Without a heading entry the
   particles keep their own propagated headings.
 * Out-of-map particles: their likelihood is that of a residual of ``out_of_map_sigmas`` (5)
@@ -21,10 +22,20 @@ Decisions (the paper's Fig. 5 fixes the SIR loop, not these):
   the generated exact-arc step ``tan3dof_f`` (its SIMD kernel, per-particle inputs), then gets the
   environment noise of eq. 3, N(0, sigma^2) in x and y (sigma in m per step). The current is
   unknown to the filter (p = [0, 0] unless given).
-* One compiled call per step (``terrain_step``): draws, move, lookup, weights, moments and
-  resampling; Python keeps the contract's checks and the fuzzy inputs. The draws come from the
-  step's own xoshiro256++ streams, seeded once from ``rng`` at construction (the numpy Generator
-  is not advanced by steps); ``checkpoint()`` includes their state.
+* One compiled call per step: the terrain filter is an instance of the SIR step of every particle
+  filter (``abyssal.runtime.compiled.sir``, C in ``generated/c/abyssal_sir*``): the body noise is its
+  per-particle input noise, the environment noise its process noise on the (x, y) subspace, the compass
+  its pinned heading, the altimeter its measurement (the map lookup, ``abyssal_sir_terrain_measure``)
+  with the out-of-map particles its invalid ones; draws, move, lookup, weights, moments and resampling
+  happen in that call. Python keeps the contract's checks and the fuzzy inputs. The draws are the step's
+  own counter-based generator (Philox4x32-10), keyed once from ``rng`` at construction (the numpy
+  Generator is not advanced by steps); ``checkpoint()`` includes its key and step counter.
+* One depth value cannot end the filter (the robust rule of every SIR filter): a depth whose innovation
+  against the cloud's predicted depth fails the chi-square gate (``gate_probability``, 1e-10 by default,
+  0: no gate; S = the cloud's depth spread + altimeter_sigma^2) is left out, the weights stay and it is
+  counted in ``gated``; after ``gate_patience`` (5) consecutive gated depths the next one is used
+  ungated (the filter, not the altimeter, is then probably wrong, as the Kalman gate's patience says),
+  and a depth under which every particle's likelihood underflows keeps the weights (``uninformative``).
 * sigma: a fixed number (the paper's 1..6 m), or "fuzzy": the generated Mamdani system
   ``tan3dof_fuzzy_sigma(gradient, gradient_rate)`` evaluated once per step on:
     - gradient G_k: the posterior mean of the map's slope along each particle's heading, in
@@ -50,14 +61,20 @@ from collections import deque
 from types import SimpleNamespace
 
 import numpy as np
+from scipy.stats import chi2
 
+from ...compiled import sir
 from ...contract import FilterBase, as_generator, check_count, check_covariance, check_state, register
+from ...noise import GaussianMixture
 from ...numerics import gaussian_draws
 from ...resampling import ResamplingPolicy
-from .terrain_step import M_ESS, M_P, M_RESAMPLED, M_SLOPE, M_X, S_SLOPE, S_V, TerrainStep, seed_streams
+from ...terrain.kernel import TerrainMeasure
 
 #: seed 003, Table 2: (a1, a2, a3, a4) of eq. 2
 BODY_NOISE = (0.1, 0.1, 0.001, 0.1)
+LOG_2PI = math.log(2.0 * math.pi)
+#: the largest |compass heading| (rad) a step wraps; beyond it the step is refused (TerrainParticleFilter._wrapped_heading)
+MAX_HEADING = 1e6
 
 
 @register("particle")
@@ -65,9 +82,9 @@ class TerrainParticleFilter(FilterBase):
     """SIR for terrain-aided navigation on a bathymetry map, fixed or fuzzy sigma (module docstring)."""
 
     name = "TAN-SIR"
-    _state = ("particles", "log_weights", "weights", "streams", "ess", "_x", "_P", "resamples", "_history", "_travelled",
-              "gradient", "gradient_rate", "sigma")
-    #: a step writes the uncommitted side of the compiled step's buffers and its input scalars only
+    _state = ("particles", "log_weights", "weights", "streams", "ess", "_x", "_P", "resamples", "gated",
+              "uninformative", "_gate_streak", "_history", "_travelled", "gradient", "gradient_rate", "sigma")
+    #: a step writes the uncommitted side of the compiled step's buffers and its inputs only
     _touched = ()
 
     @classmethod
@@ -86,7 +103,7 @@ class TerrainParticleFilter(FilterBase):
     def __init__(self, model, x0, P0, sigma, altimeter_sigma: float, n_particles: int, rng, *, terrain,
                  body_noise=BODY_NOISE, policy: ResamplingPolicy = ResamplingPolicy("systematic", 0.5),
                  out_of_map_sigmas: float = 5.0, rate_window_m: float = 500.0, gradient_scale: float = 100.0,
-                 rate_length_m: float = 1000.0):
+                 rate_length_m: float = 1000.0, gate_probability: float = 1e-10, gate_patience: int = 5):
         if "fuzzy_sigma" not in model.functions:
             raise TypeError("model must be the tan3dof bundle (abyssal.load('tan3dof')): it has no fuzzy_sigma")
         N = check_count(n_particles, "n_particles")
@@ -104,9 +121,15 @@ class TerrainParticleFilter(FilterBase):
             raise ValueError("body_noise must be four non-negative coefficients (a1, a2, a3, a4)")
         if not (np.isfinite(rate_window_m) and rate_window_m > 0 and np.isfinite(rate_length_m) and rate_length_m > 0):
             raise ValueError(f"rate_window_m and rate_length_m must be positive metres, got {rate_window_m}, {rate_length_m}")
-        if not isinstance(policy, ResamplingPolicy) or policy.scheme != "systematic":
-            raise ValueError(f"policy must be a systematic ResamplingPolicy (the compiled step resamples "
-                             f"systematically, Fig. 5), got {policy!r}")
+        if not isinstance(policy, ResamplingPolicy) or policy.scheme not in sir.SCHEMES:
+            raise ValueError(f"policy must be a systematic or stratified ResamplingPolicy (the compiled step resamples "
+                             f"itself), got {policy!r}")
+        if not 0.0 <= gate_probability < 1.0:
+            raise ValueError(f"gate_probability must be in [0, 1) (0: no gate), got {gate_probability!r}")
+        if isinstance(gate_patience, bool) or not isinstance(gate_patience, (int, np.integer)) or gate_patience < 1:
+            raise ValueError(f"gate_patience must be an integer >= 1, got {gate_patience!r}")
+        if not (np.isfinite(out_of_map_sigmas) and out_of_map_sigmas >= 0):
+            raise ValueError(f"out_of_map_sigmas must be a non-negative number, got {out_of_map_sigmas!r}")
         self.bundle, self.terrain, self.policy = model, terrain, policy
         # run() checks shapes against this view: z has two entries (depth, heading)
         self.model = SimpleNamespace(n_x=model.n_x, n_u=model.n_u, n_p=model.n_p, n_y=2, p_default=model.p_default,
@@ -115,29 +138,51 @@ class TerrainParticleFilter(FilterBase):
         self.N, self.n_particles = N, float(N)
         self.altimeter_sigma = float(altimeter_sigma)
         self.body_noise = tuple(float(a) for a in body_noise)
-        self.out_of_map_log_likelihood = -0.5 * out_of_map_sigmas ** 2
         self.rate_window_m = float(rate_window_m)
         self.gradient_scale, self.rate_length_m = float(gradient_scale), float(rate_length_m)
-        # one compiled call per step (terrain_step); its buffers hold both sides of the state
+        self.gate_probability, self.gate_patience = float(gate_probability), int(gate_patience)
         f = model.function("f")
         if f.soa_batched_inputs != ("x", "u"):
             raise TypeError("model's f has no structure-of-arrays kernel over x and u: regenerate tan3dof")
-        self._compiled = TerrainStep(f.soa_address, model.n_p, terrain, N, self.body_noise, self.altimeter_sigma,
-                                 self.out_of_map_log_likelihood,
-                                 math.inf if policy.threshold >= 1.0 else policy.threshold * N)
-        self._init_contract(self.model, p_buffer=self._compiled.p)
-        self._side = 0
-        self._compiled.particles[0][...] = gaussian_draws(x0, P0, self.rng, N)
-        self._compiled.rng[0][...] = seed_streams(self.rng)
-        self._scalars = self._compiled.scalars
-        # x and P are views of the committed side's moments (FilterBase returns copies); a step writes the other side
-        self._moment_views = [(m[M_X:M_X + 3], m[M_P:M_P + 9].reshape(3, 3)) for m in self._compiled.moments]
+        # the compiled SIR step: body noise = input noise, environment noise = process noise on (x, y), the
+        # compass = a pinned heading, the altimeter = the map lookup with out-of-map particles invalid
+        p = np.zeros(model.n_p)
+        self._init_contract(self.model, p_buffer=p)
+        log_norm = -math.log(self.altimeter_sigma) - 0.5 * LOG_2PI
+        self._measure = TerrainMeasure.bind(terrain, slope=self.fuzzy)
+        self._sir = sir.CompiledSIR(
+            N, model.n_x, model.n_u, 1, p, f=f.soa_address, measure=(TerrainMeasure.function(), self._measure),
+            process=sir.ProcessNoise(rank=2, factor=np.zeros(2), support=np.array([0, 1], dtype=np.int32)),
+            measurement=GaussianMixture.gaussian(np.zeros(1), np.array([[self.altimeter_sigma ** 2]])),
+            input_noise=True, n_extra=1 if self.fuzzy else 0, has_valid=True,
+            invalid_log_lik=log_norm - 0.5 * out_of_map_sigmas ** 2)
+        step, inputs = self._sir, self._sir.inputs
+        # the lookup reads [pins, first pinned value]: whether every particle has the compass heading, and which
+        self._measure.read_heading_from(inputs[sir.IN_PINS:sir.IN_PINS + 2])
+        step.scheme = sir.SCHEMES[policy.scheme]
+        step.resample_below = math.inf if policy.threshold >= 1.0 else policy.threshold * N
+        # what a step changes is the inputs MOVE .. the thresholds (CompiledSIR.run), and the environment sigma:
+        # [MOVE, MEASURE, DT, PIECES, PINS, heading, 0, 0, pin rows 2, 0, 0, v, omega, sd_v, sd_omega, depth,
+        #  present, gate thresholds (2)]
+        gate = chi2.isf(gate_probability, 1) if gate_probability > 0 else math.inf
+        self._values = [0.0, 0.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 2.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, math.inf,
+                        gate]
+        self._gate = gate
+        if len(self._values) != step.io.settings - sir.IN_MOVE or step.io.u - sir.IN_MOVE != 11:
+            raise RuntimeError("the compiled SIR step's input layout changed: update TerrainParticleFilter._values")
+        self._sigma_in_step = None  # the sigma last written into the step's process noise factor
+        step.particles[0][...] = gaussian_draws(x0, P0, self.rng, N)
+        step.rng[0] = sir.draw_key(self.rng)
+        self._x, self._P = step.mean(0), step.cov(0)
+        self._x[...], self._P[...] = x0, P0
         self._g_in, self._r_in, self._sigma_out = np.zeros(1), np.zeros(1), np.zeros(1)
         self._fuzzy = model.function("fuzzy_sigma").bind([self._g_in, self._r_in], [self._sigma_out]).eval
         self.ess = float(N)
         self.resamples = 0
-        self._x, self._P = self._moment_views[0]
-        self._x[...], self._P[...] = x0, P0
+        #: depths left out by the gate, and depths whose likelihood underflowed at every particle (weights kept)
+        self.gated = 0
+        self.uninformative = 0
+        self._gate_streak = 0
         # fuzzy inputs: the gradient history along the track (travelled distance, G)
         self._history: deque[tuple[float, float]] = deque()
         self._travelled = 0.0
@@ -149,21 +194,31 @@ class TerrainParticleFilter(FilterBase):
     @property
     def particles(self) -> np.ndarray:
         """(3, N) particles after the last step's resampling (a view: copy before keeping it)."""
-        return self._compiled.particles[self._side]
+        return self._sir.particles[self._sir.cur]
 
     @property
     def log_weights(self) -> np.ndarray:
-        return self._compiled.log_w[self._side]
+        return self._sir.log_w[self._sir.side]
 
     @property
     def weights(self) -> np.ndarray:
         """(N,) normalised weights of the last update, before resampling."""
-        return self._compiled.w[self._side]
+        return self._sir.w[self._sir.side]
 
     @property
     def streams(self) -> np.ndarray:
-        """The compiled step's random streams of the committed side."""
-        return self._compiled.rng[self._side]
+        """The compiled step's generator state: [Philox key, step counter]."""
+        return self._sir.rng
+
+    def checkpoint(self) -> dict:
+        state = super().checkpoint()
+        state["sides"] = (self._sir.cur, self._sir.side, self._sir.weights_match)
+        return state
+
+    def restore(self, checkpoint: dict) -> None:
+        self._sir.cur, self._sir.side, self._sir.weights_match = checkpoint["sides"]
+        self._x, self._P = self._sir.mean(self._sir.side), self._sir.cov(self._sir.side)
+        super().restore(checkpoint)  # into the buffers of the restored sides
 
     # ---------------------------------------------------------------- the step
     def _gradient_at(self, x: np.ndarray) -> float:
@@ -175,9 +230,21 @@ class TerrainParticleFilter(FilterBase):
         self._fuzzy()
         return float(self._sigma_out[0])
 
+    @staticmethod
+    def _wrapped_heading(heading: float) -> float:
+        """A compass heading wrapped to (-pi, pi] (the particles' heading is an angle), or a ValueError naming z
+        beyond +-MAX_HEADING rad (there the wrap would be off by more than 1e-10 rad: 2 pi is not a double)."""
+        if not abs(heading) <= MAX_HEADING:
+            raise ValueError(f"TerrainParticleFilter: z[1], the compass heading, must be within +-{MAX_HEADING:g} rad, "
+                             f"got {heading!r}; state left unchanged")
+        if -math.pi < heading <= math.pi:
+            return heading
+        wrapped = math.remainder(heading, 2.0 * math.pi)
+        return math.pi if wrapped == -math.pi else wrapped
+
     def _advance(self, u, dt, measurement) -> bool:
-        """The contract's move (FilterBase), one predict/update/step on checked inputs: one compiled call (terrain_step) writing the uncommitted
-        side, then the fuzzy inputs; only the step's input scalars are written before the commit."""
+        """The contract's move (FilterBase), one predict/update/step on checked inputs: one compiled call writing
+        the uncommitted side, then the fuzzy inputs; only the step's inputs are written before the commit."""
         move, depth_present, heading_present = u is not None, False, False
         z_depth = z_heading = 0.0
         if measurement is not None:
@@ -185,18 +252,31 @@ class TerrainParticleFilter(FilterBase):
             depth_present, heading_present = present.tolist()
             z_depth, z_heading = z.tolist()
         v, omega = u.tolist() if move else (0.0, 0.0)
-        sc = self._scalars  # inputs only (scratch): nothing to restore when the step is refused
-        sc[S_V:S_SLOPE + 1] = (v, omega, dt if move else 1.0, self.sigma, z_depth, z_heading, move, depth_present,
-                               heading_present, self.fuzzy)
-        status = self._compiled.step(self._side)
+        a1, a2, a3, a4 = self.body_noise
+        step = self._sir
+        values = self._values  # see __init__: the step's inputs MOVE .. the thresholds
+        values[0], values[1], values[2] = (sir.MOVE_TRANSITION if move else sir.MOVE_NONE), depth_present, (dt if move else 1.0)
+        if heading_present:
+            z_heading = self._wrapped_heading(z_heading)
+        values[4], values[5] = heading_present, z_heading                                      # the compass, pinned
+        values[11], values[12] = v, omega
+        values[13] = math.sqrt(a1 * v * v + a2 * omega * omega)                                # eq. 2
+        values[14] = math.sqrt(a3 * v * v + a4 * omega * omega)
+        values[15] = z_depth
+        values[18] = math.inf if self._gate_streak >= self.gate_patience else self._gate    # patience: ungated
+        if self.sigma != self._sigma_in_step:                                                 # eq. 3
+            step.factor[:] = self._sigma_in_step = self.sigma
+        status = step.run(values)
         if status:
-            raise FloatingPointError("TerrainParticleFilter: a particle left the finite range" if status == 1 else
-                                     "TerrainParticleFilter: every weight vanished")
-        nxt = 1 - self._side
-        moments = self._compiled.moments[nxt]
+            raise ValueError(f"TerrainParticleFilter: {step.message(status)} (u, dt, z or p out of the model's "
+                             "finite range); state left unchanged")
+        nxt = 1 - step.side
+        # finite in, finite out (e.g. a current p of 1e308 moves every particle past the covariance's range)
+        self._check_finite(step.means[nxt], step.covs[nxt], u, dt, measurement)
+        ess, resampled, _, uninformative, _, gated = step.head(nxt)[:sir.R_GATED + 1]
         fuzzy_state = None
         if self.fuzzy:
-            gradient = self.gradient_scale * moments.item(M_SLOPE)
+            gradient = self.gradient_scale * step.extras[nxt].item(0)
             travelled = self._travelled + (abs(v) * dt if move else 0.0)
             # the window's base: the newest history entry such that the one after it is < rate_window_m back
             # (history holds at least one entry; the new one is never a window back, rate_window_m > 0)
@@ -207,10 +287,14 @@ class TerrainParticleFilter(FilterBase):
             rate = (gradient - history[dropped][1]) / (window / self.rate_length_m)
             fuzzy_state = (travelled, (travelled, gradient), dropped, gradient, rate, self._fuzzy_sigma(gradient, rate))
         # commit: nothing below can fail
-        self._side = nxt
-        self.resamples += moments.item(M_RESAMPLED) > 0.0
-        self.ess = moments.item(M_ESS)
-        self._x, self._P = self._moment_views[nxt]
+        step.commit(resampled != 0.0)
+        if depth_present:
+            self._gate_streak = self._gate_streak + 1 if gated else 0
+        self.gated += int(gated)
+        self.uninformative += uninformative > 0.0
+        self.resamples += resampled > 0.0
+        self.ess = ess
+        self._x, self._P = step.means[nxt], step.covs[nxt]
         if fuzzy_state is not None:
             self._travelled, entry, dropped, self.gradient, self.gradient_rate, self.sigma = fuzzy_state
             self._history.append(entry)

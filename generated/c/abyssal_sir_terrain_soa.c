@@ -1,0 +1,100 @@
+/* Terrain-aided navigation's map lookup and SIR measurement (see abyssal_sir_terrain.h). Hand-written C99 of
+ * abyssal's runtime; the file name ends in _soa.c for the structure-of-arrays flags (the loops vectorise with
+ * gathers and libmvec's sin/cos). */
+#include "abyssal_sir_terrain.h"
+
+#include <math.h>
+
+#if defined(__x86_64__) && defined(__GLIBC__) && !defined(ABYSSAL_NO_LIBMVEC)
+#pragma omp declare simd notinbranch
+extern double sin(double) __attribute__((const));
+#pragma omp declare simd notinbranch
+extern double cos(double) __attribute__((const));
+#endif
+
+typedef abyssal_idx idx;
+
+/* one point: its depth, gradient and inside flag (the comparisons, not fmin/fmax calls, keep the loops
+ * vectorised; (x > 0 ? x : 0) sends a NaN to 0) */
+#pragma omp declare simd uniform(grid, nx, ny, x0, y0, inv_res) notinbranch
+static inline double bilinear(double px, double py, const double* grid, idx nx, idx ny, double x0, double y0,
+                              double inv_res, double* gx, double* gy, double* inside) {
+  const double fx_max = (double)(nx - 1), fy_max = (double)(ny - 1);
+  const double ix_max = (double)(nx - 2), iy_max = (double)(ny - 2);
+  double fx = (px - x0) * inv_res, fy = (py - y0) * inv_res;
+  const double in = (fx >= 0.0 && fx <= fx_max && fy >= 0.0 && fy <= fy_max) ? 1.0 : 0.0;
+  fx = fx > 0.0 ? fx : 0.0;
+  fx = fx < fx_max ? fx : fx_max;
+  fy = fy > 0.0 ? fy : 0.0;
+  fy = fy < fy_max ? fy : fy_max;
+  /* cell: truncation is floor for fx >= 0; the last node row/column belongs to the cell before it */
+  double cx = (double)(long long)fx, cy = (double)(long long)fy;
+  cx = cx < ix_max ? cx : ix_max;
+  cy = cy < iy_max ? cy : iy_max;
+  const idx i = (idx)cy * nx + (idx)cx;
+  const double tx = fx - cx, ty = fy - cy;
+  const double q11 = grid[i], q21 = grid[i + 1], q12 = grid[i + nx], q22 = grid[i + nx + 1];
+  const double lower = q11 + tx * (q21 - q11), upper = q12 + tx * (q22 - q12);
+  *gx = in * ((q21 - q11) + ty * ((q22 - q12) - (q21 - q11))) * inv_res;
+  *gy = in * (upper - lower) * inv_res;
+  *inside = in;
+  return lower + ty * (upper - lower);
+}
+
+void abyssal_terrain_bilinear(abyssal_idx n, const double* restrict px, const double* restrict py,
+                              const double* restrict grid, abyssal_idx nx, abyssal_idx ny, double x0, double y0,
+                              double inv_res, double* restrict depth, double* restrict gx, double* restrict gy,
+                              double* restrict inside) {
+#pragma omp simd
+  for (idx j = 0; j < n; ++j) {
+    double a, b, c;
+    depth[j] = bilinear(px[j], py[j], grid, nx, ny, x0, y0, inv_res, &a, &b, &c);
+    gx[j] = a;
+    gy[j] = b;
+    inside[j] = c;
+  }
+}
+
+int abyssal_sir_terrain_measure(const void* ctx, abyssal_idx n, abyssal_idx ld, const double* x, const double* p,
+                                double* y) {
+  const abyssal_sir_terrain* t = (const abyssal_sir_terrain*)ctx;
+  const double* restrict px = x;
+  const double* restrict py = x + ld;
+  const double* restrict heading = x + 2 * ld;
+  const double* restrict grid = t->grid;
+  const idx nx = t->nx, ny = t->ny;
+  const double x0 = t->x0, y0 = t->y0, inv_res = t->inv_res;
+  double* restrict depth = y;
+  (void)p;
+  if (!t->slope) {
+    double* restrict inside = y + ld;
+#pragma omp simd
+    for (idx j = 0; j < n; ++j) {
+      double a, b, c;
+      depth[j] = bilinear(px[j], py[j], grid, nx, ny, x0, y0, inv_res, &a, &b, &c);
+      inside[j] = c;
+    }
+  } else if (t->heading[0] != 0.0) { /* every particle has the compass heading: its cos and sin once */
+    double* restrict slope = y + ld;
+    double* restrict inside = y + 2 * ld;
+    const double ch = cos(t->heading[1]), sh = sin(t->heading[1]);
+#pragma omp simd
+    for (idx j = 0; j < n; ++j) {
+      double a, b, c;
+      depth[j] = bilinear(px[j], py[j], grid, nx, ny, x0, y0, inv_res, &a, &b, &c);
+      slope[j] = a * ch + b * sh;
+      inside[j] = c;
+    }
+  } else {
+    double* restrict slope = y + ld;
+    double* restrict inside = y + 2 * ld;
+#pragma omp simd
+    for (idx j = 0; j < n; ++j) {
+      double a, b, c;
+      depth[j] = bilinear(px[j], py[j], grid, nx, ny, x0, y0, inv_res, &a, &b, &c);
+      slope[j] = a * cos(heading[j]) + b * sin(heading[j]);
+      inside[j] = c;
+    }
+  }
+  return 0;
+}
