@@ -85,8 +85,8 @@ class TanConfig:
 
     def quick(self) -> "TanConfig":
         """3000 s runs (a tenth of the paper's 30 000 s) under the 0.1 m/s current only, on every map and track:
-        the whole pipeline (cases, tables, figures) in well under a minute; a smoke test, not evidence (a
-        track lost after 3000 s is not seen)."""
+        the whole pipeline (cases, tables, figures) as a smoke test, not evidence (a track lost after 3000 s is
+        not seen)."""
         return replace(self, duration_s=3000.0, currents=(MAIN_CURRENT,), quick_run=True)
 
     @property

@@ -3,7 +3,7 @@ lands; the names follow it).
 
 * ``over_runs(values)``: a per-run number summarised over the runs -- mean, sample sd (ddof = 1), n; NaN runs left
   out (a filter that has no such metric).
-* ``fraction(flags)``: (how many are true, how many there are), printed as "k/n", never a bare percentage.
+* ``aligned(header, rows)``: the lines of a plain-text table.
 """
 from __future__ import annotations
 
@@ -39,11 +39,6 @@ def over_runs(values: Iterable[float]) -> OverRuns:
         return OverRuns(0, math.nan, math.nan, math.nan)
     sd = float(np.std(v, ddof=1)) if v.size > 1 else math.nan
     return OverRuns(int(v.size), float(np.mean(v)), sd, float(np.median(v)))
-
-
-def fraction(flags: Iterable[bool]) -> tuple[int, int]:
-    f = [bool(x) for x in flags]
-    return sum(f), len(f)
 
 
 def aligned(header: list[str], rows: list[list[str]], left: int = 1) -> list[str]:
