@@ -14,6 +14,7 @@ Your own vehicle, from equations to a verified filter:
     vessel = abyssal.load(folder)                        # compiled through the shared cache
     assert abyssal.verify(folder).ok                     # compiled C vs CasADi, Jacobians, steps, filters
     ckf = abyssal.CKF(vessel, x0, P0, Q, R)
+    abyssal.export(folder, filter="ckf", out="myvessel_ckf")   # a C99 project of that filter for the vehicle
 """
 import importlib
 
@@ -28,6 +29,7 @@ from abyssal.symbolic import Envelope, Model, Parameter, Quantity, discretise, f
 # The package abyssal.verify is loaded before the function of the same name is defined below, so the
 # function stays the attribute `abyssal.verify` (loading a submodule later would overwrite it).
 importlib.import_module("abyssal.verify")
+from abyssal.export import export  # noqa: E402 (the function is the attribute `abyssal.export`, as verify's)
 
 
 def verify(target, *, strict: bool = False):
@@ -52,6 +54,6 @@ def verify(target, *, strict: bool = False):
 
 __all__ = [
     "CKF", "CubatureParticleFilter", "EKF", "Envelope", "FilterResult", "GaussianMixture", "HuberUKF", "MCUKF", "Model",
-    "Parameter", "ParticleFilter", "Quantity", "UKF", "check_generated", "discretise", "fossen", "generate", "load",
+    "Parameter", "ParticleFilter", "Quantity", "UKF", "check_generated", "discretise", "export", "fossen", "generate", "load",
     "symbols", "verify",
 ]

@@ -1,27 +1,42 @@
-"""Filter section of `abyssal bench`: per-step (predict + update) cost on rov4dof beside peers
-measured in the same run.
+"""Filter section of `abyssal bench`: per-step (predict + update) cost of the Kalman filters on rov4dof, from Python
+and from C, beside peers measured in the same run.
 
-Ours:   EKF, UKF, CKF runtime classes (abyssal.runtime.filters.kalman), ``step(u, dt, z)`` through a
-        simulated trajectory (EKF and CKF: one fused generated call per step; UKF: predict and
-        update calls), the CKF with separate predict() and update() calls, and the bare bound C
-        evaluations of the CKF (no Python checks) to show the runtime's own overhead.
-Peers:  filterpy's UnscentedKalmanFilter with MerweScaledSigmaPoints(1, 0, 0) (the same CKF)
-        calling the compiled model through the bundle's f and h, and a vectorised NumPy CKF
-        calling the compiled model through f_batch / h_batch (SIMD kernels) with NumPy algebra.
+Ours:   the EKF, UKF and CKF classes, ``step(u, dt, z)`` through a simulated trajectory (Python over the C runtime
+        of generated/c: one call per step), and the same runtime called from a C loop (kalman_timing.c, linked with
+        the model's library from abyssal's compile cache: the code Python calls); the innovation gate's judgement
+        of one update alone (C); the bytes of each filter object.
+Peers:  filterpy's UnscentedKalmanFilter with MerweScaledSigmaPoints(1, 0, 0) (the same CKF) on the independent
+        NumPy model of rov4dof (verify/reference_models.py, written from the paper: a model as a user would write
+        it); the whole generated fused ``ckf_step`` / ``ekf_step`` in a C loop (kalman_timing.c), and bound from
+        Python without any checks (the core of the previous Python path, which added its checks and its NumPy gate).
+Times:  the minimum over repetitions of a whole trajectory (each from a fresh filter), in us per step, so that a
+        loaded machine's interruptions are left out as far as they can be; the ratios are what travels between
+        machines.
 
-Targets: CKF step <= 6 us and >= 250x faster than filterpy; EKF step <= 2.5 us.
+Targets: CKF step <= 2.5 us from C and <= 3 us from Python, and >= 300x faster than filterpy; EKF step <= 1 us from
+C and <= 1.2 us from Python; the gate <= 0.1 us.
+
+    python benchmarks/bench_filters.py [--quick]     # this section alone, JSON on stdout
 """
 from __future__ import annotations
+
+import subprocess
+import tempfile
+import time
+from pathlib import Path
 
 import numpy as np
 
 from abyssal import generated
+from abyssal.generated.build import BuildError, RUNTIME_DIR, cflags, compiler
 from abyssal.runtime.filters.kalman import CKF, EKF, UKF
+from abyssal.verify import reference_models
 
-from bench import json_main, median_time, target
+from bench import json_main, target
 
 MODEL = "rov4dof"
 DT = 0.1
+HERE = Path(__file__).resolve().parent
 
 
 def trajectory(bundle, steps: int, seed: int = 0):
@@ -42,129 +57,126 @@ def trajectory(bundle, steps: int, seed: int = 0):
     return np.zeros(n), 0.3 * np.eye(n), Q, R, U, Z
 
 
-def per_step(step, steps: int, reset, quick: bool) -> float:
-    """Median seconds per step of step(k) over a sequence, restarting it with reset()."""
-    def sequence():
-        reset()
-        for k in range(steps):
-            step(k)
-    return median_time(sequence, repeat=3 if quick else 7, min_time=0.02 if quick else 0.1) / steps
+def best_per_step(make, step, steps: int, repeats: int) -> float:
+    """Seconds per step: the minimum over `repeats` runs of steps 1..steps-1, each on a fresh object from make()
+    (step 0, the one that checks dt's stability, untimed)."""
+    best = float("inf")
+    for _ in range(repeats):
+        obj = make()
+        step(obj, 0)
+        t0 = time.perf_counter()
+        for k in range(1, steps):
+            step(obj, k)
+        best = min(best, (time.perf_counter() - t0) / (steps - 1))
+    return best
 
 
-def numpy_ckf_step(bundle, Q, R):
-    """A vectorised NumPy CKF step (seed 000 eqs. 22-29) calling the compiled model in batch."""
-    n = bundle.n_x
-    xi = np.sqrt(n) * np.hstack([np.eye(n), -np.eye(n)])
+def c_runtime_times(bundle, U, Z, repeats: int) -> dict[str, float]:
+    """ns per step of the C runtime from a C loop, the gate's ns, and the filter objects' bytes (kalman_timing.c)."""
+    with tempfile.TemporaryDirectory(prefix="abyssal-bench-") as tmp:
+        tmp = Path(tmp)
+        data = tmp / "trajectory.txt"
+        with open(data, "w") as fh:
+            fh.write(f"{len(U)} {bundle.n_u} {bundle.n_y}\n")
+            np.savetxt(fh, np.hstack([U, Z]), fmt="%.17g")
+        exe = tmp / "kalman_timing"
+        library = Path(bundle.library)
+        cmd = [compiler(), *cflags(), f"-DDESCRIPTOR={bundle.name}_descriptor", f"-DCKF_STEP={bundle.name}_ckf_step",
+               f"-DEKF_STEP={bundle.name}_ekf_step", f"-I{RUNTIME_DIR}",
+               str(HERE / "kalman_timing.c"), str(library), f"-Wl,-rpath,{library.parent}", "-o", str(exe), "-lm"]
+        res = subprocess.run(cmd, capture_output=True, text=True, check=False)
+        if res.returncode != 0:
+            raise BuildError(f"compiling the timing driver failed: {' '.join(cmd)}\n{res.stderr[-4000:]}")
+        out = subprocess.run([str(exe), str(data), str(repeats)], capture_output=True, text=True, check=True).stdout
+    return {label: float(value) for label, value in (line.split() for line in out.splitlines())}
 
-    def step(x, P, u, z):
-        X = x[:, None] + np.linalg.cholesky(P) @ xi
-        Y = bundle.f_batch(X, u, None, DT)
-        x = Y.mean(axis=1)
-        D = Y - x[:, None]
-        P = D @ D.T / (2 * n) + Q
-        X = x[:, None] + np.linalg.cholesky(P) @ xi
-        Zs = bundle.h_batch(X)
-        z_pred = Zs.mean(axis=1)
-        DZ = Zs - z_pred[:, None]
-        DZ[3] = (DZ[3] + np.pi) % (2 * np.pi) - np.pi
-        S = DZ @ DZ.T / (2 * n) + R
-        Pxz = (X - x[:, None]) @ DZ.T / (2 * n)
-        K = np.linalg.solve(S, Pxz.T).T
-        nu = z - z_pred
-        nu[3] = (nu[3] + np.pi) % (2 * np.pi) - np.pi
-        return x + K @ nu, P - K @ S @ K.T
-    return step
+
+def filterpy_ckf(bundle, Q, R):
+    """filterpy's UKF with cubature points (Merwe 1, 0, 0) on the NumPy reference model of the bundle."""
+    from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
+
+    ref = reference_models.REFERENCES[bundle.name]
+    p, disc, substeps = bundle.params(), bundle.manifest["discretisation"], bundle.manifest["substeps"]
+    points = MerweScaledSigmaPoints(bundle.n_x, alpha=1.0, beta=0.0, kappa=0.0)
+
+    def make():
+        ukf = UnscentedKalmanFilter(bundle.n_x, bundle.n_y, DT, hx=lambda s: ref.h(s, p), fx=None, points=points)
+        ukf.Q, ukf.R = Q, R
+        ukf.x, ukf.P = np.zeros(bundle.n_x), 0.3 * np.eye(bundle.n_x)
+        return ukf
+    return make, lambda s, u, dt: reference_models.step(ref, s, u, p, dt, disc, substeps)
 
 
 def run(quick: bool = False, verbose: bool = True) -> dict:
     bundle = generated.load(MODEL)
-    steps = 100 if quick else 400
+    steps = 200 if quick else 400
+    repeats = 3 if quick else 15
     x0, P0, Q, R, U, Z = trajectory(bundle, steps)
-    results: dict = {"model": MODEL, "steps": steps, "per_step_us": {}}
-    times = results["per_step_us"]
+    results: dict = {"model": MODEL, "steps": steps, "repeats": repeats, "per_step_us": {}, "from_c_us": {}}
+    py, c = results["per_step_us"], results["from_c_us"]
 
     for cls in (EKF, UKF, CKF):
-        flt = cls(bundle, x0, P0, Q, R)
+        py[cls.__name__] = 1e6 * best_per_step(lambda cls=cls: cls(bundle, x0, P0, Q, R),
+                                               lambda f, k: f.step(U[k], DT, Z[k]), steps, repeats)
+    timings = c_runtime_times(bundle, U, Z, repeats)
+    for name in ("EKF", "UKF", "CKF"):
+        c[name] = timings[name] / 1e3
+    results["gate_us"] = timings["gate"] / 1e3
+    results["filter_object_bytes"] = {name: int(timings[f"{name}_bytes"]) for name in ("EKF", "UKF", "CKF")}
 
-        def step(k, flt=flt):
-            flt.step(U[k], DT, Z[k])
-        times[cls.__name__] = 1e6 * per_step(step, steps, lambda flt=flt: flt.reset(x0, P0), quick)
+    # the previous path: the whole generated fused step, in C and bound from Python (no checks, no gate)
+    args = {"x": np.full(12, 0.3), "P": np.asfortranarray(0.1 * np.eye(12)), "u": U[1], "p": bundle.params(),
+            "dt": np.array([DT]), "Q": np.asfortranarray(Q), "z": Z[1], "R": np.asfortranarray(R), "mask": np.ones(4)}
+    for name in ("ckf_step", "ekf_step"):
+        c[f"generated {name} alone"] = timings[f"generated_{name}"] / 1e3
+        fn = bundle.functions[name]
+        outs = [np.zeros(s.shape, order="F") for s in fn.outputs]
+        ins = [args[s.name].copy(order="F") if args[s.name].ndim == 2 else args[s.name].copy() for s in fn.inputs]
+        evaluate = fn.bind(ins, outs).eval
+        py[f"generated {name} bound, no checks (previous path's core)"] = 1e6 * best_per_step(
+            lambda: None, lambda _, k: evaluate(), steps, repeats)
 
-    ckf = CKF(bundle, x0, P0, Q, R)
-    # the bound C calls alone (buffer set k reads, 1 - k receives), with the same inputs and no checks
-    predict_eval, update_eval, step_eval = ckf._c_predict, ckf._c_update, ckf._c_step
-    u_buffer, z_buffer, dt_buffer = ckf._u, ckf._z, ckf._dt
-
-    def reset_bare():
-        ckf.reset(x0, P0)
-        dt_buffer[0] = DT
-
-    def bare(k):
-        u_buffer[:] = U[k]
-        z_buffer[:] = Z[k]
-        predict_eval[ckf._cur]()
-        update_eval[1 - ckf._cur]()
-    times["CKF, bound C predict + update only"] = 1e6 * per_step(bare, steps, reset_bare, quick)
-
-    def bare_fused(k):
-        u_buffer[:] = U[k]
-        z_buffer[:] = Z[k]
-        step_eval[(ckf._cur + k) % 2]()  # the state alternates between the two sets from the current one
-    times["CKF, bound C fused step only"] = 1e6 * per_step(bare_fused, steps, reset_bare, quick)
-
-    def separate(k):
-        ckf.predict(U[k], DT)
-        ckf.update(Z[k])
-    times["CKF, predict() then update()"] = 1e6 * per_step(separate, steps, lambda: ckf.reset(x0, P0), quick)
-
-    fp_steps = 10 if quick else 40
+    fp_steps = 20 if quick else 60
     try:
-        from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
+        make, fx = filterpy_ckf(bundle, Q, R)
     except ImportError:
         results["filterpy"] = "not installed (pip install 'abyssal[test]')"
     else:
-        points = MerweScaledSigmaPoints(bundle.n_x, alpha=1.0, beta=0.0, kappa=0.0)
-        ukf = UnscentedKalmanFilter(bundle.n_x, bundle.n_y, DT, hx=bundle.h, fx=None, points=points)
-        ukf.Q, ukf.R = Q, R
-
-        def reset_filterpy():
-            ukf.x, ukf.P = x0.copy(), P0.copy()
-
-        def filterpy_step(k):
-            ukf.predict(fx=lambda s, dt: bundle.f(s, U[k], None, dt))
+        def filterpy_step(ukf, k):
+            ukf.predict(fx=lambda s, dt: fx(s, U[k], dt))
             ukf.update(Z[k])
-        times["filterpy UKF (cubature points)"] = 1e6 * per_step(filterpy_step, fp_steps, reset_filterpy, quick)
+        py["filterpy UKF (cubature points), NumPy model"] = 1e6 * best_per_step(make, filterpy_step, fp_steps,
+                                                                                 2 if quick else 5)
 
-    np_step = numpy_ckf_step(bundle, Q, R)
-    state = {}
-
-    def reset_numpy():
-        state["x"], state["P"] = x0.copy(), P0.copy()
-
-    def numpy_step(k):
-        state["x"], state["P"] = np_step(state["x"], state["P"], U[k], Z[k])
-    times["NumPy CKF (f_batch, h_batch)"] = 1e6 * per_step(numpy_step, fp_steps, reset_numpy, quick)
-
-    ckf_us = times["CKF"]
-    ratios = {"NumPy CKF / CKF": times["NumPy CKF (f_batch, h_batch)"] / ckf_us,
-              "CKF / its bound C fused step": ckf_us / times["CKF, bound C fused step only"]}
-    if "filterpy UKF (cubature points)" in times:
-        ratios["filterpy / CKF"] = times["filterpy UKF (cubature points)"] / ckf_us
+    ratios = {"CKF from Python / from C": py["CKF"] / c["CKF"], "EKF from Python / from C": py["EKF"] / c["EKF"],
+              "generated ckf_step alone / CKF from C": c["generated ckf_step alone"] / c["CKF"],
+              "generated ekf_step alone / EKF from C": c["generated ekf_step alone"] / c["EKF"]}
+    filterpy_us = py.get("filterpy UKF (cubature points), NumPy model")
+    if filterpy_us is not None:
+        ratios["filterpy / CKF"] = filterpy_us / py["CKF"]
     results["ratios"] = ratios
 
     if verbose:
-        print(f"per step (predict + update) on {MODEL}, median:")
-        for name, us in times.items():
-            print(f"  {name:<34} {us:10.2f} us")
+        print(f"per step (predict + update) on {MODEL}, minimum over {repeats} runs of {steps} steps:")
+        for name, us in py.items():
+            print(f"  from Python  {name:<58} {us:9.3f} us")
+        for name, us in c.items():
+            print(f"  from C       {name:<58} {us:9.3f} us")
+        print(f"  the gate's judgement of one update (C)                                   {results['gate_us']:9.3f} us")
+        for name, b in results["filter_object_bytes"].items():
+            print(f"  {name} filter object: {b} bytes")
         for name, ratio in ratios.items():
-            print(f"  {name:<34} {ratio:10.1f} x")
+            print(f"  {name:<58} {ratio:10.1f} x")
 
     targets = [
-        target("CKF step (rov4dof)", ckf_us, 6.0, "us"),
-        target("EKF step (rov4dof)", times["EKF"], 2.5, "us"),
+        target("CKF step from C (rov4dof)", c["CKF"], 2.5, "us"),
+        target("CKF step from Python (rov4dof)", py["CKF"], 3.0, "us"),
+        target("EKF step from C (rov4dof)", c["EKF"], 1.0, "us"),
+        target("EKF step from Python (rov4dof)", py["EKF"], 1.2, "us"),
+        target("innovation gate (one judgement, C)", results["gate_us"], 0.1, "us"),
     ]
     if "filterpy / CKF" in ratios:
-        targets.append(target("CKF speed-up over filterpy", ratios["filterpy / CKF"], 250.0, "x", higher_is_better=True))
+        targets.append(target("CKF speed-up over filterpy", ratios["filterpy / CKF"], 300.0, "x", higher_is_better=True))
     return {"results": results, "targets": targets}
 
 

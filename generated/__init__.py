@@ -4,10 +4,12 @@
     mine = abyssal.generated.load("gen/myvessel")        # a folder written by abyssal.generate
     x1 = bundle.f(x0, tau, None, 0.1)
 
-``load`` reads ``<folder>/manifest.json``, checks every source against the manifest's sha256
-(a hand-edited, truncated or missing file is refused, naming the file), compiles the sources on
-first use through the shared per-user cache (see build.py) and returns a ModelBundle. The cache
-entry is named by the manifest's model name (a checked C identifier), never by the path given.
+``load`` reads ``<folder>/manifest.json``, checks it against its own integrity record (integrity.py:
+a hand-edited manifest is refused, naming the field) and every source against the manifest's sha256
+(a hand-edited, truncated or missing file is refused, naming the file), compiles the sources with the
+C runtime of the Kalman family (generated/c) on first use through the shared per-user cache (see
+build.py) and returns a ModelBundle. The cache entry is named by the manifest's model name (a checked C
+identifier), never by the path given.
 """
 from __future__ import annotations
 
@@ -18,7 +20,8 @@ import re
 import threading
 from pathlib import Path
 
-from .build import BuildError, CompilerNotFoundError, build
+from . import integrity
+from .build import BuildError, CompilerNotFoundError, build, runtime_sources
 from .bundle import BatchBinding, Binding, CompiledFunction, ModelBundle
 
 GENERATED_DIR = Path(__file__).resolve().parent
@@ -37,21 +40,30 @@ def _looks_like_path(name) -> bool:
     return isinstance(name, os.PathLike) or any(sep in name for sep in ("/", os.sep)) or name.startswith(("~", "."))
 
 
+def _exists(path: Path, kind: str) -> bool:
+    """path.is_file() / is_dir(), False where the system cannot even look (a name too long, a NUL byte)."""
+    try:
+        return path.is_file() if kind == "file" else path.is_dir()
+    except (OSError, ValueError):
+        return False
+
+
 def model_folder(name_or_path) -> Path:
     """The folder of a built-in name, or of a path to a folder written by ``abyssal.generate``."""
     if not isinstance(name_or_path, (str, os.PathLike)):
         raise TypeError(f"load() takes a model name or a folder path, got {type(name_or_path).__name__}")
-    if not _looks_like_path(name_or_path) and (GENERATED_DIR / name_or_path / "manifest.json").is_file():
+    if not _looks_like_path(name_or_path) and _exists(GENERATED_DIR / name_or_path / "manifest.json", "file"):
         return GENERATED_DIR / name_or_path
     try:
         folder = Path(name_or_path).expanduser()
     except RuntimeError as exc:  # '~user' with no such user or home directory
         raise FileNotFoundError(f"{name_or_path!r}: cannot expand the home directory ({exc})") from None
-    if not _looks_like_path(name_or_path) and not folder.is_dir():
-        raise KeyError(f"no generated model {name_or_path!r}; available: {available()} (run `abyssal regenerate` after "
+    if not _looks_like_path(name_or_path) and not _exists(folder, "dir"):
+        shown = name_or_path if len(name_or_path) <= 80 else name_or_path[:60] + f"... ({len(name_or_path)} characters)"
+        raise KeyError(f"no generated model {shown!r}; available: {available()} (run `abyssal regenerate` after "
                        "adding one, or give the path of a folder written by abyssal.generate / "
                        "`abyssal regenerate --model ... --out DIR`)")
-    if not folder.is_dir():
+    if not _exists(folder, "dir"):
         raise FileNotFoundError(f"{folder}: no such folder (expected a model folder written by abyssal.generate)")
     if not (folder / "manifest.json").is_file():
         inside = sorted(p.parent.name for p in folder.glob("*/manifest.json"))
@@ -74,6 +86,14 @@ def read_folder(folder: Path) -> tuple[dict, dict[str, str]]:
     files = manifest["files"]
     generated_by = manifest.get("generated_by")
     regenerate_with = generated_by.get("command", "abyssal regenerate") if isinstance(generated_by, dict) else "abyssal regenerate"
+    if integrity.KEY not in manifest:
+        raise GeneratedFolderError(f"{path} has no {integrity.KEY!r} record (written by an older abyssal, or its record "
+                                   f"was deleted), so it cannot be checked; run `{regenerate_with}`")
+    edited = integrity.edits(manifest)
+    if edited:
+        raise GeneratedFolderError(f"{path} was edited after abyssal wrote it ({'; '.join(edited[:6])}"
+                                   f"{'; ...' if len(edited) > 6 else ''}): a hand-edited manifest is refused; run "
+                                   f"`{regenerate_with}`")
     sources = {}
     for fname, meta in files.items():
         try:
@@ -162,7 +182,7 @@ def load(name_or_path) -> ModelBundle:
         bundle = _BUNDLES.get(key)
         if bundle is None:
             manifest, sources = read_folder(folder)
-            bundle = ModelBundle(manifest, build(manifest["model"], sources))
+            bundle = ModelBundle(manifest, build(manifest["model"], {**sources, **runtime_sources()}))
             bundle.folder = folder
             _BUNDLES[key] = bundle
     return bundle

@@ -68,8 +68,16 @@ LIBS = ["-lm"]
 # Structure-of-arrays kernels (files *_soa.c): let the loop vectorise with libmvec's sin/cos/tan (and
 # the float sinf/cosf/logf of the TAN step's normals) instead of the scalar fused sincos, and sqrt without the errno branch (errno is never read).
 # These flags do not change any IEEE operation.
-SOA_FLAGS = ["-fopenmp-simd", "-fno-builtin-sin", "-fno-builtin-cos", "-fno-builtin-tan", "-fno-builtin-sinf",
-             "-fno-builtin-cosf", "-fno-builtin-logf", "-fno-math-errno"]
+SOA_FLAGS = ["-fopenmp-simd", "-DABYSSAL_OPENMP_SIMD", "-fno-builtin-sin", "-fno-builtin-cos", "-fno-builtin-tan",
+             "-fno-builtin-sinf", "-fno-builtin-cosf", "-fno-builtin-logf", "-fno-math-errno"]
+#: the C runtime of the Kalman family (hand-written C99 in generated/c, next to the generated code it calls through
+#: each model's descriptor <m>_descriptor.c): compiled into every model's library, so the cache key covers it, and
+#: copied by `abyssal export`. Its files are compiled strictly (RUNTIME_FLAGS).
+RUNTIME_DIR = Path(__file__).resolve().parent / "c"
+KALMAN_RUNTIME = ("abyssal_model.h", "abyssal_kalman.h", "abyssal_kalman.c", "abyssal_kalman_gate.h",
+                  "abyssal_kalman_gate.c", "abyssal_kalman_covariance.h", "abyssal_kalman_covariance.c",
+                  "abyssal_kalman_binding.c")
+RUNTIME_FLAGS = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic"]
 
 #: seconds one build may take (all compile and link steps; a slow vehicle computer needs minutes for the largest model)
 DEFAULT_TIMEOUT = 600.0
@@ -93,7 +101,14 @@ def _libraries() -> list[str]:
     return LIBS
 
 
+def runtime_sources() -> dict[str, str]:
+    """File name -> text of the Kalman runtime (KALMAN_RUNTIME), read from the package."""
+    return {name: (RUNTIME_DIR / name).read_text() for name in KALMAN_RUNTIME}
+
+
 def _file_flags(name: str, flags: list[str]) -> list[str]:
+    if name in KALMAN_RUNTIME:
+        return [*flags, *RUNTIME_FLAGS]
     if not name.endswith("_soa.c"):
         return flags
     extra = [] if "-lmvec" in _libraries() else ["-DABYSSAL_NO_LIBMVEC"]

@@ -27,6 +27,8 @@ import sys
 import types
 from pathlib import Path
 
+from . import integrity
+
 GENERATED_DIR = Path(__file__).resolve().parent
 #: the folder holding the package's three layer folders in a source checkout (symbolic/, generated/, runtime/)
 SOURCE_ROOT = GENERATED_DIR.parent
@@ -65,14 +67,16 @@ def model_files(model, families=DEFAULT_FILTERS, origin=None) -> dict[str, str]:
     carried = {fn.name() for unit in filters for fn in unit.functions}
     units = [codegen.Unit("model", tuple(fn for fn in codegen.model_functions(model) if fn.name() not in carried)),
              *filters]
-    generated = {fn.name() for unit in units for fn in unit.functions}
+    generated = {fn.name() for unit in units for fn in unit.functions} | {f"{model.name}_descriptor"}
     clashes = sorted(fn.name() for fn in model.functions if fn.name() in generated)
     if clashes:
         raise ValueError(f"model {model.name!r}: functions {clashes} have the names of generated model or filter "
                          "functions; rename them")
     if model.functions:
         units.append(codegen.Unit("functions", model.functions))
-    return codegen.generate_model(model, units, origin, families)
+    files = codegen.generate_model(model, units, origin, families)
+    files["manifest.json"] = integrity.seal(files["manifest.json"])  # load refuses a manifest edited after this
+    return files
 
 
 def _write(folder: Path, files: dict[str, str]) -> list[Path]:

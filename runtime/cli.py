@@ -1,4 +1,4 @@
-"""The `abyssal` command: regenerate, verify, reproduce, bench, cache."""
+"""The `abyssal` command: regenerate, verify, export, reproduce, bench, cache."""
 from __future__ import annotations
 
 import argparse
@@ -38,7 +38,7 @@ def _regenerate_user(args, regenerate) -> int:
         raise ValueError("give either built-in model names or --model, not both")
     if not args.out:
         raise ValueError("--model needs --out DIR (the folder of your project that receives <DIR>/<model name>/)")
-    model, where = regenerate.load_model_spec(args.model)
+    model, where = _user_model(args.model, regenerate)
     origin = regenerate.cli_origin(args.model, args.out, model.name, where)
     filters = tuple(args.filters.split(",")) if args.filters else regenerate.DEFAULT_FILTERS
     if args.check:
@@ -53,6 +53,24 @@ def _regenerate_user(args, regenerate) -> int:
     folder = regenerate.generate(model, args.out, filters, origin=origin)
     print(f"wrote {folder} (load it with abyssal.load({str(folder)!r}); check it with `abyssal verify {folder}`)")
     return 0
+
+
+def _user_model(spec: str, regenerate):
+    """regenerate.load_model_spec(spec); any error raised while importing the user's file or calling its function
+    (an ImportError, a SyntaxError, a TypeError in the equations ...) becomes one line naming the spec and the line."""
+    import traceback
+    from pathlib import Path
+
+    try:
+        return regenerate.load_model_spec(spec)
+    except (ValueError, FileNotFoundError):
+        raise
+    except Exception as exc:  # noqa: BLE001 -- the user's code: anything may come out
+        ours = [regenerate.SOURCE_ROOT / d for d in ("abyssal", "generated", "runtime", "symbolic")]
+        frames = [f for f in traceback.extract_tb(exc.__traceback__) if "site-packages" not in Path(f.filename).parts
+                  and not any(Path(f.filename).resolve().is_relative_to(d) for d in ours)]
+        where = f" ({frames[-1].filename}, line {frames[-1].lineno})" if frames and not isinstance(exc, SyntaxError) else ""
+        raise ValueError(f"--model {spec!r}: loading the model failed: {type(exc).__name__}: {exc}{where}") from exc
 
 
 def _verify(args) -> int:
@@ -89,7 +107,7 @@ def _verify_model_spec(args, verify):
 
     from abyssal.generated import regenerate
 
-    model, where = regenerate.load_model_spec(args.model)
+    model, where = _user_model(args.model, regenerate)
     out = args.out or tempfile.mkdtemp(prefix="abyssal-verify-")
     origin = regenerate.cli_origin(args.model, out, model.name, where)
     if args.out:
@@ -122,6 +140,17 @@ def _bench(args) -> int:
     if args.folders:
         return importlib.import_module("bench_folder").main(args.folders, json_output=args.json, quick=args.quick)
     return importlib.import_module("bench").main(json_output=args.json, out=args.out, quick=args.quick)
+
+
+def _export(args) -> int:
+    """`abyssal export NAME|DIR --filter F --out DIR`: a self-contained C project of the filter (abyssal/export.py)."""
+    import importlib
+
+    export = importlib.import_module("abyssal.export")  # the module (the package exports a function `export`)
+    folder = export.export(args.target, filter=args.filter, out=args.out, steps=args.steps, seed=args.seed)
+    print(f"wrote {folder}: cmake -S {folder} -B {folder}/build && cmake --build {folder}/build && "
+          f"(cd {folder}/build && ctest)")
+    return 0
 
 
 def _reproduce(args) -> int:
@@ -195,6 +224,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quick", action="store_true", help="fewer repetitions (smoke run)")
     p.add_argument("folders", nargs="*", metavar="DIR", help="model folders to time (default: the built-in benchmarks)")
     p.set_defaults(run=_bench)
+
+    p = sub.add_parser("export", help="a self-contained C99 project of a filter for the vehicle (no Python needed)",
+                       description="Writes the model's generated C, the C runtime of the Kalman family, a header with "
+                                   "the model's layout and units, CMakeLists.txt, the example run_csv, a C++17 wrapper "
+                                   "and test vectors recorded from the Python filter (ctest runs them).")
+    p.add_argument("target", metavar="NAME|DIR", help="a built-in model name or a model folder written by abyssal.generate")
+    p.add_argument("--filter", required=True, choices=["ekf", "ukf", "ckf", "mcukf", "huber"])
+    p.add_argument("--out", required=True, metavar="DIR", help="a new or empty folder (or an earlier export)")
+    p.add_argument("--steps", type=int, default=10_000, help="steps of the recorded test vectors (default: %(default)s)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the recorded run (default: %(default)s)")
+    p.set_defaults(run=_export)
 
     from .experiments.reproduce import EXPERIMENTS  # the registry (light: the experiments load when run)
 

@@ -23,8 +23,11 @@ Input rules (the ``check_*`` helpers below; every filter uses them, none re-impl
 * N (particles, components) is an int >= 1; ``rng`` is an int seed, a ``SeedSequence`` or a
   ``numpy.random.Generator`` (``as_generator``), anything else is a TypeError.
 * A refusal is a ValueError/TypeError naming the argument, and leaves the filter bit-identical:
-  its state (x, P, particles, weights, random generator) and what it reports (innovation, S,
-  NIS, ESS, counters).
+  its state (x, P, particles, weights, per-particle covariances, random generator) and what it
+  reports (innovation, S, NIS, ESS, counters).
+* Finite in, finite out: a step whose estimate x or covariance P comes out non-finite is refused
+  (ValueError naming the call and its arguments, state unchanged: ``FilterBase._check_finite``);
+  LinAlgError, FloatingPointError and OverflowError never escape a call raw.
 
 Reporting attributes every filter has (read by ``run``): ``nis`` (float, NaN when the last
 accepted update is undefined or there was none), ``nis_dof`` (int), ``ess`` (float; NaN for
@@ -490,11 +493,28 @@ class FilterBase(Stateful):
         saved = {name: _copy(getattr(self, name)) for name in names}
         try:
             self._set_p(p)
-            return hook(*args)
+            result = hook(*args)
+            if self._touched is None:  # (a filter that narrows _touched checks before its commit: _check_finite)
+                self._check_finite(self._x, self._P, *args)
+            return result
         except BaseException:
             for name in names:
                 _put(self, name, saved[name])
             raise
+
+    def _check_finite(self, x: np.ndarray, P: np.ndarray, u, dt, measurement) -> None:
+        """Finite in, finite out: a step whose estimate x or covariance P is not finite is refused (ValueError
+        naming the call and its arguments). The transaction runs it after the hook for a filter that snapshots
+        its whole state; a filter that narrows ``_touched`` (its commit is the hook's last line) calls it on
+        the new x, P (for particle filters the weighted moments, non-finite whenever a weighted particle or a
+        weight is) before that line."""
+        if _finite(x) and (_finite(P) if P.ndim == 1 else _finite(P.reshape(-1))):
+            return
+        call = "update" if u is None else ("predict" if measurement is None else "step")
+        culprits = {"predict": "u, dt or p", "update": "z or p", "step": "u, dt, z or p"}[call]
+        bad = [name for name, value in (("x", x), ("P", P)) if not np.all(np.isfinite(value))]
+        raise ValueError(f"{type(self).__name__}.{call}: the result is not finite ({' and '.join(bad)} with non-finite "
+                         f"entries): {culprits} drive the filter out of its finite range; state left unchanged")
 
     def _set_p(self, p) -> None:
         """p (checked) into the parameter buffer; None: the model's defaults (copied only when they changed)."""

@@ -107,10 +107,17 @@ SOA_PREAMBLE = """
 #if defined(__AVX512F__) && defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
 #pragma GCC target("prefer-vector-width=512")
 #endif
+/* The loops are OpenMP simd loops when compiled with -fopenmp-simd -DABYSSAL_OPENMP_SIMD (abyssal's own
+ * builds) or -fopenmp; otherwise plain C99 loops (any compiler, no unknown-pragma warning). */
+#if defined(ABYSSAL_OPENMP_SIMD) || defined(_OPENMP)
+#define ABYSSAL_SIMD_LOOP _Pragma("omp simd")
+#else
+#define ABYSSAL_SIMD_LOOP
+#endif
 /* glibc's libmvec has vector variants of sin, cos (and since 2.35 tan); declaring them lets the loops
  * below vectorise. const: errno is never read here, and without it gcc 12 does not if-convert a loop
  * that has a call and a comparison, so it would stay scalar. */
-#if defined(__x86_64__) && defined(__GLIBC__) && !defined(ABYSSAL_NO_LIBMVEC)
+#if defined(__x86_64__) && defined(__GLIBC__) && !defined(ABYSSAL_NO_LIBMVEC) && (defined(ABYSSAL_OPENMP_SIMD) || defined(_OPENMP))
 #pragma omp declare simd notinbranch
 extern double sin(double) __attribute__((const));
 #pragma omp declare simd notinbranch
@@ -131,36 +138,65 @@ def _c_constant(value: float) -> str:
     return repr(value)
 
 
+#: operations that give the same bits wherever they are evaluated (IEEE correctly rounded, or exact): the SoA
+#: kernels evaluate those of them whose inputs are all shared once, before the loop. sin, cos, pow, ... stay in the
+#: loop, where libmvec's vector versions evaluate them as before.
+_HOISTABLE = {ca.OP_ASSIGN, ca.OP_ADD, ca.OP_SUB, ca.OP_MUL, ca.OP_DIV, ca.OP_NEG, ca.OP_SQRT, ca.OP_SQ, ca.OP_TWICE,
+              ca.OP_INV, ca.OP_LT, ca.OP_LE, ca.OP_EQ, ca.OP_NE, ca.OP_NOT, ca.OP_AND, ca.OP_OR, ca.OP_FABS,
+              ca.OP_FMIN, ca.OP_FMAX, ca.OP_COPYSIGN, ca.OP_SIGN, ca.OP_IF_ELSE_ZERO, ca.OP_FLOOR, ca.OP_CEIL}
+
+
 def soa_kernel(fn: ca.Function, batched: tuple[bool, ...]) -> str:
     """C of ``<name>_soa(N, ld, arg, res)``: fn for j < N, structure-of-arrays layout.
 
     Element i of a batched input k (and of every output) for particle j is at
-    ``arg[k][i*ld + j]``, i.e. an (rows, ld) C-ordered array; shared inputs are plain vectors.
+    ``arg[k][i*ld + j]``, i.e. an (rows, ld) C-ordered array; shared inputs are plain vectors, read once
+    (they must not alias an output). What depends only on shared inputs and constants through the operations
+    of _HOISTABLE (parameter-only masses, time constants, dt fractions and their quotients) is computed once,
+    before the loop, into ``c<k>``; the results are bit for bit those of evaluating it per particle.
     """
-    body = []
+    head, body, slots = [], [], set()
+    value: dict[int, str] = {}  # work slot -> the C name of its current value: "c<k>" (before the loop) or "w<slot>"
     for k in range(fn.n_instructions()):
         op, ins, outs = fn.instruction_id(k), fn.instruction_input(k), fn.instruction_output(k)
         if op == ca.OP_INPUT:
-            source = f"a{ins[0]}[{ins[1]}*ld+j]" if batched[ins[0]] else f"a{ins[0]}[{ins[1]}]"
-            body.append(f"w{outs[0]}={source};")
+            if batched[ins[0]]:
+                body.append(f"w{outs[0]}=a{ins[0]}[{ins[1]}*ld+j];")
+                value[outs[0]] = f"w{outs[0]}"
+                slots.add(outs[0])
+            else:
+                head.append(f"const casadi_real c{k}=a{ins[0]}[{ins[1]}];")
+                value[outs[0]] = f"c{k}"
         elif op == ca.OP_OUTPUT:
-            body.append(f"r{outs[0]}[{outs[1]}*ld+j]=w{ins[0]};")
+            body.append(f"r{outs[0]}[{outs[1]}*ld+j]={value[ins[0]]};")
         elif op == ca.OP_CONST:
-            body.append(f"w{outs[0]}={_c_constant(fn.instruction_constant(k))};")
+            head.append(f"const casadi_real c{k}={_c_constant(fn.instruction_constant(k))};")
+            value[outs[0]] = f"c{k}"
         elif op in _C_OPERATIONS:
-            body.append(f"w{outs[0]}=" + _C_OPERATIONS[op].format(*[f"w{a}" for a in ins]) + ";")
+            args = [value[a] for a in ins]
+            expression = _C_OPERATIONS[op].format(*args)
+            if op in _HOISTABLE and all(a.startswith("c") for a in args):
+                head.append(f"const casadi_real c{k}={expression};")
+                value[outs[0]] = f"c{k}"
+            else:
+                body.append(f"w{outs[0]}={expression};")
+                value[outs[0]] = f"w{outs[0]}"
+                slots.add(outs[0])
         else:
             raise NotImplementedError(f"{fn.name()}: SX operation {op} has no SoA translation")
-    work = ", ".join(f"w{m}" for m in range(max(1, fn.sz_w())))
-    pointers = [f"  const casadi_real* a{k} = arg[{k}];" for k in range(fn.n_in())]
+    work = ", ".join(f"w{m}" for m in sorted(slots))
+    read = {fn.instruction_input(k)[0] for k in range(fn.n_instructions()) if fn.instruction_id(k) == ca.OP_INPUT}
+    pointers = [f"  const casadi_real* a{k} = arg[{k}];" for k in range(fn.n_in()) if k in read]
     pointers += [f"  casadi_real* r{k} = res[{k}];" for k in range(fn.n_out())]
     roles = ", ".join(f"{fn.name_in(k)}{'[]' if batched[k] else ''}" for k in range(fn.n_in()))
     return (
         f"\n/* {fn.name()}_soa({roles}): inputs marked [] vary per particle. */\n"
         f"CASADI_SYMBOL_EXPORT int {fn.name()}_soa(casadi_int N, casadi_int ld, const casadi_real** arg, casadi_real** res) {{\n"
         + "\n".join(pointers)
-        + "\n  casadi_int j;\n#pragma omp simd\n  for (j = 0; j < N; ++j) {\n"
-        + f"    casadi_real {work};\n    "
+        + "\n  casadi_int j;\n"
+        + "".join(f"  {line}\n" for line in head)
+        + "  ABYSSAL_SIMD_LOOP\n  for (j = 0; j < N; ++j) {\n"
+        + (f"    casadi_real {work};\n    " if slots else "    ")
         + "\n    ".join(body)
         + "\n  }\n  return 0;\n}\n"
     )
@@ -273,6 +309,16 @@ def _banner(model: Model, origin: Origin, listing: str, what: str = OPERATIONS) 
                          eq_hash=model.equations_hash(), casadi=ca.__version__, listing=listing, what=what)
 
 
+#: after the banner of every file of CasADi's code: its calling convention passes iw, w and mem to every function,
+#: used or not, so a strict build (-Wall -Wextra -Werror, the exported project) would fail on those parameters alone
+UNUSED_PARAMETERS = """
+/* CasADi's calling convention passes iw, w and mem to every function; not every function uses them. */
+#if defined(__GNUC__)
+#pragma GCC diagnostic ignored "-Wunused-parameter"
+#endif
+"""
+
+
 def unit_source(model: Model, unit: Unit, origin: Origin) -> str:
     """C text of one unit: banner, CasADi's code, and a batch entry point per function."""
     cg = ca.CodeGenerator(f"{model.name}_{unit.name}.c", CODEGEN_OPTIONS)
@@ -292,7 +338,7 @@ def unit_source(model: Model, unit: Unit, origin: Origin) -> str:
         )
         for fn in unit.functions
     )
-    return banner + cg.dump() + batches
+    return banner + UNUSED_PARAMETERS + cg.dump() + batches
 
 
 def soa_source(model: Model, functions: list[ca.Function], origin: Origin) -> tuple[str, dict]:
@@ -308,6 +354,62 @@ def soa_source(model: Model, functions: list[ca.Function], origin: Origin) -> tu
     listing = "\n".join(f" *   {name}_soa" for name in entries)
     banner = _banner(model, origin, listing, "structure-of-arrays kernels, one SX instruction per line")
     return banner + SOA_PREAMBLE + "".join(kernels), entries
+
+
+#: the generated functions an ``abyssal_model`` descriptor points to, in the order of its fields
+#: (generated/c/abyssal_model.h); a function the model was generated without is a NULL entry
+DESCRIPTOR_FUNCTIONS = ("f", "F", "h", "H", "ekf_predict", "ekf_update", "ekf_step", "ckf_predict_points",
+                        "ckf_predict_weights", "ckf_update", "ukf_predict_points", "ukf_predict_weights", "ukf_update",
+                        "mcukf_update", "huber_ukf_update")
+DESCRIPTOR_HEADER = "abyssal_model.h"
+
+
+def _c_string(text: str) -> str:
+    return '"' + text.replace("\\", "\\\\").replace('"', '\\"') + '"'
+
+
+def _c_strings(name: str, texts) -> str:
+    texts = list(texts)
+    body = ", ".join(_c_string(t) for t in texts) if texts else "0"
+    return f"static const char* const {name}[{max(1, len(texts))}] = {{{body}}};"
+
+
+def descriptor_source(model: Model, functions: dict[str, dict], origin: Origin) -> str:
+    """C text of ``<m>_descriptor.c``: the ``abyssal_model`` the C runtime reaches the model through (sizes,
+    default parameters, names and units, the generated functions with their work sizes)."""
+    m = model.name
+    present = [suffix for suffix in DESCRIPTOR_FUNCTIONS if f"{m}_{suffix}" in functions]
+    soa = [suffix for suffix in SOA_KERNELS if functions.get(f"{m}_{suffix}", {}).get("soa_batched_inputs")]
+    lines = [f'#include "{DESCRIPTOR_HEADER}"', ""]
+    lines += [f"extern int {m}_{suffix}(const double** arg, double** res, long long* iw, double* w, int mem);"
+              for suffix in present]
+    lines += [f"extern int {m}_{suffix}_soa(long long n, long long ld, const double** arg, double** res);" for suffix in soa]
+    defaults = ", ".join(repr(float(q.default)) for q in model.parameters) or "0"
+    lines += ["", f"static const double p_default[{max(1, model.n_p)}] = {{{defaults}}};"]
+    for kind, quantities in (("state", model.states), ("input", model.inputs), ("parameter", model.parameters),
+                             ("output", model.outputs)):
+        lines.append(_c_strings(f"{kind}_names", (q.name for q in quantities)))
+        lines.append(_c_strings(f"{kind}_units", (q.unit for q in quantities)))
+    fields = [f'  "{m}", {model.n_x}, {model.n_u}, {model.n_p}, {model.n_y}, p_default,',
+              "  state_names, state_units, input_names, input_units, parameter_names, parameter_units, output_names,",
+              "  output_units,"]
+    entries = []
+    for suffix in DESCRIPTOR_FUNCTIONS[:4]:
+        entries.append(_descriptor_entry(m, suffix, functions))
+    fields.append("  " + ", ".join(entries) + ",")
+    fields.append("  " + ", ".join(f"{m}_{s}_soa" if s in soa else "0" for s in ("f", "h")) + ",")
+    fields += ["  " + _descriptor_entry(m, suffix, functions) + "," for suffix in DESCRIPTOR_FUNCTIONS[4:]]
+    fields[-1] = fields[-1].rstrip(",")
+    listing = "\n".join(f" *   {m}_{suffix}" for suffix in present)
+    banner = _banner(model, origin, listing, f"the descriptor {m}_descriptor ({DESCRIPTOR_HEADER}) points to")
+    return banner + "\n".join(lines) + f"\n\nconst abyssal_model {m}_descriptor = {{\n" + "\n".join(fields) + "\n};\n"
+
+
+def _descriptor_entry(m: str, suffix: str, functions: dict[str, dict]) -> str:
+    spec = functions.get(f"{m}_{suffix}")
+    if spec is None:
+        return "{0, 0, 0, 0, 0}"
+    return f"{{{m}_{suffix}, {spec['sz_arg']}, {spec['sz_res']}, {spec['sz_iw']}, {spec['sz_w']}}}"
 
 
 def generate_model(model: Model, units: list[Unit], origin: Origin, families: tuple[str, ...] | None = None) -> dict[str, str]:
@@ -329,6 +431,7 @@ def generate_model(model: Model, units: list[Unit], origin: Origin, families: tu
         files[f"{model.name}_soa.c"] = soa_text
         for name, batched in soa_entries.items():
             functions[name]["soa_batched_inputs"] = batched
+    files[f"{model.name}_descriptor.c"] = descriptor_source(model, functions, origin)
     manifest = {
         "model": model.name,
         "source": origin.source,

@@ -5,13 +5,22 @@
  * Functions (operations per call: CasADi SX instructions after common-subexpression elimination,
  * of the function itself or of the leaves it calls, times the calls):
  *   cn2d_ukf_predict                  354 operations
- *   cn2d_ukf_update                   283 operations
- *   cn2d_mcukf_update                 307 operations
- *   cn2d_huber_ukf_update             338 operations
+ *   cn2d_ukf_update                   236 operations
+ *   cn2d_ukf_predict_points            74 operations
+ *   cn2d_ukf_predict_weights           26 operations
+ *   cn2d_mcukf_update                 260 operations
+ *   cn2d_huber_ukf_update             291 operations
  *   cn2d_ckf_predict                  265 operations
- *   cn2d_ckf_update                   222 operations
- *   cn2d_ckf_step                     488 operations
+ *   cn2d_ckf_update                   203 operations
+ *   cn2d_ckf_step                     469 operations
+ *   cn2d_ckf_predict_points            68 operations
+ *   cn2d_ckf_predict_weights            4 operations
  */
+
+/* CasADi's calling convention passes iw, w and mem to every function; not every function uses them. */
+#if defined(__GNUC__)
+#pragma GCC diagnostic ignored "-Wunused-parameter"
+#endif
 /* How to prefix internal symbols */
 #ifdef CASADI_CODEGEN_PREFIX
   #define CASADI_NAMESPACE_CONCAT(NS, ID) _CASADI_NAMESPACE_CONCAT(NS, ID)
@@ -63,10 +72,6 @@
 #define casadi_f32 CASADI_PREFIX(f32)
 #define casadi_f33 CASADI_PREFIX(f33)
 #define casadi_f34 CASADI_PREFIX(f34)
-#define casadi_f35 CASADI_PREFIX(f35)
-#define casadi_f36 CASADI_PREFIX(f36)
-#define casadi_f37 CASADI_PREFIX(f37)
-#define casadi_f38 CASADI_PREFIX(f38)
 #define casadi_f4 CASADI_PREFIX(f4)
 #define casadi_f5 CASADI_PREFIX(f5)
 #define casadi_f6 CASADI_PREFIX(f6)
@@ -82,6 +87,10 @@
 #define casadi_s1 CASADI_PREFIX(s1)
 #define casadi_s2 CASADI_PREFIX(s2)
 #define casadi_s3 CASADI_PREFIX(s3)
+#define casadi_s4 CASADI_PREFIX(s4)
+#define casadi_s5 CASADI_PREFIX(s5)
+#define casadi_s6 CASADI_PREFIX(s6)
+#define casadi_s7 CASADI_PREFIX(s7)
 #define casadi_sq CASADI_PREFIX(sq)
 #define casadi_zeros CASADI_PREFIX(zeros)
 
@@ -193,6 +202,10 @@ static const casadi_int casadi_s0[3] = {2, 1, 1};
 static const casadi_int casadi_s1[3] = {2, 2, 1};
 static const casadi_int casadi_s2[3] = {3, 1, 1};
 static const casadi_int casadi_s3[3] = {1, 1, 1};
+static const casadi_int casadi_s4[3] = {5, 2, 1};
+static const casadi_int casadi_s5[3] = {5, 1, 1};
+static const casadi_int casadi_s6[3] = {4, 2, 1};
+static const casadi_int casadi_s7[3] = {4, 1, 1};
 
 static const casadi_real casadi_zeros[10] = 
   {0.};
@@ -696,161 +709,105 @@ CASADI_SYMBOL_EXPORT int cn2d_ukf_predict_work_bytes(casadi_int *sz_arg, casadi_
   return 0;
 }
 
-/* cn2d_ukf_measured_points:(x[2],L[2x2],p[2],abk[3])->(Z[1x5]) */
+/* cn2d_ukf_measured_moments:(x[2],L[2x2],p[2],abk[3])->(z_pred,DZ[1x5],Czz) */
 static int casadi_f13(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real a0, a1, a2, a3, a4, a5, a6, a7, a8, a9;
-  a0=arg[0]? arg[0][0] : 0;
-  a1=arg[2]? arg[2][0] : 0;
-  a2=(a0-a1);
-  a2=casadi_sq(a2);
-  a3=arg[0]? arg[0][1] : 0;
-  a4=arg[2]? arg[2][1] : 0;
-  a5=(a3-a4);
-  a5=casadi_sq(a5);
-  a5=(a2+a5);
-  a5=sqrt(a5);
-  if (res[0]!=0) res[0][0]=a5;
-  a5=arg[1]? arg[1][0] : 0;
-  a6=arg[3]? arg[3][0] : 0;
-  a6=casadi_sq(a6);
-  a7=2.;
-  a8=arg[3]? arg[3][2] : 0;
-  a7=(a7+a8);
-  a6=(a6*a7);
-  a6=sqrt(a6);
-  a5=(a5*a6);
-  a7=(a0+a5);
-  a7=(a7-a1);
-  a7=casadi_sq(a7);
-  a8=arg[1]? arg[1][1] : 0;
-  a8=(a8*a6);
-  a9=(a3+a8);
-  a9=(a9-a4);
-  a9=casadi_sq(a9);
-  a7=(a7+a9);
-  a7=sqrt(a7);
-  if (res[0]!=0) res[0][1]=a7;
-  a7=arg[1]? arg[1][3] : 0;
-  a7=(a7*a6);
-  a6=(a3+a7);
-  a6=(a6-a4);
-  a6=casadi_sq(a6);
-  a6=(a2+a6);
-  a6=sqrt(a6);
-  if (res[0]!=0) res[0][2]=a6;
-  a0=(a0-a5);
-  a0=(a0-a1);
-  a0=casadi_sq(a0);
-  a8=(a3-a8);
-  a8=(a8-a4);
-  a8=casadi_sq(a8);
-  a0=(a0+a8);
-  a0=sqrt(a0);
-  if (res[0]!=0) res[0][3]=a0;
-  a3=(a3-a7);
-  a3=(a3-a4);
-  a3=casadi_sq(a3);
-  a2=(a2+a3);
-  a2=sqrt(a2);
-  if (res[0]!=0) res[0][4]=a2;
-  return 0;
-}
-
-/* cn2d_residual:(z_k,z_pred)->(dz,dzdzT) */
-static int casadi_f15(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real a0, a1;
-  a0=arg[0]? arg[0][0] : 0;
-  a1=arg[1]? arg[1][0] : 0;
-  a0=(a0-a1);
-  if (res[0]!=0) res[0][0]=a0;
-  a0=casadi_sq(a0);
-  if (res[1]!=0) res[1][0]=a0;
-  return 0;
-}
-
-/* cn2d_residual_0_1:(z_k,z_pred)->(dz,dzdzT) */
-static int casadi_f14(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i, j;
-  casadi_real **res1=res+2, w0, w1, w2, w3;
-  const casadi_real **arg1=arg+2;
-  /* #0: @0 = input[0][0] */
-  w0 = arg[0] ? arg[0][0] : 0;
-  /* #1: @1 = input[1][0] */
-  w1 = arg[1] ? arg[1][0] : 0;
-  /* #2: {@2, @3} = cn2d_residual(@0, @1) */
-  arg1[0]=(&w0);
-  arg1[1]=(&w1);
-  res1[0]=(&w2);
-  res1[1]=(&w3);
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #3: output[0][0] = @2 */
-  if (res[0]) res[0][0] = w2;
-  /* #4: @2 = repsum(@3, 1) */
-  casadi_clear((&w2), 1);
-    for (i=0;i<1;++i) {
-        for (j=0;j<1;++j) {
-            (&w2)[j] += (&w3)[j+i*1];
-          }
-      }
-  /* #5: output[1][0] = @2 */
-  if (res[1]) res[1][0] = w2;
-  return 0;
-}
-
-/* map4_cn2d_residual:(z_k[1x4],z_pred[1x4])->(dz[1x4],dzdzT[1x4]) */
-static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i;
-  casadi_real* *res1;
-  const casadi_real* *arg1;
-  arg1 = arg+2;
-  for (i=0; i<2; ++i) arg1[i]=arg[i];
-  res1 = res+2;
-  for (i=0; i<2; ++i) res1[i]=res[i];
-  for (i=0; i<4; ++i) {
-    if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-    if (arg1[0]) arg1[0]+=1;
-    if (arg1[1]) arg1[1]+=1;
-    if (res1[0]) res1[0]+=1;
-    if (res1[1]) res1[1]+=1;
-  }
-  return 0;
-}
-
-/* cn2d_residual_1_5:(z_k[1x4],z_pred)->(dz[1x4],dzdzT) */
-static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i, j;
-  casadi_real **res1=res+2, *w0=w+2, w1, *w2=w+6, *w3=w+10, *w4=w+14;
-  const casadi_real **arg1=arg+2;
-  /* #0: @0 = input[0][0] */
-  casadi_copy(arg[0], 4, w0);
-  /* #1: @1 = input[1][0] */
-  w1 = arg[1] ? arg[1][0] : 0;
-  /* #2: @2 = repmat(@1, 4) */
-  for (i=0;i<4;++i) {
-    casadi_copy((&w1), 1, w2+ i*1);
-  }
-  /* #3: {@3, @4} = map4_cn2d_residual(@0, @2) */
-  arg1[0]=w0;
-  arg1[1]=w2;
-  res1[0]=w3;
-  res1[1]=w4;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #4: output[0][0] = @3 */
-  casadi_copy(w3, 4, res[0]);
-  /* #5: @1 = repsum(@4, 4) */
-  casadi_clear((&w1), 1);
-    for (i=0;i<4;++i) {
-        for (j=0;j<1;++j) {
-            (&w1)[j] += w4[j+i*1];
-          }
-      }
-  /* #6: output[1][0] = @1 */
-  if (res[1]) res[1][0] = w1;
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15;
+  a00=arg[3]? arg[3][0] : 0;
+  a00=casadi_sq(a00);
+  a01=2.;
+  a02=arg[3]? arg[3][2] : 0;
+  a02=(a01+a02);
+  a02=(a00*a02);
+  a01=(a02-a01);
+  a03=(1./a02);
+  a03=copysign(a03,a02);
+  a01=(a01*a03);
+  a03=arg[0]? arg[0][0] : 0;
+  a04=arg[2]? arg[2][0] : 0;
+  a05=(a03-a04);
+  a05=casadi_sq(a05);
+  a06=arg[0]? arg[0][1] : 0;
+  a07=arg[2]? arg[2][1] : 0;
+  a08=(a06-a07);
+  a08=casadi_sq(a08);
+  a08=(a05+a08);
+  a08=sqrt(a08);
+  a09=(a01*a08);
+  a10=arg[1]? arg[1][0] : 0;
+  a11=sqrt(a02);
+  a10=(a10*a11);
+  a12=(a03+a10);
+  a12=(a12-a04);
+  a12=casadi_sq(a12);
+  a13=arg[1]? arg[1][1] : 0;
+  a13=(a13*a11);
+  a14=(a06+a13);
+  a14=(a14-a07);
+  a14=casadi_sq(a14);
+  a12=(a12+a14);
+  a12=sqrt(a12);
+  a14=arg[1]? arg[1][3] : 0;
+  a14=(a14*a11);
+  a11=(a06+a14);
+  a11=(a11-a07);
+  a11=casadi_sq(a11);
+  a11=(a05+a11);
+  a11=sqrt(a11);
+  a15=(a12+a11);
+  a03=(a03-a10);
+  a03=(a03-a04);
+  a03=casadi_sq(a03);
+  a13=(a06-a13);
+  a13=(a13-a07);
+  a13=casadi_sq(a13);
+  a03=(a03+a13);
+  a03=sqrt(a03);
+  a15=(a15+a03);
+  a06=(a06-a14);
+  a06=(a06-a07);
+  a06=casadi_sq(a06);
+  a05=(a05+a06);
+  a05=sqrt(a05);
+  a15=(a15+a05);
+  a02=(2.*a02);
+  a06=(1./a02);
+  a06=copysign(a06,a02);
+  a15=(a15*a06);
+  a09=(a09+a15);
+  if (res[0]!=0) res[0][0]=a09;
+  a08=(a08-a09);
+  if (res[1]!=0) res[1][0]=a08;
+  a12=(a12-a09);
+  if (res[1]!=0) res[1][1]=a12;
+  a11=(a11-a09);
+  if (res[1]!=0) res[1][2]=a11;
+  a03=(a03-a09);
+  if (res[1]!=0) res[1][3]=a03;
+  a05=(a05-a09);
+  if (res[1]!=0) res[1][4]=a05;
+  a09=1.;
+  a01=(a01+a09);
+  a01=(a01-a00);
+  a00=arg[3]? arg[3][1] : 0;
+  a01=(a01+a00);
+  a08=casadi_sq(a08);
+  a01=(a01*a08);
+  a12=casadi_sq(a12);
+  a11=casadi_sq(a11);
+  a12=(a12+a11);
+  a03=casadi_sq(a03);
+  a12=(a12+a03);
+  a05=casadi_sq(a05);
+  a12=(a12+a05);
+  a12=(a12*a06);
+  a01=(a01+a12);
+  if (res[2]!=0) res[2][0]=a01;
   return 0;
 }
 
 /* cn2d_ukf_moments:(L[2x2],DZ[1x5],Czz,z_pred,z,mask,abk[3])->(innovation,Pzz,Pxz[2]) */
-static int casadi_f18(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f14(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a0, a1, a2, a3, a4, a5;
   a0=arg[5]? arg[5][0] : 0;
   a1=0.;
@@ -900,7 +857,7 @@ static int casadi_f18(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* cn2d_noise:(R,mask,Pzz,innovation)->(R_used,ok) */
-static int casadi_f19(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f15(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a0, a1, a2;
   a0=arg[1]? arg[1][0] : 0;
   a1=0.;
@@ -917,7 +874,7 @@ static int casadi_f19(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* cn2d_kalman:(x[2],P[2x2],Pzz,Pxz[2],R_used,innovation)->(x_post[2],P_post[2x2],S,ok) */
-static int casadi_f20(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10;
   a00=arg[0]? arg[0][0] : 0;
   a01=arg[3]? arg[3][0] : 0;
@@ -980,10 +937,9 @@ static int casadi_f20(const casadi_real** arg, casadi_real** res, casadi_int* iw
 
 /* cn2d_ukf_update:(x[2],P[2x2],z,p[2],R,mask,abk[3])->(x_post[2],P_post[2x2],innovation,S,ok) */
 static int casadi_f12(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i;
-  casadi_real **res1=res+5, *rr, *w00=w+19, *w01=w+21, *w02=w+25, w03, *w04=w+29, *w05=w+31, *w06=w+34, w07, *w08=w+39, w09;
-  casadi_real w10, w11, *w12=w+41, *w13=w+45, w14, w15;
-  const casadi_real **arg1=arg+7, *cs;
+  casadi_real **res1=res+5, *w00=w+16, *w01=w+18, *w02=w+22, w03, *w04=w+26, *w05=w+28, w06, *w07=w+31, w08, w09, w10;
+  casadi_real w11, w12, *w13=w+36;
+  const casadi_real **arg1=arg+7;
   /* #0: @0 = input[0][0] */
   casadi_copy(arg[0], 2, w00);
   /* #1: @1 = input[1][0] */
@@ -997,115 +953,66 @@ static int casadi_f12(const casadi_real** arg, casadi_real** res, casadi_int* iw
   casadi_copy(arg[3], 2, w04);
   /* #4: @5 = input[6][0] */
   casadi_copy(arg[6], 3, w05);
-  /* #5: @6 = cn2d_ukf_measured_points(@0, @2, @4, @5) */
+  /* #5: {@6, @7, @8} = cn2d_ukf_measured_moments(@0, @2, @4, @5) */
   arg1[0]=w00;
   arg1[1]=w02;
   arg1[2]=w04;
   arg1[3]=w05;
-  res1[0]=w06;
+  res1[0]=(&w06);
+  res1[1]=w07;
+  res1[2]=(&w08);
   if (casadi_f13(arg1, res1, iw, w, 0)) return 1;
-  /* #6: @7 = @6[0] */
-  for (rr=(&w07), cs=w06+0; cs!=w06+1; cs+=1) *rr++ = *cs;
-  /* #7: {@4, @8} = cn2d_ukf_weights(@5) */
-  arg1[0]=w05;
-  res1[0]=w04;
-  res1[1]=w08;
-  if (casadi_f1(arg1, res1, iw, w, 0)) return 1;
-  /* #8: @9 = @4[0] */
-  for (rr=(&w09), cs=w04+0; cs!=w04+1; cs+=1) *rr++ = *cs;
-  /* #9: @9 = (@9*@7) */
-  w09 *= w07;
-  /* #10: @10 = @4[1] */
-  for (rr=(&w10), cs=w04+1; cs!=w04+2; cs+=1) *rr++ = *cs;
-  /* #11: @11 = 0 */
-  w11 = 0.;
-  /* #12: @12 = @6[1:5] */
-  for (rr=w12, cs=w06+1; cs!=w06+5; cs+=1) *rr++ = *cs;
-  /* #13: @13 = ones(4x1) */
-  casadi_fill(w13, 4, 1.);
-  /* #14: @11 = mac(@12,@13,@11) */
-  casadi_mtimes_dense(w12, 1, 4, w13, 1, (&w11), 0);
-  /* #15: @10 = (@10*@11) */
-  w10 *= w11;
-  /* #16: @9 = (@9+@10) */
-  w09 += w10;
-  /* #17: {@10, @11} = cn2d_residual_0_1(@7, @9) */
-  arg1[0]=(&w07);
-  arg1[1]=(&w09);
-  res1[0]=(&w10);
-  res1[1]=(&w11);
-  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
-  /* #18: {@13, @7} = cn2d_residual_1_5(@12, @9) */
-  arg1[0]=w12;
-  arg1[1]=(&w09);
-  res1[0]=w13;
-  res1[1]=(&w07);
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #19: @6 = horzcat(@10, @13) */
-  rr=w06;
-  *rr++ = w10;
-  for (i=0, cs=w13; i<4; ++i) *rr++ = *cs++;
-  /* #20: @10 = @8[0] */
-  for (rr=(&w10), cs=w08+0; cs!=w08+1; cs+=1) *rr++ = *cs;
-  /* #21: @10 = (@10*@11) */
-  w10 *= w11;
-  /* #22: @11 = @8[1] */
-  for (rr=(&w11), cs=w08+1; cs!=w08+2; cs+=1) *rr++ = *cs;
-  /* #23: @11 = (@11*@7) */
-  w11 *= w07;
-  /* #24: @10 = (@10+@11) */
-  w10 += w11;
-  /* #25: @11 = input[2][0] */
-  w11 = arg[2] ? arg[2][0] : 0;
-  /* #26: @7 = input[5][0] */
-  w07 = arg[5] ? arg[5][0] : 0;
-  /* #27: {@14, @15, @8} = cn2d_ukf_moments(@2, @6, @10, @9, @11, @7, @5) */
+  /* #6: @9 = input[2][0] */
+  w09 = arg[2] ? arg[2][0] : 0;
+  /* #7: @10 = input[5][0] */
+  w10 = arg[5] ? arg[5][0] : 0;
+  /* #8: {@11, @12, @4} = cn2d_ukf_moments(@2, @7, @8, @6, @9, @10, @5) */
   arg1[0]=w02;
-  arg1[1]=w06;
-  arg1[2]=(&w10);
-  arg1[3]=(&w09);
-  arg1[4]=(&w11);
-  arg1[5]=(&w07);
+  arg1[1]=w07;
+  arg1[2]=(&w08);
+  arg1[3]=(&w06);
+  arg1[4]=(&w09);
+  arg1[5]=(&w10);
   arg1[6]=w05;
-  res1[0]=(&w14);
-  res1[1]=(&w15);
-  res1[2]=w08;
-  if (casadi_f18(arg1, res1, iw, w, 0)) return 1;
-  /* #28: @10 = input[4][0] */
-  w10 = arg[4] ? arg[4][0] : 0;
-  /* #29: {@9, @11} = cn2d_noise(@10, @7, @15, @14) */
-  arg1[0]=(&w10);
-  arg1[1]=(&w07);
-  arg1[2]=(&w15);
-  arg1[3]=(&w14);
-  res1[0]=(&w09);
-  res1[1]=(&w11);
-  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
-  /* #30: {@4, @2, @10, @7} = cn2d_kalman(@0, @1, @15, @8, @9, @14) */
+  res1[0]=(&w11);
+  res1[1]=(&w12);
+  res1[2]=w04;
+  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
+  /* #9: @8 = input[4][0] */
+  w08 = arg[4] ? arg[4][0] : 0;
+  /* #10: {@6, @9} = cn2d_noise(@8, @10, @12, @11) */
+  arg1[0]=(&w08);
+  arg1[1]=(&w10);
+  arg1[2]=(&w12);
+  arg1[3]=(&w11);
+  res1[0]=(&w06);
+  res1[1]=(&w09);
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #11: {@13, @2, @8, @10} = cn2d_kalman(@0, @1, @12, @4, @6, @11) */
   arg1[0]=w00;
   arg1[1]=w01;
-  arg1[2]=(&w15);
-  arg1[3]=w08;
-  arg1[4]=(&w09);
-  arg1[5]=(&w14);
-  res1[0]=w04;
+  arg1[2]=(&w12);
+  arg1[3]=w04;
+  arg1[4]=(&w06);
+  arg1[5]=(&w11);
+  res1[0]=w13;
   res1[1]=w02;
-  res1[2]=(&w10);
-  res1[3]=(&w07);
-  if (casadi_f20(arg1, res1, iw, w, 0)) return 1;
-  /* #31: output[0][0] = @4 */
-  casadi_copy(w04, 2, res[0]);
-  /* #32: output[1][0] = @2 */
+  res1[2]=(&w08);
+  res1[3]=(&w10);
+  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
+  /* #12: output[0][0] = @13 */
+  casadi_copy(w13, 2, res[0]);
+  /* #13: output[1][0] = @2 */
   casadi_copy(w02, 4, res[1]);
-  /* #33: output[2][0] = @14 */
-  if (res[2]) res[2][0] = w14;
-  /* #34: output[3][0] = @10 */
-  if (res[3]) res[3][0] = w10;
-  /* #35: @3 = (@3*@11) */
-  w03 *= w11;
-  /* #36: @3 = (@3*@7) */
-  w03 *= w07;
-  /* #37: output[4][0] = @3 */
+  /* #14: output[2][0] = @11 */
+  if (res[2]) res[2][0] = w11;
+  /* #15: output[3][0] = @8 */
+  if (res[3]) res[3][0] = w08;
+  /* #16: @3 = (@3*@9) */
+  w03 *= w09;
+  /* #17: @3 = (@3*@10) */
+  w03 *= w10;
+  /* #18: output[4][0] = @3 */
   if (res[4]) res[4][0] = w03;
   return 0;
 }
@@ -1187,84 +1094,253 @@ CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ukf_update_sparsity_out(casadi_int i
 
 CASADI_SYMBOL_EXPORT int cn2d_ukf_update_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
   if (sz_arg) *sz_arg = 14;
-  if (sz_res) *sz_res = 11;
+  if (sz_res) *sz_res = 9;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 49;
+  if (sz_w) *sz_w = 38;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ukf_update_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
   if (sz_arg) *sz_arg = 14*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 11*sizeof(casadi_real*);
+  if (sz_res) *sz_res = 9*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 49*sizeof(casadi_real);
+  if (sz_w) *sz_w = 38*sizeof(casadi_real);
   return 0;
 }
 
-/* cn2d_residual_0_1:(z_k,z_pred)->(dz,dzdzT) */
-static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+/* cn2d_ukf_predict_points:(x[2],P[2x2],abk[3])->(X[5x2],ok) */
+static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i, j;
-  casadi_real **res1=res+2, w0, w1, w2, w3;
-  const casadi_real **arg1=arg+2;
+  casadi_real **res1=res+2, *rr, *w0=w+8, *w1=w+10, *w2=w+14, w3, *w4=w+18, *w5=w+21, *w6=w+31;
+  const casadi_real **arg1=arg+3, *cs;
   /* #0: @0 = input[0][0] */
-  w0 = arg[0] ? arg[0][0] : 0;
+  casadi_copy(arg[0], 2, w0);
   /* #1: @1 = input[1][0] */
-  w1 = arg[1] ? arg[1][0] : 0;
-  /* #2: {@2, @3} = cn2d_residual(@0, @1) */
-  arg1[0]=(&w0);
-  arg1[1]=(&w1);
-  res1[0]=(&w2);
+  casadi_copy(arg[1], 4, w1);
+  /* #2: {@2, @3} = cn2d_cholesky(@1) */
+  arg1[0]=w1;
+  res1[0]=w2;
   res1[1]=(&w3);
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #3: output[0][0] = @2 */
-  if (res[0]) res[0][0] = w2;
-  /* #4: @2 = repsum(@3, 1) */
-  casadi_clear((&w2), 1);
-    for (i=0;i<1;++i) {
-        for (j=0;j<1;++j) {
-            (&w2)[j] += (&w3)[j+i*1];
-          }
-      }
-  /* #5: output[1][0] = @2 */
-  if (res[1]) res[1][0] = w2;
-  return 0;
-}
-
-/* cn2d_residual_1_5:(z_k[1x4],z_pred)->(dz[1x4],dzdzT) */
-static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i, j;
-  casadi_real **res1=res+2, *w0=w+2, w1, *w2=w+6, *w3=w+10, *w4=w+14;
-  const casadi_real **arg1=arg+2;
-  /* #0: @0 = input[0][0] */
-  casadi_copy(arg[0], 4, w0);
-  /* #1: @1 = input[1][0] */
-  w1 = arg[1] ? arg[1][0] : 0;
-  /* #2: @2 = repmat(@1, 4) */
-  for (i=0;i<4;++i) {
-    casadi_copy((&w1), 1, w2+ i*1);
-  }
-  /* #3: {@3, @4} = map4_cn2d_residual(@0, @2) */
+  if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
+  /* #3: @4 = input[2][0] */
+  casadi_copy(arg[2], 3, w4);
+  /* #4: @5 = cn2d_ukf_points(@0, @2, @4) */
   arg1[0]=w0;
   arg1[1]=w2;
-  res1[0]=w3;
-  res1[1]=w4;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #4: output[0][0] = @3 */
-  casadi_copy(w3, 4, res[0]);
-  /* #5: @1 = repsum(@4, 4) */
-  casadi_clear((&w1), 1);
-    for (i=0;i<4;++i) {
-        for (j=0;j<1;++j) {
-            (&w1)[j] += w4[j+i*1];
-          }
-      }
-  /* #6: output[1][0] = @1 */
-  if (res[1]) res[1][0] = w1;
+  arg1[2]=w4;
+  res1[0]=w5;
+  if (casadi_f3(arg1, res1, iw, w, 0)) return 1;
+  /* #5: @6 = @5' */
+  for (i=0, rr=w6, cs=w5; i<5; ++i) for (j=0; j<2; ++j) rr[i+j*5] = *cs++;
+  /* #6: output[0][0] = @6 */
+  casadi_copy(w6, 10, res[0]);
+  /* #7: output[1][0] = @3 */
+  if (res[1]) res[1][0] = w3;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int cn2d_ukf_predict_points(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f17(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int cn2d_ukf_predict_points_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void cn2d_ukf_predict_points_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void cn2d_ukf_predict_points_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void cn2d_ukf_predict_points_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int cn2d_ukf_predict_points_n_in(void) { return 3;}
+
+CASADI_SYMBOL_EXPORT casadi_int cn2d_ukf_predict_points_n_out(void) { return 2;}
+
+CASADI_SYMBOL_EXPORT casadi_real cn2d_ukf_predict_points_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* cn2d_ukf_predict_points_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "x";
+    case 1: return "P";
+    case 2: return "abk";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* cn2d_ukf_predict_points_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "X";
+    case 1: return "ok";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ukf_predict_points_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s0;
+    case 1: return casadi_s1;
+    case 2: return casadi_s2;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ukf_predict_points_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s4;
+    case 1: return casadi_s3;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int cn2d_ukf_predict_points_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 6;
+  if (sz_res) *sz_res = 4;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 41;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int cn2d_ukf_predict_points_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 6*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 4*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 41*sizeof(casadi_real);
+  return 0;
+}
+
+/* cn2d_ukf_point_weights:(abk[3])->(wm[5],wc[5]) */
+static int casadi_f19(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a0, a1, a2, a3;
+  a0=arg[0]? arg[0][0] : 0;
+  a1=casadi_sq(a0);
+  a2=2.;
+  a3=arg[0]? arg[0][2] : 0;
+  a3=(a2+a3);
+  a1=(a1*a3);
+  a2=(a1-a2);
+  a2=(a2/a1);
+  if (res[0]!=0) res[0][0]=a2;
+  a1=(2.*a1);
+  a1=(1./a1);
+  if (res[0]!=0) res[0][1]=a1;
+  if (res[0]!=0) res[0][2]=a1;
+  if (res[0]!=0) res[0][3]=a1;
+  if (res[0]!=0) res[0][4]=a1;
+  a3=1.;
+  a2=(a2+a3);
+  a0=casadi_sq(a0);
+  a2=(a2-a0);
+  a0=arg[0]? arg[0][1] : 0;
+  a2=(a2+a0);
+  if (res[1]!=0) res[1][0]=a2;
+  if (res[1]!=0) res[1][1]=a1;
+  if (res[1]!=0) res[1][2]=a1;
+  if (res[1]!=0) res[1][3]=a1;
+  if (res[1]!=0) res[1][4]=a1;
+  return 0;
+}
+
+/* cn2d_ukf_predict_weights:(abk[3])->(wm[5],wc[5]) */
+static int casadi_f18(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+4, *w1=w+7, *w2=w+12;
+  const casadi_real **arg1=arg+1;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 3, w0);
+  /* #1: {@1, @2} = cn2d_ukf_point_weights(@0) */
+  arg1[0]=w0;
+  res1[0]=w1;
+  res1[1]=w2;
+  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
+  /* #2: output[0][0] = @1 */
+  casadi_copy(w1, 5, res[0]);
+  /* #3: output[1][0] = @2 */
+  casadi_copy(w2, 5, res[1]);
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int cn2d_ukf_predict_weights(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f18(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int cn2d_ukf_predict_weights_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void cn2d_ukf_predict_weights_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void cn2d_ukf_predict_weights_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void cn2d_ukf_predict_weights_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int cn2d_ukf_predict_weights_n_in(void) { return 1;}
+
+CASADI_SYMBOL_EXPORT casadi_int cn2d_ukf_predict_weights_n_out(void) { return 2;}
+
+CASADI_SYMBOL_EXPORT casadi_real cn2d_ukf_predict_weights_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* cn2d_ukf_predict_weights_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "abk";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* cn2d_ukf_predict_weights_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "wm";
+    case 1: return "wc";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ukf_predict_weights_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s2;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ukf_predict_weights_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s5;
+    case 1: return casadi_s5;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int cn2d_ukf_predict_weights_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 2;
+  if (sz_res) *sz_res = 4;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 17;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int cn2d_ukf_predict_weights_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 2*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 4*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 17*sizeof(casadi_real);
   return 0;
 }
 
 /* cn2d_mcc_noise:(R,mask,Pzz,innovation,sigma)->(R_used,ok) */
-static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a0, a1, a2, a3, a4, a5;
   a0=arg[1]? arg[1][0] : 0;
   a1=0.;
@@ -1305,11 +1381,10 @@ static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* cn2d_mcukf_update:(x[2],P[2x2],z,p[2],R,mask,abk[3],sigma)->(x_post[2],P_post[2x2],innovation,S,ok) */
-static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i;
-  casadi_real **res1=res+5, *rr, *w00=w+19, *w01=w+21, *w02=w+25, w03, *w04=w+29, *w05=w+31, *w06=w+34, w07, *w08=w+39, w09;
-  casadi_real w10, w11, *w12=w+41, *w13=w+45, w14, w15, w16;
-  const casadi_real **arg1=arg+8, *cs;
+static int casadi_f20(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+5, *w00=w+16, *w01=w+18, *w02=w+22, w03, *w04=w+26, *w05=w+28, w06, *w07=w+31, w08, w09, w10;
+  casadi_real w11, w12, w13, *w14=w+36;
+  const casadi_real **arg1=arg+8;
   /* #0: @0 = input[0][0] */
   casadi_copy(arg[0], 2, w00);
   /* #1: @1 = input[1][0] */
@@ -1323,124 +1398,75 @@ static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw
   casadi_copy(arg[3], 2, w04);
   /* #4: @5 = input[6][0] */
   casadi_copy(arg[6], 3, w05);
-  /* #5: @6 = cn2d_ukf_measured_points(@0, @2, @4, @5) */
+  /* #5: {@6, @7, @8} = cn2d_ukf_measured_moments(@0, @2, @4, @5) */
   arg1[0]=w00;
   arg1[1]=w02;
   arg1[2]=w04;
   arg1[3]=w05;
-  res1[0]=w06;
+  res1[0]=(&w06);
+  res1[1]=w07;
+  res1[2]=(&w08);
   if (casadi_f13(arg1, res1, iw, w, 0)) return 1;
-  /* #6: @7 = @6[0] */
-  for (rr=(&w07), cs=w06+0; cs!=w06+1; cs+=1) *rr++ = *cs;
-  /* #7: {@4, @8} = cn2d_ukf_weights(@5) */
-  arg1[0]=w05;
-  res1[0]=w04;
-  res1[1]=w08;
-  if (casadi_f1(arg1, res1, iw, w, 0)) return 1;
-  /* #8: @9 = @4[0] */
-  for (rr=(&w09), cs=w04+0; cs!=w04+1; cs+=1) *rr++ = *cs;
-  /* #9: @9 = (@9*@7) */
-  w09 *= w07;
-  /* #10: @10 = @4[1] */
-  for (rr=(&w10), cs=w04+1; cs!=w04+2; cs+=1) *rr++ = *cs;
-  /* #11: @11 = 0 */
-  w11 = 0.;
-  /* #12: @12 = @6[1:5] */
-  for (rr=w12, cs=w06+1; cs!=w06+5; cs+=1) *rr++ = *cs;
-  /* #13: @13 = ones(4x1) */
-  casadi_fill(w13, 4, 1.);
-  /* #14: @11 = mac(@12,@13,@11) */
-  casadi_mtimes_dense(w12, 1, 4, w13, 1, (&w11), 0);
-  /* #15: @10 = (@10*@11) */
-  w10 *= w11;
-  /* #16: @9 = (@9+@10) */
-  w09 += w10;
-  /* #17: {@10, @11} = cn2d_residual_0_1(@7, @9) */
-  arg1[0]=(&w07);
-  arg1[1]=(&w09);
-  res1[0]=(&w10);
-  res1[1]=(&w11);
-  if (casadi_f22(arg1, res1, iw, w, 0)) return 1;
-  /* #18: {@13, @7} = cn2d_residual_1_5(@12, @9) */
-  arg1[0]=w12;
-  arg1[1]=(&w09);
-  res1[0]=w13;
-  res1[1]=(&w07);
-  if (casadi_f23(arg1, res1, iw, w, 0)) return 1;
-  /* #19: @6 = horzcat(@10, @13) */
-  rr=w06;
-  *rr++ = w10;
-  for (i=0, cs=w13; i<4; ++i) *rr++ = *cs++;
-  /* #20: @10 = @8[0] */
-  for (rr=(&w10), cs=w08+0; cs!=w08+1; cs+=1) *rr++ = *cs;
-  /* #21: @10 = (@10*@11) */
-  w10 *= w11;
-  /* #22: @11 = @8[1] */
-  for (rr=(&w11), cs=w08+1; cs!=w08+2; cs+=1) *rr++ = *cs;
-  /* #23: @11 = (@11*@7) */
-  w11 *= w07;
-  /* #24: @10 = (@10+@11) */
-  w10 += w11;
-  /* #25: @11 = input[2][0] */
-  w11 = arg[2] ? arg[2][0] : 0;
-  /* #26: @7 = input[5][0] */
-  w07 = arg[5] ? arg[5][0] : 0;
-  /* #27: {@14, @15, @8} = cn2d_ukf_moments(@2, @6, @10, @9, @11, @7, @5) */
+  /* #6: @9 = input[2][0] */
+  w09 = arg[2] ? arg[2][0] : 0;
+  /* #7: @10 = input[5][0] */
+  w10 = arg[5] ? arg[5][0] : 0;
+  /* #8: {@11, @12, @4} = cn2d_ukf_moments(@2, @7, @8, @6, @9, @10, @5) */
   arg1[0]=w02;
-  arg1[1]=w06;
-  arg1[2]=(&w10);
-  arg1[3]=(&w09);
-  arg1[4]=(&w11);
-  arg1[5]=(&w07);
-  arg1[6]=w05;
-  res1[0]=(&w14);
-  res1[1]=(&w15);
-  res1[2]=w08;
-  if (casadi_f18(arg1, res1, iw, w, 0)) return 1;
-  /* #28: @10 = input[4][0] */
-  w10 = arg[4] ? arg[4][0] : 0;
-  /* #29: @9 = input[7][0] */
-  w09 = arg[7] ? arg[7][0] : 0;
-  /* #30: {@11, @16} = cn2d_mcc_noise(@10, @7, @15, @14, @9) */
-  arg1[0]=(&w10);
-  arg1[1]=(&w07);
-  arg1[2]=(&w15);
-  arg1[3]=(&w14);
+  arg1[1]=w07;
+  arg1[2]=(&w08);
+  arg1[3]=(&w06);
   arg1[4]=(&w09);
+  arg1[5]=(&w10);
+  arg1[6]=w05;
   res1[0]=(&w11);
-  res1[1]=(&w16);
-  if (casadi_f24(arg1, res1, iw, w, 0)) return 1;
-  /* #31: {@4, @2, @10, @7} = cn2d_kalman(@0, @1, @15, @8, @11, @14) */
+  res1[1]=(&w12);
+  res1[2]=w04;
+  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
+  /* #9: @8 = input[4][0] */
+  w08 = arg[4] ? arg[4][0] : 0;
+  /* #10: @6 = input[7][0] */
+  w06 = arg[7] ? arg[7][0] : 0;
+  /* #11: {@9, @13} = cn2d_mcc_noise(@8, @10, @12, @11, @6) */
+  arg1[0]=(&w08);
+  arg1[1]=(&w10);
+  arg1[2]=(&w12);
+  arg1[3]=(&w11);
+  arg1[4]=(&w06);
+  res1[0]=(&w09);
+  res1[1]=(&w13);
+  if (casadi_f21(arg1, res1, iw, w, 0)) return 1;
+  /* #12: {@14, @2, @8, @10} = cn2d_kalman(@0, @1, @12, @4, @9, @11) */
   arg1[0]=w00;
   arg1[1]=w01;
-  arg1[2]=(&w15);
-  arg1[3]=w08;
-  arg1[4]=(&w11);
-  arg1[5]=(&w14);
-  res1[0]=w04;
+  arg1[2]=(&w12);
+  arg1[3]=w04;
+  arg1[4]=(&w09);
+  arg1[5]=(&w11);
+  res1[0]=w14;
   res1[1]=w02;
-  res1[2]=(&w10);
-  res1[3]=(&w07);
-  if (casadi_f20(arg1, res1, iw, w, 0)) return 1;
-  /* #32: output[0][0] = @4 */
-  casadi_copy(w04, 2, res[0]);
-  /* #33: output[1][0] = @2 */
+  res1[2]=(&w08);
+  res1[3]=(&w10);
+  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
+  /* #13: output[0][0] = @14 */
+  casadi_copy(w14, 2, res[0]);
+  /* #14: output[1][0] = @2 */
   casadi_copy(w02, 4, res[1]);
-  /* #34: output[2][0] = @14 */
-  if (res[2]) res[2][0] = w14;
-  /* #35: output[3][0] = @10 */
-  if (res[3]) res[3][0] = w10;
-  /* #36: @3 = (@3*@16) */
-  w03 *= w16;
-  /* #37: @3 = (@3*@7) */
-  w03 *= w07;
-  /* #38: output[4][0] = @3 */
+  /* #15: output[2][0] = @11 */
+  if (res[2]) res[2][0] = w11;
+  /* #16: output[3][0] = @8 */
+  if (res[3]) res[3][0] = w08;
+  /* #17: @3 = (@3*@13) */
+  w03 *= w13;
+  /* #18: @3 = (@3*@10) */
+  w03 *= w10;
+  /* #19: output[4][0] = @3 */
   if (res[4]) res[4][0] = w03;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_mcukf_update(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f21(arg, res, iw, w, mem);
+  return casadi_f20(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_mcukf_update_checkout(void) {
@@ -1518,84 +1544,22 @@ CASADI_SYMBOL_EXPORT const casadi_int* cn2d_mcukf_update_sparsity_out(casadi_int
 
 CASADI_SYMBOL_EXPORT int cn2d_mcukf_update_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
   if (sz_arg) *sz_arg = 15;
-  if (sz_res) *sz_res = 11;
+  if (sz_res) *sz_res = 9;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 49;
+  if (sz_w) *sz_w = 38;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_mcukf_update_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
   if (sz_arg) *sz_arg = 15*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 11*sizeof(casadi_real*);
+  if (sz_res) *sz_res = 9*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 49*sizeof(casadi_real);
-  return 0;
-}
-
-/* cn2d_residual_0_1:(z_k,z_pred)->(dz,dzdzT) */
-static int casadi_f26(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i, j;
-  casadi_real **res1=res+2, w0, w1, w2, w3;
-  const casadi_real **arg1=arg+2;
-  /* #0: @0 = input[0][0] */
-  w0 = arg[0] ? arg[0][0] : 0;
-  /* #1: @1 = input[1][0] */
-  w1 = arg[1] ? arg[1][0] : 0;
-  /* #2: {@2, @3} = cn2d_residual(@0, @1) */
-  arg1[0]=(&w0);
-  arg1[1]=(&w1);
-  res1[0]=(&w2);
-  res1[1]=(&w3);
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #3: output[0][0] = @2 */
-  if (res[0]) res[0][0] = w2;
-  /* #4: @2 = repsum(@3, 1) */
-  casadi_clear((&w2), 1);
-    for (i=0;i<1;++i) {
-        for (j=0;j<1;++j) {
-            (&w2)[j] += (&w3)[j+i*1];
-          }
-      }
-  /* #5: output[1][0] = @2 */
-  if (res[1]) res[1][0] = w2;
-  return 0;
-}
-
-/* cn2d_residual_1_5:(z_k[1x4],z_pred)->(dz[1x4],dzdzT) */
-static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i, j;
-  casadi_real **res1=res+2, *w0=w+2, w1, *w2=w+6, *w3=w+10, *w4=w+14;
-  const casadi_real **arg1=arg+2;
-  /* #0: @0 = input[0][0] */
-  casadi_copy(arg[0], 4, w0);
-  /* #1: @1 = input[1][0] */
-  w1 = arg[1] ? arg[1][0] : 0;
-  /* #2: @2 = repmat(@1, 4) */
-  for (i=0;i<4;++i) {
-    casadi_copy((&w1), 1, w2+ i*1);
-  }
-  /* #3: {@3, @4} = map4_cn2d_residual(@0, @2) */
-  arg1[0]=w0;
-  arg1[1]=w2;
-  res1[0]=w3;
-  res1[1]=w4;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #4: output[0][0] = @3 */
-  casadi_copy(w3, 4, res[0]);
-  /* #5: @1 = repsum(@4, 4) */
-  casadi_clear((&w1), 1);
-    for (i=0;i<4;++i) {
-        for (j=0;j<1;++j) {
-            (&w1)[j] += w4[j+i*1];
-          }
-      }
-  /* #6: output[1][0] = @1 */
-  if (res[1]) res[1][0] = w1;
+  if (sz_w) *sz_w = 38*sizeof(casadi_real);
   return 0;
 }
 
 /* cn2d_huber_noise:(R,mask,Pzz,innovation,gamma)->(R_used,ok) */
-static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12;
   a00=arg[1]? arg[1][0] : 0;
@@ -1668,11 +1632,10 @@ static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* cn2d_huber_ukf_update:(x[2],P[2x2],z,p[2],R,mask,abk[3],gamma)->(x_post[2],P_post[2x2],innovation,S,ok) */
-static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i;
-  casadi_real **res1=res+5, *rr, *w00=w+19, *w01=w+21, *w02=w+25, w03, *w04=w+29, *w05=w+31, *w06=w+34, w07, *w08=w+39, w09;
-  casadi_real w10, w11, *w12=w+41, *w13=w+45, w14, w15, w16;
-  const casadi_real **arg1=arg+8, *cs;
+static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+5, *w00=w+16, *w01=w+18, *w02=w+22, w03, *w04=w+26, *w05=w+28, w06, *w07=w+31, w08, w09, w10;
+  casadi_real w11, w12, w13, *w14=w+36;
+  const casadi_real **arg1=arg+8;
   /* #0: @0 = input[0][0] */
   casadi_copy(arg[0], 2, w00);
   /* #1: @1 = input[1][0] */
@@ -1686,124 +1649,75 @@ static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw
   casadi_copy(arg[3], 2, w04);
   /* #4: @5 = input[6][0] */
   casadi_copy(arg[6], 3, w05);
-  /* #5: @6 = cn2d_ukf_measured_points(@0, @2, @4, @5) */
+  /* #5: {@6, @7, @8} = cn2d_ukf_measured_moments(@0, @2, @4, @5) */
   arg1[0]=w00;
   arg1[1]=w02;
   arg1[2]=w04;
   arg1[3]=w05;
-  res1[0]=w06;
+  res1[0]=(&w06);
+  res1[1]=w07;
+  res1[2]=(&w08);
   if (casadi_f13(arg1, res1, iw, w, 0)) return 1;
-  /* #6: @7 = @6[0] */
-  for (rr=(&w07), cs=w06+0; cs!=w06+1; cs+=1) *rr++ = *cs;
-  /* #7: {@4, @8} = cn2d_ukf_weights(@5) */
-  arg1[0]=w05;
-  res1[0]=w04;
-  res1[1]=w08;
-  if (casadi_f1(arg1, res1, iw, w, 0)) return 1;
-  /* #8: @9 = @4[0] */
-  for (rr=(&w09), cs=w04+0; cs!=w04+1; cs+=1) *rr++ = *cs;
-  /* #9: @9 = (@9*@7) */
-  w09 *= w07;
-  /* #10: @10 = @4[1] */
-  for (rr=(&w10), cs=w04+1; cs!=w04+2; cs+=1) *rr++ = *cs;
-  /* #11: @11 = 0 */
-  w11 = 0.;
-  /* #12: @12 = @6[1:5] */
-  for (rr=w12, cs=w06+1; cs!=w06+5; cs+=1) *rr++ = *cs;
-  /* #13: @13 = ones(4x1) */
-  casadi_fill(w13, 4, 1.);
-  /* #14: @11 = mac(@12,@13,@11) */
-  casadi_mtimes_dense(w12, 1, 4, w13, 1, (&w11), 0);
-  /* #15: @10 = (@10*@11) */
-  w10 *= w11;
-  /* #16: @9 = (@9+@10) */
-  w09 += w10;
-  /* #17: {@10, @11} = cn2d_residual_0_1(@7, @9) */
-  arg1[0]=(&w07);
-  arg1[1]=(&w09);
-  res1[0]=(&w10);
-  res1[1]=(&w11);
-  if (casadi_f26(arg1, res1, iw, w, 0)) return 1;
-  /* #18: {@13, @7} = cn2d_residual_1_5(@12, @9) */
-  arg1[0]=w12;
-  arg1[1]=(&w09);
-  res1[0]=w13;
-  res1[1]=(&w07);
-  if (casadi_f27(arg1, res1, iw, w, 0)) return 1;
-  /* #19: @6 = horzcat(@10, @13) */
-  rr=w06;
-  *rr++ = w10;
-  for (i=0, cs=w13; i<4; ++i) *rr++ = *cs++;
-  /* #20: @10 = @8[0] */
-  for (rr=(&w10), cs=w08+0; cs!=w08+1; cs+=1) *rr++ = *cs;
-  /* #21: @10 = (@10*@11) */
-  w10 *= w11;
-  /* #22: @11 = @8[1] */
-  for (rr=(&w11), cs=w08+1; cs!=w08+2; cs+=1) *rr++ = *cs;
-  /* #23: @11 = (@11*@7) */
-  w11 *= w07;
-  /* #24: @10 = (@10+@11) */
-  w10 += w11;
-  /* #25: @11 = input[2][0] */
-  w11 = arg[2] ? arg[2][0] : 0;
-  /* #26: @7 = input[5][0] */
-  w07 = arg[5] ? arg[5][0] : 0;
-  /* #27: {@14, @15, @8} = cn2d_ukf_moments(@2, @6, @10, @9, @11, @7, @5) */
+  /* #6: @9 = input[2][0] */
+  w09 = arg[2] ? arg[2][0] : 0;
+  /* #7: @10 = input[5][0] */
+  w10 = arg[5] ? arg[5][0] : 0;
+  /* #8: {@11, @12, @4} = cn2d_ukf_moments(@2, @7, @8, @6, @9, @10, @5) */
   arg1[0]=w02;
-  arg1[1]=w06;
-  arg1[2]=(&w10);
-  arg1[3]=(&w09);
-  arg1[4]=(&w11);
-  arg1[5]=(&w07);
-  arg1[6]=w05;
-  res1[0]=(&w14);
-  res1[1]=(&w15);
-  res1[2]=w08;
-  if (casadi_f18(arg1, res1, iw, w, 0)) return 1;
-  /* #28: @10 = input[4][0] */
-  w10 = arg[4] ? arg[4][0] : 0;
-  /* #29: @9 = input[7][0] */
-  w09 = arg[7] ? arg[7][0] : 0;
-  /* #30: {@11, @16} = cn2d_huber_noise(@10, @7, @15, @14, @9) */
-  arg1[0]=(&w10);
-  arg1[1]=(&w07);
-  arg1[2]=(&w15);
-  arg1[3]=(&w14);
+  arg1[1]=w07;
+  arg1[2]=(&w08);
+  arg1[3]=(&w06);
   arg1[4]=(&w09);
+  arg1[5]=(&w10);
+  arg1[6]=w05;
   res1[0]=(&w11);
-  res1[1]=(&w16);
-  if (casadi_f28(arg1, res1, iw, w, 0)) return 1;
-  /* #31: {@4, @2, @10, @7} = cn2d_kalman(@0, @1, @15, @8, @11, @14) */
+  res1[1]=(&w12);
+  res1[2]=w04;
+  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
+  /* #9: @8 = input[4][0] */
+  w08 = arg[4] ? arg[4][0] : 0;
+  /* #10: @6 = input[7][0] */
+  w06 = arg[7] ? arg[7][0] : 0;
+  /* #11: {@9, @13} = cn2d_huber_noise(@8, @10, @12, @11, @6) */
+  arg1[0]=(&w08);
+  arg1[1]=(&w10);
+  arg1[2]=(&w12);
+  arg1[3]=(&w11);
+  arg1[4]=(&w06);
+  res1[0]=(&w09);
+  res1[1]=(&w13);
+  if (casadi_f23(arg1, res1, iw, w, 0)) return 1;
+  /* #12: {@14, @2, @8, @10} = cn2d_kalman(@0, @1, @12, @4, @9, @11) */
   arg1[0]=w00;
   arg1[1]=w01;
-  arg1[2]=(&w15);
-  arg1[3]=w08;
-  arg1[4]=(&w11);
-  arg1[5]=(&w14);
-  res1[0]=w04;
+  arg1[2]=(&w12);
+  arg1[3]=w04;
+  arg1[4]=(&w09);
+  arg1[5]=(&w11);
+  res1[0]=w14;
   res1[1]=w02;
-  res1[2]=(&w10);
-  res1[3]=(&w07);
-  if (casadi_f20(arg1, res1, iw, w, 0)) return 1;
-  /* #32: output[0][0] = @4 */
-  casadi_copy(w04, 2, res[0]);
-  /* #33: output[1][0] = @2 */
+  res1[2]=(&w08);
+  res1[3]=(&w10);
+  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
+  /* #13: output[0][0] = @14 */
+  casadi_copy(w14, 2, res[0]);
+  /* #14: output[1][0] = @2 */
   casadi_copy(w02, 4, res[1]);
-  /* #34: output[2][0] = @14 */
-  if (res[2]) res[2][0] = w14;
-  /* #35: output[3][0] = @10 */
-  if (res[3]) res[3][0] = w10;
-  /* #36: @3 = (@3*@16) */
-  w03 *= w16;
-  /* #37: @3 = (@3*@7) */
-  w03 *= w07;
-  /* #38: output[4][0] = @3 */
+  /* #15: output[2][0] = @11 */
+  if (res[2]) res[2][0] = w11;
+  /* #16: output[3][0] = @8 */
+  if (res[3]) res[3][0] = w08;
+  /* #17: @3 = (@3*@13) */
+  w03 *= w13;
+  /* #18: @3 = (@3*@10) */
+  w03 *= w10;
+  /* #19: output[4][0] = @3 */
   if (res[4]) res[4][0] = w03;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_huber_ukf_update(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f25(arg, res, iw, w, mem);
+  return casadi_f22(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_huber_ukf_update_checkout(void) {
@@ -1881,22 +1795,22 @@ CASADI_SYMBOL_EXPORT const casadi_int* cn2d_huber_ukf_update_sparsity_out(casadi
 
 CASADI_SYMBOL_EXPORT int cn2d_huber_ukf_update_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
   if (sz_arg) *sz_arg = 15;
-  if (sz_res) *sz_res = 11;
+  if (sz_res) *sz_res = 9;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 49;
+  if (sz_w) *sz_w = 38;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_huber_ukf_update_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
   if (sz_arg) *sz_arg = 15*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 11*sizeof(casadi_real*);
+  if (sz_res) *sz_res = 9*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 49*sizeof(casadi_real);
+  if (sz_w) *sz_w = 38*sizeof(casadi_real);
   return 0;
 }
 
 /* cn2d_ckf_points:(x[2],L[2x2])->(X[2x4]) */
-static int casadi_f30(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a0, a1, a2, a3, a4, a5;
   a0=arg[0]? arg[0][0] : 0;
   a1=1.4142135623730951e+00;
@@ -1929,7 +1843,7 @@ static int casadi_f30(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* map4_cn2d_step:(x[2x4],u[3x4],p[2x4],dt[1x4])->(x_next[2x4]) */
-static int casadi_f32(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
   casadi_real* *res1;
   const casadi_real* *arg1;
@@ -1949,7 +1863,7 @@ static int casadi_f32(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* cn2d_step_columns:(x[2x4],u[3],p[2],dt)->(x_next[2x4]) */
-static int casadi_f31(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f26(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
   casadi_real **res1=res+1, *w1=w+8, *w2=w+11, *w3=w+23, *w4=w+25, w5, *w6=w+33, *w7=w+37;
   const casadi_real **arg1=arg+4, *wr0;
@@ -1979,14 +1893,14 @@ static int casadi_f31(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[2]=w4;
   arg1[3]=w6;
   res1[0]=w7;
-  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f27(arg1, res1, iw, w, 0)) return 1;
   /* #8: output[0][0] = @7 */
   casadi_copy(w7, 8, res[0]);
   return 0;
 }
 
 /* cn2d_outer_0_4:(y[2x4],mean[2])->(ddT[2x2,3nz]) */
-static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i, j;
   casadi_real **res1=res+1, *w1=w+3, *w2=w+5, *w3=w+13, *w4=w+25;
   const casadi_real **arg1=arg+2, *wr0;
@@ -2016,7 +1930,7 @@ static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* cn2d_ckf_predict:(x[2],P[2x2],u[3],p[2],dt,Q[2x2])->(x_pred[2],P_pred[2x2],ok) */
-static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
   casadi_real **res1=res+3, *rr, w0, *w1=w+54, *w2=w+56, *w3=w+58, *w4=w+62, w5, *w6=w+66, *w7=w+74, w8, *w9=w+77;
   const casadi_real **arg1=arg+6, *cs;
@@ -2037,7 +1951,7 @@ static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[0]=w2;
   arg1[1]=w4;
   res1[0]=w6;
-  if (casadi_f30(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f25(arg1, res1, iw, w, 0)) return 1;
   /* #6: @7 = input[2][0] */
   casadi_copy(arg[2], 3, w7);
   /* #7: @2 = input[3][0] */
@@ -2050,7 +1964,7 @@ static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[2]=w2;
   arg1[3]=(&w8);
   res1[0]=w9;
-  if (casadi_f31(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f26(arg1, res1, iw, w, 0)) return 1;
   /* #10: @4 = ones(4x1) */
   casadi_fill(w4, 4, 1.);
   /* #11: @1 = mac(@9,@4,@1) */
@@ -2063,7 +1977,7 @@ static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[0]=w9;
   arg1[1]=w1;
   res1[0]=w7;
-  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f28(arg1, res1, iw, w, 0)) return 1;
   /* #15: @7 = (@0*@7) */
   for (i=0, rr=w7, cs=w7; i<3; ++i) (*rr++)  = (w0*(*cs++));
   /* #16: @4 = input[5][0] */
@@ -2085,7 +1999,7 @@ static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ckf_predict(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f29(arg, res, iw, w, mem);
+  return casadi_f24(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ckf_predict_checkout(void) {
@@ -2169,94 +2083,81 @@ CASADI_SYMBOL_EXPORT int cn2d_ckf_predict_work_bytes(casadi_int *sz_arg, casadi_
   return 0;
 }
 
-/* cn2d_ckf_measured_points:(x[2],L[2x2],p[2])->(Z[1x4]) */
-static int casadi_f35(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real a0, a1, a2, a3, a4, a5, a6, a7, a8;
-  a0=arg[0]? arg[0][0] : 0;
-  a1=1.4142135623730951e+00;
-  a2=arg[1]? arg[1][0] : 0;
-  a3=(a1*a2);
-  a3=(a0+a3);
-  a4=arg[2]? arg[2][0] : 0;
-  a3=(a3-a4);
-  a3=casadi_sq(a3);
-  a5=arg[0]? arg[0][1] : 0;
-  a6=arg[1]? arg[1][1] : 0;
-  a7=(a1*a6);
-  a7=(a5+a7);
-  a8=arg[2]? arg[2][1] : 0;
-  a7=(a7-a8);
-  a7=casadi_sq(a7);
-  a3=(a3+a7);
-  a3=sqrt(a3);
-  if (res[0]!=0) res[0][0]=a3;
-  a3=(a0-a4);
-  a3=casadi_sq(a3);
-  a7=arg[1]? arg[1][3] : 0;
-  a1=(a1*a7);
-  a1=(a5+a1);
-  a1=(a1-a8);
-  a1=casadi_sq(a1);
-  a1=(a3+a1);
-  a1=sqrt(a1);
-  if (res[0]!=0) res[0][1]=a1;
-  a1=-1.4142135623730951e+00;
-  a2=(a1*a2);
-  a0=(a0+a2);
-  a0=(a0-a4);
-  a0=casadi_sq(a0);
-  a6=(a1*a6);
-  a6=(a5+a6);
-  a6=(a6-a8);
-  a6=casadi_sq(a6);
-  a0=(a0+a6);
-  a0=sqrt(a0);
-  if (res[0]!=0) res[0][2]=a0;
-  a1=(a1*a7);
-  a5=(a5+a1);
-  a5=(a5-a8);
-  a5=casadi_sq(a5);
-  a3=(a3+a5);
-  a3=sqrt(a3);
-  if (res[0]!=0) res[0][3]=a3;
-  return 0;
-}
-
-/* cn2d_residual_0_4:(z_k[1x4],z_pred)->(dz[1x4],dzdzT) */
-static int casadi_f36(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i, j;
-  casadi_real **res1=res+2, *w0=w+2, w1, *w2=w+6, *w3=w+10, *w4=w+14;
-  const casadi_real **arg1=arg+2;
-  /* #0: @0 = input[0][0] */
-  casadi_copy(arg[0], 4, w0);
-  /* #1: @1 = input[1][0] */
-  w1 = arg[1] ? arg[1][0] : 0;
-  /* #2: @2 = repmat(@1, 4) */
-  for (i=0;i<4;++i) {
-    casadi_copy((&w1), 1, w2+ i*1);
-  }
-  /* #3: {@3, @4} = map4_cn2d_residual(@0, @2) */
-  arg1[0]=w0;
-  arg1[1]=w2;
-  res1[0]=w3;
-  res1[1]=w4;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #4: output[0][0] = @3 */
-  casadi_copy(w3, 4, res[0]);
-  /* #5: @1 = repsum(@4, 4) */
-  casadi_clear((&w1), 1);
-    for (i=0;i<4;++i) {
-        for (j=0;j<1;++j) {
-            (&w1)[j] += w4[j+i*1];
-          }
-      }
-  /* #6: output[1][0] = @1 */
-  if (res[1]) res[1][0] = w1;
+/* cn2d_ckf_measured_moments:(x[2],L[2x2],p[2])->(z_pred,DZ[1x4],Czz) */
+static int casadi_f30(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12;
+  a00=2.5000000000000000e-01;
+  a01=arg[0]? arg[0][0] : 0;
+  a02=1.4142135623730951e+00;
+  a03=arg[1]? arg[1][0] : 0;
+  a04=(a02*a03);
+  a04=(a01+a04);
+  a05=arg[2]? arg[2][0] : 0;
+  a04=(a04-a05);
+  a04=casadi_sq(a04);
+  a06=arg[0]? arg[0][1] : 0;
+  a07=arg[1]? arg[1][1] : 0;
+  a08=(a02*a07);
+  a08=(a06+a08);
+  a09=arg[2]? arg[2][1] : 0;
+  a08=(a08-a09);
+  a08=casadi_sq(a08);
+  a04=(a04+a08);
+  a04=sqrt(a04);
+  a08=(a01-a05);
+  a08=casadi_sq(a08);
+  a10=arg[1]? arg[1][3] : 0;
+  a02=(a02*a10);
+  a02=(a06+a02);
+  a02=(a02-a09);
+  a02=casadi_sq(a02);
+  a02=(a08+a02);
+  a02=sqrt(a02);
+  a11=(a04+a02);
+  a12=-1.4142135623730951e+00;
+  a03=(a12*a03);
+  a01=(a01+a03);
+  a01=(a01-a05);
+  a01=casadi_sq(a01);
+  a07=(a12*a07);
+  a07=(a06+a07);
+  a07=(a07-a09);
+  a07=casadi_sq(a07);
+  a01=(a01+a07);
+  a01=sqrt(a01);
+  a11=(a11+a01);
+  a12=(a12*a10);
+  a06=(a06+a12);
+  a06=(a06-a09);
+  a06=casadi_sq(a06);
+  a08=(a08+a06);
+  a08=sqrt(a08);
+  a11=(a11+a08);
+  a11=(a00*a11);
+  if (res[0]!=0) res[0][0]=a11;
+  a04=(a04-a11);
+  if (res[1]!=0) res[1][0]=a04;
+  a02=(a02-a11);
+  if (res[1]!=0) res[1][1]=a02;
+  a01=(a01-a11);
+  if (res[1]!=0) res[1][2]=a01;
+  a08=(a08-a11);
+  if (res[1]!=0) res[1][3]=a08;
+  a04=casadi_sq(a04);
+  a02=casadi_sq(a02);
+  a04=(a04+a02);
+  a01=casadi_sq(a01);
+  a04=(a04+a01);
+  a08=casadi_sq(a08);
+  a04=(a04+a08);
+  a00=(a00*a04);
+  if (res[2]!=0) res[2][0]=a00;
   return 0;
 }
 
 /* cn2d_ckf_moments:(L[2x2],DZ[1x4],Czz,z_pred,z,mask)->(innovation,Pzz,Pxz[2]) */
-static int casadi_f37(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f31(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a0, a1, a2, a3, a4, a5;
   a0=arg[5]? arg[5][0] : 0;
   a1=0.;
@@ -2297,9 +2198,9 @@ static int casadi_f37(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* cn2d_ckf_update:(x[2],P[2x2],z,p[2],R,mask)->(x_post[2],P_post[2x2],innovation,S,ok) */
-static int casadi_f34(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+5, *w00=w+19, *w01=w+21, *w02=w+25, w03, *w04=w+29, *w05=w+31, w06, w07, *w08=w+35, w09, w10;
-  casadi_real w11, w12, *w13=w+39;
+static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+5, *w00=w+13, *w01=w+15, *w02=w+19, w03, *w04=w+23, w05, *w06=w+25, w07, w08, w09, w10;
+  casadi_real w11, *w12=w+29;
   const casadi_real **arg1=arg+6;
   /* #0: @0 = input[0][0] */
   casadi_copy(arg[0], 2, w00);
@@ -2312,86 +2213,70 @@ static int casadi_f34(const casadi_real** arg, casadi_real** res, casadi_int* iw
   if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
   /* #3: @4 = input[3][0] */
   casadi_copy(arg[3], 2, w04);
-  /* #4: @5 = cn2d_ckf_measured_points(@0, @2, @4) */
+  /* #4: {@5, @6, @7} = cn2d_ckf_measured_moments(@0, @2, @4) */
   arg1[0]=w00;
   arg1[1]=w02;
   arg1[2]=w04;
-  res1[0]=w05;
-  if (casadi_f35(arg1, res1, iw, w, 0)) return 1;
-  /* #5: @6 = 0.25 */
-  w06 = 2.5000000000000000e-01;
-  /* #6: @7 = 0 */
-  w07 = 0.;
-  /* #7: @8 = ones(4x1) */
-  casadi_fill(w08, 4, 1.);
-  /* #8: @7 = mac(@5,@8,@7) */
-  casadi_mtimes_dense(w05, 1, 4, w08, 1, (&w07), 0);
-  /* #9: @7 = (@6*@7) */
-  w07  = (w06*w07);
-  /* #10: {@8, @9} = cn2d_residual_0_4(@5, @7) */
-  arg1[0]=w05;
-  arg1[1]=(&w07);
-  res1[0]=w08;
-  res1[1]=(&w09);
-  if (casadi_f36(arg1, res1, iw, w, 0)) return 1;
-  /* #11: @6 = (@6*@9) */
-  w06 *= w09;
-  /* #12: @9 = input[2][0] */
-  w09 = arg[2] ? arg[2][0] : 0;
-  /* #13: @10 = input[5][0] */
-  w10 = arg[5] ? arg[5][0] : 0;
-  /* #14: {@11, @12, @4} = cn2d_ckf_moments(@2, @8, @6, @7, @9, @10) */
+  res1[0]=(&w05);
+  res1[1]=w06;
+  res1[2]=(&w07);
+  if (casadi_f30(arg1, res1, iw, w, 0)) return 1;
+  /* #5: @8 = input[2][0] */
+  w08 = arg[2] ? arg[2][0] : 0;
+  /* #6: @9 = input[5][0] */
+  w09 = arg[5] ? arg[5][0] : 0;
+  /* #7: {@10, @11, @4} = cn2d_ckf_moments(@2, @6, @7, @5, @8, @9) */
   arg1[0]=w02;
-  arg1[1]=w08;
-  arg1[2]=(&w06);
-  arg1[3]=(&w07);
-  arg1[4]=(&w09);
-  arg1[5]=(&w10);
-  res1[0]=(&w11);
-  res1[1]=(&w12);
+  arg1[1]=w06;
+  arg1[2]=(&w07);
+  arg1[3]=(&w05);
+  arg1[4]=(&w08);
+  arg1[5]=(&w09);
+  res1[0]=(&w10);
+  res1[1]=(&w11);
   res1[2]=w04;
-  if (casadi_f37(arg1, res1, iw, w, 0)) return 1;
-  /* #15: @6 = input[4][0] */
-  w06 = arg[4] ? arg[4][0] : 0;
-  /* #16: {@7, @9} = cn2d_noise(@6, @10, @12, @11) */
-  arg1[0]=(&w06);
-  arg1[1]=(&w10);
-  arg1[2]=(&w12);
-  arg1[3]=(&w11);
-  res1[0]=(&w07);
-  res1[1]=(&w09);
-  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
-  /* #17: {@13, @2, @6, @10} = cn2d_kalman(@0, @1, @12, @4, @7, @11) */
+  if (casadi_f31(arg1, res1, iw, w, 0)) return 1;
+  /* #8: @7 = input[4][0] */
+  w07 = arg[4] ? arg[4][0] : 0;
+  /* #9: {@5, @8} = cn2d_noise(@7, @9, @11, @10) */
+  arg1[0]=(&w07);
+  arg1[1]=(&w09);
+  arg1[2]=(&w11);
+  arg1[3]=(&w10);
+  res1[0]=(&w05);
+  res1[1]=(&w08);
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #10: {@12, @2, @7, @9} = cn2d_kalman(@0, @1, @11, @4, @5, @10) */
   arg1[0]=w00;
   arg1[1]=w01;
-  arg1[2]=(&w12);
+  arg1[2]=(&w11);
   arg1[3]=w04;
-  arg1[4]=(&w07);
-  arg1[5]=(&w11);
-  res1[0]=w13;
+  arg1[4]=(&w05);
+  arg1[5]=(&w10);
+  res1[0]=w12;
   res1[1]=w02;
-  res1[2]=(&w06);
-  res1[3]=(&w10);
-  if (casadi_f20(arg1, res1, iw, w, 0)) return 1;
-  /* #18: output[0][0] = @13 */
-  casadi_copy(w13, 2, res[0]);
-  /* #19: output[1][0] = @2 */
+  res1[2]=(&w07);
+  res1[3]=(&w09);
+  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
+  /* #11: output[0][0] = @12 */
+  casadi_copy(w12, 2, res[0]);
+  /* #12: output[1][0] = @2 */
   casadi_copy(w02, 4, res[1]);
-  /* #20: output[2][0] = @11 */
-  if (res[2]) res[2][0] = w11;
-  /* #21: output[3][0] = @6 */
-  if (res[3]) res[3][0] = w06;
-  /* #22: @3 = (@3*@9) */
+  /* #13: output[2][0] = @10 */
+  if (res[2]) res[2][0] = w10;
+  /* #14: output[3][0] = @7 */
+  if (res[3]) res[3][0] = w07;
+  /* #15: @3 = (@3*@8) */
+  w03 *= w08;
+  /* #16: @3 = (@3*@9) */
   w03 *= w09;
-  /* #23: @3 = (@3*@10) */
-  w03 *= w10;
-  /* #24: output[4][0] = @3 */
+  /* #17: output[4][0] = @3 */
   if (res[4]) res[4][0] = w03;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ckf_update(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f34(arg, res, iw, w, mem);
+  return casadi_f29(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ckf_update_checkout(void) {
@@ -2465,22 +2350,22 @@ CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ckf_update_sparsity_out(casadi_int i
 
 CASADI_SYMBOL_EXPORT int cn2d_ckf_update_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
   if (sz_arg) *sz_arg = 12;
-  if (sz_res) *sz_res = 11;
+  if (sz_res) *sz_res = 9;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 41;
+  if (sz_w) *sz_w = 31;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ckf_update_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
   if (sz_arg) *sz_arg = 12*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 11*sizeof(casadi_real*);
+  if (sz_res) *sz_res = 9*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 41*sizeof(casadi_real);
+  if (sz_w) *sz_w = 31*sizeof(casadi_real);
   return 0;
 }
 
 /* cn2d_ckf_step:(x[2],P[2x2],u[3],p[2],dt,Q[2x2],z,R,mask)->(x_post[2],P_post[2x2],innovation,S,ok) */
-static int casadi_f38(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f32(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real **res1=res+5, *w00=w+88, *w01=w+90, *w02=w+94, *w03=w+97, w04, *w05=w+99, *w06=w+103, *w07=w+105, w08, w09, w10;
   casadi_real w11, w12, w13;
   const casadi_real **arg1=arg+9;
@@ -2506,7 +2391,7 @@ static int casadi_f38(const casadi_real** arg, casadi_real** res, casadi_int* iw
   res1[0]=w06;
   res1[1]=w07;
   res1[2]=(&w08);
-  if (casadi_f29(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f24(arg1, res1, iw, w, 0)) return 1;
   /* #7: @4 = input[6][0] */
   w04 = arg[6] ? arg[6][0] : 0;
   /* #8: @9 = input[7][0] */
@@ -2525,7 +2410,7 @@ static int casadi_f38(const casadi_real** arg, casadi_real** res, casadi_int* iw
   res1[2]=(&w11);
   res1[3]=(&w12);
   res1[4]=(&w13);
-  if (casadi_f34(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f29(arg1, res1, iw, w, 0)) return 1;
   /* #11: output[0][0] = @0 */
   casadi_copy(w00, 2, res[0]);
   /* #12: output[1][0] = @1 */
@@ -2542,7 +2427,7 @@ static int casadi_f38(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ckf_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f38(arg, res, iw, w, mem);
+  return casadi_f32(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ckf_step_checkout(void) {
@@ -2622,7 +2507,7 @@ CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ckf_step_sparsity_out(casadi_int i) 
 
 CASADI_SYMBOL_EXPORT int cn2d_ckf_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
   if (sz_arg) *sz_arg = 27;
-  if (sz_res) *sz_res = 16;
+  if (sz_res) *sz_res = 14;
   if (sz_iw) *sz_iw = 0;
   if (sz_w) *sz_w = 109;
   return 0;
@@ -2630,9 +2515,195 @@ CASADI_SYMBOL_EXPORT int cn2d_ckf_step_work(casadi_int *sz_arg, casadi_int* sz_r
 
 CASADI_SYMBOL_EXPORT int cn2d_ckf_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
   if (sz_arg) *sz_arg = 27*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 16*sizeof(casadi_real*);
+  if (sz_res) *sz_res = 14*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
   if (sz_w) *sz_w = 109*sizeof(casadi_real);
+  return 0;
+}
+
+/* cn2d_ckf_predict_points:(x[2],P[2x2])->(X[4x2],ok) */
+static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_int i, j;
+  casadi_real **res1=res+2, *rr, *w0=w+8, *w1=w+10, *w2=w+14, w3, *w4=w+18, *w5=w+26;
+  const casadi_real **arg1=arg+2, *cs;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 2, w0);
+  /* #1: @1 = input[1][0] */
+  casadi_copy(arg[1], 4, w1);
+  /* #2: {@2, @3} = cn2d_cholesky(@1) */
+  arg1[0]=w1;
+  res1[0]=w2;
+  res1[1]=(&w3);
+  if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
+  /* #3: @4 = cn2d_ckf_points(@0, @2) */
+  arg1[0]=w0;
+  arg1[1]=w2;
+  res1[0]=w4;
+  if (casadi_f25(arg1, res1, iw, w, 0)) return 1;
+  /* #4: @5 = @4' */
+  for (i=0, rr=w5, cs=w4; i<4; ++i) for (j=0; j<2; ++j) rr[i+j*4] = *cs++;
+  /* #5: output[0][0] = @5 */
+  casadi_copy(w5, 8, res[0]);
+  /* #6: output[1][0] = @3 */
+  if (res[1]) res[1][0] = w3;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int cn2d_ckf_predict_points(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f33(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int cn2d_ckf_predict_points_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void cn2d_ckf_predict_points_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void cn2d_ckf_predict_points_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void cn2d_ckf_predict_points_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int cn2d_ckf_predict_points_n_in(void) { return 2;}
+
+CASADI_SYMBOL_EXPORT casadi_int cn2d_ckf_predict_points_n_out(void) { return 2;}
+
+CASADI_SYMBOL_EXPORT casadi_real cn2d_ckf_predict_points_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* cn2d_ckf_predict_points_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "x";
+    case 1: return "P";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* cn2d_ckf_predict_points_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "X";
+    case 1: return "ok";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ckf_predict_points_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s0;
+    case 1: return casadi_s1;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ckf_predict_points_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s6;
+    case 1: return casadi_s3;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int cn2d_ckf_predict_points_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 4;
+  if (sz_res) *sz_res = 4;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 34;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int cn2d_ckf_predict_points_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 4*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 4*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 34*sizeof(casadi_real);
+  return 0;
+}
+
+/* cn2d_ckf_predict_weights:()->(wm[4],wc[4]) */
+static int casadi_f34(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real *w0=w+0;
+  /* #0: @0 = all_0.25(4x1) */
+  casadi_fill(w0, 4, 2.5000000000000000e-01);
+  /* #1: output[0][0] = @0 */
+  casadi_copy(w0, 4, res[0]);
+  /* #2: output[1][0] = @0 */
+  casadi_copy(w0, 4, res[1]);
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int cn2d_ckf_predict_weights(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f34(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int cn2d_ckf_predict_weights_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void cn2d_ckf_predict_weights_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void cn2d_ckf_predict_weights_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void cn2d_ckf_predict_weights_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int cn2d_ckf_predict_weights_n_in(void) { return 0;}
+
+CASADI_SYMBOL_EXPORT casadi_int cn2d_ckf_predict_weights_n_out(void) { return 2;}
+
+CASADI_SYMBOL_EXPORT casadi_real cn2d_ckf_predict_weights_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* cn2d_ckf_predict_weights_name_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* cn2d_ckf_predict_weights_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "wm";
+    case 1: return "wc";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ckf_predict_weights_sparsity_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ckf_predict_weights_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s7;
+    case 1: return casadi_s7;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int cn2d_ckf_predict_weights_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 0;
+  if (sz_res) *sz_res = 3;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 4;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int cn2d_ckf_predict_weights_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 0*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 3*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 4*sizeof(casadi_real);
   return 0;
 }
 
@@ -2664,16 +2735,56 @@ CASADI_SYMBOL_EXPORT int cn2d_ukf_predict_batch(casadi_int N, const casadi_real*
 CASADI_SYMBOL_EXPORT int cn2d_ukf_update_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
   const casadi_real* a[14];
-  casadi_real* r[11];
+  casadi_real* r[9];
   casadi_int iw[1];
-  casadi_real w[56];
+  casadi_real w[45];
   casadi_int j, k;
   for (k = 0; k < 14; ++k) a[k] = 0;
-  for (k = 0; k < 11; ++k) r[k] = 0;
+  for (k = 0; k < 9; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
     for (k = 0; k < 7; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
     for (k = 0; k < 5; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
     if (cn2d_ukf_update(a, r, iw, w, 0)) return (int)(1 + j);
+  }
+  return 0;
+}
+
+/* cn2d_ukf_predict_points_batch: evaluate cn2d_ukf_predict_points for j = 0..N-1 on slices arg[k] + j*arg_step[k] and
+ * res[k] + j*res_step[k] (a step of 0 shares the argument). Returns 0, or 1 + j of the first
+ * failing evaluation. */
+CASADI_SYMBOL_EXPORT int cn2d_ukf_predict_points_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
+                                  casadi_real** res, const casadi_int* res_step) {
+  const casadi_real* a[6];
+  casadi_real* r[4];
+  casadi_int iw[1];
+  casadi_real w[42];
+  casadi_int j, k;
+  for (k = 0; k < 6; ++k) a[k] = 0;
+  for (k = 0; k < 4; ++k) r[k] = 0;
+  for (j = 0; j < N; ++j) {
+    for (k = 0; k < 3; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
+    for (k = 0; k < 2; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
+    if (cn2d_ukf_predict_points(a, r, iw, w, 0)) return (int)(1 + j);
+  }
+  return 0;
+}
+
+/* cn2d_ukf_predict_weights_batch: evaluate cn2d_ukf_predict_weights for j = 0..N-1 on slices arg[k] + j*arg_step[k] and
+ * res[k] + j*res_step[k] (a step of 0 shares the argument). Returns 0, or 1 + j of the first
+ * failing evaluation. */
+CASADI_SYMBOL_EXPORT int cn2d_ukf_predict_weights_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
+                                  casadi_real** res, const casadi_int* res_step) {
+  const casadi_real* a[2];
+  casadi_real* r[4];
+  casadi_int iw[1];
+  casadi_real w[17];
+  casadi_int j, k;
+  for (k = 0; k < 2; ++k) a[k] = 0;
+  for (k = 0; k < 4; ++k) r[k] = 0;
+  for (j = 0; j < N; ++j) {
+    for (k = 0; k < 1; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
+    for (k = 0; k < 2; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
+    if (cn2d_ukf_predict_weights(a, r, iw, w, 0)) return (int)(1 + j);
   }
   return 0;
 }
@@ -2684,12 +2795,12 @@ CASADI_SYMBOL_EXPORT int cn2d_ukf_update_batch(casadi_int N, const casadi_real**
 CASADI_SYMBOL_EXPORT int cn2d_mcukf_update_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
   const casadi_real* a[15];
-  casadi_real* r[11];
+  casadi_real* r[9];
   casadi_int iw[1];
-  casadi_real w[57];
+  casadi_real w[46];
   casadi_int j, k;
   for (k = 0; k < 15; ++k) a[k] = 0;
-  for (k = 0; k < 11; ++k) r[k] = 0;
+  for (k = 0; k < 9; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
     for (k = 0; k < 8; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
     for (k = 0; k < 5; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
@@ -2704,12 +2815,12 @@ CASADI_SYMBOL_EXPORT int cn2d_mcukf_update_batch(casadi_int N, const casadi_real
 CASADI_SYMBOL_EXPORT int cn2d_huber_ukf_update_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
   const casadi_real* a[15];
-  casadi_real* r[11];
+  casadi_real* r[9];
   casadi_int iw[1];
-  casadi_real w[57];
+  casadi_real w[46];
   casadi_int j, k;
   for (k = 0; k < 15; ++k) a[k] = 0;
-  for (k = 0; k < 11; ++k) r[k] = 0;
+  for (k = 0; k < 9; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
     for (k = 0; k < 8; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
     for (k = 0; k < 5; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
@@ -2744,12 +2855,12 @@ CASADI_SYMBOL_EXPORT int cn2d_ckf_predict_batch(casadi_int N, const casadi_real*
 CASADI_SYMBOL_EXPORT int cn2d_ckf_update_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
   const casadi_real* a[12];
-  casadi_real* r[11];
+  casadi_real* r[9];
   casadi_int iw[1];
-  casadi_real w[48];
+  casadi_real w[38];
   casadi_int j, k;
   for (k = 0; k < 12; ++k) a[k] = 0;
-  for (k = 0; k < 11; ++k) r[k] = 0;
+  for (k = 0; k < 9; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
     for (k = 0; k < 6; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
     for (k = 0; k < 5; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
@@ -2764,16 +2875,56 @@ CASADI_SYMBOL_EXPORT int cn2d_ckf_update_batch(casadi_int N, const casadi_real**
 CASADI_SYMBOL_EXPORT int cn2d_ckf_step_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
   const casadi_real* a[27];
-  casadi_real* r[16];
+  casadi_real* r[14];
   casadi_int iw[1];
   casadi_real w[116];
   casadi_int j, k;
   for (k = 0; k < 27; ++k) a[k] = 0;
-  for (k = 0; k < 16; ++k) r[k] = 0;
+  for (k = 0; k < 14; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
     for (k = 0; k < 9; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
     for (k = 0; k < 5; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
     if (cn2d_ckf_step(a, r, iw, w, 0)) return (int)(1 + j);
+  }
+  return 0;
+}
+
+/* cn2d_ckf_predict_points_batch: evaluate cn2d_ckf_predict_points for j = 0..N-1 on slices arg[k] + j*arg_step[k] and
+ * res[k] + j*res_step[k] (a step of 0 shares the argument). Returns 0, or 1 + j of the first
+ * failing evaluation. */
+CASADI_SYMBOL_EXPORT int cn2d_ckf_predict_points_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
+                                  casadi_real** res, const casadi_int* res_step) {
+  const casadi_real* a[4];
+  casadi_real* r[4];
+  casadi_int iw[1];
+  casadi_real w[35];
+  casadi_int j, k;
+  for (k = 0; k < 4; ++k) a[k] = 0;
+  for (k = 0; k < 4; ++k) r[k] = 0;
+  for (j = 0; j < N; ++j) {
+    for (k = 0; k < 2; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
+    for (k = 0; k < 2; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
+    if (cn2d_ckf_predict_points(a, r, iw, w, 0)) return (int)(1 + j);
+  }
+  return 0;
+}
+
+/* cn2d_ckf_predict_weights_batch: evaluate cn2d_ckf_predict_weights for j = 0..N-1 on slices arg[k] + j*arg_step[k] and
+ * res[k] + j*res_step[k] (a step of 0 shares the argument). Returns 0, or 1 + j of the first
+ * failing evaluation. */
+CASADI_SYMBOL_EXPORT int cn2d_ckf_predict_weights_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
+                                  casadi_real** res, const casadi_int* res_step) {
+  const casadi_real* a[1];
+  casadi_real* r[3];
+  casadi_int iw[1];
+  casadi_real w[4];
+  casadi_int j, k;
+  for (k = 0; k < 1; ++k) a[k] = 0;
+  for (k = 0; k < 3; ++k) r[k] = 0;
+  for (j = 0; j < N; ++j) {
+    for (k = 0; k < 0; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
+    for (k = 0; k < 2; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
+    if (cn2d_ckf_predict_weights(a, r, iw, w, 0)) return (int)(1 + j);
   }
   return 0;
 }

@@ -22,10 +22,17 @@
 #if defined(__AVX512F__) && defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
 #pragma GCC target("prefer-vector-width=512")
 #endif
+/* The loops are OpenMP simd loops when compiled with -fopenmp-simd -DABYSSAL_OPENMP_SIMD (abyssal's own
+ * builds) or -fopenmp; otherwise plain C99 loops (any compiler, no unknown-pragma warning). */
+#if defined(ABYSSAL_OPENMP_SIMD) || defined(_OPENMP)
+#define ABYSSAL_SIMD_LOOP _Pragma("omp simd")
+#else
+#define ABYSSAL_SIMD_LOOP
+#endif
 /* glibc's libmvec has vector variants of sin, cos (and since 2.35 tan); declaring them lets the loops
  * below vectorise. const: errno is never read here, and without it gcc 12 does not if-convert a loop
  * that has a call and a comparison, so it would stay scalar. */
-#if defined(__x86_64__) && defined(__GLIBC__) && !defined(ABYSSAL_NO_LIBMVEC)
+#if defined(__x86_64__) && defined(__GLIBC__) && !defined(ABYSSAL_NO_LIBMVEC) && (defined(ABYSSAL_OPENMP_SIMD) || defined(_OPENMP))
 #pragma omp declare simd notinbranch
 extern double sin(double) __attribute__((const));
 #pragma omp declare simd notinbranch
@@ -40,15 +47,14 @@ extern double tan(double) __attribute__((const));
 CASADI_SYMBOL_EXPORT int cn2d_f_soa(casadi_int N, casadi_int ld, const casadi_real** arg, casadi_real** res) {
   const casadi_real* a0 = arg[0];
   const casadi_real* a1 = arg[1];
-  const casadi_real* a2 = arg[2];
   const casadi_real* a3 = arg[3];
   casadi_real* r0 = res[0];
   casadi_int j;
-#pragma omp simd
+  const casadi_real c1=a3[0];
+  ABYSSAL_SIMD_LOOP
   for (j = 0; j < N; ++j) {
     casadi_real w0, w1, w2, w3, w4, w5, w6, w7;
     w0=a0[0*ld+j];
-    w1=a3[0];
     w2=a1[0*ld+j];
     w3=a1[2*ld+j];
     w4=cos(w3);
@@ -57,14 +63,14 @@ CASADI_SYMBOL_EXPORT int cn2d_f_soa(casadi_int N, casadi_int ld, const casadi_re
     w3=sin(w3);
     w7=w6*w3;
     w5=w5+w7;
-    w5=w1*w5;
+    w5=c1*w5;
     w0=w0+w5;
     r0[0*ld+j]=w0;
     w0=a0[1*ld+j];
     w2=w2*w3;
     w6=w6*w4;
     w2=w2-w6;
-    w1=w1*w2;
+    w1=c1*w2;
     w0=w0+w1;
     r0[1*ld+j]=w0;
   }
@@ -77,16 +83,16 @@ CASADI_SYMBOL_EXPORT int cn2d_h_soa(casadi_int N, casadi_int ld, const casadi_re
   const casadi_real* a1 = arg[1];
   casadi_real* r0 = res[0];
   casadi_int j;
-#pragma omp simd
+  const casadi_real c1=a1[0];
+  const casadi_real c5=a1[1];
+  ABYSSAL_SIMD_LOOP
   for (j = 0; j < N; ++j) {
-    casadi_real w0, w1, w2;
+    casadi_real w0, w1;
     w0=a0[0*ld+j];
-    w1=a1[0];
-    w0=w0-w1;
+    w0=w0-c1;
     w0=w0*w0;
     w1=a0[1*ld+j];
-    w2=a1[1];
-    w1=w1-w2;
+    w1=w1-c5;
     w1=w1*w1;
     w0=w0+w1;
     w0=sqrt(w0);

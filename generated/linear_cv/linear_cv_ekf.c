@@ -9,6 +9,11 @@
  *   linear_cv_ekf_update              315 operations
  *   linear_cv_ekf_step                527 operations
  */
+
+/* CasADi's calling convention passes iw, w and mem to every function; not every function uses them. */
+#if defined(__GNUC__)
+#pragma GCC diagnostic ignored "-Wunused-parameter"
+#endif
 /* How to prefix internal symbols */
 #ifdef CASADI_CODEGEN_PREFIX
   #define CASADI_NAMESPACE_CONCAT(NS, ID) _CASADI_NAMESPACE_CONCAT(NS, ID)

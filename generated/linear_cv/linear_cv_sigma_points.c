@@ -5,13 +5,22 @@
  * Functions (operations per call: CasADi SX instructions after common-subexpression elimination,
  * of the function itself or of the leaves it calls, times the calls):
  *   linear_cv_ukf_predict            1218 operations
- *   linear_cv_ukf_update              771 operations
- *   linear_cv_mcukf_update            822 operations
- *   linear_cv_huber_ukf_update        926 operations
+ *   linear_cv_ukf_update              610 operations
+ *   linear_cv_ukf_predict_points      231 operations
+ *   linear_cv_ukf_predict_weights       34 operations
+ *   linear_cv_mcukf_update            661 operations
+ *   linear_cv_huber_ukf_update        765 operations
  *   linear_cv_ckf_predict            1035 operations
- *   linear_cv_ckf_update              666 operations
- *   linear_cv_ckf_step               1702 operations
+ *   linear_cv_ckf_update              575 operations
+ *   linear_cv_ckf_step               1611 operations
+ *   linear_cv_ckf_predict_points      227 operations
+ *   linear_cv_ckf_predict_weights        8 operations
  */
+
+/* CasADi's calling convention passes iw, w and mem to every function; not every function uses them. */
+#if defined(__GNUC__)
+#pragma GCC diagnostic ignored "-Wunused-parameter"
+#endif
 /* How to prefix internal symbols */
 #ifdef CASADI_CODEGEN_PREFIX
   #define CASADI_NAMESPACE_CONCAT(NS, ID) _CASADI_NAMESPACE_CONCAT(NS, ID)
@@ -63,10 +72,6 @@
 #define casadi_f32 CASADI_PREFIX(f32)
 #define casadi_f33 CASADI_PREFIX(f33)
 #define casadi_f34 CASADI_PREFIX(f34)
-#define casadi_f35 CASADI_PREFIX(f35)
-#define casadi_f36 CASADI_PREFIX(f36)
-#define casadi_f37 CASADI_PREFIX(f37)
-#define casadi_f38 CASADI_PREFIX(f38)
 #define casadi_f4 CASADI_PREFIX(f4)
 #define casadi_f5 CASADI_PREFIX(f5)
 #define casadi_f6 CASADI_PREFIX(f6)
@@ -84,6 +89,10 @@
 #define casadi_s3 CASADI_PREFIX(s3)
 #define casadi_s4 CASADI_PREFIX(s4)
 #define casadi_s5 CASADI_PREFIX(s5)
+#define casadi_s6 CASADI_PREFIX(s6)
+#define casadi_s7 CASADI_PREFIX(s7)
+#define casadi_s8 CASADI_PREFIX(s8)
+#define casadi_s9 CASADI_PREFIX(s9)
 #define casadi_sq CASADI_PREFIX(sq)
 #define casadi_zeros CASADI_PREFIX(zeros)
 
@@ -197,6 +206,10 @@ static const casadi_int casadi_s2[3] = {2, 1, 1};
 static const casadi_int casadi_s3[3] = {1, 1, 1};
 static const casadi_int casadi_s4[3] = {3, 1, 1};
 static const casadi_int casadi_s5[3] = {2, 2, 1};
+static const casadi_int casadi_s6[3] = {9, 4, 1};
+static const casadi_int casadi_s7[3] = {9, 1, 1};
+static const casadi_int casadi_s8[3] = {8, 4, 1};
+static const casadi_int casadi_s9[3] = {8, 1, 1};
 
 static const casadi_real casadi_zeros[36] = 
   {0.};
@@ -940,165 +953,153 @@ CASADI_SYMBOL_EXPORT int linear_cv_ukf_predict_work_bytes(casadi_int *sz_arg, ca
   return 0;
 }
 
-/* linear_cv_ukf_measured_points:(x[4],L[4x4],p[2],abk[3])->(Z[2x9]) */
+/* linear_cv_ukf_measured_moments:(x[4],L[4x4],p[2],abk[3])->(z_pred[2],DZ[2x9],Czz[2x2]) */
 static int casadi_f13(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real a0, a1, a2, a3, a4, a5, a6, a7, a8, a9;
-  a0=arg[0]? arg[0][0] : 0;
-  a1=arg[2]? arg[2][0] : 0;
-  a2=(a0-a1);
-  if (res[0]!=0) res[0][0]=a2;
-  a3=arg[0]? arg[0][1] : 0;
-  a4=arg[2]? arg[2][1] : 0;
-  a5=(a3-a4);
-  if (res[0]!=0) res[0][1]=a5;
-  a6=arg[1]? arg[1][0] : 0;
-  a7=arg[3]? arg[3][0] : 0;
-  a7=casadi_sq(a7);
-  a8=4.;
-  a9=arg[3]? arg[3][2] : 0;
-  a8=(a8+a9);
-  a7=(a7*a8);
-  a7=sqrt(a7);
-  a6=(a6*a7);
-  a8=(a0+a6);
-  a8=(a8-a1);
-  if (res[0]!=0) res[0][2]=a8;
-  a8=arg[1]? arg[1][1] : 0;
-  a8=(a8*a7);
-  a9=(a3+a8);
-  a9=(a9-a4);
-  if (res[0]!=0) res[0][3]=a9;
-  if (res[0]!=0) res[0][4]=a2;
-  a9=arg[1]? arg[1][5] : 0;
-  a9=(a9*a7);
-  a7=(a3+a9);
-  a7=(a7-a4);
-  if (res[0]!=0) res[0][5]=a7;
-  if (res[0]!=0) res[0][6]=a2;
-  if (res[0]!=0) res[0][7]=a5;
-  if (res[0]!=0) res[0][8]=a2;
-  if (res[0]!=0) res[0][9]=a5;
-  a0=(a0-a6);
-  a0=(a0-a1);
-  if (res[0]!=0) res[0][10]=a0;
-  a8=(a3-a8);
-  a8=(a8-a4);
-  if (res[0]!=0) res[0][11]=a8;
-  if (res[0]!=0) res[0][12]=a2;
-  a3=(a3-a9);
-  a3=(a3-a4);
-  if (res[0]!=0) res[0][13]=a3;
-  if (res[0]!=0) res[0][14]=a2;
-  if (res[0]!=0) res[0][15]=a5;
-  if (res[0]!=0) res[0][16]=a2;
-  if (res[0]!=0) res[0][17]=a5;
-  return 0;
-}
-
-/* linear_cv_residual:(z_k[2],z_pred[2])->(dz[2],dzdzT[2x2]) */
-static int casadi_f15(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real a0, a1, a2;
-  a0=arg[0]? arg[0][0] : 0;
-  a1=arg[1]? arg[1][0] : 0;
-  a0=(a0-a1);
-  if (res[0]!=0) res[0][0]=a0;
-  a1=arg[0]? arg[0][1] : 0;
-  a2=arg[1]? arg[1][1] : 0;
-  a1=(a1-a2);
-  if (res[0]!=0) res[0][1]=a1;
-  a2=casadi_sq(a0);
-  if (res[1]!=0) res[1][0]=a2;
-  a0=(a0*a1);
-  if (res[1]!=0) res[1][1]=a0;
-  if (res[1]!=0) res[1][2]=a0;
-  a1=casadi_sq(a1);
-  if (res[1]!=0) res[1][3]=a1;
-  return 0;
-}
-
-/* linear_cv_residual_0_1:(z_k[2],z_pred[2])->(dz[2],dzdzT[2x2]) */
-static int casadi_f14(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i, j;
-  casadi_real **res1=res+2, *w0=w+3, *w1=w+5, *w2=w+7, *w3=w+9, *w4=w+13;
-  const casadi_real **arg1=arg+2;
-  /* #0: @0 = input[0][0] */
-  casadi_copy(arg[0], 2, w0);
-  /* #1: @1 = input[1][0] */
-  casadi_copy(arg[1], 2, w1);
-  /* #2: {@2, @3} = linear_cv_residual(@0, @1) */
-  arg1[0]=w0;
-  arg1[1]=w1;
-  res1[0]=w2;
-  res1[1]=w3;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #3: output[0][0] = @2 */
-  casadi_copy(w2, 2, res[0]);
-  /* #4: @4 = repsum(@3, 1) */
-  casadi_clear(w4, 4);
-    for (i=0;i<1;++i) {
-        for (j=0;j<4;++j) {
-            w4[j] += w3[j+i*4];
-          }
-      }
-  /* #5: output[1][0] = @4 */
-  casadi_copy(w4, 4, res[1]);
-  return 0;
-}
-
-/* map8_linear_cv_residual:(z_k[2x8],z_pred[2x8])->(dz[2x8],dzdzT[2x16]) */
-static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i;
-  casadi_real* *res1;
-  const casadi_real* *arg1;
-  arg1 = arg+2;
-  for (i=0; i<2; ++i) arg1[i]=arg[i];
-  res1 = res+2;
-  for (i=0; i<2; ++i) res1[i]=res[i];
-  for (i=0; i<8; ++i) {
-    if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-    if (arg1[0]) arg1[0]+=2;
-    if (arg1[1]) arg1[1]+=2;
-    if (res1[0]) res1[0]+=2;
-    if (res1[1]) res1[1]+=4;
-  }
-  return 0;
-}
-
-/* linear_cv_residual_1_9:(z_k[2x8],z_pred[2])->(dz[2x8],dzdzT[2x2]) */
-static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i, j;
-  casadi_real **res1=res+2, *w1=w+3, *w2=w+5, *w3=w+21, *w4=w+37, *w5=w+69;
-  const casadi_real **arg1=arg+2, *wr0;
-  /* #0: @0 = input[0][0] */
-  wr0 = arg[0] ? arg[0] : casadi_zeros;
-  /* #1: @1 = input[1][0] */
-  casadi_copy(arg[1], 2, w1);
-  /* #2: @2 = repmat(@1, 8) */
-  for (i=0;i<8;++i) {
-    casadi_copy(w1, 2, w2+ i*2);
-  }
-  /* #3: {@3, @4} = map8_linear_cv_residual(@0, @2) */
-  arg1[0]=wr0;
-  arg1[1]=w2;
-  res1[0]=w3;
-  res1[1]=w4;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #4: output[0][0] = @3 */
-  casadi_copy(w3, 16, res[0]);
-  /* #5: @5 = repsum(@4, 8) */
-  casadi_clear(w5, 4);
-    for (i=0;i<8;++i) {
-        for (j=0;j<4;++j) {
-            w5[j] += w4[j+i*4];
-          }
-      }
-  /* #6: output[1][0] = @5 */
-  casadi_copy(w5, 4, res[1]);
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15;
+  a00=arg[3]? arg[3][0] : 0;
+  a00=casadi_sq(a00);
+  a01=4.;
+  a02=arg[3]? arg[3][2] : 0;
+  a02=(a01+a02);
+  a02=(a00*a02);
+  a01=(a02-a01);
+  a03=(1./a02);
+  a03=copysign(a03,a02);
+  a01=(a01*a03);
+  a03=arg[0]? arg[0][0] : 0;
+  a04=arg[2]? arg[2][0] : 0;
+  a05=(a03-a04);
+  a06=(a01*a05);
+  a07=arg[1]? arg[1][0] : 0;
+  a08=sqrt(a02);
+  a07=(a07*a08);
+  a09=(a03+a07);
+  a09=(a09-a04);
+  a10=(a09+a05);
+  a10=(a10+a05);
+  a10=(a10+a05);
+  a03=(a03-a07);
+  a03=(a03-a04);
+  a10=(a10+a03);
+  a10=(a10+a05);
+  a10=(a10+a05);
+  a10=(a10+a05);
+  a02=(2.*a02);
+  a04=(1./a02);
+  a04=copysign(a04,a02);
+  a10=(a10*a04);
+  a06=(a06+a10);
+  if (res[0]!=0) res[0][0]=a06;
+  a10=arg[0]? arg[0][1] : 0;
+  a02=arg[2]? arg[2][1] : 0;
+  a07=(a10-a02);
+  a11=(a01*a07);
+  a12=arg[1]? arg[1][1] : 0;
+  a12=(a12*a08);
+  a13=(a10+a12);
+  a13=(a13-a02);
+  a14=arg[1]? arg[1][5] : 0;
+  a14=(a14*a08);
+  a08=(a10+a14);
+  a08=(a08-a02);
+  a15=(a13+a08);
+  a15=(a15+a07);
+  a15=(a15+a07);
+  a12=(a10-a12);
+  a12=(a12-a02);
+  a15=(a15+a12);
+  a10=(a10-a14);
+  a10=(a10-a02);
+  a15=(a15+a10);
+  a15=(a15+a07);
+  a15=(a15+a07);
+  a15=(a15*a04);
+  a11=(a11+a15);
+  if (res[0]!=0) res[0][1]=a11;
+  a05=(a05-a06);
+  if (res[1]!=0) res[1][0]=a05;
+  a07=(a07-a11);
+  if (res[1]!=0) res[1][1]=a07;
+  a09=(a09-a06);
+  if (res[1]!=0) res[1][2]=a09;
+  a13=(a13-a11);
+  if (res[1]!=0) res[1][3]=a13;
+  if (res[1]!=0) res[1][4]=a05;
+  a08=(a08-a11);
+  if (res[1]!=0) res[1][5]=a08;
+  if (res[1]!=0) res[1][6]=a05;
+  if (res[1]!=0) res[1][7]=a07;
+  if (res[1]!=0) res[1][8]=a05;
+  if (res[1]!=0) res[1][9]=a07;
+  a03=(a03-a06);
+  if (res[1]!=0) res[1][10]=a03;
+  a12=(a12-a11);
+  if (res[1]!=0) res[1][11]=a12;
+  if (res[1]!=0) res[1][12]=a05;
+  a10=(a10-a11);
+  if (res[1]!=0) res[1][13]=a10;
+  if (res[1]!=0) res[1][14]=a05;
+  if (res[1]!=0) res[1][15]=a07;
+  if (res[1]!=0) res[1][16]=a05;
+  if (res[1]!=0) res[1][17]=a07;
+  a11=1.;
+  a01=(a01+a11);
+  a01=(a01-a00);
+  a00=arg[3]? arg[3][1] : 0;
+  a01=(a01+a00);
+  a00=casadi_sq(a05);
+  a11=(a01*a00);
+  a06=casadi_sq(a09);
+  a06=(a06+a00);
+  a06=(a06+a00);
+  a06=(a06+a00);
+  a15=casadi_sq(a03);
+  a06=(a06+a15);
+  a06=(a06+a00);
+  a06=(a06+a00);
+  a06=(a06+a00);
+  a06=(a06*a04);
+  a11=(a11+a06);
+  if (res[2]!=0) res[2][0]=a11;
+  a11=(a05*a07);
+  a06=(a01*a11);
+  a09=(a09*a13);
+  a00=(a05*a08);
+  a09=(a09+a00);
+  a09=(a09+a11);
+  a09=(a09+a11);
+  a03=(a03*a12);
+  a09=(a09+a03);
+  a05=(a05*a10);
+  a09=(a09+a05);
+  a09=(a09+a11);
+  a09=(a09+a11);
+  a09=(a09*a04);
+  a06=(a06+a09);
+  if (res[2]!=0) res[2][1]=a06;
+  if (res[2]!=0) res[2][2]=a06;
+  a07=casadi_sq(a07);
+  a01=(a01*a07);
+  a13=casadi_sq(a13);
+  a08=casadi_sq(a08);
+  a13=(a13+a08);
+  a13=(a13+a07);
+  a13=(a13+a07);
+  a12=casadi_sq(a12);
+  a13=(a13+a12);
+  a10=casadi_sq(a10);
+  a13=(a13+a10);
+  a13=(a13+a07);
+  a13=(a13+a07);
+  a13=(a13*a04);
+  a01=(a01+a13);
+  if (res[2]!=0) res[2][3]=a01;
   return 0;
 }
 
 /* linear_cv_ukf_moments:(L[4x4],DZ[2x9],Czz[2x2],z_pred[2],z[2],mask[2],abk[3])->(innovation[2],Pzz[2x2],Pxz[4x2]) */
-static int casadi_f18(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f14(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15;
   a00=arg[5]? arg[5][0] : 0;
@@ -1242,7 +1243,7 @@ static int casadi_f18(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* linear_cv_noise:(R[2x2],mask[2],Pzz[2x2],innovation[2])->(R_used[2x2],ok) */
-static int casadi_f19(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f15(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a0, a1, a2, a3, a4, a5;
   a0=arg[1]? arg[1][0] : 0;
   a1=0.;
@@ -1276,7 +1277,7 @@ static int casadi_f19(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* linear_cv_kalman:(x[4],P[4x4],Pzz[2x2],Pxz[4x2],R_used[2x2],innovation[2])->(x_post[4],P_post[4x4],S[2x2],ok) */
-static int casadi_f20(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26;
@@ -1482,10 +1483,9 @@ static int casadi_f20(const casadi_real** arg, casadi_real** res, casadi_int* iw
 
 /* linear_cv_ukf_update:(x[4],P[4x4],z[2],p[2],R[2x2],mask[2],abk[3])->(x_post[4],P_post[4x4],innovation[2],S[2x2],ok) */
 static int casadi_f12(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i;
-  casadi_real **res1=res+5, *rr, *w00=w+89, *w02=w+93, w03, *w04=w+109, *w05=w+111, *w06=w+114, *w07=w+132, *w08=w+134, w09, *w10=w+136;
-  casadi_real *w11=w+138, *w12=w+154, *w13=w+162, *w14=w+166, *w15=w+182, *w16=w+186, *w17=w+190, w18;
-  const casadi_real **arg1=arg+7, *cs, *wr01;
+  casadi_real **res1=res+5, *w00=w+27, *w02=w+31, w03, *w04=w+47, *w05=w+49, *w06=w+52, *w07=w+54, *w08=w+72, *w09=w+76, *w10=w+78, *w11=w+80;
+  casadi_real *w12=w+84, *w13=w+92, w14, *w15=w+96, w16;
+  const casadi_real **arg1=arg+7, *wr01;
   /* #0: @0 = input[0][0] */
   casadi_copy(arg[0], 4, w00);
   /* #1: @1 = input[1][0] */
@@ -1499,115 +1499,66 @@ static int casadi_f12(const casadi_real** arg, casadi_real** res, casadi_int* iw
   casadi_copy(arg[3], 2, w04);
   /* #4: @5 = input[6][0] */
   casadi_copy(arg[6], 3, w05);
-  /* #5: @6 = linear_cv_ukf_measured_points(@0, @2, @4, @5) */
+  /* #5: {@6, @7, @8} = linear_cv_ukf_measured_moments(@0, @2, @4, @5) */
   arg1[0]=w00;
   arg1[1]=w02;
   arg1[2]=w04;
   arg1[3]=w05;
   res1[0]=w06;
+  res1[1]=w07;
+  res1[2]=w08;
   if (casadi_f13(arg1, res1, iw, w, 0)) return 1;
-  /* #6: @4 = @6[:2] */
-  for (rr=w04, cs=w06+0; cs!=w06+2; cs+=1) *rr++ = *cs;
-  /* #7: {@7, @8} = linear_cv_ukf_weights(@5) */
-  arg1[0]=w05;
-  res1[0]=w07;
-  res1[1]=w08;
-  if (casadi_f1(arg1, res1, iw, w, 0)) return 1;
-  /* #8: @9 = @7[0] */
-  for (rr=(&w09), cs=w07+0; cs!=w07+1; cs+=1) *rr++ = *cs;
-  /* #9: @10 = (@9*@4) */
-  for (i=0, rr=w10, cs=w04; i<2; ++i) (*rr++)  = (w09*(*cs++));
-  /* #10: @9 = @7[1] */
-  for (rr=(&w09), cs=w07+1; cs!=w07+2; cs+=1) *rr++ = *cs;
-  /* #11: @7 = zeros(2x1) */
-  casadi_clear(w07, 2);
-  /* #12: @11 = @6[2:18] */
-  for (rr=w11, cs=w06+2; cs!=w06+18; cs+=1) *rr++ = *cs;
-  /* #13: @12 = ones(8x1) */
-  casadi_fill(w12, 8, 1.);
-  /* #14: @7 = mac(@11,@12,@7) */
-  casadi_mtimes_dense(w11, 2, 8, w12, 1, w07, 0);
-  /* #15: @7 = (@9*@7) */
-  for (i=0, rr=w07, cs=w07; i<2; ++i) (*rr++)  = (w09*(*cs++));
-  /* #16: @10 = (@10+@7) */
-  for (i=0, rr=w10, cs=w07; i<2; ++i) (*rr++) += (*cs++);
-  /* #17: {@7, @13} = linear_cv_residual_0_1(@4, @10) */
-  arg1[0]=w04;
-  arg1[1]=w10;
-  res1[0]=w07;
-  res1[1]=w13;
-  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
-  /* #18: {@14, @15} = linear_cv_residual_1_9(@11, @10) */
-  arg1[0]=w11;
-  arg1[1]=w10;
-  res1[0]=w14;
-  res1[1]=w15;
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #19: @6 = horzcat(@7, @14) */
-  rr=w06;
-  for (i=0, cs=w07; i<2; ++i) *rr++ = *cs++;
-  for (i=0, cs=w14; i<16; ++i) *rr++ = *cs++;
-  /* #20: @9 = @8[0] */
-  for (rr=(&w09), cs=w08+0; cs!=w08+1; cs+=1) *rr++ = *cs;
-  /* #21: @13 = (@9*@13) */
-  for (i=0, rr=w13, cs=w13; i<4; ++i) (*rr++)  = (w09*(*cs++));
-  /* #22: @9 = @8[1] */
-  for (rr=(&w09), cs=w08+1; cs!=w08+2; cs+=1) *rr++ = *cs;
-  /* #23: @15 = (@9*@15) */
-  for (i=0, rr=w15, cs=w15; i<4; ++i) (*rr++)  = (w09*(*cs++));
-  /* #24: @13 = (@13+@15) */
-  for (i=0, rr=w13, cs=w15; i<4; ++i) (*rr++) += (*cs++);
-  /* #25: @8 = input[2][0] */
-  casadi_copy(arg[2], 2, w08);
-  /* #26: @7 = input[5][0] */
-  casadi_copy(arg[5], 2, w07);
-  /* #27: {@4, @15, @12} = linear_cv_ukf_moments(@2, @6, @13, @10, @8, @7, @5) */
+  /* #6: @4 = input[2][0] */
+  casadi_copy(arg[2], 2, w04);
+  /* #7: @9 = input[5][0] */
+  casadi_copy(arg[5], 2, w09);
+  /* #8: {@10, @11, @12} = linear_cv_ukf_moments(@2, @7, @8, @6, @4, @9, @5) */
   arg1[0]=w02;
-  arg1[1]=w06;
-  arg1[2]=w13;
-  arg1[3]=w10;
-  arg1[4]=w08;
-  arg1[5]=w07;
-  arg1[6]=w05;
-  res1[0]=w04;
-  res1[1]=w15;
-  res1[2]=w12;
-  if (casadi_f18(arg1, res1, iw, w, 0)) return 1;
-  /* #28: @13 = input[4][0] */
-  casadi_copy(arg[4], 4, w13);
-  /* #29: {@16, @9} = linear_cv_noise(@13, @7, @15, @4) */
-  arg1[0]=w13;
   arg1[1]=w07;
-  arg1[2]=w15;
-  arg1[3]=w04;
-  res1[0]=w16;
-  res1[1]=(&w09);
-  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
-  /* #30: {@13, @2, @17, @18} = linear_cv_kalman(@0, @1, @15, @12, @16, @4) */
+  arg1[2]=w08;
+  arg1[3]=w06;
+  arg1[4]=w04;
+  arg1[5]=w09;
+  arg1[6]=w05;
+  res1[0]=w10;
+  res1[1]=w11;
+  res1[2]=w12;
+  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
+  /* #9: @8 = input[4][0] */
+  casadi_copy(arg[4], 4, w08);
+  /* #10: {@13, @14} = linear_cv_noise(@8, @9, @11, @10) */
+  arg1[0]=w08;
+  arg1[1]=w09;
+  arg1[2]=w11;
+  arg1[3]=w10;
+  res1[0]=w13;
+  res1[1]=(&w14);
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #11: {@8, @2, @15, @16} = linear_cv_kalman(@0, @1, @11, @12, @13, @10) */
   arg1[0]=w00;
   arg1[1]=wr01;
-  arg1[2]=w15;
+  arg1[2]=w11;
   arg1[3]=w12;
-  arg1[4]=w16;
-  arg1[5]=w04;
-  res1[0]=w13;
+  arg1[4]=w13;
+  arg1[5]=w10;
+  res1[0]=w08;
   res1[1]=w02;
-  res1[2]=w17;
-  res1[3]=(&w18);
-  if (casadi_f20(arg1, res1, iw, w, 0)) return 1;
-  /* #31: output[0][0] = @13 */
-  casadi_copy(w13, 4, res[0]);
-  /* #32: output[1][0] = @2 */
+  res1[2]=w15;
+  res1[3]=(&w16);
+  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
+  /* #12: output[0][0] = @8 */
+  casadi_copy(w08, 4, res[0]);
+  /* #13: output[1][0] = @2 */
   casadi_copy(w02, 16, res[1]);
-  /* #33: output[2][0] = @4 */
-  casadi_copy(w04, 2, res[2]);
-  /* #34: output[3][0] = @17 */
-  casadi_copy(w17, 4, res[3]);
-  /* #35: @3 = (@3*@9) */
-  w03 *= w09;
-  /* #36: @3 = (@3*@18) */
-  w03 *= w18;
-  /* #37: output[4][0] = @3 */
+  /* #14: output[2][0] = @10 */
+  casadi_copy(w10, 2, res[2]);
+  /* #15: output[3][0] = @15 */
+  casadi_copy(w15, 4, res[3]);
+  /* #16: @3 = (@3*@14) */
+  w03 *= w14;
+  /* #17: @3 = (@3*@16) */
+  w03 *= w16;
+  /* #18: output[4][0] = @3 */
   if (res[4]) res[4][0] = w03;
   return 0;
 }
@@ -1689,84 +1640,261 @@ CASADI_SYMBOL_EXPORT const casadi_int* linear_cv_ukf_update_sparsity_out(casadi_
 
 CASADI_SYMBOL_EXPORT int linear_cv_ukf_update_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
   if (sz_arg) *sz_arg = 14;
-  if (sz_res) *sz_res = 11;
+  if (sz_res) *sz_res = 9;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 194;
+  if (sz_w) *sz_w = 100;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_ukf_update_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
   if (sz_arg) *sz_arg = 14*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 11*sizeof(casadi_real*);
+  if (sz_res) *sz_res = 9*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 194*sizeof(casadi_real);
+  if (sz_w) *sz_w = 100*sizeof(casadi_real);
   return 0;
 }
 
-/* linear_cv_residual_0_1:(z_k[2],z_pred[2])->(dz[2],dzdzT[2x2]) */
-static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+/* linear_cv_ukf_predict_points:(x[4],P[4x4],abk[3])->(X[9x4],ok) */
+static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i, j;
-  casadi_real **res1=res+2, *w0=w+3, *w1=w+5, *w2=w+7, *w3=w+9, *w4=w+13;
-  const casadi_real **arg1=arg+2;
+  casadi_real **res1=res+2, *rr, *w0=w+17, *w2=w+21, w3, *w4=w+37, *w5=w+40, *w6=w+76;
+  const casadi_real **arg1=arg+3, *cs, *wr1;
   /* #0: @0 = input[0][0] */
-  casadi_copy(arg[0], 2, w0);
+  casadi_copy(arg[0], 4, w0);
   /* #1: @1 = input[1][0] */
-  casadi_copy(arg[1], 2, w1);
-  /* #2: {@2, @3} = linear_cv_residual(@0, @1) */
-  arg1[0]=w0;
-  arg1[1]=w1;
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: {@2, @3} = linear_cv_cholesky(@1) */
+  arg1[0]=wr1;
   res1[0]=w2;
-  res1[1]=w3;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #3: output[0][0] = @2 */
-  casadi_copy(w2, 2, res[0]);
-  /* #4: @4 = repsum(@3, 1) */
-  casadi_clear(w4, 4);
-    for (i=0;i<1;++i) {
-        for (j=0;j<4;++j) {
-            w4[j] += w3[j+i*4];
-          }
-      }
-  /* #5: output[1][0] = @4 */
-  casadi_copy(w4, 4, res[1]);
+  res1[1]=(&w3);
+  if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
+  /* #3: @4 = input[2][0] */
+  casadi_copy(arg[2], 3, w4);
+  /* #4: @5 = linear_cv_ukf_points(@0, @2, @4) */
+  arg1[0]=w0;
+  arg1[1]=w2;
+  arg1[2]=w4;
+  res1[0]=w5;
+  if (casadi_f3(arg1, res1, iw, w, 0)) return 1;
+  /* #5: @6 = @5' */
+  for (i=0, rr=w6, cs=w5; i<9; ++i) for (j=0; j<4; ++j) rr[i+j*9] = *cs++;
+  /* #6: output[0][0] = @6 */
+  casadi_copy(w6, 36, res[0]);
+  /* #7: output[1][0] = @3 */
+  if (res[1]) res[1][0] = w3;
   return 0;
 }
 
-/* linear_cv_residual_1_9:(z_k[2x8],z_pred[2])->(dz[2x8],dzdzT[2x2]) */
-static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i, j;
-  casadi_real **res1=res+2, *w1=w+3, *w2=w+5, *w3=w+21, *w4=w+37, *w5=w+69;
-  const casadi_real **arg1=arg+2, *wr0;
-  /* #0: @0 = input[0][0] */
-  wr0 = arg[0] ? arg[0] : casadi_zeros;
-  /* #1: @1 = input[1][0] */
-  casadi_copy(arg[1], 2, w1);
-  /* #2: @2 = repmat(@1, 8) */
-  for (i=0;i<8;++i) {
-    casadi_copy(w1, 2, w2+ i*2);
+CASADI_SYMBOL_EXPORT int linear_cv_ukf_predict_points(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f17(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int linear_cv_ukf_predict_points_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void linear_cv_ukf_predict_points_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void linear_cv_ukf_predict_points_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void linear_cv_ukf_predict_points_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int linear_cv_ukf_predict_points_n_in(void) { return 3;}
+
+CASADI_SYMBOL_EXPORT casadi_int linear_cv_ukf_predict_points_n_out(void) { return 2;}
+
+CASADI_SYMBOL_EXPORT casadi_real linear_cv_ukf_predict_points_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
   }
-  /* #3: {@3, @4} = map8_linear_cv_residual(@0, @2) */
-  arg1[0]=wr0;
-  arg1[1]=w2;
-  res1[0]=w3;
-  res1[1]=w4;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #4: output[0][0] = @3 */
-  casadi_copy(w3, 16, res[0]);
-  /* #5: @5 = repsum(@4, 8) */
-  casadi_clear(w5, 4);
-    for (i=0;i<8;++i) {
-        for (j=0;j<4;++j) {
-            w5[j] += w4[j+i*4];
-          }
-      }
-  /* #6: output[1][0] = @5 */
-  casadi_copy(w5, 4, res[1]);
+}
+
+CASADI_SYMBOL_EXPORT const char* linear_cv_ukf_predict_points_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "x";
+    case 1: return "P";
+    case 2: return "abk";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* linear_cv_ukf_predict_points_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "X";
+    case 1: return "ok";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* linear_cv_ukf_predict_points_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s0;
+    case 1: return casadi_s1;
+    case 2: return casadi_s4;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* linear_cv_ukf_predict_points_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s6;
+    case 1: return casadi_s3;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int linear_cv_ukf_predict_points_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 6;
+  if (sz_res) *sz_res = 4;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 112;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int linear_cv_ukf_predict_points_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 6*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 4*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 112*sizeof(casadi_real);
+  return 0;
+}
+
+/* linear_cv_ukf_point_weights:(abk[3])->(wm[9],wc[9]) */
+static int casadi_f19(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a0, a1, a2, a3;
+  a0=arg[0]? arg[0][0] : 0;
+  a1=casadi_sq(a0);
+  a2=4.;
+  a3=arg[0]? arg[0][2] : 0;
+  a3=(a2+a3);
+  a1=(a1*a3);
+  a2=(a1-a2);
+  a2=(a2/a1);
+  if (res[0]!=0) res[0][0]=a2;
+  a1=(2.*a1);
+  a1=(1./a1);
+  if (res[0]!=0) res[0][1]=a1;
+  if (res[0]!=0) res[0][2]=a1;
+  if (res[0]!=0) res[0][3]=a1;
+  if (res[0]!=0) res[0][4]=a1;
+  if (res[0]!=0) res[0][5]=a1;
+  if (res[0]!=0) res[0][6]=a1;
+  if (res[0]!=0) res[0][7]=a1;
+  if (res[0]!=0) res[0][8]=a1;
+  a3=1.;
+  a2=(a2+a3);
+  a0=casadi_sq(a0);
+  a2=(a2-a0);
+  a0=arg[0]? arg[0][1] : 0;
+  a2=(a2+a0);
+  if (res[1]!=0) res[1][0]=a2;
+  if (res[1]!=0) res[1][1]=a1;
+  if (res[1]!=0) res[1][2]=a1;
+  if (res[1]!=0) res[1][3]=a1;
+  if (res[1]!=0) res[1][4]=a1;
+  if (res[1]!=0) res[1][5]=a1;
+  if (res[1]!=0) res[1][6]=a1;
+  if (res[1]!=0) res[1][7]=a1;
+  if (res[1]!=0) res[1][8]=a1;
+  return 0;
+}
+
+/* linear_cv_ukf_predict_weights:(abk[3])->(wm[9],wc[9]) */
+static int casadi_f18(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+4, *w1=w+7, *w2=w+16;
+  const casadi_real **arg1=arg+1;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 3, w0);
+  /* #1: {@1, @2} = linear_cv_ukf_point_weights(@0) */
+  arg1[0]=w0;
+  res1[0]=w1;
+  res1[1]=w2;
+  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
+  /* #2: output[0][0] = @1 */
+  casadi_copy(w1, 9, res[0]);
+  /* #3: output[1][0] = @2 */
+  casadi_copy(w2, 9, res[1]);
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int linear_cv_ukf_predict_weights(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f18(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int linear_cv_ukf_predict_weights_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void linear_cv_ukf_predict_weights_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void linear_cv_ukf_predict_weights_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void linear_cv_ukf_predict_weights_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int linear_cv_ukf_predict_weights_n_in(void) { return 1;}
+
+CASADI_SYMBOL_EXPORT casadi_int linear_cv_ukf_predict_weights_n_out(void) { return 2;}
+
+CASADI_SYMBOL_EXPORT casadi_real linear_cv_ukf_predict_weights_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* linear_cv_ukf_predict_weights_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "abk";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* linear_cv_ukf_predict_weights_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "wm";
+    case 1: return "wc";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* linear_cv_ukf_predict_weights_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s4;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* linear_cv_ukf_predict_weights_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s7;
+    case 1: return casadi_s7;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int linear_cv_ukf_predict_weights_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 2;
+  if (sz_res) *sz_res = 4;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 25;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int linear_cv_ukf_predict_weights_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 2*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 4*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 25*sizeof(casadi_real);
   return 0;
 }
 
 /* linear_cv_mcc_noise:(R[2x2],mask[2],Pzz[2x2],innovation[2],sigma)->(R_used[2x2],ok) */
-static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16;
   a00=arg[1]? arg[1][0] : 0;
@@ -1852,11 +1980,10 @@ static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* linear_cv_mcukf_update:(x[4],P[4x4],z[2],p[2],R[2x2],mask[2],abk[3],sigma)->(x_post[4],P_post[4x4],innovation[2],S[2x2],ok) */
-static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i;
-  casadi_real **res1=res+5, *rr, *w00=w+89, *w02=w+93, w03, *w04=w+109, *w05=w+111, *w06=w+114, *w07=w+132, *w08=w+134, w09, *w10=w+136;
-  casadi_real *w11=w+138, *w12=w+154, *w13=w+162, *w14=w+166, *w15=w+182, *w16=w+186, w17, *w18=w+190;
-  const casadi_real **arg1=arg+8, *cs, *wr01;
+static int casadi_f20(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+5, *w00=w+27, *w02=w+31, w03, *w04=w+47, *w05=w+49, *w06=w+52, *w07=w+54, *w08=w+72, *w09=w+76, *w10=w+78, *w11=w+80;
+  casadi_real *w12=w+84, w13, *w14=w+92, w15, *w16=w+96;
+  const casadi_real **arg1=arg+8, *wr01;
   /* #0: @0 = input[0][0] */
   casadi_copy(arg[0], 4, w00);
   /* #1: @1 = input[1][0] */
@@ -1870,124 +1997,75 @@ static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw
   casadi_copy(arg[3], 2, w04);
   /* #4: @5 = input[6][0] */
   casadi_copy(arg[6], 3, w05);
-  /* #5: @6 = linear_cv_ukf_measured_points(@0, @2, @4, @5) */
+  /* #5: {@6, @7, @8} = linear_cv_ukf_measured_moments(@0, @2, @4, @5) */
   arg1[0]=w00;
   arg1[1]=w02;
   arg1[2]=w04;
   arg1[3]=w05;
   res1[0]=w06;
+  res1[1]=w07;
+  res1[2]=w08;
   if (casadi_f13(arg1, res1, iw, w, 0)) return 1;
-  /* #6: @4 = @6[:2] */
-  for (rr=w04, cs=w06+0; cs!=w06+2; cs+=1) *rr++ = *cs;
-  /* #7: {@7, @8} = linear_cv_ukf_weights(@5) */
-  arg1[0]=w05;
-  res1[0]=w07;
-  res1[1]=w08;
-  if (casadi_f1(arg1, res1, iw, w, 0)) return 1;
-  /* #8: @9 = @7[0] */
-  for (rr=(&w09), cs=w07+0; cs!=w07+1; cs+=1) *rr++ = *cs;
-  /* #9: @10 = (@9*@4) */
-  for (i=0, rr=w10, cs=w04; i<2; ++i) (*rr++)  = (w09*(*cs++));
-  /* #10: @9 = @7[1] */
-  for (rr=(&w09), cs=w07+1; cs!=w07+2; cs+=1) *rr++ = *cs;
-  /* #11: @7 = zeros(2x1) */
-  casadi_clear(w07, 2);
-  /* #12: @11 = @6[2:18] */
-  for (rr=w11, cs=w06+2; cs!=w06+18; cs+=1) *rr++ = *cs;
-  /* #13: @12 = ones(8x1) */
-  casadi_fill(w12, 8, 1.);
-  /* #14: @7 = mac(@11,@12,@7) */
-  casadi_mtimes_dense(w11, 2, 8, w12, 1, w07, 0);
-  /* #15: @7 = (@9*@7) */
-  for (i=0, rr=w07, cs=w07; i<2; ++i) (*rr++)  = (w09*(*cs++));
-  /* #16: @10 = (@10+@7) */
-  for (i=0, rr=w10, cs=w07; i<2; ++i) (*rr++) += (*cs++);
-  /* #17: {@7, @13} = linear_cv_residual_0_1(@4, @10) */
-  arg1[0]=w04;
-  arg1[1]=w10;
-  res1[0]=w07;
-  res1[1]=w13;
-  if (casadi_f22(arg1, res1, iw, w, 0)) return 1;
-  /* #18: {@14, @15} = linear_cv_residual_1_9(@11, @10) */
-  arg1[0]=w11;
-  arg1[1]=w10;
-  res1[0]=w14;
-  res1[1]=w15;
-  if (casadi_f23(arg1, res1, iw, w, 0)) return 1;
-  /* #19: @6 = horzcat(@7, @14) */
-  rr=w06;
-  for (i=0, cs=w07; i<2; ++i) *rr++ = *cs++;
-  for (i=0, cs=w14; i<16; ++i) *rr++ = *cs++;
-  /* #20: @9 = @8[0] */
-  for (rr=(&w09), cs=w08+0; cs!=w08+1; cs+=1) *rr++ = *cs;
-  /* #21: @13 = (@9*@13) */
-  for (i=0, rr=w13, cs=w13; i<4; ++i) (*rr++)  = (w09*(*cs++));
-  /* #22: @9 = @8[1] */
-  for (rr=(&w09), cs=w08+1; cs!=w08+2; cs+=1) *rr++ = *cs;
-  /* #23: @15 = (@9*@15) */
-  for (i=0, rr=w15, cs=w15; i<4; ++i) (*rr++)  = (w09*(*cs++));
-  /* #24: @13 = (@13+@15) */
-  for (i=0, rr=w13, cs=w15; i<4; ++i) (*rr++) += (*cs++);
-  /* #25: @8 = input[2][0] */
-  casadi_copy(arg[2], 2, w08);
-  /* #26: @7 = input[5][0] */
-  casadi_copy(arg[5], 2, w07);
-  /* #27: {@4, @15, @12} = linear_cv_ukf_moments(@2, @6, @13, @10, @8, @7, @5) */
+  /* #6: @4 = input[2][0] */
+  casadi_copy(arg[2], 2, w04);
+  /* #7: @9 = input[5][0] */
+  casadi_copy(arg[5], 2, w09);
+  /* #8: {@10, @11, @12} = linear_cv_ukf_moments(@2, @7, @8, @6, @4, @9, @5) */
   arg1[0]=w02;
-  arg1[1]=w06;
-  arg1[2]=w13;
-  arg1[3]=w10;
-  arg1[4]=w08;
-  arg1[5]=w07;
-  arg1[6]=w05;
-  res1[0]=w04;
-  res1[1]=w15;
-  res1[2]=w12;
-  if (casadi_f18(arg1, res1, iw, w, 0)) return 1;
-  /* #28: @13 = input[4][0] */
-  casadi_copy(arg[4], 4, w13);
-  /* #29: @9 = input[7][0] */
-  w09 = arg[7] ? arg[7][0] : 0;
-  /* #30: {@16, @17} = linear_cv_mcc_noise(@13, @7, @15, @4, @9) */
-  arg1[0]=w13;
   arg1[1]=w07;
-  arg1[2]=w15;
-  arg1[3]=w04;
-  arg1[4]=(&w09);
-  res1[0]=w16;
-  res1[1]=(&w17);
-  if (casadi_f24(arg1, res1, iw, w, 0)) return 1;
-  /* #31: {@13, @2, @18, @9} = linear_cv_kalman(@0, @1, @15, @12, @16, @4) */
+  arg1[2]=w08;
+  arg1[3]=w06;
+  arg1[4]=w04;
+  arg1[5]=w09;
+  arg1[6]=w05;
+  res1[0]=w10;
+  res1[1]=w11;
+  res1[2]=w12;
+  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
+  /* #9: @8 = input[4][0] */
+  casadi_copy(arg[4], 4, w08);
+  /* #10: @13 = input[7][0] */
+  w13 = arg[7] ? arg[7][0] : 0;
+  /* #11: {@14, @15} = linear_cv_mcc_noise(@8, @9, @11, @10, @13) */
+  arg1[0]=w08;
+  arg1[1]=w09;
+  arg1[2]=w11;
+  arg1[3]=w10;
+  arg1[4]=(&w13);
+  res1[0]=w14;
+  res1[1]=(&w15);
+  if (casadi_f21(arg1, res1, iw, w, 0)) return 1;
+  /* #12: {@8, @2, @16, @13} = linear_cv_kalman(@0, @1, @11, @12, @14, @10) */
   arg1[0]=w00;
   arg1[1]=wr01;
-  arg1[2]=w15;
+  arg1[2]=w11;
   arg1[3]=w12;
-  arg1[4]=w16;
-  arg1[5]=w04;
-  res1[0]=w13;
+  arg1[4]=w14;
+  arg1[5]=w10;
+  res1[0]=w08;
   res1[1]=w02;
-  res1[2]=w18;
-  res1[3]=(&w09);
-  if (casadi_f20(arg1, res1, iw, w, 0)) return 1;
-  /* #32: output[0][0] = @13 */
-  casadi_copy(w13, 4, res[0]);
-  /* #33: output[1][0] = @2 */
+  res1[2]=w16;
+  res1[3]=(&w13);
+  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
+  /* #13: output[0][0] = @8 */
+  casadi_copy(w08, 4, res[0]);
+  /* #14: output[1][0] = @2 */
   casadi_copy(w02, 16, res[1]);
-  /* #34: output[2][0] = @4 */
-  casadi_copy(w04, 2, res[2]);
-  /* #35: output[3][0] = @18 */
-  casadi_copy(w18, 4, res[3]);
-  /* #36: @3 = (@3*@17) */
-  w03 *= w17;
-  /* #37: @3 = (@3*@9) */
-  w03 *= w09;
-  /* #38: output[4][0] = @3 */
+  /* #15: output[2][0] = @10 */
+  casadi_copy(w10, 2, res[2]);
+  /* #16: output[3][0] = @16 */
+  casadi_copy(w16, 4, res[3]);
+  /* #17: @3 = (@3*@15) */
+  w03 *= w15;
+  /* #18: @3 = (@3*@13) */
+  w03 *= w13;
+  /* #19: output[4][0] = @3 */
   if (res[4]) res[4][0] = w03;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_mcukf_update(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f21(arg, res, iw, w, mem);
+  return casadi_f20(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_mcukf_update_checkout(void) {
@@ -2065,84 +2143,22 @@ CASADI_SYMBOL_EXPORT const casadi_int* linear_cv_mcukf_update_sparsity_out(casad
 
 CASADI_SYMBOL_EXPORT int linear_cv_mcukf_update_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
   if (sz_arg) *sz_arg = 15;
-  if (sz_res) *sz_res = 11;
+  if (sz_res) *sz_res = 9;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 194;
+  if (sz_w) *sz_w = 100;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_mcukf_update_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
   if (sz_arg) *sz_arg = 15*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 11*sizeof(casadi_real*);
+  if (sz_res) *sz_res = 9*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 194*sizeof(casadi_real);
-  return 0;
-}
-
-/* linear_cv_residual_0_1:(z_k[2],z_pred[2])->(dz[2],dzdzT[2x2]) */
-static int casadi_f26(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i, j;
-  casadi_real **res1=res+2, *w0=w+3, *w1=w+5, *w2=w+7, *w3=w+9, *w4=w+13;
-  const casadi_real **arg1=arg+2;
-  /* #0: @0 = input[0][0] */
-  casadi_copy(arg[0], 2, w0);
-  /* #1: @1 = input[1][0] */
-  casadi_copy(arg[1], 2, w1);
-  /* #2: {@2, @3} = linear_cv_residual(@0, @1) */
-  arg1[0]=w0;
-  arg1[1]=w1;
-  res1[0]=w2;
-  res1[1]=w3;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #3: output[0][0] = @2 */
-  casadi_copy(w2, 2, res[0]);
-  /* #4: @4 = repsum(@3, 1) */
-  casadi_clear(w4, 4);
-    for (i=0;i<1;++i) {
-        for (j=0;j<4;++j) {
-            w4[j] += w3[j+i*4];
-          }
-      }
-  /* #5: output[1][0] = @4 */
-  casadi_copy(w4, 4, res[1]);
-  return 0;
-}
-
-/* linear_cv_residual_1_9:(z_k[2x8],z_pred[2])->(dz[2x8],dzdzT[2x2]) */
-static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i, j;
-  casadi_real **res1=res+2, *w1=w+3, *w2=w+5, *w3=w+21, *w4=w+37, *w5=w+69;
-  const casadi_real **arg1=arg+2, *wr0;
-  /* #0: @0 = input[0][0] */
-  wr0 = arg[0] ? arg[0] : casadi_zeros;
-  /* #1: @1 = input[1][0] */
-  casadi_copy(arg[1], 2, w1);
-  /* #2: @2 = repmat(@1, 8) */
-  for (i=0;i<8;++i) {
-    casadi_copy(w1, 2, w2+ i*2);
-  }
-  /* #3: {@3, @4} = map8_linear_cv_residual(@0, @2) */
-  arg1[0]=wr0;
-  arg1[1]=w2;
-  res1[0]=w3;
-  res1[1]=w4;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #4: output[0][0] = @3 */
-  casadi_copy(w3, 16, res[0]);
-  /* #5: @5 = repsum(@4, 8) */
-  casadi_clear(w5, 4);
-    for (i=0;i<8;++i) {
-        for (j=0;j<4;++j) {
-            w5[j] += w4[j+i*4];
-          }
-      }
-  /* #6: output[1][0] = @5 */
-  casadi_copy(w5, 4, res[1]);
+  if (sz_w) *sz_w = 100*sizeof(casadi_real);
   return 0;
 }
 
 /* linear_cv_huber_noise:(R[2x2],mask[2],Pzz[2x2],innovation[2],gamma)->(R_used[2x2],ok) */
-static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27;
@@ -2333,11 +2349,10 @@ static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* linear_cv_huber_ukf_update:(x[4],P[4x4],z[2],p[2],R[2x2],mask[2],abk[3],gamma)->(x_post[4],P_post[4x4],innovation[2],S[2x2],ok) */
-static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i;
-  casadi_real **res1=res+5, *rr, *w00=w+89, *w02=w+93, w03, *w04=w+109, *w05=w+111, *w06=w+114, *w07=w+132, *w08=w+134, w09, *w10=w+136;
-  casadi_real *w11=w+138, *w12=w+154, *w13=w+162, *w14=w+166, *w15=w+182, *w16=w+186, w17, *w18=w+190;
-  const casadi_real **arg1=arg+8, *cs, *wr01;
+static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+5, *w00=w+28, *w02=w+32, w03, *w04=w+48, *w05=w+50, *w06=w+53, *w07=w+55, *w08=w+73, *w09=w+77, *w10=w+79, *w11=w+81;
+  casadi_real *w12=w+85, w13, *w14=w+93, w15, *w16=w+97;
+  const casadi_real **arg1=arg+8, *wr01;
   /* #0: @0 = input[0][0] */
   casadi_copy(arg[0], 4, w00);
   /* #1: @1 = input[1][0] */
@@ -2351,124 +2366,75 @@ static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw
   casadi_copy(arg[3], 2, w04);
   /* #4: @5 = input[6][0] */
   casadi_copy(arg[6], 3, w05);
-  /* #5: @6 = linear_cv_ukf_measured_points(@0, @2, @4, @5) */
+  /* #5: {@6, @7, @8} = linear_cv_ukf_measured_moments(@0, @2, @4, @5) */
   arg1[0]=w00;
   arg1[1]=w02;
   arg1[2]=w04;
   arg1[3]=w05;
   res1[0]=w06;
+  res1[1]=w07;
+  res1[2]=w08;
   if (casadi_f13(arg1, res1, iw, w, 0)) return 1;
-  /* #6: @4 = @6[:2] */
-  for (rr=w04, cs=w06+0; cs!=w06+2; cs+=1) *rr++ = *cs;
-  /* #7: {@7, @8} = linear_cv_ukf_weights(@5) */
-  arg1[0]=w05;
-  res1[0]=w07;
-  res1[1]=w08;
-  if (casadi_f1(arg1, res1, iw, w, 0)) return 1;
-  /* #8: @9 = @7[0] */
-  for (rr=(&w09), cs=w07+0; cs!=w07+1; cs+=1) *rr++ = *cs;
-  /* #9: @10 = (@9*@4) */
-  for (i=0, rr=w10, cs=w04; i<2; ++i) (*rr++)  = (w09*(*cs++));
-  /* #10: @9 = @7[1] */
-  for (rr=(&w09), cs=w07+1; cs!=w07+2; cs+=1) *rr++ = *cs;
-  /* #11: @7 = zeros(2x1) */
-  casadi_clear(w07, 2);
-  /* #12: @11 = @6[2:18] */
-  for (rr=w11, cs=w06+2; cs!=w06+18; cs+=1) *rr++ = *cs;
-  /* #13: @12 = ones(8x1) */
-  casadi_fill(w12, 8, 1.);
-  /* #14: @7 = mac(@11,@12,@7) */
-  casadi_mtimes_dense(w11, 2, 8, w12, 1, w07, 0);
-  /* #15: @7 = (@9*@7) */
-  for (i=0, rr=w07, cs=w07; i<2; ++i) (*rr++)  = (w09*(*cs++));
-  /* #16: @10 = (@10+@7) */
-  for (i=0, rr=w10, cs=w07; i<2; ++i) (*rr++) += (*cs++);
-  /* #17: {@7, @13} = linear_cv_residual_0_1(@4, @10) */
-  arg1[0]=w04;
-  arg1[1]=w10;
-  res1[0]=w07;
-  res1[1]=w13;
-  if (casadi_f26(arg1, res1, iw, w, 0)) return 1;
-  /* #18: {@14, @15} = linear_cv_residual_1_9(@11, @10) */
-  arg1[0]=w11;
-  arg1[1]=w10;
-  res1[0]=w14;
-  res1[1]=w15;
-  if (casadi_f27(arg1, res1, iw, w, 0)) return 1;
-  /* #19: @6 = horzcat(@7, @14) */
-  rr=w06;
-  for (i=0, cs=w07; i<2; ++i) *rr++ = *cs++;
-  for (i=0, cs=w14; i<16; ++i) *rr++ = *cs++;
-  /* #20: @9 = @8[0] */
-  for (rr=(&w09), cs=w08+0; cs!=w08+1; cs+=1) *rr++ = *cs;
-  /* #21: @13 = (@9*@13) */
-  for (i=0, rr=w13, cs=w13; i<4; ++i) (*rr++)  = (w09*(*cs++));
-  /* #22: @9 = @8[1] */
-  for (rr=(&w09), cs=w08+1; cs!=w08+2; cs+=1) *rr++ = *cs;
-  /* #23: @15 = (@9*@15) */
-  for (i=0, rr=w15, cs=w15; i<4; ++i) (*rr++)  = (w09*(*cs++));
-  /* #24: @13 = (@13+@15) */
-  for (i=0, rr=w13, cs=w15; i<4; ++i) (*rr++) += (*cs++);
-  /* #25: @8 = input[2][0] */
-  casadi_copy(arg[2], 2, w08);
-  /* #26: @7 = input[5][0] */
-  casadi_copy(arg[5], 2, w07);
-  /* #27: {@4, @15, @12} = linear_cv_ukf_moments(@2, @6, @13, @10, @8, @7, @5) */
+  /* #6: @4 = input[2][0] */
+  casadi_copy(arg[2], 2, w04);
+  /* #7: @9 = input[5][0] */
+  casadi_copy(arg[5], 2, w09);
+  /* #8: {@10, @11, @12} = linear_cv_ukf_moments(@2, @7, @8, @6, @4, @9, @5) */
   arg1[0]=w02;
-  arg1[1]=w06;
-  arg1[2]=w13;
-  arg1[3]=w10;
-  arg1[4]=w08;
-  arg1[5]=w07;
-  arg1[6]=w05;
-  res1[0]=w04;
-  res1[1]=w15;
-  res1[2]=w12;
-  if (casadi_f18(arg1, res1, iw, w, 0)) return 1;
-  /* #28: @13 = input[4][0] */
-  casadi_copy(arg[4], 4, w13);
-  /* #29: @9 = input[7][0] */
-  w09 = arg[7] ? arg[7][0] : 0;
-  /* #30: {@16, @17} = linear_cv_huber_noise(@13, @7, @15, @4, @9) */
-  arg1[0]=w13;
   arg1[1]=w07;
-  arg1[2]=w15;
-  arg1[3]=w04;
-  arg1[4]=(&w09);
-  res1[0]=w16;
-  res1[1]=(&w17);
-  if (casadi_f28(arg1, res1, iw, w, 0)) return 1;
-  /* #31: {@13, @2, @18, @9} = linear_cv_kalman(@0, @1, @15, @12, @16, @4) */
+  arg1[2]=w08;
+  arg1[3]=w06;
+  arg1[4]=w04;
+  arg1[5]=w09;
+  arg1[6]=w05;
+  res1[0]=w10;
+  res1[1]=w11;
+  res1[2]=w12;
+  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
+  /* #9: @8 = input[4][0] */
+  casadi_copy(arg[4], 4, w08);
+  /* #10: @13 = input[7][0] */
+  w13 = arg[7] ? arg[7][0] : 0;
+  /* #11: {@14, @15} = linear_cv_huber_noise(@8, @9, @11, @10, @13) */
+  arg1[0]=w08;
+  arg1[1]=w09;
+  arg1[2]=w11;
+  arg1[3]=w10;
+  arg1[4]=(&w13);
+  res1[0]=w14;
+  res1[1]=(&w15);
+  if (casadi_f23(arg1, res1, iw, w, 0)) return 1;
+  /* #12: {@8, @2, @16, @13} = linear_cv_kalman(@0, @1, @11, @12, @14, @10) */
   arg1[0]=w00;
   arg1[1]=wr01;
-  arg1[2]=w15;
+  arg1[2]=w11;
   arg1[3]=w12;
-  arg1[4]=w16;
-  arg1[5]=w04;
-  res1[0]=w13;
+  arg1[4]=w14;
+  arg1[5]=w10;
+  res1[0]=w08;
   res1[1]=w02;
-  res1[2]=w18;
-  res1[3]=(&w09);
-  if (casadi_f20(arg1, res1, iw, w, 0)) return 1;
-  /* #32: output[0][0] = @13 */
-  casadi_copy(w13, 4, res[0]);
-  /* #33: output[1][0] = @2 */
+  res1[2]=w16;
+  res1[3]=(&w13);
+  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
+  /* #13: output[0][0] = @8 */
+  casadi_copy(w08, 4, res[0]);
+  /* #14: output[1][0] = @2 */
   casadi_copy(w02, 16, res[1]);
-  /* #34: output[2][0] = @4 */
-  casadi_copy(w04, 2, res[2]);
-  /* #35: output[3][0] = @18 */
-  casadi_copy(w18, 4, res[3]);
-  /* #36: @3 = (@3*@17) */
-  w03 *= w17;
-  /* #37: @3 = (@3*@9) */
-  w03 *= w09;
-  /* #38: output[4][0] = @3 */
+  /* #15: output[2][0] = @10 */
+  casadi_copy(w10, 2, res[2]);
+  /* #16: output[3][0] = @16 */
+  casadi_copy(w16, 4, res[3]);
+  /* #17: @3 = (@3*@15) */
+  w03 *= w15;
+  /* #18: @3 = (@3*@13) */
+  w03 *= w13;
+  /* #19: output[4][0] = @3 */
   if (res[4]) res[4][0] = w03;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_huber_ukf_update(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f25(arg, res, iw, w, mem);
+  return casadi_f22(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_huber_ukf_update_checkout(void) {
@@ -2546,22 +2512,22 @@ CASADI_SYMBOL_EXPORT const casadi_int* linear_cv_huber_ukf_update_sparsity_out(c
 
 CASADI_SYMBOL_EXPORT int linear_cv_huber_ukf_update_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
   if (sz_arg) *sz_arg = 15;
-  if (sz_res) *sz_res = 11;
+  if (sz_res) *sz_res = 9;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 194;
+  if (sz_w) *sz_w = 101;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_huber_ukf_update_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
   if (sz_arg) *sz_arg = 15*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 11*sizeof(casadi_real*);
+  if (sz_res) *sz_res = 9*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 194*sizeof(casadi_real);
+  if (sz_w) *sz_w = 101*sizeof(casadi_real);
   return 0;
 }
 
 /* linear_cv_ckf_points:(x[4],L[4x4])->(X[4x8]) */
-static int casadi_f30(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14;
   a00=arg[0]? arg[0][0] : 0;
@@ -2655,7 +2621,7 @@ static int casadi_f30(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* map8_linear_cv_step:(x[4x8],u[2x8],p[2x8],dt[1x8])->(x_next[4x8]) */
-static int casadi_f32(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
   casadi_real* *res1;
   const casadi_real* *arg1;
@@ -2675,7 +2641,7 @@ static int casadi_f32(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* linear_cv_step_columns:(x[4x8],u[2],p[2],dt)->(x_next[4x8]) */
-static int casadi_f31(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f26(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
   casadi_real **res1=res+1, *w1=w+9, *w2=w+11, *w3=w+27, w4, *w5=w+43, *w6=w+51;
   const casadi_real **arg1=arg+4, *wr0;
@@ -2705,14 +2671,14 @@ static int casadi_f31(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[2]=w3;
   arg1[3]=w5;
   res1[0]=w6;
-  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f27(arg1, res1, iw, w, 0)) return 1;
   /* #8: output[0][0] = @6 */
   casadi_copy(w6, 32, res[0]);
   return 0;
 }
 
 /* linear_cv_outer_0_8:(y[4x8],mean[4])->(ddT[4x4,10nz]) */
-static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i, j;
   casadi_real **res1=res+1, *w1=w+5, *w2=w+9, *w3=w+41, *w4=w+121;
   const casadi_real **arg1=arg+2, *wr0;
@@ -2742,7 +2708,7 @@ static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* linear_cv_ckf_predict:(x[4],P[4x4],u[2],p[2],dt,Q[4x4])->(x_pred[4],P_pred[4x4],ok) */
-static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
   casadi_real **res1=res+3, *rr, w00, *w01=w+163, *w02=w+167, *w03=w+171, *w04=w+187, w05, *w06=w+203, *w07=w+235, *w08=w+237, w09;
   casadi_real *w10=w+239, *w11=w+271, *w12=w+279;
@@ -2764,7 +2730,7 @@ static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[0]=w02;
   arg1[1]=w04;
   res1[0]=w06;
-  if (casadi_f30(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f25(arg1, res1, iw, w, 0)) return 1;
   /* #6: @7 = input[2][0] */
   casadi_copy(arg[2], 2, w07);
   /* #7: @8 = input[3][0] */
@@ -2777,7 +2743,7 @@ static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[2]=w08;
   arg1[3]=(&w09);
   res1[0]=w10;
-  if (casadi_f31(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f26(arg1, res1, iw, w, 0)) return 1;
   /* #10: @11 = ones(8x1) */
   casadi_fill(w11, 8, 1.);
   /* #11: @1 = mac(@10,@11,@1) */
@@ -2790,7 +2756,7 @@ static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[0]=w10;
   arg1[1]=w01;
   res1[0]=w12;
-  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f28(arg1, res1, iw, w, 0)) return 1;
   /* #15: @12 = (@0*@12) */
   for (i=0, rr=w12, cs=w12; i<10; ++i) (*rr++)  = (w00*(*cs++));
   /* #16: @4 = input[5][0] */
@@ -2812,7 +2778,7 @@ static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_ckf_predict(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f29(arg, res, iw, w, mem);
+  return casadi_f24(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_ckf_predict_checkout(void) {
@@ -2896,91 +2862,127 @@ CASADI_SYMBOL_EXPORT int linear_cv_ckf_predict_work_bytes(casadi_int *sz_arg, ca
   return 0;
 }
 
-/* linear_cv_ckf_measured_points:(x[4],L[4x4],p[2])->(Z[2x8]) */
-static int casadi_f35(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real a0, a1, a2, a3, a4, a5, a6, a7, a8, a9;
-  a0=arg[0]? arg[0][0] : 0;
-  a1=arg[1]? arg[1][0] : 0;
-  a2=(2.*a1);
-  a2=(a0+a2);
-  a3=arg[2]? arg[2][0] : 0;
-  a2=(a2-a3);
-  if (res[0]!=0) res[0][0]=a2;
-  a2=arg[0]? arg[0][1] : 0;
-  a4=arg[1]? arg[1][1] : 0;
-  a5=(2.*a4);
-  a5=(a2+a5);
-  a6=arg[2]? arg[2][1] : 0;
-  a5=(a5-a6);
-  if (res[0]!=0) res[0][1]=a5;
-  a5=(a0-a3);
-  if (res[0]!=0) res[0][2]=a5;
-  a7=arg[1]? arg[1][5] : 0;
-  a8=(2.*a7);
-  a8=(a2+a8);
-  a8=(a8-a6);
-  if (res[0]!=0) res[0][3]=a8;
-  if (res[0]!=0) res[0][4]=a5;
-  a8=(a2-a6);
-  if (res[0]!=0) res[0][5]=a8;
-  if (res[0]!=0) res[0][6]=a5;
-  if (res[0]!=0) res[0][7]=a8;
-  a9=-2.;
-  a1=(a9*a1);
-  a0=(a0+a1);
-  a0=(a0-a3);
-  if (res[0]!=0) res[0][8]=a0;
-  a4=(a9*a4);
-  a4=(a2+a4);
-  a4=(a4-a6);
-  if (res[0]!=0) res[0][9]=a4;
-  if (res[0]!=0) res[0][10]=a5;
-  a9=(a9*a7);
-  a2=(a2+a9);
-  a2=(a2-a6);
-  if (res[0]!=0) res[0][11]=a2;
-  if (res[0]!=0) res[0][12]=a5;
-  if (res[0]!=0) res[0][13]=a8;
-  if (res[0]!=0) res[0][14]=a5;
-  if (res[0]!=0) res[0][15]=a8;
-  return 0;
-}
-
-/* linear_cv_residual_0_8:(z_k[2x8],z_pred[2])->(dz[2x8],dzdzT[2x2]) */
-static int casadi_f36(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i, j;
-  casadi_real **res1=res+2, *w1=w+3, *w2=w+5, *w3=w+21, *w4=w+37, *w5=w+69;
-  const casadi_real **arg1=arg+2, *wr0;
-  /* #0: @0 = input[0][0] */
-  wr0 = arg[0] ? arg[0] : casadi_zeros;
-  /* #1: @1 = input[1][0] */
-  casadi_copy(arg[1], 2, w1);
-  /* #2: @2 = repmat(@1, 8) */
-  for (i=0;i<8;++i) {
-    casadi_copy(w1, 2, w2+ i*2);
-  }
-  /* #3: {@3, @4} = map8_linear_cv_residual(@0, @2) */
-  arg1[0]=wr0;
-  arg1[1]=w2;
-  res1[0]=w3;
-  res1[1]=w4;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #4: output[0][0] = @3 */
-  casadi_copy(w3, 16, res[0]);
-  /* #5: @5 = repsum(@4, 8) */
-  casadi_clear(w5, 4);
-    for (i=0;i<8;++i) {
-        for (j=0;j<4;++j) {
-            w5[j] += w4[j+i*4];
-          }
-      }
-  /* #6: output[1][0] = @5 */
-  casadi_copy(w5, 4, res[1]);
+/* linear_cv_ckf_measured_moments:(x[4],L[4x4],p[2])->(z_pred[2],DZ[2x8],Czz[2x2]) */
+static int casadi_f30(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13;
+  a00=1.2500000000000000e-01;
+  a01=arg[0]? arg[0][0] : 0;
+  a02=arg[1]? arg[1][0] : 0;
+  a03=(2.*a02);
+  a03=(a01+a03);
+  a04=arg[2]? arg[2][0] : 0;
+  a03=(a03-a04);
+  a05=(a01-a04);
+  a06=(a03+a05);
+  a06=(a06+a05);
+  a06=(a06+a05);
+  a07=-2.;
+  a02=(a07*a02);
+  a01=(a01+a02);
+  a01=(a01-a04);
+  a06=(a06+a01);
+  a06=(a06+a05);
+  a06=(a06+a05);
+  a06=(a06+a05);
+  a06=(a00*a06);
+  if (res[0]!=0) res[0][0]=a06;
+  a04=arg[0]? arg[0][1] : 0;
+  a02=arg[1]? arg[1][1] : 0;
+  a08=(2.*a02);
+  a08=(a04+a08);
+  a09=arg[2]? arg[2][1] : 0;
+  a08=(a08-a09);
+  a10=arg[1]? arg[1][5] : 0;
+  a11=(2.*a10);
+  a11=(a04+a11);
+  a11=(a11-a09);
+  a12=(a08+a11);
+  a13=(a04-a09);
+  a12=(a12+a13);
+  a12=(a12+a13);
+  a02=(a07*a02);
+  a02=(a04+a02);
+  a02=(a02-a09);
+  a12=(a12+a02);
+  a07=(a07*a10);
+  a04=(a04+a07);
+  a04=(a04-a09);
+  a12=(a12+a04);
+  a12=(a12+a13);
+  a12=(a12+a13);
+  a12=(a00*a12);
+  if (res[0]!=0) res[0][1]=a12;
+  a03=(a03-a06);
+  if (res[1]!=0) res[1][0]=a03;
+  a08=(a08-a12);
+  if (res[1]!=0) res[1][1]=a08;
+  a05=(a05-a06);
+  if (res[1]!=0) res[1][2]=a05;
+  a11=(a11-a12);
+  if (res[1]!=0) res[1][3]=a11;
+  if (res[1]!=0) res[1][4]=a05;
+  a13=(a13-a12);
+  if (res[1]!=0) res[1][5]=a13;
+  if (res[1]!=0) res[1][6]=a05;
+  if (res[1]!=0) res[1][7]=a13;
+  a01=(a01-a06);
+  if (res[1]!=0) res[1][8]=a01;
+  a02=(a02-a12);
+  if (res[1]!=0) res[1][9]=a02;
+  if (res[1]!=0) res[1][10]=a05;
+  a04=(a04-a12);
+  if (res[1]!=0) res[1][11]=a04;
+  if (res[1]!=0) res[1][12]=a05;
+  if (res[1]!=0) res[1][13]=a13;
+  if (res[1]!=0) res[1][14]=a05;
+  if (res[1]!=0) res[1][15]=a13;
+  a12=casadi_sq(a03);
+  a06=casadi_sq(a05);
+  a12=(a12+a06);
+  a12=(a12+a06);
+  a12=(a12+a06);
+  a09=casadi_sq(a01);
+  a12=(a12+a09);
+  a12=(a12+a06);
+  a12=(a12+a06);
+  a12=(a12+a06);
+  a12=(a00*a12);
+  if (res[2]!=0) res[2][0]=a12;
+  a03=(a03*a08);
+  a12=(a05*a11);
+  a03=(a03+a12);
+  a12=(a05*a13);
+  a03=(a03+a12);
+  a03=(a03+a12);
+  a01=(a01*a02);
+  a03=(a03+a01);
+  a05=(a05*a04);
+  a03=(a03+a05);
+  a03=(a03+a12);
+  a03=(a03+a12);
+  a03=(a00*a03);
+  if (res[2]!=0) res[2][1]=a03;
+  if (res[2]!=0) res[2][2]=a03;
+  a08=casadi_sq(a08);
+  a11=casadi_sq(a11);
+  a08=(a08+a11);
+  a13=casadi_sq(a13);
+  a08=(a08+a13);
+  a08=(a08+a13);
+  a02=casadi_sq(a02);
+  a08=(a08+a02);
+  a04=casadi_sq(a04);
+  a08=(a08+a04);
+  a08=(a08+a13);
+  a08=(a08+a13);
+  a00=(a00*a08);
+  if (res[2]!=0) res[2][3]=a00;
   return 0;
 }
 
 /* linear_cv_ckf_moments:(L[4x4],DZ[2x8],Czz[2x2],z_pred[2],z[2],mask[2])->(innovation[2],Pzz[2x2],Pxz[4x2]) */
-static int casadi_f37(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f31(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16;
   a00=arg[5]? arg[5][0] : 0;
@@ -3115,11 +3117,10 @@ static int casadi_f37(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* linear_cv_ckf_update:(x[4],P[4x4],z[2],p[2],R[2x2],mask[2])->(x_post[4],P_post[4x4],innovation[2],S[2x2],ok) */
-static int casadi_f34(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i;
-  casadi_real **res1=res+5, *rr, *w00=w+89, *w02=w+93, w03, *w04=w+109, *w05=w+111, w06, *w07=w+127, *w08=w+135, *w09=w+151, *w10=w+155;
-  casadi_real *w11=w+157, *w12=w+159, *w13=w+161, *w14=w+165, *w15=w+169, w16;
-  const casadi_real **arg1=arg+6, *cs, *wr01;
+static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+5, *w00=w+27, *w02=w+31, w03, *w04=w+47, *w05=w+49, *w06=w+51, *w07=w+67, *w08=w+71, *w09=w+73, *w10=w+75, *w11=w+79;
+  casadi_real *w12=w+87, w13, *w14=w+91, w15;
+  const casadi_real **arg1=arg+6, *wr01;
   /* #0: @0 = input[0][0] */
   casadi_copy(arg[0], 4, w00);
   /* #1: @1 = input[1][0] */
@@ -3131,86 +3132,70 @@ static int casadi_f34(const casadi_real** arg, casadi_real** res, casadi_int* iw
   if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
   /* #3: @4 = input[3][0] */
   casadi_copy(arg[3], 2, w04);
-  /* #4: @5 = linear_cv_ckf_measured_points(@0, @2, @4) */
+  /* #4: {@5, @6, @7} = linear_cv_ckf_measured_moments(@0, @2, @4) */
   arg1[0]=w00;
   arg1[1]=w02;
   arg1[2]=w04;
   res1[0]=w05;
-  if (casadi_f35(arg1, res1, iw, w, 0)) return 1;
-  /* #5: @6 = 0.125 */
-  w06 = 1.2500000000000000e-01;
-  /* #6: @4 = zeros(2x1) */
-  casadi_clear(w04, 2);
-  /* #7: @7 = ones(8x1) */
-  casadi_fill(w07, 8, 1.);
-  /* #8: @4 = mac(@5,@7,@4) */
-  casadi_mtimes_dense(w05, 2, 8, w07, 1, w04, 0);
-  /* #9: @4 = (@6*@4) */
-  for (i=0, rr=w04, cs=w04; i<2; ++i) (*rr++)  = (w06*(*cs++));
-  /* #10: {@8, @9} = linear_cv_residual_0_8(@5, @4) */
-  arg1[0]=w05;
-  arg1[1]=w04;
-  res1[0]=w08;
-  res1[1]=w09;
-  if (casadi_f36(arg1, res1, iw, w, 0)) return 1;
-  /* #11: @9 = (@6*@9) */
-  for (i=0, rr=w09, cs=w09; i<4; ++i) (*rr++)  = (w06*(*cs++));
-  /* #12: @10 = input[2][0] */
-  casadi_copy(arg[2], 2, w10);
-  /* #13: @11 = input[5][0] */
-  casadi_copy(arg[5], 2, w11);
-  /* #14: {@12, @13, @7} = linear_cv_ckf_moments(@2, @8, @9, @4, @10, @11) */
-  arg1[0]=w02;
-  arg1[1]=w08;
-  arg1[2]=w09;
-  arg1[3]=w04;
-  arg1[4]=w10;
-  arg1[5]=w11;
-  res1[0]=w12;
-  res1[1]=w13;
+  res1[1]=w06;
   res1[2]=w07;
-  if (casadi_f37(arg1, res1, iw, w, 0)) return 1;
-  /* #15: @9 = input[4][0] */
-  casadi_copy(arg[4], 4, w09);
-  /* #16: {@14, @6} = linear_cv_noise(@9, @11, @13, @12) */
-  arg1[0]=w09;
-  arg1[1]=w11;
-  arg1[2]=w13;
-  arg1[3]=w12;
-  res1[0]=w14;
-  res1[1]=(&w06);
-  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
-  /* #17: {@9, @2, @15, @16} = linear_cv_kalman(@0, @1, @13, @7, @14, @12) */
+  if (casadi_f30(arg1, res1, iw, w, 0)) return 1;
+  /* #5: @4 = input[2][0] */
+  casadi_copy(arg[2], 2, w04);
+  /* #6: @8 = input[5][0] */
+  casadi_copy(arg[5], 2, w08);
+  /* #7: {@9, @10, @11} = linear_cv_ckf_moments(@2, @6, @7, @5, @4, @8) */
+  arg1[0]=w02;
+  arg1[1]=w06;
+  arg1[2]=w07;
+  arg1[3]=w05;
+  arg1[4]=w04;
+  arg1[5]=w08;
+  res1[0]=w09;
+  res1[1]=w10;
+  res1[2]=w11;
+  if (casadi_f31(arg1, res1, iw, w, 0)) return 1;
+  /* #8: @7 = input[4][0] */
+  casadi_copy(arg[4], 4, w07);
+  /* #9: {@12, @13} = linear_cv_noise(@7, @8, @10, @9) */
+  arg1[0]=w07;
+  arg1[1]=w08;
+  arg1[2]=w10;
+  arg1[3]=w09;
+  res1[0]=w12;
+  res1[1]=(&w13);
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #10: {@7, @2, @14, @15} = linear_cv_kalman(@0, @1, @10, @11, @12, @9) */
   arg1[0]=w00;
   arg1[1]=wr01;
-  arg1[2]=w13;
-  arg1[3]=w07;
-  arg1[4]=w14;
-  arg1[5]=w12;
-  res1[0]=w09;
+  arg1[2]=w10;
+  arg1[3]=w11;
+  arg1[4]=w12;
+  arg1[5]=w09;
+  res1[0]=w07;
   res1[1]=w02;
-  res1[2]=w15;
-  res1[3]=(&w16);
-  if (casadi_f20(arg1, res1, iw, w, 0)) return 1;
-  /* #18: output[0][0] = @9 */
-  casadi_copy(w09, 4, res[0]);
-  /* #19: output[1][0] = @2 */
+  res1[2]=w14;
+  res1[3]=(&w15);
+  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
+  /* #11: output[0][0] = @7 */
+  casadi_copy(w07, 4, res[0]);
+  /* #12: output[1][0] = @2 */
   casadi_copy(w02, 16, res[1]);
-  /* #20: output[2][0] = @12 */
-  casadi_copy(w12, 2, res[2]);
-  /* #21: output[3][0] = @15 */
-  casadi_copy(w15, 4, res[3]);
-  /* #22: @3 = (@3*@6) */
-  w03 *= w06;
-  /* #23: @3 = (@3*@16) */
-  w03 *= w16;
-  /* #24: output[4][0] = @3 */
+  /* #13: output[2][0] = @9 */
+  casadi_copy(w09, 2, res[2]);
+  /* #14: output[3][0] = @14 */
+  casadi_copy(w14, 4, res[3]);
+  /* #15: @3 = (@3*@13) */
+  w03 *= w13;
+  /* #16: @3 = (@3*@15) */
+  w03 *= w15;
+  /* #17: output[4][0] = @3 */
   if (res[4]) res[4][0] = w03;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_ckf_update(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f34(arg, res, iw, w, mem);
+  return casadi_f29(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_ckf_update_checkout(void) {
@@ -3284,22 +3269,22 @@ CASADI_SYMBOL_EXPORT const casadi_int* linear_cv_ckf_update_sparsity_out(casadi_
 
 CASADI_SYMBOL_EXPORT int linear_cv_ckf_update_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
   if (sz_arg) *sz_arg = 12;
-  if (sz_res) *sz_res = 11;
+  if (sz_res) *sz_res = 9;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 173;
+  if (sz_w) *sz_w = 95;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_ckf_update_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
   if (sz_arg) *sz_arg = 12*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 11*sizeof(casadi_real*);
+  if (sz_res) *sz_res = 9*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 173*sizeof(casadi_real);
+  if (sz_w) *sz_w = 95*sizeof(casadi_real);
   return 0;
 }
 
 /* linear_cv_ckf_step:(x[4],P[4x4],u[2],p[2],dt,Q[4x4],z[2],R[2x2],mask[2])->(x_post[4],P_post[4x4],innovation[2],S[2x2],ok) */
-static int casadi_f38(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f32(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real **res1=res+5, *w00=w+292, *w01=w+296, *w02=w+312, *w03=w+314, w04, *w06=w+316, *w07=w+320, w08, *w09=w+336, *w10=w+338, *w11=w+342;
   casadi_real *w12=w+344;
   const casadi_real **arg1=arg+9, *wr01, *wr05;
@@ -3325,7 +3310,7 @@ static int casadi_f38(const casadi_real** arg, casadi_real** res, casadi_int* iw
   res1[0]=w06;
   res1[1]=w07;
   res1[2]=(&w08);
-  if (casadi_f29(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f24(arg1, res1, iw, w, 0)) return 1;
   /* #7: @2 = input[6][0] */
   casadi_copy(arg[6], 2, w02);
   /* #8: @0 = input[7][0] */
@@ -3344,7 +3329,7 @@ static int casadi_f38(const casadi_real** arg, casadi_real** res, casadi_int* iw
   res1[2]=w11;
   res1[3]=w12;
   res1[4]=(&w04);
-  if (casadi_f34(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f29(arg1, res1, iw, w, 0)) return 1;
   /* #11: output[0][0] = @10 */
   casadi_copy(w10, 4, res[0]);
   /* #12: output[1][0] = @1 */
@@ -3361,7 +3346,7 @@ static int casadi_f38(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_ckf_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f38(arg, res, iw, w, mem);
+  return casadi_f32(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_ckf_step_checkout(void) {
@@ -3441,7 +3426,7 @@ CASADI_SYMBOL_EXPORT const casadi_int* linear_cv_ckf_step_sparsity_out(casadi_in
 
 CASADI_SYMBOL_EXPORT int linear_cv_ckf_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
   if (sz_arg) *sz_arg = 27;
-  if (sz_res) *sz_res = 16;
+  if (sz_res) *sz_res = 14;
   if (sz_iw) *sz_iw = 0;
   if (sz_w) *sz_w = 348;
   return 0;
@@ -3449,9 +3434,195 @@ CASADI_SYMBOL_EXPORT int linear_cv_ckf_step_work(casadi_int *sz_arg, casadi_int*
 
 CASADI_SYMBOL_EXPORT int linear_cv_ckf_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
   if (sz_arg) *sz_arg = 27*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 16*sizeof(casadi_real*);
+  if (sz_res) *sz_res = 14*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
   if (sz_w) *sz_w = 348*sizeof(casadi_real);
+  return 0;
+}
+
+/* linear_cv_ckf_predict_points:(x[4],P[4x4])->(X[8x4],ok) */
+static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_int i, j;
+  casadi_real **res1=res+2, *rr, *w0=w+17, *w2=w+21, w3, *w4=w+37, *w5=w+69;
+  const casadi_real **arg1=arg+2, *cs, *wr1;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 4, w0);
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: {@2, @3} = linear_cv_cholesky(@1) */
+  arg1[0]=wr1;
+  res1[0]=w2;
+  res1[1]=(&w3);
+  if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
+  /* #3: @4 = linear_cv_ckf_points(@0, @2) */
+  arg1[0]=w0;
+  arg1[1]=w2;
+  res1[0]=w4;
+  if (casadi_f25(arg1, res1, iw, w, 0)) return 1;
+  /* #4: @5 = @4' */
+  for (i=0, rr=w5, cs=w4; i<8; ++i) for (j=0; j<4; ++j) rr[i+j*8] = *cs++;
+  /* #5: output[0][0] = @5 */
+  casadi_copy(w5, 32, res[0]);
+  /* #6: output[1][0] = @3 */
+  if (res[1]) res[1][0] = w3;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int linear_cv_ckf_predict_points(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f33(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int linear_cv_ckf_predict_points_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void linear_cv_ckf_predict_points_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void linear_cv_ckf_predict_points_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void linear_cv_ckf_predict_points_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int linear_cv_ckf_predict_points_n_in(void) { return 2;}
+
+CASADI_SYMBOL_EXPORT casadi_int linear_cv_ckf_predict_points_n_out(void) { return 2;}
+
+CASADI_SYMBOL_EXPORT casadi_real linear_cv_ckf_predict_points_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* linear_cv_ckf_predict_points_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "x";
+    case 1: return "P";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* linear_cv_ckf_predict_points_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "X";
+    case 1: return "ok";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* linear_cv_ckf_predict_points_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s0;
+    case 1: return casadi_s1;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* linear_cv_ckf_predict_points_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s8;
+    case 1: return casadi_s3;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int linear_cv_ckf_predict_points_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 4;
+  if (sz_res) *sz_res = 4;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 101;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int linear_cv_ckf_predict_points_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 4*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 4*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 101*sizeof(casadi_real);
+  return 0;
+}
+
+/* linear_cv_ckf_predict_weights:()->(wm[8],wc[8]) */
+static int casadi_f34(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real *w0=w+0;
+  /* #0: @0 = all_0.125(8x1) */
+  casadi_fill(w0, 8, 1.2500000000000000e-01);
+  /* #1: output[0][0] = @0 */
+  casadi_copy(w0, 8, res[0]);
+  /* #2: output[1][0] = @0 */
+  casadi_copy(w0, 8, res[1]);
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int linear_cv_ckf_predict_weights(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f34(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int linear_cv_ckf_predict_weights_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void linear_cv_ckf_predict_weights_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void linear_cv_ckf_predict_weights_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void linear_cv_ckf_predict_weights_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int linear_cv_ckf_predict_weights_n_in(void) { return 0;}
+
+CASADI_SYMBOL_EXPORT casadi_int linear_cv_ckf_predict_weights_n_out(void) { return 2;}
+
+CASADI_SYMBOL_EXPORT casadi_real linear_cv_ckf_predict_weights_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* linear_cv_ckf_predict_weights_name_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* linear_cv_ckf_predict_weights_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "wm";
+    case 1: return "wc";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* linear_cv_ckf_predict_weights_sparsity_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* linear_cv_ckf_predict_weights_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s9;
+    case 1: return casadi_s9;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int linear_cv_ckf_predict_weights_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 0;
+  if (sz_res) *sz_res = 3;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 8;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int linear_cv_ckf_predict_weights_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 0*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 3*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 8*sizeof(casadi_real);
   return 0;
 }
 
@@ -3483,16 +3654,56 @@ CASADI_SYMBOL_EXPORT int linear_cv_ukf_predict_batch(casadi_int N, const casadi_
 CASADI_SYMBOL_EXPORT int linear_cv_ukf_update_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
   const casadi_real* a[14];
-  casadi_real* r[11];
+  casadi_real* r[9];
   casadi_int iw[1];
-  casadi_real w[213];
+  casadi_real w[119];
   casadi_int j, k;
   for (k = 0; k < 14; ++k) a[k] = 0;
-  for (k = 0; k < 11; ++k) r[k] = 0;
+  for (k = 0; k < 9; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
     for (k = 0; k < 7; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
     for (k = 0; k < 5; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
     if (linear_cv_ukf_update(a, r, iw, w, 0)) return (int)(1 + j);
+  }
+  return 0;
+}
+
+/* linear_cv_ukf_predict_points_batch: evaluate linear_cv_ukf_predict_points for j = 0..N-1 on slices arg[k] + j*arg_step[k] and
+ * res[k] + j*res_step[k] (a step of 0 shares the argument). Returns 0, or 1 + j of the first
+ * failing evaluation. */
+CASADI_SYMBOL_EXPORT int linear_cv_ukf_predict_points_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
+                                  casadi_real** res, const casadi_int* res_step) {
+  const casadi_real* a[6];
+  casadi_real* r[4];
+  casadi_int iw[1];
+  casadi_real w[129];
+  casadi_int j, k;
+  for (k = 0; k < 6; ++k) a[k] = 0;
+  for (k = 0; k < 4; ++k) r[k] = 0;
+  for (j = 0; j < N; ++j) {
+    for (k = 0; k < 3; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
+    for (k = 0; k < 2; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
+    if (linear_cv_ukf_predict_points(a, r, iw, w, 0)) return (int)(1 + j);
+  }
+  return 0;
+}
+
+/* linear_cv_ukf_predict_weights_batch: evaluate linear_cv_ukf_predict_weights for j = 0..N-1 on slices arg[k] + j*arg_step[k] and
+ * res[k] + j*res_step[k] (a step of 0 shares the argument). Returns 0, or 1 + j of the first
+ * failing evaluation. */
+CASADI_SYMBOL_EXPORT int linear_cv_ukf_predict_weights_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
+                                  casadi_real** res, const casadi_int* res_step) {
+  const casadi_real* a[2];
+  casadi_real* r[4];
+  casadi_int iw[1];
+  casadi_real w[25];
+  casadi_int j, k;
+  for (k = 0; k < 2; ++k) a[k] = 0;
+  for (k = 0; k < 4; ++k) r[k] = 0;
+  for (j = 0; j < N; ++j) {
+    for (k = 0; k < 1; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
+    for (k = 0; k < 2; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
+    if (linear_cv_ukf_predict_weights(a, r, iw, w, 0)) return (int)(1 + j);
   }
   return 0;
 }
@@ -3503,12 +3714,12 @@ CASADI_SYMBOL_EXPORT int linear_cv_ukf_update_batch(casadi_int N, const casadi_r
 CASADI_SYMBOL_EXPORT int linear_cv_mcukf_update_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
   const casadi_real* a[15];
-  casadi_real* r[11];
+  casadi_real* r[9];
   casadi_int iw[1];
-  casadi_real w[213];
+  casadi_real w[119];
   casadi_int j, k;
   for (k = 0; k < 15; ++k) a[k] = 0;
-  for (k = 0; k < 11; ++k) r[k] = 0;
+  for (k = 0; k < 9; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
     for (k = 0; k < 8; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
     for (k = 0; k < 5; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
@@ -3523,12 +3734,12 @@ CASADI_SYMBOL_EXPORT int linear_cv_mcukf_update_batch(casadi_int N, const casadi
 CASADI_SYMBOL_EXPORT int linear_cv_huber_ukf_update_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
   const casadi_real* a[15];
-  casadi_real* r[11];
+  casadi_real* r[9];
   casadi_int iw[1];
-  casadi_real w[213];
+  casadi_real w[120];
   casadi_int j, k;
   for (k = 0; k < 15; ++k) a[k] = 0;
-  for (k = 0; k < 11; ++k) r[k] = 0;
+  for (k = 0; k < 9; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
     for (k = 0; k < 8; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
     for (k = 0; k < 5; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
@@ -3563,12 +3774,12 @@ CASADI_SYMBOL_EXPORT int linear_cv_ckf_predict_batch(casadi_int N, const casadi_
 CASADI_SYMBOL_EXPORT int linear_cv_ckf_update_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
   const casadi_real* a[12];
-  casadi_real* r[11];
+  casadi_real* r[9];
   casadi_int iw[1];
-  casadi_real w[192];
+  casadi_real w[114];
   casadi_int j, k;
   for (k = 0; k < 12; ++k) a[k] = 0;
-  for (k = 0; k < 11; ++k) r[k] = 0;
+  for (k = 0; k < 9; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
     for (k = 0; k < 6; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
     for (k = 0; k < 5; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
@@ -3583,16 +3794,56 @@ CASADI_SYMBOL_EXPORT int linear_cv_ckf_update_batch(casadi_int N, const casadi_r
 CASADI_SYMBOL_EXPORT int linear_cv_ckf_step_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
   const casadi_real* a[27];
-  casadi_real* r[16];
+  casadi_real* r[14];
   casadi_int iw[1];
   casadi_real w[366];
   casadi_int j, k;
   for (k = 0; k < 27; ++k) a[k] = 0;
-  for (k = 0; k < 16; ++k) r[k] = 0;
+  for (k = 0; k < 14; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
     for (k = 0; k < 9; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
     for (k = 0; k < 5; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
     if (linear_cv_ckf_step(a, r, iw, w, 0)) return (int)(1 + j);
+  }
+  return 0;
+}
+
+/* linear_cv_ckf_predict_points_batch: evaluate linear_cv_ckf_predict_points for j = 0..N-1 on slices arg[k] + j*arg_step[k] and
+ * res[k] + j*res_step[k] (a step of 0 shares the argument). Returns 0, or 1 + j of the first
+ * failing evaluation. */
+CASADI_SYMBOL_EXPORT int linear_cv_ckf_predict_points_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
+                                  casadi_real** res, const casadi_int* res_step) {
+  const casadi_real* a[4];
+  casadi_real* r[4];
+  casadi_int iw[1];
+  casadi_real w[118];
+  casadi_int j, k;
+  for (k = 0; k < 4; ++k) a[k] = 0;
+  for (k = 0; k < 4; ++k) r[k] = 0;
+  for (j = 0; j < N; ++j) {
+    for (k = 0; k < 2; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
+    for (k = 0; k < 2; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
+    if (linear_cv_ckf_predict_points(a, r, iw, w, 0)) return (int)(1 + j);
+  }
+  return 0;
+}
+
+/* linear_cv_ckf_predict_weights_batch: evaluate linear_cv_ckf_predict_weights for j = 0..N-1 on slices arg[k] + j*arg_step[k] and
+ * res[k] + j*res_step[k] (a step of 0 shares the argument). Returns 0, or 1 + j of the first
+ * failing evaluation. */
+CASADI_SYMBOL_EXPORT int linear_cv_ckf_predict_weights_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
+                                  casadi_real** res, const casadi_int* res_step) {
+  const casadi_real* a[1];
+  casadi_real* r[3];
+  casadi_int iw[1];
+  casadi_real w[8];
+  casadi_int j, k;
+  for (k = 0; k < 1; ++k) a[k] = 0;
+  for (k = 0; k < 3; ++k) r[k] = 0;
+  for (j = 0; j < N; ++j) {
+    for (k = 0; k < 0; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
+    for (k = 0; k < 2; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
+    if (linear_cv_ckf_predict_weights(a, r, iw, w, 0)) return (int)(1 + j);
   }
   return 0;
 }

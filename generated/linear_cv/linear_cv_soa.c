@@ -22,10 +22,17 @@
 #if defined(__AVX512F__) && defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
 #pragma GCC target("prefer-vector-width=512")
 #endif
+/* The loops are OpenMP simd loops when compiled with -fopenmp-simd -DABYSSAL_OPENMP_SIMD (abyssal's own
+ * builds) or -fopenmp; otherwise plain C99 loops (any compiler, no unknown-pragma warning). */
+#if defined(ABYSSAL_OPENMP_SIMD) || defined(_OPENMP)
+#define ABYSSAL_SIMD_LOOP _Pragma("omp simd")
+#else
+#define ABYSSAL_SIMD_LOOP
+#endif
 /* glibc's libmvec has vector variants of sin, cos (and since 2.35 tan); declaring them lets the loops
  * below vectorise. const: errno is never read here, and without it gcc 12 does not if-convert a loop
  * that has a call and a comparison, so it would stay scalar. */
-#if defined(__x86_64__) && defined(__GLIBC__) && !defined(ABYSSAL_NO_LIBMVEC)
+#if defined(__x86_64__) && defined(__GLIBC__) && !defined(ABYSSAL_NO_LIBMVEC) && (defined(ABYSSAL_OPENMP_SIMD) || defined(_OPENMP))
 #pragma omp declare simd notinbranch
 extern double sin(double) __attribute__((const));
 #pragma omp declare simd notinbranch
@@ -40,59 +47,58 @@ extern double tan(double) __attribute__((const));
 CASADI_SYMBOL_EXPORT int linear_cv_f_soa(casadi_int N, casadi_int ld, const casadi_real** arg, casadi_real** res) {
   const casadi_real* a0 = arg[0];
   const casadi_real* a1 = arg[1];
-  const casadi_real* a2 = arg[2];
   const casadi_real* a3 = arg[3];
   casadi_real* r0 = res[0];
   casadi_int j;
-#pragma omp simd
+  const casadi_real c1=a3[0];
+  const casadi_real c2=6.0;
+  const casadi_real c3=c1/c2;
+  const casadi_real c5=2.0;
+  const casadi_real c6=c1/c5;
+  const casadi_real c33=3.0;
+  ABYSSAL_SIMD_LOOP
   for (j = 0; j < N; ++j) {
     casadi_real w0, w1, w2, w3, w4, w5, w6, w7, w8;
     w0=a0[0*ld+j];
-    w1=a3[0];
-    w2=6.0;
-    w2=w1/w2;
     w3=a0[2*ld+j];
-    w4=2.0;
-    w4=w1/w4;
     w5=a1[0*ld+j];
-    w6=w4*w5;
+    w6=c6*w5;
     w6=w3+w6;
     w6=2.*w6;
     w7=w3+w6;
     w7=w7+w6;
-    w6=w1*w5;
+    w6=c1*w5;
     w6=w3+w6;
     w7=w7+w6;
-    w7=w2*w7;
+    w7=c3*w7;
     w0=w0+w7;
     r0[0*ld+j]=w0;
     w0=a0[1*ld+j];
     w7=a0[3*ld+j];
     w6=a1[1*ld+j];
-    w4=w4*w6;
+    w4=c6*w6;
     w4=w7+w4;
     w4=2.*w4;
     w8=w7+w4;
     w8=w8+w4;
-    w1=w1*w6;
+    w1=c1*w6;
     w1=w7+w1;
     w8=w8+w1;
-    w8=w2*w8;
+    w8=c3*w8;
     w0=w0+w8;
     r0[1*ld+j]=w0;
-    w0=3.0;
-    w8=w0*w5;
+    w8=c33*w5;
     w1=2.*w5;
     w8=w8+w1;
     w8=w8+w5;
-    w8=w2*w8;
+    w8=c3*w8;
     w3=w3+w8;
     r0[2*ld+j]=w3;
-    w0=w0*w6;
+    w0=c33*w6;
     w3=2.*w6;
     w0=w0+w3;
     w0=w0+w6;
-    w2=w2*w0;
+    w2=c3*w0;
     w7=w7+w2;
     r0[3*ld+j]=w7;
   }
@@ -105,16 +111,16 @@ CASADI_SYMBOL_EXPORT int linear_cv_h_soa(casadi_int N, casadi_int ld, const casa
   const casadi_real* a1 = arg[1];
   casadi_real* r0 = res[0];
   casadi_int j;
-#pragma omp simd
+  const casadi_real c1=a1[0];
+  const casadi_real c5=a1[1];
+  ABYSSAL_SIMD_LOOP
   for (j = 0; j < N; ++j) {
-    casadi_real w0, w1;
+    casadi_real w0;
     w0=a0[0*ld+j];
-    w1=a1[0];
-    w0=w0-w1;
+    w0=w0-c1;
     r0[0*ld+j]=w0;
     w0=a0[1*ld+j];
-    w1=a1[1];
-    w0=w0-w1;
+    w0=w0-c5;
     r0[1*ld+j]=w0;
   }
   return 0;

@@ -6,7 +6,14 @@
  * of the function itself or of the leaves it calls, times the calls):
  *   remus100_ukf_predict            88969 operations
  *   remus100_ukf_update             16085 operations
+ *   remus100_ukf_predict_points      2099 operations
+ *   remus100_ukf_predict_weights       66 operations
  */
+
+/* CasADi's calling convention passes iw, w and mem to every function; not every function uses them. */
+#if defined(__GNUC__)
+#pragma GCC diagnostic ignored "-Wunused-parameter"
+#endif
 /* How to prefix internal symbols */
 #ifdef CASADI_CODEGEN_PREFIX
   #define CASADI_NAMESPACE_CONCAT(NS, ID) _CASADI_NAMESPACE_CONCAT(NS, ID)
@@ -43,6 +50,9 @@
 #define casadi_f19 CASADI_PREFIX(f19)
 #define casadi_f2 CASADI_PREFIX(f2)
 #define casadi_f20 CASADI_PREFIX(f20)
+#define casadi_f21 CASADI_PREFIX(f21)
+#define casadi_f22 CASADI_PREFIX(f22)
+#define casadi_f23 CASADI_PREFIX(f23)
 #define casadi_f3 CASADI_PREFIX(f3)
 #define casadi_f4 CASADI_PREFIX(f4)
 #define casadi_f5 CASADI_PREFIX(f5)
@@ -61,6 +71,8 @@
 #define casadi_s4 CASADI_PREFIX(s4)
 #define casadi_s5 CASADI_PREFIX(s5)
 #define casadi_s6 CASADI_PREFIX(s6)
+#define casadi_s7 CASADI_PREFIX(s7)
+#define casadi_s8 CASADI_PREFIX(s8)
 #define casadi_sq CASADI_PREFIX(sq)
 #define casadi_zeros CASADI_PREFIX(zeros)
 
@@ -166,6 +178,8 @@ static const casadi_int casadi_s3[3] = {55, 1, 1};
 static const casadi_int casadi_s4[3] = {1, 1, 1};
 static const casadi_int casadi_s5[3] = {10, 1, 1};
 static const casadi_int casadi_s6[3] = {10, 10, 1};
+static const casadi_int casadi_s7[3] = {25, 12, 1};
+static const casadi_int casadi_s8[3] = {25, 1, 1};
 
 static const casadi_real casadi_zeros[300] = 
   {0.};
@@ -15255,6 +15269,277 @@ CASADI_SYMBOL_EXPORT int remus100_ukf_update_work_bytes(casadi_int *sz_arg, casa
   return 0;
 }
 
+/* remus100_ukf_predict_points:(x[12],P[12x12],abk[3])->(X[25x12],ok) */
+static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_int i, j;
+  casadi_real **res1=res+2, *rr, *w2=w+91, w3, *w4=w+235, *w5=w+238, *w6=w+538;
+  const casadi_real **arg1=arg+3, *cs, *wr0, *wr1;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: {@2, @3} = remus100_cholesky(@1) */
+  arg1[0]=wr1;
+  res1[0]=w2;
+  res1[1]=(&w3);
+  if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
+  /* #3: @4 = input[2][0] */
+  casadi_copy(arg[2], 3, w4);
+  /* #4: @5 = remus100_ukf_points(@0, @2, @4) */
+  arg1[0]=wr0;
+  arg1[1]=w2;
+  arg1[2]=w4;
+  res1[0]=w5;
+  if (casadi_f3(arg1, res1, iw, w, 0)) return 1;
+  /* #5: @6 = @5' */
+  for (i=0, rr=w6, cs=w5; i<25; ++i) for (j=0; j<12; ++j) rr[i+j*25] = *cs++;
+  /* #6: output[0][0] = @6 */
+  casadi_copy(w6, 300, res[0]);
+  /* #7: output[1][0] = @3 */
+  if (res[1]) res[1][0] = w3;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int remus100_ukf_predict_points(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f21(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int remus100_ukf_predict_points_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void remus100_ukf_predict_points_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void remus100_ukf_predict_points_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void remus100_ukf_predict_points_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int remus100_ukf_predict_points_n_in(void) { return 3;}
+
+CASADI_SYMBOL_EXPORT casadi_int remus100_ukf_predict_points_n_out(void) { return 2;}
+
+CASADI_SYMBOL_EXPORT casadi_real remus100_ukf_predict_points_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* remus100_ukf_predict_points_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "x";
+    case 1: return "P";
+    case 2: return "abk";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* remus100_ukf_predict_points_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "X";
+    case 1: return "ok";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* remus100_ukf_predict_points_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s0;
+    case 1: return casadi_s1;
+    case 2: return casadi_s2;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* remus100_ukf_predict_points_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s7;
+    case 1: return casadi_s4;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int remus100_ukf_predict_points_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 6;
+  if (sz_res) *sz_res = 4;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 838;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int remus100_ukf_predict_points_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 6*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 4*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 838*sizeof(casadi_real);
+  return 0;
+}
+
+/* remus100_ukf_point_weights:(abk[3])->(wm[25],wc[25]) */
+static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a0, a1, a2, a3;
+  a0=arg[0]? arg[0][0] : 0;
+  a1=casadi_sq(a0);
+  a2=12.;
+  a3=arg[0]? arg[0][2] : 0;
+  a3=(a2+a3);
+  a1=(a1*a3);
+  a2=(a1-a2);
+  a2=(a2/a1);
+  if (res[0]!=0) res[0][0]=a2;
+  a1=(2.*a1);
+  a1=(1./a1);
+  if (res[0]!=0) res[0][1]=a1;
+  if (res[0]!=0) res[0][2]=a1;
+  if (res[0]!=0) res[0][3]=a1;
+  if (res[0]!=0) res[0][4]=a1;
+  if (res[0]!=0) res[0][5]=a1;
+  if (res[0]!=0) res[0][6]=a1;
+  if (res[0]!=0) res[0][7]=a1;
+  if (res[0]!=0) res[0][8]=a1;
+  if (res[0]!=0) res[0][9]=a1;
+  if (res[0]!=0) res[0][10]=a1;
+  if (res[0]!=0) res[0][11]=a1;
+  if (res[0]!=0) res[0][12]=a1;
+  if (res[0]!=0) res[0][13]=a1;
+  if (res[0]!=0) res[0][14]=a1;
+  if (res[0]!=0) res[0][15]=a1;
+  if (res[0]!=0) res[0][16]=a1;
+  if (res[0]!=0) res[0][17]=a1;
+  if (res[0]!=0) res[0][18]=a1;
+  if (res[0]!=0) res[0][19]=a1;
+  if (res[0]!=0) res[0][20]=a1;
+  if (res[0]!=0) res[0][21]=a1;
+  if (res[0]!=0) res[0][22]=a1;
+  if (res[0]!=0) res[0][23]=a1;
+  if (res[0]!=0) res[0][24]=a1;
+  a3=1.;
+  a2=(a2+a3);
+  a0=casadi_sq(a0);
+  a2=(a2-a0);
+  a0=arg[0]? arg[0][1] : 0;
+  a2=(a2+a0);
+  if (res[1]!=0) res[1][0]=a2;
+  if (res[1]!=0) res[1][1]=a1;
+  if (res[1]!=0) res[1][2]=a1;
+  if (res[1]!=0) res[1][3]=a1;
+  if (res[1]!=0) res[1][4]=a1;
+  if (res[1]!=0) res[1][5]=a1;
+  if (res[1]!=0) res[1][6]=a1;
+  if (res[1]!=0) res[1][7]=a1;
+  if (res[1]!=0) res[1][8]=a1;
+  if (res[1]!=0) res[1][9]=a1;
+  if (res[1]!=0) res[1][10]=a1;
+  if (res[1]!=0) res[1][11]=a1;
+  if (res[1]!=0) res[1][12]=a1;
+  if (res[1]!=0) res[1][13]=a1;
+  if (res[1]!=0) res[1][14]=a1;
+  if (res[1]!=0) res[1][15]=a1;
+  if (res[1]!=0) res[1][16]=a1;
+  if (res[1]!=0) res[1][17]=a1;
+  if (res[1]!=0) res[1][18]=a1;
+  if (res[1]!=0) res[1][19]=a1;
+  if (res[1]!=0) res[1][20]=a1;
+  if (res[1]!=0) res[1][21]=a1;
+  if (res[1]!=0) res[1][22]=a1;
+  if (res[1]!=0) res[1][23]=a1;
+  if (res[1]!=0) res[1][24]=a1;
+  return 0;
+}
+
+/* remus100_ukf_predict_weights:(abk[3])->(wm[25],wc[25]) */
+static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+4, *w1=w+7, *w2=w+32;
+  const casadi_real **arg1=arg+1;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 3, w0);
+  /* #1: {@1, @2} = remus100_ukf_point_weights(@0) */
+  arg1[0]=w0;
+  res1[0]=w1;
+  res1[1]=w2;
+  if (casadi_f23(arg1, res1, iw, w, 0)) return 1;
+  /* #2: output[0][0] = @1 */
+  casadi_copy(w1, 25, res[0]);
+  /* #3: output[1][0] = @2 */
+  casadi_copy(w2, 25, res[1]);
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int remus100_ukf_predict_weights(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f22(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int remus100_ukf_predict_weights_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void remus100_ukf_predict_weights_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void remus100_ukf_predict_weights_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void remus100_ukf_predict_weights_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int remus100_ukf_predict_weights_n_in(void) { return 1;}
+
+CASADI_SYMBOL_EXPORT casadi_int remus100_ukf_predict_weights_n_out(void) { return 2;}
+
+CASADI_SYMBOL_EXPORT casadi_real remus100_ukf_predict_weights_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* remus100_ukf_predict_weights_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "abk";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* remus100_ukf_predict_weights_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "wm";
+    case 1: return "wc";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* remus100_ukf_predict_weights_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s2;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* remus100_ukf_predict_weights_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s8;
+    case 1: return casadi_s8;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int remus100_ukf_predict_weights_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 2;
+  if (sz_res) *sz_res = 4;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 57;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int remus100_ukf_predict_weights_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 2*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 4*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 57*sizeof(casadi_real);
+  return 0;
+}
+
 
 
 /* remus100_ukf_predict_batch: evaluate remus100_ukf_predict for j = 0..N-1 on slices arg[k] + j*arg_step[k] and
@@ -15293,6 +15578,46 @@ CASADI_SYMBOL_EXPORT int remus100_ukf_update_batch(casadi_int N, const casadi_re
     for (k = 0; k < 7; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
     for (k = 0; k < 5; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
     if (remus100_ukf_update(a, r, iw, w, 0)) return (int)(1 + j);
+  }
+  return 0;
+}
+
+/* remus100_ukf_predict_points_batch: evaluate remus100_ukf_predict_points for j = 0..N-1 on slices arg[k] + j*arg_step[k] and
+ * res[k] + j*res_step[k] (a step of 0 shares the argument). Returns 0, or 1 + j of the first
+ * failing evaluation. */
+CASADI_SYMBOL_EXPORT int remus100_ukf_predict_points_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
+                                  casadi_real** res, const casadi_int* res_step) {
+  const casadi_real* a[6];
+  casadi_real* r[4];
+  casadi_int iw[1];
+  casadi_real w[995];
+  casadi_int j, k;
+  for (k = 0; k < 6; ++k) a[k] = 0;
+  for (k = 0; k < 4; ++k) r[k] = 0;
+  for (j = 0; j < N; ++j) {
+    for (k = 0; k < 3; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
+    for (k = 0; k < 2; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
+    if (remus100_ukf_predict_points(a, r, iw, w, 0)) return (int)(1 + j);
+  }
+  return 0;
+}
+
+/* remus100_ukf_predict_weights_batch: evaluate remus100_ukf_predict_weights for j = 0..N-1 on slices arg[k] + j*arg_step[k] and
+ * res[k] + j*res_step[k] (a step of 0 shares the argument). Returns 0, or 1 + j of the first
+ * failing evaluation. */
+CASADI_SYMBOL_EXPORT int remus100_ukf_predict_weights_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
+                                  casadi_real** res, const casadi_int* res_step) {
+  const casadi_real* a[2];
+  casadi_real* r[4];
+  casadi_int iw[1];
+  casadi_real w[57];
+  casadi_int j, k;
+  for (k = 0; k < 2; ++k) a[k] = 0;
+  for (k = 0; k < 4; ++k) r[k] = 0;
+  for (j = 0; j < N; ++j) {
+    for (k = 0; k < 1; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
+    for (k = 0; k < 2; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
+    if (remus100_ukf_predict_weights(a, r, iw, w, 0)) return (int)(1 + j);
   }
   return 0;
 }

@@ -5,13 +5,22 @@
  * Functions (operations per call: CasADi SX instructions after common-subexpression elimination,
  * of the function itself or of the leaves it calls, times the calls):
  *   rov4dof_ukf_predict             30094 operations
- *   rov4dof_ukf_update               5826 operations
- *   rov4dof_mcukf_update             5985 operations
- *   rov4dof_huber_ukf_update         6400 operations
+ *   rov4dof_ukf_update               4669 operations
+ *   rov4dof_ukf_predict_points       2099 operations
+ *   rov4dof_ukf_predict_weights        66 operations
+ *   rov4dof_mcukf_update             4828 operations
+ *   rov4dof_huber_ukf_update         5243 operations
  *   rov4dof_ckf_predict             28512 operations
- *   rov4dof_ckf_update               5488 operations
- *   rov4dof_ckf_step                34001 operations
+ *   rov4dof_ckf_update               4622 operations
+ *   rov4dof_ckf_step                33135 operations
+ *   rov4dof_ckf_predict_points       2148 operations
+ *   rov4dof_ckf_predict_weights        24 operations
  */
+
+/* CasADi's calling convention passes iw, w and mem to every function; not every function uses them. */
+#if defined(__GNUC__)
+#pragma GCC diagnostic ignored "-Wunused-parameter"
+#endif
 /* How to prefix internal symbols */
 #ifdef CASADI_CODEGEN_PREFIX
   #define CASADI_NAMESPACE_CONCAT(NS, ID) _CASADI_NAMESPACE_CONCAT(NS, ID)
@@ -63,10 +72,6 @@
 #define casadi_f32 CASADI_PREFIX(f32)
 #define casadi_f33 CASADI_PREFIX(f33)
 #define casadi_f34 CASADI_PREFIX(f34)
-#define casadi_f35 CASADI_PREFIX(f35)
-#define casadi_f36 CASADI_PREFIX(f36)
-#define casadi_f37 CASADI_PREFIX(f37)
-#define casadi_f38 CASADI_PREFIX(f38)
 #define casadi_f4 CASADI_PREFIX(f4)
 #define casadi_f5 CASADI_PREFIX(f5)
 #define casadi_f6 CASADI_PREFIX(f6)
@@ -80,11 +85,15 @@
 #define casadi_mtimes_dense CASADI_PREFIX(mtimes_dense)
 #define casadi_s0 CASADI_PREFIX(s0)
 #define casadi_s1 CASADI_PREFIX(s1)
+#define casadi_s10 CASADI_PREFIX(s10)
 #define casadi_s2 CASADI_PREFIX(s2)
 #define casadi_s3 CASADI_PREFIX(s3)
 #define casadi_s4 CASADI_PREFIX(s4)
 #define casadi_s5 CASADI_PREFIX(s5)
 #define casadi_s6 CASADI_PREFIX(s6)
+#define casadi_s7 CASADI_PREFIX(s7)
+#define casadi_s8 CASADI_PREFIX(s8)
+#define casadi_s9 CASADI_PREFIX(s9)
 #define casadi_sq CASADI_PREFIX(sq)
 #define casadi_zeros CASADI_PREFIX(zeros)
 
@@ -199,6 +208,10 @@ static const casadi_int casadi_s3[3] = {17, 1, 1};
 static const casadi_int casadi_s4[3] = {1, 1, 1};
 static const casadi_int casadi_s5[3] = {3, 1, 1};
 static const casadi_int casadi_s6[3] = {4, 4, 1};
+static const casadi_int casadi_s7[3] = {25, 12, 1};
+static const casadi_int casadi_s8[3] = {25, 1, 1};
+static const casadi_int casadi_s9[3] = {24, 12, 1};
+static const casadi_int casadi_s10[3] = {24, 1, 1};
 
 static const casadi_real casadi_zeros[300] = 
   {0.};
@@ -4124,303 +4137,705 @@ CASADI_SYMBOL_EXPORT int rov4dof_ukf_predict_work_bytes(casadi_int *sz_arg, casa
   return 0;
 }
 
-/* rov4dof_ukf_measured_points:(x[12],L[12x12],p[17],abk[3])->(Z[4x25]) */
+/* rov4dof_ukf_measured_moments:(x[12],L[12x12],p[17],abk[3])->(z_pred[4],DZ[4x25],Czz[4x4]) */
 static int casadi_f13(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
-  casadi_real a12, a13, a14;
-  a00=arg[0]? arg[0][0] : 0;
-  if (res[0]!=0) res[0][0]=a00;
-  a01=arg[0]? arg[0][1] : 0;
-  if (res[0]!=0) res[0][1]=a01;
-  a02=arg[0]? arg[0][2] : 0;
-  if (res[0]!=0) res[0][2]=a02;
-  a03=arg[0]? arg[0][3] : 0;
-  if (res[0]!=0) res[0][3]=a03;
-  a04=arg[1]? arg[1][0] : 0;
-  a05=arg[3]? arg[3][0] : 0;
-  a05=casadi_sq(a05);
-  a06=12.;
-  a07=arg[3]? arg[3][2] : 0;
-  a06=(a06+a07);
+  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
+  casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34;
+  a00=arg[3]? arg[3][0] : 0;
+  a00=casadi_sq(a00);
+  a01=12.;
+  a02=arg[3]? arg[3][2] : 0;
+  a02=(a01+a02);
+  a02=(a00*a02);
+  a01=(a02-a01);
+  a03=(1./a02);
+  a03=copysign(a03,a02);
+  a01=(a01*a03);
+  a03=arg[0]? arg[0][0] : 0;
+  a04=(a01*a03);
+  a05=arg[1]? arg[1][0] : 0;
+  a06=sqrt(a02);
   a05=(a05*a06);
-  a05=sqrt(a05);
-  a04=(a04*a05);
-  a06=(a00+a04);
-  if (res[0]!=0) res[0][4]=a06;
-  a06=arg[1]? arg[1][1] : 0;
-  a06=(a06*a05);
-  a07=(a01+a06);
-  if (res[0]!=0) res[0][5]=a07;
-  a07=arg[1]? arg[1][2] : 0;
-  a07=(a07*a05);
-  a08=(a02+a07);
-  if (res[0]!=0) res[0][6]=a08;
-  a08=arg[1]? arg[1][3] : 0;
-  a08=(a08*a05);
-  a09=(a03+a08);
-  if (res[0]!=0) res[0][7]=a09;
-  if (res[0]!=0) res[0][8]=a00;
-  a09=arg[1]? arg[1][13] : 0;
-  a09=(a09*a05);
-  a10=(a01+a09);
-  if (res[0]!=0) res[0][9]=a10;
-  a10=arg[1]? arg[1][14] : 0;
-  a10=(a10*a05);
-  a11=(a02+a10);
-  if (res[0]!=0) res[0][10]=a11;
-  a11=arg[1]? arg[1][15] : 0;
-  a11=(a11*a05);
-  a12=(a03+a11);
-  if (res[0]!=0) res[0][11]=a12;
-  if (res[0]!=0) res[0][12]=a00;
-  if (res[0]!=0) res[0][13]=a01;
-  a12=arg[1]? arg[1][26] : 0;
-  a12=(a12*a05);
-  a13=(a02+a12);
-  if (res[0]!=0) res[0][14]=a13;
-  a13=arg[1]? arg[1][27] : 0;
-  a13=(a13*a05);
-  a14=(a03+a13);
-  if (res[0]!=0) res[0][15]=a14;
-  if (res[0]!=0) res[0][16]=a00;
-  if (res[0]!=0) res[0][17]=a01;
-  if (res[0]!=0) res[0][18]=a02;
-  a14=arg[1]? arg[1][39] : 0;
-  a14=(a14*a05);
-  a05=(a03+a14);
-  if (res[0]!=0) res[0][19]=a05;
-  if (res[0]!=0) res[0][20]=a00;
-  if (res[0]!=0) res[0][21]=a01;
-  if (res[0]!=0) res[0][22]=a02;
-  if (res[0]!=0) res[0][23]=a03;
-  if (res[0]!=0) res[0][24]=a00;
-  if (res[0]!=0) res[0][25]=a01;
-  if (res[0]!=0) res[0][26]=a02;
-  if (res[0]!=0) res[0][27]=a03;
-  if (res[0]!=0) res[0][28]=a00;
-  if (res[0]!=0) res[0][29]=a01;
-  if (res[0]!=0) res[0][30]=a02;
-  if (res[0]!=0) res[0][31]=a03;
-  if (res[0]!=0) res[0][32]=a00;
-  if (res[0]!=0) res[0][33]=a01;
-  if (res[0]!=0) res[0][34]=a02;
-  if (res[0]!=0) res[0][35]=a03;
-  if (res[0]!=0) res[0][36]=a00;
-  if (res[0]!=0) res[0][37]=a01;
-  if (res[0]!=0) res[0][38]=a02;
-  if (res[0]!=0) res[0][39]=a03;
-  if (res[0]!=0) res[0][40]=a00;
-  if (res[0]!=0) res[0][41]=a01;
-  if (res[0]!=0) res[0][42]=a02;
-  if (res[0]!=0) res[0][43]=a03;
-  if (res[0]!=0) res[0][44]=a00;
-  if (res[0]!=0) res[0][45]=a01;
-  if (res[0]!=0) res[0][46]=a02;
-  if (res[0]!=0) res[0][47]=a03;
-  if (res[0]!=0) res[0][48]=a00;
-  if (res[0]!=0) res[0][49]=a01;
-  if (res[0]!=0) res[0][50]=a02;
-  if (res[0]!=0) res[0][51]=a03;
-  a04=(a00-a04);
-  if (res[0]!=0) res[0][52]=a04;
-  a06=(a01-a06);
-  if (res[0]!=0) res[0][53]=a06;
-  a07=(a02-a07);
-  if (res[0]!=0) res[0][54]=a07;
-  a08=(a03-a08);
-  if (res[0]!=0) res[0][55]=a08;
-  if (res[0]!=0) res[0][56]=a00;
-  a09=(a01-a09);
-  if (res[0]!=0) res[0][57]=a09;
-  a10=(a02-a10);
-  if (res[0]!=0) res[0][58]=a10;
-  a11=(a03-a11);
-  if (res[0]!=0) res[0][59]=a11;
-  if (res[0]!=0) res[0][60]=a00;
-  if (res[0]!=0) res[0][61]=a01;
-  a12=(a02-a12);
-  if (res[0]!=0) res[0][62]=a12;
-  a13=(a03-a13);
-  if (res[0]!=0) res[0][63]=a13;
-  if (res[0]!=0) res[0][64]=a00;
-  if (res[0]!=0) res[0][65]=a01;
-  if (res[0]!=0) res[0][66]=a02;
-  a14=(a03-a14);
-  if (res[0]!=0) res[0][67]=a14;
-  if (res[0]!=0) res[0][68]=a00;
-  if (res[0]!=0) res[0][69]=a01;
-  if (res[0]!=0) res[0][70]=a02;
-  if (res[0]!=0) res[0][71]=a03;
-  if (res[0]!=0) res[0][72]=a00;
-  if (res[0]!=0) res[0][73]=a01;
-  if (res[0]!=0) res[0][74]=a02;
-  if (res[0]!=0) res[0][75]=a03;
-  if (res[0]!=0) res[0][76]=a00;
-  if (res[0]!=0) res[0][77]=a01;
-  if (res[0]!=0) res[0][78]=a02;
-  if (res[0]!=0) res[0][79]=a03;
-  if (res[0]!=0) res[0][80]=a00;
-  if (res[0]!=0) res[0][81]=a01;
-  if (res[0]!=0) res[0][82]=a02;
-  if (res[0]!=0) res[0][83]=a03;
-  if (res[0]!=0) res[0][84]=a00;
-  if (res[0]!=0) res[0][85]=a01;
-  if (res[0]!=0) res[0][86]=a02;
-  if (res[0]!=0) res[0][87]=a03;
-  if (res[0]!=0) res[0][88]=a00;
-  if (res[0]!=0) res[0][89]=a01;
-  if (res[0]!=0) res[0][90]=a02;
-  if (res[0]!=0) res[0][91]=a03;
-  if (res[0]!=0) res[0][92]=a00;
-  if (res[0]!=0) res[0][93]=a01;
-  if (res[0]!=0) res[0][94]=a02;
-  if (res[0]!=0) res[0][95]=a03;
-  if (res[0]!=0) res[0][96]=a00;
-  if (res[0]!=0) res[0][97]=a01;
-  if (res[0]!=0) res[0][98]=a02;
-  if (res[0]!=0) res[0][99]=a03;
-  return 0;
-}
-
-/* rov4dof_residual:(z_k[4],z_pred[4])->(dz[4],dzdzT[4x4]) */
-static int casadi_f15(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real a0, a1, a2, a3, a4, a5, a6;
-  a0=arg[0]? arg[0][0] : 0;
-  a1=arg[1]? arg[1][0] : 0;
-  a0=(a0-a1);
-  if (res[0]!=0) res[0][0]=a0;
-  a1=arg[0]? arg[0][1] : 0;
-  a2=arg[1]? arg[1][1] : 0;
-  a1=(a1-a2);
-  if (res[0]!=0) res[0][1]=a1;
-  a2=arg[0]? arg[0][2] : 0;
-  a3=arg[1]? arg[1][2] : 0;
-  a2=(a2-a3);
-  if (res[0]!=0) res[0][2]=a2;
-  a3=arg[0]? arg[0][3] : 0;
-  a4=arg[1]? arg[1][3] : 0;
-  a3=(a3-a4);
-  a4=6.2831853071795862e+00;
-  a5=1.5915494309189535e-01;
-  a6=3.1415926535897931e+00;
-  a6=(a3-a6);
-  a5=(a5*a6);
-  a5=ceil(a5);
-  a4=(a4*a5);
-  a3=(a3-a4);
-  if (res[0]!=0) res[0][3]=a3;
-  a4=casadi_sq(a0);
-  if (res[1]!=0) res[1][0]=a4;
-  a4=(a0*a1);
-  if (res[1]!=0) res[1][1]=a4;
-  a5=(a0*a2);
-  if (res[1]!=0) res[1][2]=a5;
-  a0=(a0*a3);
-  if (res[1]!=0) res[1][3]=a0;
-  if (res[1]!=0) res[1][4]=a4;
-  a4=casadi_sq(a1);
-  if (res[1]!=0) res[1][5]=a4;
-  a4=(a1*a2);
-  if (res[1]!=0) res[1][6]=a4;
-  a1=(a1*a3);
-  if (res[1]!=0) res[1][7]=a1;
-  if (res[1]!=0) res[1][8]=a5;
-  if (res[1]!=0) res[1][9]=a4;
-  a4=casadi_sq(a2);
-  if (res[1]!=0) res[1][10]=a4;
-  a2=(a2*a3);
-  if (res[1]!=0) res[1][11]=a2;
-  if (res[1]!=0) res[1][12]=a0;
-  if (res[1]!=0) res[1][13]=a1;
-  if (res[1]!=0) res[1][14]=a2;
-  a3=casadi_sq(a3);
-  if (res[1]!=0) res[1][15]=a3;
-  return 0;
-}
-
-/* rov4dof_residual_0_1:(z_k[4],z_pred[4])->(dz[4],dzdzT[4x4]) */
-static int casadi_f14(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i, j;
-  casadi_real **res1=res+2, *w0=w+7, *w1=w+11, *w2=w+15, *w3=w+19, *w4=w+35;
-  const casadi_real **arg1=arg+2;
-  /* #0: @0 = input[0][0] */
-  casadi_copy(arg[0], 4, w0);
-  /* #1: @1 = input[1][0] */
-  casadi_copy(arg[1], 4, w1);
-  /* #2: {@2, @3} = rov4dof_residual(@0, @1) */
-  arg1[0]=w0;
-  arg1[1]=w1;
-  res1[0]=w2;
-  res1[1]=w3;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #3: output[0][0] = @2 */
-  casadi_copy(w2, 4, res[0]);
-  /* #4: @4 = repsum(@3, 1) */
-  casadi_clear(w4, 16);
-    for (i=0;i<1;++i) {
-        for (j=0;j<16;++j) {
-            w4[j] += w3[j+i*16];
-          }
-      }
-  /* #5: output[1][0] = @4 */
-  casadi_copy(w4, 16, res[1]);
-  return 0;
-}
-
-/* map24_rov4dof_residual:(z_k[4x24],z_pred[4x24])->(dz[4x24],dzdzT[4x96]) */
-static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i;
-  casadi_real* *res1;
-  const casadi_real* *arg1;
-  arg1 = arg+2;
-  for (i=0; i<2; ++i) arg1[i]=arg[i];
-  res1 = res+2;
-  for (i=0; i<2; ++i) res1[i]=res[i];
-  for (i=0; i<24; ++i) {
-    if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-    if (arg1[0]) arg1[0]+=4;
-    if (arg1[1]) arg1[1]+=4;
-    if (res1[0]) res1[0]+=4;
-    if (res1[1]) res1[1]+=16;
-  }
-  return 0;
-}
-
-/* rov4dof_residual_1_25:(z_k[4x24],z_pred[4])->(dz[4x24],dzdzT[4x4]) */
-static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i, j;
-  casadi_real **res1=res+2, *w1=w+7, *w2=w+11, *w3=w+107, *w4=w+203, *w5=w+587;
-  const casadi_real **arg1=arg+2, *wr0;
-  /* #0: @0 = input[0][0] */
-  wr0 = arg[0] ? arg[0] : casadi_zeros;
-  /* #1: @1 = input[1][0] */
-  casadi_copy(arg[1], 4, w1);
-  /* #2: @2 = repmat(@1, 24) */
-  for (i=0;i<24;++i) {
-    casadi_copy(w1, 4, w2+ i*4);
-  }
-  /* #3: {@3, @4} = map24_rov4dof_residual(@0, @2) */
-  arg1[0]=wr0;
-  arg1[1]=w2;
-  res1[0]=w3;
-  res1[1]=w4;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #4: output[0][0] = @3 */
-  casadi_copy(w3, 96, res[0]);
-  /* #5: @5 = repsum(@4, 24) */
-  casadi_clear(w5, 16);
-    for (i=0;i<24;++i) {
-        for (j=0;j<16;++j) {
-            w5[j] += w4[j+i*16];
-          }
-      }
-  /* #6: output[1][0] = @5 */
-  casadi_copy(w5, 16, res[1]);
+  a07=(a03+a05);
+  a08=(a07+a03);
+  a08=(a08+a03);
+  a08=(a08+a03);
+  a08=(a08+a03);
+  a08=(a08+a03);
+  a08=(a08+a03);
+  a08=(a08+a03);
+  a08=(a08+a03);
+  a08=(a08+a03);
+  a08=(a08+a03);
+  a08=(a08+a03);
+  a05=(a03-a05);
+  a08=(a08+a05);
+  a08=(a08+a03);
+  a08=(a08+a03);
+  a08=(a08+a03);
+  a08=(a08+a03);
+  a08=(a08+a03);
+  a08=(a08+a03);
+  a08=(a08+a03);
+  a08=(a08+a03);
+  a08=(a08+a03);
+  a08=(a08+a03);
+  a08=(a08+a03);
+  a02=(2.*a02);
+  a09=(1./a02);
+  a09=copysign(a09,a02);
+  a08=(a08*a09);
+  a04=(a04+a08);
+  if (res[0]!=0) res[0][0]=a04;
+  a08=arg[0]? arg[0][1] : 0;
+  a02=(a01*a08);
+  a10=arg[1]? arg[1][1] : 0;
+  a10=(a10*a06);
+  a11=(a08+a10);
+  a12=arg[1]? arg[1][13] : 0;
+  a12=(a12*a06);
+  a13=(a08+a12);
+  a14=(a11+a13);
+  a14=(a14+a08);
+  a14=(a14+a08);
+  a14=(a14+a08);
+  a14=(a14+a08);
+  a14=(a14+a08);
+  a14=(a14+a08);
+  a14=(a14+a08);
+  a14=(a14+a08);
+  a14=(a14+a08);
+  a14=(a14+a08);
+  a10=(a08-a10);
+  a14=(a14+a10);
+  a12=(a08-a12);
+  a14=(a14+a12);
+  a14=(a14+a08);
+  a14=(a14+a08);
+  a14=(a14+a08);
+  a14=(a14+a08);
+  a14=(a14+a08);
+  a14=(a14+a08);
+  a14=(a14+a08);
+  a14=(a14+a08);
+  a14=(a14+a08);
+  a14=(a14+a08);
+  a14=(a14*a09);
+  a02=(a02+a14);
+  if (res[0]!=0) res[0][1]=a02;
+  a14=arg[0]? arg[0][2] : 0;
+  a15=(a01*a14);
+  a16=arg[1]? arg[1][2] : 0;
+  a16=(a16*a06);
+  a17=(a14+a16);
+  a18=arg[1]? arg[1][14] : 0;
+  a18=(a18*a06);
+  a19=(a14+a18);
+  a20=(a17+a19);
+  a21=arg[1]? arg[1][26] : 0;
+  a21=(a21*a06);
+  a22=(a14+a21);
+  a20=(a20+a22);
+  a20=(a20+a14);
+  a20=(a20+a14);
+  a20=(a20+a14);
+  a20=(a20+a14);
+  a20=(a20+a14);
+  a20=(a20+a14);
+  a20=(a20+a14);
+  a20=(a20+a14);
+  a20=(a20+a14);
+  a16=(a14-a16);
+  a20=(a20+a16);
+  a18=(a14-a18);
+  a20=(a20+a18);
+  a21=(a14-a21);
+  a20=(a20+a21);
+  a20=(a20+a14);
+  a20=(a20+a14);
+  a20=(a20+a14);
+  a20=(a20+a14);
+  a20=(a20+a14);
+  a20=(a20+a14);
+  a20=(a20+a14);
+  a20=(a20+a14);
+  a20=(a20+a14);
+  a20=(a20*a09);
+  a15=(a15+a20);
+  if (res[0]!=0) res[0][2]=a15;
+  a20=arg[0]? arg[0][3] : 0;
+  a23=(a01*a20);
+  a24=arg[1]? arg[1][3] : 0;
+  a24=(a24*a06);
+  a25=(a20+a24);
+  a26=arg[1]? arg[1][15] : 0;
+  a26=(a26*a06);
+  a27=(a20+a26);
+  a28=(a25+a27);
+  a29=arg[1]? arg[1][27] : 0;
+  a29=(a29*a06);
+  a30=(a20+a29);
+  a28=(a28+a30);
+  a31=arg[1]? arg[1][39] : 0;
+  a31=(a31*a06);
+  a06=(a20+a31);
+  a28=(a28+a06);
+  a28=(a28+a20);
+  a28=(a28+a20);
+  a28=(a28+a20);
+  a28=(a28+a20);
+  a28=(a28+a20);
+  a28=(a28+a20);
+  a28=(a28+a20);
+  a28=(a28+a20);
+  a24=(a20-a24);
+  a28=(a28+a24);
+  a26=(a20-a26);
+  a28=(a28+a26);
+  a29=(a20-a29);
+  a28=(a28+a29);
+  a31=(a20-a31);
+  a28=(a28+a31);
+  a28=(a28+a20);
+  a28=(a28+a20);
+  a28=(a28+a20);
+  a28=(a28+a20);
+  a28=(a28+a20);
+  a28=(a28+a20);
+  a28=(a28+a20);
+  a28=(a28+a20);
+  a28=(a28*a09);
+  a23=(a23+a28);
+  if (res[0]!=0) res[0][3]=a23;
+  a03=(a03-a04);
+  if (res[1]!=0) res[1][0]=a03;
+  a08=(a08-a02);
+  if (res[1]!=0) res[1][1]=a08;
+  a14=(a14-a15);
+  if (res[1]!=0) res[1][2]=a14;
+  a20=(a20-a23);
+  a28=6.2831853071795862e+00;
+  a32=1.5915494309189535e-01;
+  a33=3.1415926535897931e+00;
+  a34=(a20-a33);
+  a34=(a32*a34);
+  a34=ceil(a34);
+  a34=(a28*a34);
+  a20=(a20-a34);
+  if (res[1]!=0) res[1][3]=a20;
+  a07=(a07-a04);
+  if (res[1]!=0) res[1][4]=a07;
+  a11=(a11-a02);
+  if (res[1]!=0) res[1][5]=a11;
+  a17=(a17-a15);
+  if (res[1]!=0) res[1][6]=a17;
+  a25=(a25-a23);
+  a34=(a25-a33);
+  a34=(a32*a34);
+  a34=ceil(a34);
+  a34=(a28*a34);
+  a25=(a25-a34);
+  if (res[1]!=0) res[1][7]=a25;
+  if (res[1]!=0) res[1][8]=a03;
+  a13=(a13-a02);
+  if (res[1]!=0) res[1][9]=a13;
+  a19=(a19-a15);
+  if (res[1]!=0) res[1][10]=a19;
+  a27=(a27-a23);
+  a34=(a27-a33);
+  a34=(a32*a34);
+  a34=ceil(a34);
+  a34=(a28*a34);
+  a27=(a27-a34);
+  if (res[1]!=0) res[1][11]=a27;
+  if (res[1]!=0) res[1][12]=a03;
+  if (res[1]!=0) res[1][13]=a08;
+  a22=(a22-a15);
+  if (res[1]!=0) res[1][14]=a22;
+  a30=(a30-a23);
+  a34=(a30-a33);
+  a34=(a32*a34);
+  a34=ceil(a34);
+  a34=(a28*a34);
+  a30=(a30-a34);
+  if (res[1]!=0) res[1][15]=a30;
+  if (res[1]!=0) res[1][16]=a03;
+  if (res[1]!=0) res[1][17]=a08;
+  if (res[1]!=0) res[1][18]=a14;
+  a06=(a06-a23);
+  a34=(a06-a33);
+  a34=(a32*a34);
+  a34=ceil(a34);
+  a34=(a28*a34);
+  a06=(a06-a34);
+  if (res[1]!=0) res[1][19]=a06;
+  if (res[1]!=0) res[1][20]=a03;
+  if (res[1]!=0) res[1][21]=a08;
+  if (res[1]!=0) res[1][22]=a14;
+  if (res[1]!=0) res[1][23]=a20;
+  if (res[1]!=0) res[1][24]=a03;
+  if (res[1]!=0) res[1][25]=a08;
+  if (res[1]!=0) res[1][26]=a14;
+  if (res[1]!=0) res[1][27]=a20;
+  if (res[1]!=0) res[1][28]=a03;
+  if (res[1]!=0) res[1][29]=a08;
+  if (res[1]!=0) res[1][30]=a14;
+  if (res[1]!=0) res[1][31]=a20;
+  if (res[1]!=0) res[1][32]=a03;
+  if (res[1]!=0) res[1][33]=a08;
+  if (res[1]!=0) res[1][34]=a14;
+  if (res[1]!=0) res[1][35]=a20;
+  if (res[1]!=0) res[1][36]=a03;
+  if (res[1]!=0) res[1][37]=a08;
+  if (res[1]!=0) res[1][38]=a14;
+  if (res[1]!=0) res[1][39]=a20;
+  if (res[1]!=0) res[1][40]=a03;
+  if (res[1]!=0) res[1][41]=a08;
+  if (res[1]!=0) res[1][42]=a14;
+  if (res[1]!=0) res[1][43]=a20;
+  if (res[1]!=0) res[1][44]=a03;
+  if (res[1]!=0) res[1][45]=a08;
+  if (res[1]!=0) res[1][46]=a14;
+  if (res[1]!=0) res[1][47]=a20;
+  if (res[1]!=0) res[1][48]=a03;
+  if (res[1]!=0) res[1][49]=a08;
+  if (res[1]!=0) res[1][50]=a14;
+  if (res[1]!=0) res[1][51]=a20;
+  a05=(a05-a04);
+  if (res[1]!=0) res[1][52]=a05;
+  a10=(a10-a02);
+  if (res[1]!=0) res[1][53]=a10;
+  a16=(a16-a15);
+  if (res[1]!=0) res[1][54]=a16;
+  a24=(a24-a23);
+  a04=(a24-a33);
+  a04=(a32*a04);
+  a04=ceil(a04);
+  a04=(a28*a04);
+  a24=(a24-a04);
+  if (res[1]!=0) res[1][55]=a24;
+  if (res[1]!=0) res[1][56]=a03;
+  a12=(a12-a02);
+  if (res[1]!=0) res[1][57]=a12;
+  a18=(a18-a15);
+  if (res[1]!=0) res[1][58]=a18;
+  a26=(a26-a23);
+  a02=(a26-a33);
+  a02=(a32*a02);
+  a02=ceil(a02);
+  a02=(a28*a02);
+  a26=(a26-a02);
+  if (res[1]!=0) res[1][59]=a26;
+  if (res[1]!=0) res[1][60]=a03;
+  if (res[1]!=0) res[1][61]=a08;
+  a21=(a21-a15);
+  if (res[1]!=0) res[1][62]=a21;
+  a29=(a29-a23);
+  a15=(a29-a33);
+  a15=(a32*a15);
+  a15=ceil(a15);
+  a15=(a28*a15);
+  a29=(a29-a15);
+  if (res[1]!=0) res[1][63]=a29;
+  if (res[1]!=0) res[1][64]=a03;
+  if (res[1]!=0) res[1][65]=a08;
+  if (res[1]!=0) res[1][66]=a14;
+  a31=(a31-a23);
+  a33=(a31-a33);
+  a32=(a32*a33);
+  a32=ceil(a32);
+  a28=(a28*a32);
+  a31=(a31-a28);
+  if (res[1]!=0) res[1][67]=a31;
+  if (res[1]!=0) res[1][68]=a03;
+  if (res[1]!=0) res[1][69]=a08;
+  if (res[1]!=0) res[1][70]=a14;
+  if (res[1]!=0) res[1][71]=a20;
+  if (res[1]!=0) res[1][72]=a03;
+  if (res[1]!=0) res[1][73]=a08;
+  if (res[1]!=0) res[1][74]=a14;
+  if (res[1]!=0) res[1][75]=a20;
+  if (res[1]!=0) res[1][76]=a03;
+  if (res[1]!=0) res[1][77]=a08;
+  if (res[1]!=0) res[1][78]=a14;
+  if (res[1]!=0) res[1][79]=a20;
+  if (res[1]!=0) res[1][80]=a03;
+  if (res[1]!=0) res[1][81]=a08;
+  if (res[1]!=0) res[1][82]=a14;
+  if (res[1]!=0) res[1][83]=a20;
+  if (res[1]!=0) res[1][84]=a03;
+  if (res[1]!=0) res[1][85]=a08;
+  if (res[1]!=0) res[1][86]=a14;
+  if (res[1]!=0) res[1][87]=a20;
+  if (res[1]!=0) res[1][88]=a03;
+  if (res[1]!=0) res[1][89]=a08;
+  if (res[1]!=0) res[1][90]=a14;
+  if (res[1]!=0) res[1][91]=a20;
+  if (res[1]!=0) res[1][92]=a03;
+  if (res[1]!=0) res[1][93]=a08;
+  if (res[1]!=0) res[1][94]=a14;
+  if (res[1]!=0) res[1][95]=a20;
+  if (res[1]!=0) res[1][96]=a03;
+  if (res[1]!=0) res[1][97]=a08;
+  if (res[1]!=0) res[1][98]=a14;
+  if (res[1]!=0) res[1][99]=a20;
+  a28=1.;
+  a01=(a01+a28);
+  a01=(a01-a00);
+  a00=arg[3]? arg[3][1] : 0;
+  a01=(a01+a00);
+  a00=casadi_sq(a03);
+  a28=(a01*a00);
+  a32=casadi_sq(a07);
+  a32=(a32+a00);
+  a32=(a32+a00);
+  a32=(a32+a00);
+  a32=(a32+a00);
+  a32=(a32+a00);
+  a32=(a32+a00);
+  a32=(a32+a00);
+  a32=(a32+a00);
+  a32=(a32+a00);
+  a32=(a32+a00);
+  a32=(a32+a00);
+  a33=casadi_sq(a05);
+  a32=(a32+a33);
+  a32=(a32+a00);
+  a32=(a32+a00);
+  a32=(a32+a00);
+  a32=(a32+a00);
+  a32=(a32+a00);
+  a32=(a32+a00);
+  a32=(a32+a00);
+  a32=(a32+a00);
+  a32=(a32+a00);
+  a32=(a32+a00);
+  a32=(a32+a00);
+  a32=(a32*a09);
+  a28=(a28+a32);
+  if (res[2]!=0) res[2][0]=a28;
+  a28=(a03*a08);
+  a32=(a01*a28);
+  a00=(a07*a11);
+  a33=(a03*a13);
+  a00=(a00+a33);
+  a00=(a00+a28);
+  a00=(a00+a28);
+  a00=(a00+a28);
+  a00=(a00+a28);
+  a00=(a00+a28);
+  a00=(a00+a28);
+  a00=(a00+a28);
+  a00=(a00+a28);
+  a00=(a00+a28);
+  a00=(a00+a28);
+  a33=(a05*a10);
+  a00=(a00+a33);
+  a33=(a03*a12);
+  a00=(a00+a33);
+  a00=(a00+a28);
+  a00=(a00+a28);
+  a00=(a00+a28);
+  a00=(a00+a28);
+  a00=(a00+a28);
+  a00=(a00+a28);
+  a00=(a00+a28);
+  a00=(a00+a28);
+  a00=(a00+a28);
+  a00=(a00+a28);
+  a00=(a00*a09);
+  a32=(a32+a00);
+  if (res[2]!=0) res[2][1]=a32;
+  a00=(a03*a14);
+  a28=(a01*a00);
+  a33=(a07*a17);
+  a23=(a03*a19);
+  a33=(a33+a23);
+  a23=(a03*a22);
+  a33=(a33+a23);
+  a33=(a33+a00);
+  a33=(a33+a00);
+  a33=(a33+a00);
+  a33=(a33+a00);
+  a33=(a33+a00);
+  a33=(a33+a00);
+  a33=(a33+a00);
+  a33=(a33+a00);
+  a33=(a33+a00);
+  a23=(a05*a16);
+  a33=(a33+a23);
+  a23=(a03*a18);
+  a33=(a33+a23);
+  a23=(a03*a21);
+  a33=(a33+a23);
+  a33=(a33+a00);
+  a33=(a33+a00);
+  a33=(a33+a00);
+  a33=(a33+a00);
+  a33=(a33+a00);
+  a33=(a33+a00);
+  a33=(a33+a00);
+  a33=(a33+a00);
+  a33=(a33+a00);
+  a33=(a33*a09);
+  a28=(a28+a33);
+  if (res[2]!=0) res[2][2]=a28;
+  a33=(a03*a20);
+  a00=(a01*a33);
+  a07=(a07*a25);
+  a23=(a03*a27);
+  a07=(a07+a23);
+  a23=(a03*a30);
+  a07=(a07+a23);
+  a23=(a03*a06);
+  a07=(a07+a23);
+  a07=(a07+a33);
+  a07=(a07+a33);
+  a07=(a07+a33);
+  a07=(a07+a33);
+  a07=(a07+a33);
+  a07=(a07+a33);
+  a07=(a07+a33);
+  a07=(a07+a33);
+  a05=(a05*a24);
+  a07=(a07+a05);
+  a05=(a03*a26);
+  a07=(a07+a05);
+  a05=(a03*a29);
+  a07=(a07+a05);
+  a03=(a03*a31);
+  a07=(a07+a03);
+  a07=(a07+a33);
+  a07=(a07+a33);
+  a07=(a07+a33);
+  a07=(a07+a33);
+  a07=(a07+a33);
+  a07=(a07+a33);
+  a07=(a07+a33);
+  a07=(a07+a33);
+  a07=(a07*a09);
+  a00=(a00+a07);
+  if (res[2]!=0) res[2][3]=a00;
+  if (res[2]!=0) res[2][4]=a32;
+  a32=casadi_sq(a08);
+  a07=(a01*a32);
+  a33=casadi_sq(a11);
+  a03=casadi_sq(a13);
+  a33=(a33+a03);
+  a33=(a33+a32);
+  a33=(a33+a32);
+  a33=(a33+a32);
+  a33=(a33+a32);
+  a33=(a33+a32);
+  a33=(a33+a32);
+  a33=(a33+a32);
+  a33=(a33+a32);
+  a33=(a33+a32);
+  a33=(a33+a32);
+  a03=casadi_sq(a10);
+  a33=(a33+a03);
+  a03=casadi_sq(a12);
+  a33=(a33+a03);
+  a33=(a33+a32);
+  a33=(a33+a32);
+  a33=(a33+a32);
+  a33=(a33+a32);
+  a33=(a33+a32);
+  a33=(a33+a32);
+  a33=(a33+a32);
+  a33=(a33+a32);
+  a33=(a33+a32);
+  a33=(a33+a32);
+  a33=(a33*a09);
+  a07=(a07+a33);
+  if (res[2]!=0) res[2][5]=a07;
+  a07=(a08*a14);
+  a33=(a01*a07);
+  a32=(a11*a17);
+  a03=(a13*a19);
+  a32=(a32+a03);
+  a03=(a08*a22);
+  a32=(a32+a03);
+  a32=(a32+a07);
+  a32=(a32+a07);
+  a32=(a32+a07);
+  a32=(a32+a07);
+  a32=(a32+a07);
+  a32=(a32+a07);
+  a32=(a32+a07);
+  a32=(a32+a07);
+  a32=(a32+a07);
+  a03=(a10*a16);
+  a32=(a32+a03);
+  a03=(a12*a18);
+  a32=(a32+a03);
+  a03=(a08*a21);
+  a32=(a32+a03);
+  a32=(a32+a07);
+  a32=(a32+a07);
+  a32=(a32+a07);
+  a32=(a32+a07);
+  a32=(a32+a07);
+  a32=(a32+a07);
+  a32=(a32+a07);
+  a32=(a32+a07);
+  a32=(a32+a07);
+  a32=(a32*a09);
+  a33=(a33+a32);
+  if (res[2]!=0) res[2][6]=a33;
+  a32=(a08*a20);
+  a07=(a01*a32);
+  a11=(a11*a25);
+  a13=(a13*a27);
+  a11=(a11+a13);
+  a13=(a08*a30);
+  a11=(a11+a13);
+  a13=(a08*a06);
+  a11=(a11+a13);
+  a11=(a11+a32);
+  a11=(a11+a32);
+  a11=(a11+a32);
+  a11=(a11+a32);
+  a11=(a11+a32);
+  a11=(a11+a32);
+  a11=(a11+a32);
+  a11=(a11+a32);
+  a10=(a10*a24);
+  a11=(a11+a10);
+  a12=(a12*a26);
+  a11=(a11+a12);
+  a12=(a08*a29);
+  a11=(a11+a12);
+  a08=(a08*a31);
+  a11=(a11+a08);
+  a11=(a11+a32);
+  a11=(a11+a32);
+  a11=(a11+a32);
+  a11=(a11+a32);
+  a11=(a11+a32);
+  a11=(a11+a32);
+  a11=(a11+a32);
+  a11=(a11+a32);
+  a11=(a11*a09);
+  a07=(a07+a11);
+  if (res[2]!=0) res[2][7]=a07;
+  if (res[2]!=0) res[2][8]=a28;
+  if (res[2]!=0) res[2][9]=a33;
+  a33=casadi_sq(a14);
+  a28=(a01*a33);
+  a11=casadi_sq(a17);
+  a32=casadi_sq(a19);
+  a11=(a11+a32);
+  a32=casadi_sq(a22);
+  a11=(a11+a32);
+  a11=(a11+a33);
+  a11=(a11+a33);
+  a11=(a11+a33);
+  a11=(a11+a33);
+  a11=(a11+a33);
+  a11=(a11+a33);
+  a11=(a11+a33);
+  a11=(a11+a33);
+  a11=(a11+a33);
+  a32=casadi_sq(a16);
+  a11=(a11+a32);
+  a32=casadi_sq(a18);
+  a11=(a11+a32);
+  a32=casadi_sq(a21);
+  a11=(a11+a32);
+  a11=(a11+a33);
+  a11=(a11+a33);
+  a11=(a11+a33);
+  a11=(a11+a33);
+  a11=(a11+a33);
+  a11=(a11+a33);
+  a11=(a11+a33);
+  a11=(a11+a33);
+  a11=(a11+a33);
+  a11=(a11*a09);
+  a28=(a28+a11);
+  if (res[2]!=0) res[2][10]=a28;
+  a28=(a14*a20);
+  a11=(a01*a28);
+  a17=(a17*a25);
+  a19=(a19*a27);
+  a17=(a17+a19);
+  a22=(a22*a30);
+  a17=(a17+a22);
+  a22=(a14*a06);
+  a17=(a17+a22);
+  a17=(a17+a28);
+  a17=(a17+a28);
+  a17=(a17+a28);
+  a17=(a17+a28);
+  a17=(a17+a28);
+  a17=(a17+a28);
+  a17=(a17+a28);
+  a17=(a17+a28);
+  a16=(a16*a24);
+  a17=(a17+a16);
+  a18=(a18*a26);
+  a17=(a17+a18);
+  a21=(a21*a29);
+  a17=(a17+a21);
+  a14=(a14*a31);
+  a17=(a17+a14);
+  a17=(a17+a28);
+  a17=(a17+a28);
+  a17=(a17+a28);
+  a17=(a17+a28);
+  a17=(a17+a28);
+  a17=(a17+a28);
+  a17=(a17+a28);
+  a17=(a17+a28);
+  a17=(a17*a09);
+  a11=(a11+a17);
+  if (res[2]!=0) res[2][11]=a11;
+  if (res[2]!=0) res[2][12]=a00;
+  if (res[2]!=0) res[2][13]=a07;
+  if (res[2]!=0) res[2][14]=a11;
+  a20=casadi_sq(a20);
+  a01=(a01*a20);
+  a25=casadi_sq(a25);
+  a27=casadi_sq(a27);
+  a25=(a25+a27);
+  a30=casadi_sq(a30);
+  a25=(a25+a30);
+  a06=casadi_sq(a06);
+  a25=(a25+a06);
+  a25=(a25+a20);
+  a25=(a25+a20);
+  a25=(a25+a20);
+  a25=(a25+a20);
+  a25=(a25+a20);
+  a25=(a25+a20);
+  a25=(a25+a20);
+  a25=(a25+a20);
+  a24=casadi_sq(a24);
+  a25=(a25+a24);
+  a26=casadi_sq(a26);
+  a25=(a25+a26);
+  a29=casadi_sq(a29);
+  a25=(a25+a29);
+  a31=casadi_sq(a31);
+  a25=(a25+a31);
+  a25=(a25+a20);
+  a25=(a25+a20);
+  a25=(a25+a20);
+  a25=(a25+a20);
+  a25=(a25+a20);
+  a25=(a25+a20);
+  a25=(a25+a20);
+  a25=(a25+a20);
+  a25=(a25*a09);
+  a01=(a01+a25);
+  if (res[2]!=0) res[2][15]=a01;
   return 0;
 }
 
 /* rov4dof_ukf_moments:(L[12x12],DZ[4x25],Czz[4x4],z_pred[4],z[4],mask[4],abk[3])->(innovation[4],Pzz[4x4],Pxz[12x4]) */
-static int casadi_f18(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f14(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -5517,7 +5932,7 @@ static int casadi_f18(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* rov4dof_noise:(R[4x4],mask[4],Pzz[4x4],innovation[4])->(R_used[4x4],ok) */
-static int casadi_f19(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f15(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a0, a1, a2, a3, a4, a5, a6, a7, a8, a9;
   a0=arg[1]? arg[1][0] : 0;
   a1=0.;
@@ -5607,7 +6022,7 @@ static int casadi_f19(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* rov4dof_kalman:(x[12],P[12x12],Pzz[4x4],Pxz[12x4],R_used[4x4],innovation[4])->(x_post[12],P_post[12x12],S[4x4],ok) */
-static int casadi_f20(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a000, a001, a002, a003, a004, a005, a006, a007, a008, a009, a010, a011;
   casadi_real a012, a013, a014, a015, a016, a017, a018, a019, a020, a021, a022, a023;
   casadi_real a024, a025, a026, a027, a028, a029, a030, a031, a032, a033, a034, a035;
@@ -7266,10 +7681,9 @@ static int casadi_f20(const casadi_real** arg, casadi_real** res, casadi_int* iw
 
 /* rov4dof_ukf_update:(x[12],P[12x12],z[4],p[17],R[4x4],mask[4],abk[3])->(x_post[12],P_post[12x12],innovation[4],S[4x4],ok) */
 static int casadi_f12(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i;
-  casadi_real **res1=res+5, *rr, *w02=w+699, w03, *w05=w+843, *w06=w+846, *w07=w+946, *w08=w+950, *w09=w+952, w10, *w11=w+954, *w12=w+958;
-  casadi_real *w13=w+962, *w14=w+1058, *w15=w+1082, *w16=w+1098, *w17=w+1194, *w18=w+1210, *w19=w+1214, *w20=w+1262, *w21=w+1278, w22;
-  const casadi_real **arg1=arg+7, *cs, *wr00, *wr01, *wr04, *wr15;
+  casadi_real **res1=res+5, *w02=w+123, w03, *w05=w+267, *w06=w+270, *w07=w+274, *w08=w+374, *w09=w+390, *w10=w+394, *w11=w+398, *w12=w+402, *w13=w+418;
+  casadi_real *w14=w+466, w15, *w16=w+482, w17;
+  const casadi_real **arg1=arg+7, *wr00, *wr01, *wr04, *wr08;
   /* #0: @0 = input[0][0] */
   wr00 = arg[0] ? arg[0] : casadi_zeros;
   /* #1: @1 = input[1][0] */
@@ -7283,115 +7697,66 @@ static int casadi_f12(const casadi_real** arg, casadi_real** res, casadi_int* iw
   wr04 = arg[3] ? arg[3] : casadi_zeros;
   /* #4: @5 = input[6][0] */
   casadi_copy(arg[6], 3, w05);
-  /* #5: @6 = rov4dof_ukf_measured_points(@0, @2, @4, @5) */
+  /* #5: {@6, @7, @8} = rov4dof_ukf_measured_moments(@0, @2, @4, @5) */
   arg1[0]=wr00;
   arg1[1]=w02;
   arg1[2]=wr04;
   arg1[3]=w05;
   res1[0]=w06;
+  res1[1]=w07;
+  res1[2]=w08;
   if (casadi_f13(arg1, res1, iw, w, 0)) return 1;
-  /* #6: @7 = @6[:4] */
-  for (rr=w07, cs=w06+0; cs!=w06+4; cs+=1) *rr++ = *cs;
-  /* #7: {@8, @9} = rov4dof_ukf_weights(@5) */
-  arg1[0]=w05;
-  res1[0]=w08;
-  res1[1]=w09;
-  if (casadi_f1(arg1, res1, iw, w, 0)) return 1;
-  /* #8: @10 = @8[0] */
-  for (rr=(&w10), cs=w08+0; cs!=w08+1; cs+=1) *rr++ = *cs;
-  /* #9: @11 = (@10*@7) */
-  for (i=0, rr=w11, cs=w07; i<4; ++i) (*rr++)  = (w10*(*cs++));
-  /* #10: @10 = @8[1] */
-  for (rr=(&w10), cs=w08+1; cs!=w08+2; cs+=1) *rr++ = *cs;
-  /* #11: @12 = zeros(4x1) */
-  casadi_clear(w12, 4);
-  /* #12: @13 = @6[4:100] */
-  for (rr=w13, cs=w06+4; cs!=w06+100; cs+=1) *rr++ = *cs;
-  /* #13: @14 = ones(24x1) */
-  casadi_fill(w14, 24, 1.);
-  /* #14: @12 = mac(@13,@14,@12) */
-  casadi_mtimes_dense(w13, 4, 24, w14, 1, w12, 0);
-  /* #15: @12 = (@10*@12) */
-  for (i=0, rr=w12, cs=w12; i<4; ++i) (*rr++)  = (w10*(*cs++));
-  /* #16: @11 = (@11+@12) */
-  for (i=0, rr=w11, cs=w12; i<4; ++i) (*rr++) += (*cs++);
-  /* #17: {@12, @15} = rov4dof_residual_0_1(@7, @11) */
-  arg1[0]=w07;
-  arg1[1]=w11;
-  res1[0]=w12;
-  res1[1]=w15;
-  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
-  /* #18: {@16, @17} = rov4dof_residual_1_25(@13, @11) */
-  arg1[0]=w13;
-  arg1[1]=w11;
-  res1[0]=w16;
-  res1[1]=w17;
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #19: @6 = horzcat(@12, @16) */
-  rr=w06;
-  for (i=0, cs=w12; i<4; ++i) *rr++ = *cs++;
-  for (i=0, cs=w16; i<96; ++i) *rr++ = *cs++;
-  /* #20: @10 = @9[0] */
-  for (rr=(&w10), cs=w09+0; cs!=w09+1; cs+=1) *rr++ = *cs;
-  /* #21: @15 = (@10*@15) */
-  for (i=0, rr=w15, cs=w15; i<16; ++i) (*rr++)  = (w10*(*cs++));
-  /* #22: @10 = @9[1] */
-  for (rr=(&w10), cs=w09+1; cs!=w09+2; cs+=1) *rr++ = *cs;
-  /* #23: @17 = (@10*@17) */
-  for (i=0, rr=w17, cs=w17; i<16; ++i) (*rr++)  = (w10*(*cs++));
-  /* #24: @15 = (@15+@17) */
-  for (i=0, rr=w15, cs=w17; i<16; ++i) (*rr++) += (*cs++);
-  /* #25: @12 = input[2][0] */
-  casadi_copy(arg[2], 4, w12);
-  /* #26: @7 = input[5][0] */
-  casadi_copy(arg[5], 4, w07);
-  /* #27: {@18, @17, @19} = rov4dof_ukf_moments(@2, @6, @15, @11, @12, @7, @5) */
+  /* #6: @9 = input[2][0] */
+  casadi_copy(arg[2], 4, w09);
+  /* #7: @10 = input[5][0] */
+  casadi_copy(arg[5], 4, w10);
+  /* #8: {@11, @12, @13} = rov4dof_ukf_moments(@2, @7, @8, @6, @9, @10, @5) */
   arg1[0]=w02;
-  arg1[1]=w06;
-  arg1[2]=w15;
-  arg1[3]=w11;
-  arg1[4]=w12;
-  arg1[5]=w07;
-  arg1[6]=w05;
-  res1[0]=w18;
-  res1[1]=w17;
-  res1[2]=w19;
-  if (casadi_f18(arg1, res1, iw, w, 0)) return 1;
-  /* #28: @15 = input[4][0] */
-  wr15 = arg[4] ? arg[4] : casadi_zeros;
-  /* #29: {@20, @10} = rov4dof_noise(@15, @7, @17, @18) */
-  arg1[0]=wr15;
   arg1[1]=w07;
-  arg1[2]=w17;
-  arg1[3]=w18;
-  res1[0]=w20;
-  res1[1]=(&w10);
-  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
-  /* #30: {@21, @2, @15, @22} = rov4dof_kalman(@0, @1, @17, @19, @20, @18) */
+  arg1[2]=w08;
+  arg1[3]=w06;
+  arg1[4]=w09;
+  arg1[5]=w10;
+  arg1[6]=w05;
+  res1[0]=w11;
+  res1[1]=w12;
+  res1[2]=w13;
+  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
+  /* #9: @8 = input[4][0] */
+  wr08 = arg[4] ? arg[4] : casadi_zeros;
+  /* #10: {@14, @15} = rov4dof_noise(@8, @10, @12, @11) */
+  arg1[0]=wr08;
+  arg1[1]=w10;
+  arg1[2]=w12;
+  arg1[3]=w11;
+  res1[0]=w14;
+  res1[1]=(&w15);
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #11: {@16, @2, @8, @17} = rov4dof_kalman(@0, @1, @12, @13, @14, @11) */
   arg1[0]=wr00;
   arg1[1]=wr01;
-  arg1[2]=w17;
-  arg1[3]=w19;
-  arg1[4]=w20;
-  arg1[5]=w18;
-  res1[0]=w21;
+  arg1[2]=w12;
+  arg1[3]=w13;
+  arg1[4]=w14;
+  arg1[5]=w11;
+  res1[0]=w16;
   res1[1]=w02;
-  res1[2]=w15;
-  res1[3]=(&w22);
-  if (casadi_f20(arg1, res1, iw, w, 0)) return 1;
-  /* #31: output[0][0] = @21 */
-  casadi_copy(w21, 12, res[0]);
-  /* #32: output[1][0] = @2 */
+  res1[2]=w08;
+  res1[3]=(&w17);
+  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
+  /* #12: output[0][0] = @16 */
+  casadi_copy(w16, 12, res[0]);
+  /* #13: output[1][0] = @2 */
   casadi_copy(w02, 144, res[1]);
-  /* #33: output[2][0] = @18 */
-  casadi_copy(w18, 4, res[2]);
-  /* #34: output[3][0] = @15 */
-  casadi_copy(w15, 16, res[3]);
-  /* #35: @3 = (@3*@10) */
-  w03 *= w10;
-  /* #36: @3 = (@3*@22) */
-  w03 *= w22;
-  /* #37: output[4][0] = @3 */
+  /* #14: output[2][0] = @11 */
+  casadi_copy(w11, 4, res[2]);
+  /* #15: output[3][0] = @8 */
+  casadi_copy(w08, 16, res[3]);
+  /* #16: @3 = (@3*@15) */
+  w03 *= w15;
+  /* #17: @3 = (@3*@17) */
+  w03 *= w17;
+  /* #18: output[4][0] = @3 */
   if (res[4]) res[4][0] = w03;
   return 0;
 }
@@ -7473,84 +7838,293 @@ CASADI_SYMBOL_EXPORT const casadi_int* rov4dof_ukf_update_sparsity_out(casadi_in
 
 CASADI_SYMBOL_EXPORT int rov4dof_ukf_update_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
   if (sz_arg) *sz_arg = 14;
-  if (sz_res) *sz_res = 11;
+  if (sz_res) *sz_res = 9;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 1290;
+  if (sz_w) *sz_w = 494;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int rov4dof_ukf_update_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
   if (sz_arg) *sz_arg = 14*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 11*sizeof(casadi_real*);
+  if (sz_res) *sz_res = 9*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 1290*sizeof(casadi_real);
+  if (sz_w) *sz_w = 494*sizeof(casadi_real);
   return 0;
 }
 
-/* rov4dof_residual_0_1:(z_k[4],z_pred[4])->(dz[4],dzdzT[4x4]) */
-static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+/* rov4dof_ukf_predict_points:(x[12],P[12x12],abk[3])->(X[25x12],ok) */
+static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i, j;
-  casadi_real **res1=res+2, *w0=w+7, *w1=w+11, *w2=w+15, *w3=w+19, *w4=w+35;
-  const casadi_real **arg1=arg+2;
-  /* #0: @0 = input[0][0] */
-  casadi_copy(arg[0], 4, w0);
-  /* #1: @1 = input[1][0] */
-  casadi_copy(arg[1], 4, w1);
-  /* #2: {@2, @3} = rov4dof_residual(@0, @1) */
-  arg1[0]=w0;
-  arg1[1]=w1;
-  res1[0]=w2;
-  res1[1]=w3;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #3: output[0][0] = @2 */
-  casadi_copy(w2, 4, res[0]);
-  /* #4: @4 = repsum(@3, 1) */
-  casadi_clear(w4, 16);
-    for (i=0;i<1;++i) {
-        for (j=0;j<16;++j) {
-            w4[j] += w3[j+i*16];
-          }
-      }
-  /* #5: output[1][0] = @4 */
-  casadi_copy(w4, 16, res[1]);
-  return 0;
-}
-
-/* rov4dof_residual_1_25:(z_k[4x24],z_pred[4])->(dz[4x24],dzdzT[4x4]) */
-static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i, j;
-  casadi_real **res1=res+2, *w1=w+7, *w2=w+11, *w3=w+107, *w4=w+203, *w5=w+587;
-  const casadi_real **arg1=arg+2, *wr0;
+  casadi_real **res1=res+2, *rr, *w2=w+91, w3, *w4=w+235, *w5=w+238, *w6=w+538;
+  const casadi_real **arg1=arg+3, *cs, *wr0, *wr1;
   /* #0: @0 = input[0][0] */
   wr0 = arg[0] ? arg[0] : casadi_zeros;
   /* #1: @1 = input[1][0] */
-  casadi_copy(arg[1], 4, w1);
-  /* #2: @2 = repmat(@1, 24) */
-  for (i=0;i<24;++i) {
-    casadi_copy(w1, 4, w2+ i*4);
-  }
-  /* #3: {@3, @4} = map24_rov4dof_residual(@0, @2) */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: {@2, @3} = rov4dof_cholesky(@1) */
+  arg1[0]=wr1;
+  res1[0]=w2;
+  res1[1]=(&w3);
+  if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
+  /* #3: @4 = input[2][0] */
+  casadi_copy(arg[2], 3, w4);
+  /* #4: @5 = rov4dof_ukf_points(@0, @2, @4) */
   arg1[0]=wr0;
   arg1[1]=w2;
-  res1[0]=w3;
-  res1[1]=w4;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #4: output[0][0] = @3 */
-  casadi_copy(w3, 96, res[0]);
-  /* #5: @5 = repsum(@4, 24) */
-  casadi_clear(w5, 16);
-    for (i=0;i<24;++i) {
-        for (j=0;j<16;++j) {
-            w5[j] += w4[j+i*16];
-          }
-      }
-  /* #6: output[1][0] = @5 */
-  casadi_copy(w5, 16, res[1]);
+  arg1[2]=w4;
+  res1[0]=w5;
+  if (casadi_f3(arg1, res1, iw, w, 0)) return 1;
+  /* #5: @6 = @5' */
+  for (i=0, rr=w6, cs=w5; i<25; ++i) for (j=0; j<12; ++j) rr[i+j*25] = *cs++;
+  /* #6: output[0][0] = @6 */
+  casadi_copy(w6, 300, res[0]);
+  /* #7: output[1][0] = @3 */
+  if (res[1]) res[1][0] = w3;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int rov4dof_ukf_predict_points(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f17(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int rov4dof_ukf_predict_points_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void rov4dof_ukf_predict_points_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void rov4dof_ukf_predict_points_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void rov4dof_ukf_predict_points_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int rov4dof_ukf_predict_points_n_in(void) { return 3;}
+
+CASADI_SYMBOL_EXPORT casadi_int rov4dof_ukf_predict_points_n_out(void) { return 2;}
+
+CASADI_SYMBOL_EXPORT casadi_real rov4dof_ukf_predict_points_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* rov4dof_ukf_predict_points_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "x";
+    case 1: return "P";
+    case 2: return "abk";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* rov4dof_ukf_predict_points_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "X";
+    case 1: return "ok";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* rov4dof_ukf_predict_points_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s0;
+    case 1: return casadi_s1;
+    case 2: return casadi_s5;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* rov4dof_ukf_predict_points_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s7;
+    case 1: return casadi_s4;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int rov4dof_ukf_predict_points_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 6;
+  if (sz_res) *sz_res = 4;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 838;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int rov4dof_ukf_predict_points_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 6*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 4*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 838*sizeof(casadi_real);
+  return 0;
+}
+
+/* rov4dof_ukf_point_weights:(abk[3])->(wm[25],wc[25]) */
+static int casadi_f19(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a0, a1, a2, a3;
+  a0=arg[0]? arg[0][0] : 0;
+  a1=casadi_sq(a0);
+  a2=12.;
+  a3=arg[0]? arg[0][2] : 0;
+  a3=(a2+a3);
+  a1=(a1*a3);
+  a2=(a1-a2);
+  a2=(a2/a1);
+  if (res[0]!=0) res[0][0]=a2;
+  a1=(2.*a1);
+  a1=(1./a1);
+  if (res[0]!=0) res[0][1]=a1;
+  if (res[0]!=0) res[0][2]=a1;
+  if (res[0]!=0) res[0][3]=a1;
+  if (res[0]!=0) res[0][4]=a1;
+  if (res[0]!=0) res[0][5]=a1;
+  if (res[0]!=0) res[0][6]=a1;
+  if (res[0]!=0) res[0][7]=a1;
+  if (res[0]!=0) res[0][8]=a1;
+  if (res[0]!=0) res[0][9]=a1;
+  if (res[0]!=0) res[0][10]=a1;
+  if (res[0]!=0) res[0][11]=a1;
+  if (res[0]!=0) res[0][12]=a1;
+  if (res[0]!=0) res[0][13]=a1;
+  if (res[0]!=0) res[0][14]=a1;
+  if (res[0]!=0) res[0][15]=a1;
+  if (res[0]!=0) res[0][16]=a1;
+  if (res[0]!=0) res[0][17]=a1;
+  if (res[0]!=0) res[0][18]=a1;
+  if (res[0]!=0) res[0][19]=a1;
+  if (res[0]!=0) res[0][20]=a1;
+  if (res[0]!=0) res[0][21]=a1;
+  if (res[0]!=0) res[0][22]=a1;
+  if (res[0]!=0) res[0][23]=a1;
+  if (res[0]!=0) res[0][24]=a1;
+  a3=1.;
+  a2=(a2+a3);
+  a0=casadi_sq(a0);
+  a2=(a2-a0);
+  a0=arg[0]? arg[0][1] : 0;
+  a2=(a2+a0);
+  if (res[1]!=0) res[1][0]=a2;
+  if (res[1]!=0) res[1][1]=a1;
+  if (res[1]!=0) res[1][2]=a1;
+  if (res[1]!=0) res[1][3]=a1;
+  if (res[1]!=0) res[1][4]=a1;
+  if (res[1]!=0) res[1][5]=a1;
+  if (res[1]!=0) res[1][6]=a1;
+  if (res[1]!=0) res[1][7]=a1;
+  if (res[1]!=0) res[1][8]=a1;
+  if (res[1]!=0) res[1][9]=a1;
+  if (res[1]!=0) res[1][10]=a1;
+  if (res[1]!=0) res[1][11]=a1;
+  if (res[1]!=0) res[1][12]=a1;
+  if (res[1]!=0) res[1][13]=a1;
+  if (res[1]!=0) res[1][14]=a1;
+  if (res[1]!=0) res[1][15]=a1;
+  if (res[1]!=0) res[1][16]=a1;
+  if (res[1]!=0) res[1][17]=a1;
+  if (res[1]!=0) res[1][18]=a1;
+  if (res[1]!=0) res[1][19]=a1;
+  if (res[1]!=0) res[1][20]=a1;
+  if (res[1]!=0) res[1][21]=a1;
+  if (res[1]!=0) res[1][22]=a1;
+  if (res[1]!=0) res[1][23]=a1;
+  if (res[1]!=0) res[1][24]=a1;
+  return 0;
+}
+
+/* rov4dof_ukf_predict_weights:(abk[3])->(wm[25],wc[25]) */
+static int casadi_f18(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+4, *w1=w+7, *w2=w+32;
+  const casadi_real **arg1=arg+1;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 3, w0);
+  /* #1: {@1, @2} = rov4dof_ukf_point_weights(@0) */
+  arg1[0]=w0;
+  res1[0]=w1;
+  res1[1]=w2;
+  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
+  /* #2: output[0][0] = @1 */
+  casadi_copy(w1, 25, res[0]);
+  /* #3: output[1][0] = @2 */
+  casadi_copy(w2, 25, res[1]);
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int rov4dof_ukf_predict_weights(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f18(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int rov4dof_ukf_predict_weights_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void rov4dof_ukf_predict_weights_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void rov4dof_ukf_predict_weights_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void rov4dof_ukf_predict_weights_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int rov4dof_ukf_predict_weights_n_in(void) { return 1;}
+
+CASADI_SYMBOL_EXPORT casadi_int rov4dof_ukf_predict_weights_n_out(void) { return 2;}
+
+CASADI_SYMBOL_EXPORT casadi_real rov4dof_ukf_predict_weights_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* rov4dof_ukf_predict_weights_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "abk";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* rov4dof_ukf_predict_weights_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "wm";
+    case 1: return "wc";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* rov4dof_ukf_predict_weights_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s5;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* rov4dof_ukf_predict_weights_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s8;
+    case 1: return casadi_s8;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int rov4dof_ukf_predict_weights_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 2;
+  if (sz_res) *sz_res = 4;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 57;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int rov4dof_ukf_predict_weights_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 2*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 4*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 57*sizeof(casadi_real);
   return 0;
 }
 
 /* rov4dof_mcc_noise:(R[4x4],mask[4],Pzz[4x4],innovation[4],sigma)->(R_used[4x4],ok) */
-static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34;
@@ -7801,11 +8375,10 @@ static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* rov4dof_mcukf_update:(x[12],P[12x12],z[4],p[17],R[4x4],mask[4],abk[3],sigma)->(x_post[12],P_post[12x12],innovation[4],S[4x4],ok) */
-static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i;
-  casadi_real **res1=res+5, *rr, *w02=w+699, w03, *w05=w+843, *w06=w+846, *w07=w+946, *w08=w+950, *w09=w+952, w10, *w11=w+954, *w12=w+958;
-  casadi_real *w13=w+962, *w14=w+1058, *w15=w+1082, *w16=w+1098, *w17=w+1194, *w18=w+1210, *w19=w+1214, *w20=w+1262, w21, *w22=w+1278;
-  const casadi_real **arg1=arg+8, *cs, *wr00, *wr01, *wr04, *wr15;
+static int casadi_f20(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+5, *w02=w+123, w03, *w05=w+267, *w06=w+270, *w07=w+274, *w08=w+374, *w09=w+390, *w10=w+394, *w11=w+398, *w12=w+402, *w13=w+418;
+  casadi_real w14, *w15=w+466, w16, *w17=w+482;
+  const casadi_real **arg1=arg+8, *wr00, *wr01, *wr04, *wr08;
   /* #0: @0 = input[0][0] */
   wr00 = arg[0] ? arg[0] : casadi_zeros;
   /* #1: @1 = input[1][0] */
@@ -7819,124 +8392,75 @@ static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw
   wr04 = arg[3] ? arg[3] : casadi_zeros;
   /* #4: @5 = input[6][0] */
   casadi_copy(arg[6], 3, w05);
-  /* #5: @6 = rov4dof_ukf_measured_points(@0, @2, @4, @5) */
+  /* #5: {@6, @7, @8} = rov4dof_ukf_measured_moments(@0, @2, @4, @5) */
   arg1[0]=wr00;
   arg1[1]=w02;
   arg1[2]=wr04;
   arg1[3]=w05;
   res1[0]=w06;
+  res1[1]=w07;
+  res1[2]=w08;
   if (casadi_f13(arg1, res1, iw, w, 0)) return 1;
-  /* #6: @7 = @6[:4] */
-  for (rr=w07, cs=w06+0; cs!=w06+4; cs+=1) *rr++ = *cs;
-  /* #7: {@8, @9} = rov4dof_ukf_weights(@5) */
-  arg1[0]=w05;
-  res1[0]=w08;
-  res1[1]=w09;
-  if (casadi_f1(arg1, res1, iw, w, 0)) return 1;
-  /* #8: @10 = @8[0] */
-  for (rr=(&w10), cs=w08+0; cs!=w08+1; cs+=1) *rr++ = *cs;
-  /* #9: @11 = (@10*@7) */
-  for (i=0, rr=w11, cs=w07; i<4; ++i) (*rr++)  = (w10*(*cs++));
-  /* #10: @10 = @8[1] */
-  for (rr=(&w10), cs=w08+1; cs!=w08+2; cs+=1) *rr++ = *cs;
-  /* #11: @12 = zeros(4x1) */
-  casadi_clear(w12, 4);
-  /* #12: @13 = @6[4:100] */
-  for (rr=w13, cs=w06+4; cs!=w06+100; cs+=1) *rr++ = *cs;
-  /* #13: @14 = ones(24x1) */
-  casadi_fill(w14, 24, 1.);
-  /* #14: @12 = mac(@13,@14,@12) */
-  casadi_mtimes_dense(w13, 4, 24, w14, 1, w12, 0);
-  /* #15: @12 = (@10*@12) */
-  for (i=0, rr=w12, cs=w12; i<4; ++i) (*rr++)  = (w10*(*cs++));
-  /* #16: @11 = (@11+@12) */
-  for (i=0, rr=w11, cs=w12; i<4; ++i) (*rr++) += (*cs++);
-  /* #17: {@12, @15} = rov4dof_residual_0_1(@7, @11) */
-  arg1[0]=w07;
-  arg1[1]=w11;
-  res1[0]=w12;
-  res1[1]=w15;
-  if (casadi_f22(arg1, res1, iw, w, 0)) return 1;
-  /* #18: {@16, @17} = rov4dof_residual_1_25(@13, @11) */
-  arg1[0]=w13;
-  arg1[1]=w11;
-  res1[0]=w16;
-  res1[1]=w17;
-  if (casadi_f23(arg1, res1, iw, w, 0)) return 1;
-  /* #19: @6 = horzcat(@12, @16) */
-  rr=w06;
-  for (i=0, cs=w12; i<4; ++i) *rr++ = *cs++;
-  for (i=0, cs=w16; i<96; ++i) *rr++ = *cs++;
-  /* #20: @10 = @9[0] */
-  for (rr=(&w10), cs=w09+0; cs!=w09+1; cs+=1) *rr++ = *cs;
-  /* #21: @15 = (@10*@15) */
-  for (i=0, rr=w15, cs=w15; i<16; ++i) (*rr++)  = (w10*(*cs++));
-  /* #22: @10 = @9[1] */
-  for (rr=(&w10), cs=w09+1; cs!=w09+2; cs+=1) *rr++ = *cs;
-  /* #23: @17 = (@10*@17) */
-  for (i=0, rr=w17, cs=w17; i<16; ++i) (*rr++)  = (w10*(*cs++));
-  /* #24: @15 = (@15+@17) */
-  for (i=0, rr=w15, cs=w17; i<16; ++i) (*rr++) += (*cs++);
-  /* #25: @12 = input[2][0] */
-  casadi_copy(arg[2], 4, w12);
-  /* #26: @7 = input[5][0] */
-  casadi_copy(arg[5], 4, w07);
-  /* #27: {@18, @17, @19} = rov4dof_ukf_moments(@2, @6, @15, @11, @12, @7, @5) */
+  /* #6: @9 = input[2][0] */
+  casadi_copy(arg[2], 4, w09);
+  /* #7: @10 = input[5][0] */
+  casadi_copy(arg[5], 4, w10);
+  /* #8: {@11, @12, @13} = rov4dof_ukf_moments(@2, @7, @8, @6, @9, @10, @5) */
   arg1[0]=w02;
-  arg1[1]=w06;
-  arg1[2]=w15;
-  arg1[3]=w11;
-  arg1[4]=w12;
-  arg1[5]=w07;
-  arg1[6]=w05;
-  res1[0]=w18;
-  res1[1]=w17;
-  res1[2]=w19;
-  if (casadi_f18(arg1, res1, iw, w, 0)) return 1;
-  /* #28: @15 = input[4][0] */
-  wr15 = arg[4] ? arg[4] : casadi_zeros;
-  /* #29: @10 = input[7][0] */
-  w10 = arg[7] ? arg[7][0] : 0;
-  /* #30: {@20, @21} = rov4dof_mcc_noise(@15, @7, @17, @18, @10) */
-  arg1[0]=wr15;
   arg1[1]=w07;
-  arg1[2]=w17;
-  arg1[3]=w18;
-  arg1[4]=(&w10);
-  res1[0]=w20;
-  res1[1]=(&w21);
-  if (casadi_f24(arg1, res1, iw, w, 0)) return 1;
-  /* #31: {@22, @2, @15, @10} = rov4dof_kalman(@0, @1, @17, @19, @20, @18) */
+  arg1[2]=w08;
+  arg1[3]=w06;
+  arg1[4]=w09;
+  arg1[5]=w10;
+  arg1[6]=w05;
+  res1[0]=w11;
+  res1[1]=w12;
+  res1[2]=w13;
+  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
+  /* #9: @8 = input[4][0] */
+  wr08 = arg[4] ? arg[4] : casadi_zeros;
+  /* #10: @14 = input[7][0] */
+  w14 = arg[7] ? arg[7][0] : 0;
+  /* #11: {@15, @16} = rov4dof_mcc_noise(@8, @10, @12, @11, @14) */
+  arg1[0]=wr08;
+  arg1[1]=w10;
+  arg1[2]=w12;
+  arg1[3]=w11;
+  arg1[4]=(&w14);
+  res1[0]=w15;
+  res1[1]=(&w16);
+  if (casadi_f21(arg1, res1, iw, w, 0)) return 1;
+  /* #12: {@17, @2, @8, @14} = rov4dof_kalman(@0, @1, @12, @13, @15, @11) */
   arg1[0]=wr00;
   arg1[1]=wr01;
-  arg1[2]=w17;
-  arg1[3]=w19;
-  arg1[4]=w20;
-  arg1[5]=w18;
-  res1[0]=w22;
+  arg1[2]=w12;
+  arg1[3]=w13;
+  arg1[4]=w15;
+  arg1[5]=w11;
+  res1[0]=w17;
   res1[1]=w02;
-  res1[2]=w15;
-  res1[3]=(&w10);
-  if (casadi_f20(arg1, res1, iw, w, 0)) return 1;
-  /* #32: output[0][0] = @22 */
-  casadi_copy(w22, 12, res[0]);
-  /* #33: output[1][0] = @2 */
+  res1[2]=w08;
+  res1[3]=(&w14);
+  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
+  /* #13: output[0][0] = @17 */
+  casadi_copy(w17, 12, res[0]);
+  /* #14: output[1][0] = @2 */
   casadi_copy(w02, 144, res[1]);
-  /* #34: output[2][0] = @18 */
-  casadi_copy(w18, 4, res[2]);
-  /* #35: output[3][0] = @15 */
-  casadi_copy(w15, 16, res[3]);
-  /* #36: @3 = (@3*@21) */
-  w03 *= w21;
-  /* #37: @3 = (@3*@10) */
-  w03 *= w10;
-  /* #38: output[4][0] = @3 */
+  /* #15: output[2][0] = @11 */
+  casadi_copy(w11, 4, res[2]);
+  /* #16: output[3][0] = @8 */
+  casadi_copy(w08, 16, res[3]);
+  /* #17: @3 = (@3*@16) */
+  w03 *= w16;
+  /* #18: @3 = (@3*@14) */
+  w03 *= w14;
+  /* #19: output[4][0] = @3 */
   if (res[4]) res[4][0] = w03;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int rov4dof_mcukf_update(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f21(arg, res, iw, w, mem);
+  return casadi_f20(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int rov4dof_mcukf_update_checkout(void) {
@@ -8014,84 +8538,22 @@ CASADI_SYMBOL_EXPORT const casadi_int* rov4dof_mcukf_update_sparsity_out(casadi_
 
 CASADI_SYMBOL_EXPORT int rov4dof_mcukf_update_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
   if (sz_arg) *sz_arg = 15;
-  if (sz_res) *sz_res = 11;
+  if (sz_res) *sz_res = 9;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 1290;
+  if (sz_w) *sz_w = 494;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int rov4dof_mcukf_update_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
   if (sz_arg) *sz_arg = 15*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 11*sizeof(casadi_real*);
+  if (sz_res) *sz_res = 9*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 1290*sizeof(casadi_real);
-  return 0;
-}
-
-/* rov4dof_residual_0_1:(z_k[4],z_pred[4])->(dz[4],dzdzT[4x4]) */
-static int casadi_f26(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i, j;
-  casadi_real **res1=res+2, *w0=w+7, *w1=w+11, *w2=w+15, *w3=w+19, *w4=w+35;
-  const casadi_real **arg1=arg+2;
-  /* #0: @0 = input[0][0] */
-  casadi_copy(arg[0], 4, w0);
-  /* #1: @1 = input[1][0] */
-  casadi_copy(arg[1], 4, w1);
-  /* #2: {@2, @3} = rov4dof_residual(@0, @1) */
-  arg1[0]=w0;
-  arg1[1]=w1;
-  res1[0]=w2;
-  res1[1]=w3;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #3: output[0][0] = @2 */
-  casadi_copy(w2, 4, res[0]);
-  /* #4: @4 = repsum(@3, 1) */
-  casadi_clear(w4, 16);
-    for (i=0;i<1;++i) {
-        for (j=0;j<16;++j) {
-            w4[j] += w3[j+i*16];
-          }
-      }
-  /* #5: output[1][0] = @4 */
-  casadi_copy(w4, 16, res[1]);
-  return 0;
-}
-
-/* rov4dof_residual_1_25:(z_k[4x24],z_pred[4])->(dz[4x24],dzdzT[4x4]) */
-static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i, j;
-  casadi_real **res1=res+2, *w1=w+7, *w2=w+11, *w3=w+107, *w4=w+203, *w5=w+587;
-  const casadi_real **arg1=arg+2, *wr0;
-  /* #0: @0 = input[0][0] */
-  wr0 = arg[0] ? arg[0] : casadi_zeros;
-  /* #1: @1 = input[1][0] */
-  casadi_copy(arg[1], 4, w1);
-  /* #2: @2 = repmat(@1, 24) */
-  for (i=0;i<24;++i) {
-    casadi_copy(w1, 4, w2+ i*4);
-  }
-  /* #3: {@3, @4} = map24_rov4dof_residual(@0, @2) */
-  arg1[0]=wr0;
-  arg1[1]=w2;
-  res1[0]=w3;
-  res1[1]=w4;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #4: output[0][0] = @3 */
-  casadi_copy(w3, 96, res[0]);
-  /* #5: @5 = repsum(@4, 24) */
-  casadi_clear(w5, 16);
-    for (i=0;i<24;++i) {
-        for (j=0;j<16;++j) {
-            w5[j] += w4[j+i*16];
-          }
-      }
-  /* #6: output[1][0] = @5 */
-  casadi_copy(w5, 16, res[1]);
+  if (sz_w) *sz_w = 494*sizeof(casadi_real);
   return 0;
 }
 
 /* rov4dof_huber_noise:(R[4x4],mask[4],Pzz[4x4],innovation[4],gamma)->(R_used[4x4],ok) */
-static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -8760,11 +9222,10 @@ static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* rov4dof_huber_ukf_update:(x[12],P[12x12],z[4],p[17],R[4x4],mask[4],abk[3],gamma)->(x_post[12],P_post[12x12],innovation[4],S[4x4],ok) */
-static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i;
-  casadi_real **res1=res+5, *rr, *w02=w+699, w03, *w05=w+843, *w06=w+846, *w07=w+946, *w08=w+950, *w09=w+952, w10, *w11=w+954, *w12=w+958;
-  casadi_real *w13=w+962, *w14=w+1058, *w15=w+1082, *w16=w+1098, *w17=w+1194, *w18=w+1210, *w19=w+1214, *w20=w+1262, w21, *w22=w+1278;
-  const casadi_real **arg1=arg+8, *cs, *wr00, *wr01, *wr04, *wr15;
+static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+5, *w02=w+123, w03, *w05=w+267, *w06=w+270, *w07=w+274, *w08=w+374, *w09=w+390, *w10=w+394, *w11=w+398, *w12=w+402, *w13=w+418;
+  casadi_real w14, *w15=w+466, w16, *w17=w+482;
+  const casadi_real **arg1=arg+8, *wr00, *wr01, *wr04, *wr08;
   /* #0: @0 = input[0][0] */
   wr00 = arg[0] ? arg[0] : casadi_zeros;
   /* #1: @1 = input[1][0] */
@@ -8778,124 +9239,75 @@ static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw
   wr04 = arg[3] ? arg[3] : casadi_zeros;
   /* #4: @5 = input[6][0] */
   casadi_copy(arg[6], 3, w05);
-  /* #5: @6 = rov4dof_ukf_measured_points(@0, @2, @4, @5) */
+  /* #5: {@6, @7, @8} = rov4dof_ukf_measured_moments(@0, @2, @4, @5) */
   arg1[0]=wr00;
   arg1[1]=w02;
   arg1[2]=wr04;
   arg1[3]=w05;
   res1[0]=w06;
+  res1[1]=w07;
+  res1[2]=w08;
   if (casadi_f13(arg1, res1, iw, w, 0)) return 1;
-  /* #6: @7 = @6[:4] */
-  for (rr=w07, cs=w06+0; cs!=w06+4; cs+=1) *rr++ = *cs;
-  /* #7: {@8, @9} = rov4dof_ukf_weights(@5) */
-  arg1[0]=w05;
-  res1[0]=w08;
-  res1[1]=w09;
-  if (casadi_f1(arg1, res1, iw, w, 0)) return 1;
-  /* #8: @10 = @8[0] */
-  for (rr=(&w10), cs=w08+0; cs!=w08+1; cs+=1) *rr++ = *cs;
-  /* #9: @11 = (@10*@7) */
-  for (i=0, rr=w11, cs=w07; i<4; ++i) (*rr++)  = (w10*(*cs++));
-  /* #10: @10 = @8[1] */
-  for (rr=(&w10), cs=w08+1; cs!=w08+2; cs+=1) *rr++ = *cs;
-  /* #11: @12 = zeros(4x1) */
-  casadi_clear(w12, 4);
-  /* #12: @13 = @6[4:100] */
-  for (rr=w13, cs=w06+4; cs!=w06+100; cs+=1) *rr++ = *cs;
-  /* #13: @14 = ones(24x1) */
-  casadi_fill(w14, 24, 1.);
-  /* #14: @12 = mac(@13,@14,@12) */
-  casadi_mtimes_dense(w13, 4, 24, w14, 1, w12, 0);
-  /* #15: @12 = (@10*@12) */
-  for (i=0, rr=w12, cs=w12; i<4; ++i) (*rr++)  = (w10*(*cs++));
-  /* #16: @11 = (@11+@12) */
-  for (i=0, rr=w11, cs=w12; i<4; ++i) (*rr++) += (*cs++);
-  /* #17: {@12, @15} = rov4dof_residual_0_1(@7, @11) */
-  arg1[0]=w07;
-  arg1[1]=w11;
-  res1[0]=w12;
-  res1[1]=w15;
-  if (casadi_f26(arg1, res1, iw, w, 0)) return 1;
-  /* #18: {@16, @17} = rov4dof_residual_1_25(@13, @11) */
-  arg1[0]=w13;
-  arg1[1]=w11;
-  res1[0]=w16;
-  res1[1]=w17;
-  if (casadi_f27(arg1, res1, iw, w, 0)) return 1;
-  /* #19: @6 = horzcat(@12, @16) */
-  rr=w06;
-  for (i=0, cs=w12; i<4; ++i) *rr++ = *cs++;
-  for (i=0, cs=w16; i<96; ++i) *rr++ = *cs++;
-  /* #20: @10 = @9[0] */
-  for (rr=(&w10), cs=w09+0; cs!=w09+1; cs+=1) *rr++ = *cs;
-  /* #21: @15 = (@10*@15) */
-  for (i=0, rr=w15, cs=w15; i<16; ++i) (*rr++)  = (w10*(*cs++));
-  /* #22: @10 = @9[1] */
-  for (rr=(&w10), cs=w09+1; cs!=w09+2; cs+=1) *rr++ = *cs;
-  /* #23: @17 = (@10*@17) */
-  for (i=0, rr=w17, cs=w17; i<16; ++i) (*rr++)  = (w10*(*cs++));
-  /* #24: @15 = (@15+@17) */
-  for (i=0, rr=w15, cs=w17; i<16; ++i) (*rr++) += (*cs++);
-  /* #25: @12 = input[2][0] */
-  casadi_copy(arg[2], 4, w12);
-  /* #26: @7 = input[5][0] */
-  casadi_copy(arg[5], 4, w07);
-  /* #27: {@18, @17, @19} = rov4dof_ukf_moments(@2, @6, @15, @11, @12, @7, @5) */
+  /* #6: @9 = input[2][0] */
+  casadi_copy(arg[2], 4, w09);
+  /* #7: @10 = input[5][0] */
+  casadi_copy(arg[5], 4, w10);
+  /* #8: {@11, @12, @13} = rov4dof_ukf_moments(@2, @7, @8, @6, @9, @10, @5) */
   arg1[0]=w02;
-  arg1[1]=w06;
-  arg1[2]=w15;
-  arg1[3]=w11;
-  arg1[4]=w12;
-  arg1[5]=w07;
-  arg1[6]=w05;
-  res1[0]=w18;
-  res1[1]=w17;
-  res1[2]=w19;
-  if (casadi_f18(arg1, res1, iw, w, 0)) return 1;
-  /* #28: @15 = input[4][0] */
-  wr15 = arg[4] ? arg[4] : casadi_zeros;
-  /* #29: @10 = input[7][0] */
-  w10 = arg[7] ? arg[7][0] : 0;
-  /* #30: {@20, @21} = rov4dof_huber_noise(@15, @7, @17, @18, @10) */
-  arg1[0]=wr15;
   arg1[1]=w07;
-  arg1[2]=w17;
-  arg1[3]=w18;
-  arg1[4]=(&w10);
-  res1[0]=w20;
-  res1[1]=(&w21);
-  if (casadi_f28(arg1, res1, iw, w, 0)) return 1;
-  /* #31: {@22, @2, @15, @10} = rov4dof_kalman(@0, @1, @17, @19, @20, @18) */
+  arg1[2]=w08;
+  arg1[3]=w06;
+  arg1[4]=w09;
+  arg1[5]=w10;
+  arg1[6]=w05;
+  res1[0]=w11;
+  res1[1]=w12;
+  res1[2]=w13;
+  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
+  /* #9: @8 = input[4][0] */
+  wr08 = arg[4] ? arg[4] : casadi_zeros;
+  /* #10: @14 = input[7][0] */
+  w14 = arg[7] ? arg[7][0] : 0;
+  /* #11: {@15, @16} = rov4dof_huber_noise(@8, @10, @12, @11, @14) */
+  arg1[0]=wr08;
+  arg1[1]=w10;
+  arg1[2]=w12;
+  arg1[3]=w11;
+  arg1[4]=(&w14);
+  res1[0]=w15;
+  res1[1]=(&w16);
+  if (casadi_f23(arg1, res1, iw, w, 0)) return 1;
+  /* #12: {@17, @2, @8, @14} = rov4dof_kalman(@0, @1, @12, @13, @15, @11) */
   arg1[0]=wr00;
   arg1[1]=wr01;
-  arg1[2]=w17;
-  arg1[3]=w19;
-  arg1[4]=w20;
-  arg1[5]=w18;
-  res1[0]=w22;
+  arg1[2]=w12;
+  arg1[3]=w13;
+  arg1[4]=w15;
+  arg1[5]=w11;
+  res1[0]=w17;
   res1[1]=w02;
-  res1[2]=w15;
-  res1[3]=(&w10);
-  if (casadi_f20(arg1, res1, iw, w, 0)) return 1;
-  /* #32: output[0][0] = @22 */
-  casadi_copy(w22, 12, res[0]);
-  /* #33: output[1][0] = @2 */
+  res1[2]=w08;
+  res1[3]=(&w14);
+  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
+  /* #13: output[0][0] = @17 */
+  casadi_copy(w17, 12, res[0]);
+  /* #14: output[1][0] = @2 */
   casadi_copy(w02, 144, res[1]);
-  /* #34: output[2][0] = @18 */
-  casadi_copy(w18, 4, res[2]);
-  /* #35: output[3][0] = @15 */
-  casadi_copy(w15, 16, res[3]);
-  /* #36: @3 = (@3*@21) */
-  w03 *= w21;
-  /* #37: @3 = (@3*@10) */
-  w03 *= w10;
-  /* #38: output[4][0] = @3 */
+  /* #15: output[2][0] = @11 */
+  casadi_copy(w11, 4, res[2]);
+  /* #16: output[3][0] = @8 */
+  casadi_copy(w08, 16, res[3]);
+  /* #17: @3 = (@3*@16) */
+  w03 *= w16;
+  /* #18: @3 = (@3*@14) */
+  w03 *= w14;
+  /* #19: output[4][0] = @3 */
   if (res[4]) res[4][0] = w03;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int rov4dof_huber_ukf_update(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f25(arg, res, iw, w, mem);
+  return casadi_f22(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int rov4dof_huber_ukf_update_checkout(void) {
@@ -8973,22 +9385,22 @@ CASADI_SYMBOL_EXPORT const casadi_int* rov4dof_huber_ukf_update_sparsity_out(cas
 
 CASADI_SYMBOL_EXPORT int rov4dof_huber_ukf_update_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
   if (sz_arg) *sz_arg = 15;
-  if (sz_res) *sz_res = 11;
+  if (sz_res) *sz_res = 9;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 1290;
+  if (sz_w) *sz_w = 494;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int rov4dof_huber_ukf_update_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
   if (sz_arg) *sz_arg = 15*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 11*sizeof(casadi_real*);
+  if (sz_res) *sz_res = 9*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 1290*sizeof(casadi_real);
+  if (sz_w) *sz_w = 494*sizeof(casadi_real);
   return 0;
 }
 
 /* rov4dof_ckf_points:(x[12],L[12x12])->(X[12x24]) */
-static int casadi_f30(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -9693,7 +10105,7 @@ static int casadi_f30(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* map24_rov4dof_step:(x[12x24],u[4x24],p[17x24],dt[1x24])->(x_next[12x24]) */
-static int casadi_f32(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
   casadi_real* *res1;
   const casadi_real* *arg1;
@@ -9713,7 +10125,7 @@ static int casadi_f32(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* rov4dof_step_columns:(x[12x24],u[4],p[17],dt)->(x_next[12x24]) */
-static int casadi_f31(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f26(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
   casadi_real **res1=res+1, *w1=w+80, *w2=w+84, *w4=w+180, w5, *w6=w+588, *w7=w+612;
   const casadi_real **arg1=arg+4, *wr0, *wr3;
@@ -9743,14 +10155,14 @@ static int casadi_f31(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[2]=w4;
   arg1[3]=w6;
   res1[0]=w7;
-  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f27(arg1, res1, iw, w, 0)) return 1;
   /* #8: output[0][0] = @7 */
   casadi_copy(w7, 288, res[0]);
   return 0;
 }
 
 /* rov4dof_outer_0_24:(y[12x24],mean[12])->(ddT[12x12,78nz]) */
-static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i, j;
   casadi_real **res1=res+1, *w2=w+13, *w3=w+301, *w4=w+2173;
   const casadi_real **arg1=arg+2, *wr0, *wr1;
@@ -9780,7 +10192,7 @@ static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* rov4dof_ckf_predict:(x[12],P[12x12],u[4],p[17],dt,Q[12x12])->(x_pred[12],P_pred[12x12],ok) */
-static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
   casadi_real **res1=res+3, *rr, w00, *w01=w+2551, *w03=w+2563, *w04=w+2707, w05, *w06=w+2851, *w07=w+3139, w09, *w10=w+3143, *w11=w+3431;
   casadi_real *w12=w+3455;
@@ -9802,7 +10214,7 @@ static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[0]=wr02;
   arg1[1]=w04;
   res1[0]=w06;
-  if (casadi_f30(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f25(arg1, res1, iw, w, 0)) return 1;
   /* #6: @7 = input[2][0] */
   casadi_copy(arg[2], 4, w07);
   /* #7: @8 = input[3][0] */
@@ -9815,7 +10227,7 @@ static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[2]=wr08;
   arg1[3]=(&w09);
   res1[0]=w10;
-  if (casadi_f31(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f26(arg1, res1, iw, w, 0)) return 1;
   /* #10: @11 = ones(24x1) */
   casadi_fill(w11, 24, 1.);
   /* #11: @1 = mac(@10,@11,@1) */
@@ -9828,7 +10240,7 @@ static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[0]=w10;
   arg1[1]=w01;
   res1[0]=w12;
-  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f28(arg1, res1, iw, w, 0)) return 1;
   /* #15: @12 = (@0*@12) */
   for (i=0, rr=w12, cs=w12; i<78; ++i) (*rr++)  = (w00*(*cs++));
   /* #16: @4 = input[5][0] */
@@ -9850,7 +10262,7 @@ static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int rov4dof_ckf_predict(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f29(arg, res, iw, w, mem);
+  return casadi_f24(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int rov4dof_ckf_predict_checkout(void) {
@@ -9934,200 +10346,667 @@ CASADI_SYMBOL_EXPORT int rov4dof_ckf_predict_work_bytes(casadi_int *sz_arg, casa
   return 0;
 }
 
-/* rov4dof_ckf_measured_points:(x[12],L[12x12],p[17])->(Z[4x24]) */
-static int casadi_f35(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+/* rov4dof_ckf_measured_moments:(x[12],L[12x12],p[17])->(z_pred[4],DZ[4x24],Czz[4x4]) */
+static int casadi_f30(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
-  casadi_real a12, a13, a14;
-  a00=arg[0]? arg[0][0] : 0;
-  a01=3.4641016151377544e+00;
-  a02=arg[1]? arg[1][0] : 0;
-  a03=(a01*a02);
-  a03=(a00+a03);
-  if (res[0]!=0) res[0][0]=a03;
-  a03=arg[0]? arg[0][1] : 0;
-  a04=arg[1]? arg[1][1] : 0;
-  a05=(a01*a04);
-  a05=(a03+a05);
-  if (res[0]!=0) res[0][1]=a05;
-  a05=arg[0]? arg[0][2] : 0;
-  a06=arg[1]? arg[1][2] : 0;
-  a07=(a01*a06);
-  a07=(a05+a07);
-  if (res[0]!=0) res[0][2]=a07;
-  a07=arg[0]? arg[0][3] : 0;
-  a08=arg[1]? arg[1][3] : 0;
-  a09=(a01*a08);
+  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
+  casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32;
+  a00=4.1666666666666664e-02;
+  a01=arg[0]? arg[0][0] : 0;
+  a02=3.4641016151377544e+00;
+  a03=arg[1]? arg[1][0] : 0;
+  a04=(a02*a03);
+  a04=(a01+a04);
+  a05=(a04+a01);
+  a05=(a05+a01);
+  a05=(a05+a01);
+  a05=(a05+a01);
+  a05=(a05+a01);
+  a05=(a05+a01);
+  a05=(a05+a01);
+  a05=(a05+a01);
+  a05=(a05+a01);
+  a05=(a05+a01);
+  a05=(a05+a01);
+  a06=-3.4641016151377544e+00;
+  a03=(a06*a03);
+  a03=(a01+a03);
+  a05=(a05+a03);
+  a05=(a05+a01);
+  a05=(a05+a01);
+  a05=(a05+a01);
+  a05=(a05+a01);
+  a05=(a05+a01);
+  a05=(a05+a01);
+  a05=(a05+a01);
+  a05=(a05+a01);
+  a05=(a05+a01);
+  a05=(a05+a01);
+  a05=(a05+a01);
+  a05=(a00*a05);
+  if (res[0]!=0) res[0][0]=a05;
+  a07=arg[0]? arg[0][1] : 0;
+  a08=arg[1]? arg[1][1] : 0;
+  a09=(a02*a08);
   a09=(a07+a09);
-  if (res[0]!=0) res[0][3]=a09;
-  if (res[0]!=0) res[0][4]=a00;
-  a09=arg[1]? arg[1][13] : 0;
-  a10=(a01*a09);
-  a10=(a03+a10);
-  if (res[0]!=0) res[0][5]=a10;
-  a10=arg[1]? arg[1][14] : 0;
-  a11=(a01*a10);
-  a11=(a05+a11);
-  if (res[0]!=0) res[0][6]=a11;
-  a11=arg[1]? arg[1][15] : 0;
-  a12=(a01*a11);
-  a12=(a07+a12);
-  if (res[0]!=0) res[0][7]=a12;
-  if (res[0]!=0) res[0][8]=a00;
-  if (res[0]!=0) res[0][9]=a03;
-  a12=arg[1]? arg[1][26] : 0;
-  a13=(a01*a12);
-  a13=(a05+a13);
-  if (res[0]!=0) res[0][10]=a13;
-  a13=arg[1]? arg[1][27] : 0;
-  a14=(a01*a13);
-  a14=(a07+a14);
-  if (res[0]!=0) res[0][11]=a14;
-  if (res[0]!=0) res[0][12]=a00;
-  if (res[0]!=0) res[0][13]=a03;
-  if (res[0]!=0) res[0][14]=a05;
-  a14=arg[1]? arg[1][39] : 0;
-  a01=(a01*a14);
-  a01=(a07+a01);
-  if (res[0]!=0) res[0][15]=a01;
-  if (res[0]!=0) res[0][16]=a00;
-  if (res[0]!=0) res[0][17]=a03;
-  if (res[0]!=0) res[0][18]=a05;
-  if (res[0]!=0) res[0][19]=a07;
-  if (res[0]!=0) res[0][20]=a00;
-  if (res[0]!=0) res[0][21]=a03;
-  if (res[0]!=0) res[0][22]=a05;
-  if (res[0]!=0) res[0][23]=a07;
-  if (res[0]!=0) res[0][24]=a00;
-  if (res[0]!=0) res[0][25]=a03;
-  if (res[0]!=0) res[0][26]=a05;
-  if (res[0]!=0) res[0][27]=a07;
-  if (res[0]!=0) res[0][28]=a00;
-  if (res[0]!=0) res[0][29]=a03;
-  if (res[0]!=0) res[0][30]=a05;
-  if (res[0]!=0) res[0][31]=a07;
-  if (res[0]!=0) res[0][32]=a00;
-  if (res[0]!=0) res[0][33]=a03;
-  if (res[0]!=0) res[0][34]=a05;
-  if (res[0]!=0) res[0][35]=a07;
-  if (res[0]!=0) res[0][36]=a00;
-  if (res[0]!=0) res[0][37]=a03;
-  if (res[0]!=0) res[0][38]=a05;
-  if (res[0]!=0) res[0][39]=a07;
-  if (res[0]!=0) res[0][40]=a00;
-  if (res[0]!=0) res[0][41]=a03;
-  if (res[0]!=0) res[0][42]=a05;
-  if (res[0]!=0) res[0][43]=a07;
-  if (res[0]!=0) res[0][44]=a00;
-  if (res[0]!=0) res[0][45]=a03;
-  if (res[0]!=0) res[0][46]=a05;
-  if (res[0]!=0) res[0][47]=a07;
-  a01=-3.4641016151377544e+00;
-  a02=(a01*a02);
-  a02=(a00+a02);
-  if (res[0]!=0) res[0][48]=a02;
-  a04=(a01*a04);
-  a04=(a03+a04);
-  if (res[0]!=0) res[0][49]=a04;
-  a06=(a01*a06);
-  a06=(a05+a06);
-  if (res[0]!=0) res[0][50]=a06;
-  a08=(a01*a08);
-  a08=(a07+a08);
-  if (res[0]!=0) res[0][51]=a08;
-  if (res[0]!=0) res[0][52]=a00;
-  a09=(a01*a09);
-  a09=(a03+a09);
-  if (res[0]!=0) res[0][53]=a09;
-  a10=(a01*a10);
-  a10=(a05+a10);
-  if (res[0]!=0) res[0][54]=a10;
-  a11=(a01*a11);
+  a10=arg[1]? arg[1][13] : 0;
+  a11=(a02*a10);
   a11=(a07+a11);
-  if (res[0]!=0) res[0][55]=a11;
-  if (res[0]!=0) res[0][56]=a00;
-  if (res[0]!=0) res[0][57]=a03;
-  a12=(a01*a12);
-  a12=(a05+a12);
-  if (res[0]!=0) res[0][58]=a12;
-  a13=(a01*a13);
-  a13=(a07+a13);
-  if (res[0]!=0) res[0][59]=a13;
-  if (res[0]!=0) res[0][60]=a00;
-  if (res[0]!=0) res[0][61]=a03;
-  if (res[0]!=0) res[0][62]=a05;
-  a01=(a01*a14);
-  a01=(a07+a01);
-  if (res[0]!=0) res[0][63]=a01;
-  if (res[0]!=0) res[0][64]=a00;
-  if (res[0]!=0) res[0][65]=a03;
-  if (res[0]!=0) res[0][66]=a05;
-  if (res[0]!=0) res[0][67]=a07;
-  if (res[0]!=0) res[0][68]=a00;
-  if (res[0]!=0) res[0][69]=a03;
-  if (res[0]!=0) res[0][70]=a05;
-  if (res[0]!=0) res[0][71]=a07;
-  if (res[0]!=0) res[0][72]=a00;
-  if (res[0]!=0) res[0][73]=a03;
-  if (res[0]!=0) res[0][74]=a05;
-  if (res[0]!=0) res[0][75]=a07;
-  if (res[0]!=0) res[0][76]=a00;
-  if (res[0]!=0) res[0][77]=a03;
-  if (res[0]!=0) res[0][78]=a05;
-  if (res[0]!=0) res[0][79]=a07;
-  if (res[0]!=0) res[0][80]=a00;
-  if (res[0]!=0) res[0][81]=a03;
-  if (res[0]!=0) res[0][82]=a05;
-  if (res[0]!=0) res[0][83]=a07;
-  if (res[0]!=0) res[0][84]=a00;
-  if (res[0]!=0) res[0][85]=a03;
-  if (res[0]!=0) res[0][86]=a05;
-  if (res[0]!=0) res[0][87]=a07;
-  if (res[0]!=0) res[0][88]=a00;
-  if (res[0]!=0) res[0][89]=a03;
-  if (res[0]!=0) res[0][90]=a05;
-  if (res[0]!=0) res[0][91]=a07;
-  if (res[0]!=0) res[0][92]=a00;
-  if (res[0]!=0) res[0][93]=a03;
-  if (res[0]!=0) res[0][94]=a05;
-  if (res[0]!=0) res[0][95]=a07;
-  return 0;
-}
-
-/* rov4dof_residual_0_24:(z_k[4x24],z_pred[4])->(dz[4x24],dzdzT[4x4]) */
-static int casadi_f36(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i, j;
-  casadi_real **res1=res+2, *w1=w+7, *w2=w+11, *w3=w+107, *w4=w+203, *w5=w+587;
-  const casadi_real **arg1=arg+2, *wr0;
-  /* #0: @0 = input[0][0] */
-  wr0 = arg[0] ? arg[0] : casadi_zeros;
-  /* #1: @1 = input[1][0] */
-  casadi_copy(arg[1], 4, w1);
-  /* #2: @2 = repmat(@1, 24) */
-  for (i=0;i<24;++i) {
-    casadi_copy(w1, 4, w2+ i*4);
-  }
-  /* #3: {@3, @4} = map24_rov4dof_residual(@0, @2) */
-  arg1[0]=wr0;
-  arg1[1]=w2;
-  res1[0]=w3;
-  res1[1]=w4;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #4: output[0][0] = @3 */
-  casadi_copy(w3, 96, res[0]);
-  /* #5: @5 = repsum(@4, 24) */
-  casadi_clear(w5, 16);
-    for (i=0;i<24;++i) {
-        for (j=0;j<16;++j) {
-            w5[j] += w4[j+i*16];
-          }
-      }
-  /* #6: output[1][0] = @5 */
-  casadi_copy(w5, 16, res[1]);
+  a12=(a09+a11);
+  a12=(a12+a07);
+  a12=(a12+a07);
+  a12=(a12+a07);
+  a12=(a12+a07);
+  a12=(a12+a07);
+  a12=(a12+a07);
+  a12=(a12+a07);
+  a12=(a12+a07);
+  a12=(a12+a07);
+  a12=(a12+a07);
+  a08=(a06*a08);
+  a08=(a07+a08);
+  a12=(a12+a08);
+  a10=(a06*a10);
+  a10=(a07+a10);
+  a12=(a12+a10);
+  a12=(a12+a07);
+  a12=(a12+a07);
+  a12=(a12+a07);
+  a12=(a12+a07);
+  a12=(a12+a07);
+  a12=(a12+a07);
+  a12=(a12+a07);
+  a12=(a12+a07);
+  a12=(a12+a07);
+  a12=(a12+a07);
+  a12=(a00*a12);
+  if (res[0]!=0) res[0][1]=a12;
+  a13=arg[0]? arg[0][2] : 0;
+  a14=arg[1]? arg[1][2] : 0;
+  a15=(a02*a14);
+  a15=(a13+a15);
+  a16=arg[1]? arg[1][14] : 0;
+  a17=(a02*a16);
+  a17=(a13+a17);
+  a18=(a15+a17);
+  a19=arg[1]? arg[1][26] : 0;
+  a20=(a02*a19);
+  a20=(a13+a20);
+  a18=(a18+a20);
+  a18=(a18+a13);
+  a18=(a18+a13);
+  a18=(a18+a13);
+  a18=(a18+a13);
+  a18=(a18+a13);
+  a18=(a18+a13);
+  a18=(a18+a13);
+  a18=(a18+a13);
+  a18=(a18+a13);
+  a14=(a06*a14);
+  a14=(a13+a14);
+  a18=(a18+a14);
+  a16=(a06*a16);
+  a16=(a13+a16);
+  a18=(a18+a16);
+  a19=(a06*a19);
+  a19=(a13+a19);
+  a18=(a18+a19);
+  a18=(a18+a13);
+  a18=(a18+a13);
+  a18=(a18+a13);
+  a18=(a18+a13);
+  a18=(a18+a13);
+  a18=(a18+a13);
+  a18=(a18+a13);
+  a18=(a18+a13);
+  a18=(a18+a13);
+  a18=(a00*a18);
+  if (res[0]!=0) res[0][2]=a18;
+  a21=arg[0]? arg[0][3] : 0;
+  a22=arg[1]? arg[1][3] : 0;
+  a23=(a02*a22);
+  a23=(a21+a23);
+  a24=arg[1]? arg[1][15] : 0;
+  a25=(a02*a24);
+  a25=(a21+a25);
+  a26=(a23+a25);
+  a27=arg[1]? arg[1][27] : 0;
+  a28=(a02*a27);
+  a28=(a21+a28);
+  a26=(a26+a28);
+  a29=arg[1]? arg[1][39] : 0;
+  a02=(a02*a29);
+  a02=(a21+a02);
+  a26=(a26+a02);
+  a26=(a26+a21);
+  a26=(a26+a21);
+  a26=(a26+a21);
+  a26=(a26+a21);
+  a26=(a26+a21);
+  a26=(a26+a21);
+  a26=(a26+a21);
+  a26=(a26+a21);
+  a22=(a06*a22);
+  a22=(a21+a22);
+  a26=(a26+a22);
+  a24=(a06*a24);
+  a24=(a21+a24);
+  a26=(a26+a24);
+  a27=(a06*a27);
+  a27=(a21+a27);
+  a26=(a26+a27);
+  a06=(a06*a29);
+  a06=(a21+a06);
+  a26=(a26+a06);
+  a26=(a26+a21);
+  a26=(a26+a21);
+  a26=(a26+a21);
+  a26=(a26+a21);
+  a26=(a26+a21);
+  a26=(a26+a21);
+  a26=(a26+a21);
+  a26=(a26+a21);
+  a26=(a00*a26);
+  if (res[0]!=0) res[0][3]=a26;
+  a04=(a04-a05);
+  if (res[1]!=0) res[1][0]=a04;
+  a09=(a09-a12);
+  if (res[1]!=0) res[1][1]=a09;
+  a15=(a15-a18);
+  if (res[1]!=0) res[1][2]=a15;
+  a23=(a23-a26);
+  a29=6.2831853071795862e+00;
+  a30=1.5915494309189535e-01;
+  a31=3.1415926535897931e+00;
+  a32=(a23-a31);
+  a32=(a30*a32);
+  a32=ceil(a32);
+  a32=(a29*a32);
+  a23=(a23-a32);
+  if (res[1]!=0) res[1][3]=a23;
+  a01=(a01-a05);
+  if (res[1]!=0) res[1][4]=a01;
+  a11=(a11-a12);
+  if (res[1]!=0) res[1][5]=a11;
+  a17=(a17-a18);
+  if (res[1]!=0) res[1][6]=a17;
+  a25=(a25-a26);
+  a32=(a25-a31);
+  a32=(a30*a32);
+  a32=ceil(a32);
+  a32=(a29*a32);
+  a25=(a25-a32);
+  if (res[1]!=0) res[1][7]=a25;
+  if (res[1]!=0) res[1][8]=a01;
+  a07=(a07-a12);
+  if (res[1]!=0) res[1][9]=a07;
+  a20=(a20-a18);
+  if (res[1]!=0) res[1][10]=a20;
+  a28=(a28-a26);
+  a32=(a28-a31);
+  a32=(a30*a32);
+  a32=ceil(a32);
+  a32=(a29*a32);
+  a28=(a28-a32);
+  if (res[1]!=0) res[1][11]=a28;
+  if (res[1]!=0) res[1][12]=a01;
+  if (res[1]!=0) res[1][13]=a07;
+  a13=(a13-a18);
+  if (res[1]!=0) res[1][14]=a13;
+  a02=(a02-a26);
+  a32=(a02-a31);
+  a32=(a30*a32);
+  a32=ceil(a32);
+  a32=(a29*a32);
+  a02=(a02-a32);
+  if (res[1]!=0) res[1][15]=a02;
+  if (res[1]!=0) res[1][16]=a01;
+  if (res[1]!=0) res[1][17]=a07;
+  if (res[1]!=0) res[1][18]=a13;
+  a21=(a21-a26);
+  a32=(a21-a31);
+  a32=(a30*a32);
+  a32=ceil(a32);
+  a32=(a29*a32);
+  a21=(a21-a32);
+  if (res[1]!=0) res[1][19]=a21;
+  if (res[1]!=0) res[1][20]=a01;
+  if (res[1]!=0) res[1][21]=a07;
+  if (res[1]!=0) res[1][22]=a13;
+  if (res[1]!=0) res[1][23]=a21;
+  if (res[1]!=0) res[1][24]=a01;
+  if (res[1]!=0) res[1][25]=a07;
+  if (res[1]!=0) res[1][26]=a13;
+  if (res[1]!=0) res[1][27]=a21;
+  if (res[1]!=0) res[1][28]=a01;
+  if (res[1]!=0) res[1][29]=a07;
+  if (res[1]!=0) res[1][30]=a13;
+  if (res[1]!=0) res[1][31]=a21;
+  if (res[1]!=0) res[1][32]=a01;
+  if (res[1]!=0) res[1][33]=a07;
+  if (res[1]!=0) res[1][34]=a13;
+  if (res[1]!=0) res[1][35]=a21;
+  if (res[1]!=0) res[1][36]=a01;
+  if (res[1]!=0) res[1][37]=a07;
+  if (res[1]!=0) res[1][38]=a13;
+  if (res[1]!=0) res[1][39]=a21;
+  if (res[1]!=0) res[1][40]=a01;
+  if (res[1]!=0) res[1][41]=a07;
+  if (res[1]!=0) res[1][42]=a13;
+  if (res[1]!=0) res[1][43]=a21;
+  if (res[1]!=0) res[1][44]=a01;
+  if (res[1]!=0) res[1][45]=a07;
+  if (res[1]!=0) res[1][46]=a13;
+  if (res[1]!=0) res[1][47]=a21;
+  a03=(a03-a05);
+  if (res[1]!=0) res[1][48]=a03;
+  a08=(a08-a12);
+  if (res[1]!=0) res[1][49]=a08;
+  a14=(a14-a18);
+  if (res[1]!=0) res[1][50]=a14;
+  a22=(a22-a26);
+  a05=(a22-a31);
+  a05=(a30*a05);
+  a05=ceil(a05);
+  a05=(a29*a05);
+  a22=(a22-a05);
+  if (res[1]!=0) res[1][51]=a22;
+  if (res[1]!=0) res[1][52]=a01;
+  a10=(a10-a12);
+  if (res[1]!=0) res[1][53]=a10;
+  a16=(a16-a18);
+  if (res[1]!=0) res[1][54]=a16;
+  a24=(a24-a26);
+  a12=(a24-a31);
+  a12=(a30*a12);
+  a12=ceil(a12);
+  a12=(a29*a12);
+  a24=(a24-a12);
+  if (res[1]!=0) res[1][55]=a24;
+  if (res[1]!=0) res[1][56]=a01;
+  if (res[1]!=0) res[1][57]=a07;
+  a19=(a19-a18);
+  if (res[1]!=0) res[1][58]=a19;
+  a27=(a27-a26);
+  a18=(a27-a31);
+  a18=(a30*a18);
+  a18=ceil(a18);
+  a18=(a29*a18);
+  a27=(a27-a18);
+  if (res[1]!=0) res[1][59]=a27;
+  if (res[1]!=0) res[1][60]=a01;
+  if (res[1]!=0) res[1][61]=a07;
+  if (res[1]!=0) res[1][62]=a13;
+  a06=(a06-a26);
+  a31=(a06-a31);
+  a30=(a30*a31);
+  a30=ceil(a30);
+  a29=(a29*a30);
+  a06=(a06-a29);
+  if (res[1]!=0) res[1][63]=a06;
+  if (res[1]!=0) res[1][64]=a01;
+  if (res[1]!=0) res[1][65]=a07;
+  if (res[1]!=0) res[1][66]=a13;
+  if (res[1]!=0) res[1][67]=a21;
+  if (res[1]!=0) res[1][68]=a01;
+  if (res[1]!=0) res[1][69]=a07;
+  if (res[1]!=0) res[1][70]=a13;
+  if (res[1]!=0) res[1][71]=a21;
+  if (res[1]!=0) res[1][72]=a01;
+  if (res[1]!=0) res[1][73]=a07;
+  if (res[1]!=0) res[1][74]=a13;
+  if (res[1]!=0) res[1][75]=a21;
+  if (res[1]!=0) res[1][76]=a01;
+  if (res[1]!=0) res[1][77]=a07;
+  if (res[1]!=0) res[1][78]=a13;
+  if (res[1]!=0) res[1][79]=a21;
+  if (res[1]!=0) res[1][80]=a01;
+  if (res[1]!=0) res[1][81]=a07;
+  if (res[1]!=0) res[1][82]=a13;
+  if (res[1]!=0) res[1][83]=a21;
+  if (res[1]!=0) res[1][84]=a01;
+  if (res[1]!=0) res[1][85]=a07;
+  if (res[1]!=0) res[1][86]=a13;
+  if (res[1]!=0) res[1][87]=a21;
+  if (res[1]!=0) res[1][88]=a01;
+  if (res[1]!=0) res[1][89]=a07;
+  if (res[1]!=0) res[1][90]=a13;
+  if (res[1]!=0) res[1][91]=a21;
+  if (res[1]!=0) res[1][92]=a01;
+  if (res[1]!=0) res[1][93]=a07;
+  if (res[1]!=0) res[1][94]=a13;
+  if (res[1]!=0) res[1][95]=a21;
+  a29=casadi_sq(a04);
+  a30=casadi_sq(a01);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a31=casadi_sq(a03);
+  a29=(a29+a31);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a00*a29);
+  if (res[2]!=0) res[2][0]=a29;
+  a29=(a04*a09);
+  a30=(a01*a11);
+  a29=(a29+a30);
+  a30=(a01*a07);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a31=(a03*a08);
+  a29=(a29+a31);
+  a31=(a01*a10);
+  a29=(a29+a31);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a00*a29);
+  if (res[2]!=0) res[2][1]=a29;
+  a30=(a04*a15);
+  a31=(a01*a17);
+  a30=(a30+a31);
+  a31=(a01*a20);
+  a30=(a30+a31);
+  a31=(a01*a13);
+  a30=(a30+a31);
+  a30=(a30+a31);
+  a30=(a30+a31);
+  a30=(a30+a31);
+  a30=(a30+a31);
+  a30=(a30+a31);
+  a30=(a30+a31);
+  a30=(a30+a31);
+  a30=(a30+a31);
+  a26=(a03*a14);
+  a30=(a30+a26);
+  a26=(a01*a16);
+  a30=(a30+a26);
+  a26=(a01*a19);
+  a30=(a30+a26);
+  a30=(a30+a31);
+  a30=(a30+a31);
+  a30=(a30+a31);
+  a30=(a30+a31);
+  a30=(a30+a31);
+  a30=(a30+a31);
+  a30=(a30+a31);
+  a30=(a30+a31);
+  a30=(a30+a31);
+  a30=(a00*a30);
+  if (res[2]!=0) res[2][2]=a30;
+  a04=(a04*a23);
+  a31=(a01*a25);
+  a04=(a04+a31);
+  a31=(a01*a28);
+  a04=(a04+a31);
+  a31=(a01*a02);
+  a04=(a04+a31);
+  a31=(a01*a21);
+  a04=(a04+a31);
+  a04=(a04+a31);
+  a04=(a04+a31);
+  a04=(a04+a31);
+  a04=(a04+a31);
+  a04=(a04+a31);
+  a04=(a04+a31);
+  a04=(a04+a31);
+  a03=(a03*a22);
+  a04=(a04+a03);
+  a03=(a01*a24);
+  a04=(a04+a03);
+  a03=(a01*a27);
+  a04=(a04+a03);
+  a01=(a01*a06);
+  a04=(a04+a01);
+  a04=(a04+a31);
+  a04=(a04+a31);
+  a04=(a04+a31);
+  a04=(a04+a31);
+  a04=(a04+a31);
+  a04=(a04+a31);
+  a04=(a04+a31);
+  a04=(a04+a31);
+  a04=(a00*a04);
+  if (res[2]!=0) res[2][3]=a04;
+  if (res[2]!=0) res[2][4]=a29;
+  a29=casadi_sq(a09);
+  a31=casadi_sq(a11);
+  a29=(a29+a31);
+  a31=casadi_sq(a07);
+  a29=(a29+a31);
+  a29=(a29+a31);
+  a29=(a29+a31);
+  a29=(a29+a31);
+  a29=(a29+a31);
+  a29=(a29+a31);
+  a29=(a29+a31);
+  a29=(a29+a31);
+  a29=(a29+a31);
+  a29=(a29+a31);
+  a01=casadi_sq(a08);
+  a29=(a29+a01);
+  a01=casadi_sq(a10);
+  a29=(a29+a01);
+  a29=(a29+a31);
+  a29=(a29+a31);
+  a29=(a29+a31);
+  a29=(a29+a31);
+  a29=(a29+a31);
+  a29=(a29+a31);
+  a29=(a29+a31);
+  a29=(a29+a31);
+  a29=(a29+a31);
+  a29=(a29+a31);
+  a29=(a00*a29);
+  if (res[2]!=0) res[2][5]=a29;
+  a29=(a09*a15);
+  a31=(a11*a17);
+  a29=(a29+a31);
+  a31=(a07*a20);
+  a29=(a29+a31);
+  a31=(a07*a13);
+  a29=(a29+a31);
+  a29=(a29+a31);
+  a29=(a29+a31);
+  a29=(a29+a31);
+  a29=(a29+a31);
+  a29=(a29+a31);
+  a29=(a29+a31);
+  a29=(a29+a31);
+  a29=(a29+a31);
+  a01=(a08*a14);
+  a29=(a29+a01);
+  a01=(a10*a16);
+  a29=(a29+a01);
+  a01=(a07*a19);
+  a29=(a29+a01);
+  a29=(a29+a31);
+  a29=(a29+a31);
+  a29=(a29+a31);
+  a29=(a29+a31);
+  a29=(a29+a31);
+  a29=(a29+a31);
+  a29=(a29+a31);
+  a29=(a29+a31);
+  a29=(a29+a31);
+  a29=(a00*a29);
+  if (res[2]!=0) res[2][6]=a29;
+  a09=(a09*a23);
+  a11=(a11*a25);
+  a09=(a09+a11);
+  a11=(a07*a28);
+  a09=(a09+a11);
+  a11=(a07*a02);
+  a09=(a09+a11);
+  a11=(a07*a21);
+  a09=(a09+a11);
+  a09=(a09+a11);
+  a09=(a09+a11);
+  a09=(a09+a11);
+  a09=(a09+a11);
+  a09=(a09+a11);
+  a09=(a09+a11);
+  a09=(a09+a11);
+  a08=(a08*a22);
+  a09=(a09+a08);
+  a10=(a10*a24);
+  a09=(a09+a10);
+  a10=(a07*a27);
+  a09=(a09+a10);
+  a07=(a07*a06);
+  a09=(a09+a07);
+  a09=(a09+a11);
+  a09=(a09+a11);
+  a09=(a09+a11);
+  a09=(a09+a11);
+  a09=(a09+a11);
+  a09=(a09+a11);
+  a09=(a09+a11);
+  a09=(a09+a11);
+  a09=(a00*a09);
+  if (res[2]!=0) res[2][7]=a09;
+  if (res[2]!=0) res[2][8]=a30;
+  if (res[2]!=0) res[2][9]=a29;
+  a29=casadi_sq(a15);
+  a30=casadi_sq(a17);
+  a29=(a29+a30);
+  a30=casadi_sq(a20);
+  a29=(a29+a30);
+  a30=casadi_sq(a13);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a11=casadi_sq(a14);
+  a29=(a29+a11);
+  a11=casadi_sq(a16);
+  a29=(a29+a11);
+  a11=casadi_sq(a19);
+  a29=(a29+a11);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a29+a30);
+  a29=(a00*a29);
+  if (res[2]!=0) res[2][10]=a29;
+  a15=(a15*a23);
+  a17=(a17*a25);
+  a15=(a15+a17);
+  a20=(a20*a28);
+  a15=(a15+a20);
+  a20=(a13*a02);
+  a15=(a15+a20);
+  a20=(a13*a21);
+  a15=(a15+a20);
+  a15=(a15+a20);
+  a15=(a15+a20);
+  a15=(a15+a20);
+  a15=(a15+a20);
+  a15=(a15+a20);
+  a15=(a15+a20);
+  a15=(a15+a20);
+  a14=(a14*a22);
+  a15=(a15+a14);
+  a16=(a16*a24);
+  a15=(a15+a16);
+  a19=(a19*a27);
+  a15=(a15+a19);
+  a13=(a13*a06);
+  a15=(a15+a13);
+  a15=(a15+a20);
+  a15=(a15+a20);
+  a15=(a15+a20);
+  a15=(a15+a20);
+  a15=(a15+a20);
+  a15=(a15+a20);
+  a15=(a15+a20);
+  a15=(a15+a20);
+  a15=(a00*a15);
+  if (res[2]!=0) res[2][11]=a15;
+  if (res[2]!=0) res[2][12]=a04;
+  if (res[2]!=0) res[2][13]=a09;
+  if (res[2]!=0) res[2][14]=a15;
+  a23=casadi_sq(a23);
+  a25=casadi_sq(a25);
+  a23=(a23+a25);
+  a28=casadi_sq(a28);
+  a23=(a23+a28);
+  a02=casadi_sq(a02);
+  a23=(a23+a02);
+  a21=casadi_sq(a21);
+  a23=(a23+a21);
+  a23=(a23+a21);
+  a23=(a23+a21);
+  a23=(a23+a21);
+  a23=(a23+a21);
+  a23=(a23+a21);
+  a23=(a23+a21);
+  a23=(a23+a21);
+  a22=casadi_sq(a22);
+  a23=(a23+a22);
+  a24=casadi_sq(a24);
+  a23=(a23+a24);
+  a27=casadi_sq(a27);
+  a23=(a23+a27);
+  a06=casadi_sq(a06);
+  a23=(a23+a06);
+  a23=(a23+a21);
+  a23=(a23+a21);
+  a23=(a23+a21);
+  a23=(a23+a21);
+  a23=(a23+a21);
+  a23=(a23+a21);
+  a23=(a23+a21);
+  a23=(a23+a21);
+  a00=(a00*a23);
+  if (res[2]!=0) res[2][15]=a00;
   return 0;
 }
 
 /* rov4dof_ckf_moments:(L[12x12],DZ[4x24],Czz[4x4],z_pred[4],z[4],mask[4])->(innovation[4],Pzz[4x4],Pxz[12x4]) */
-static int casadi_f37(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f31(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -11215,11 +12094,10 @@ static int casadi_f37(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* rov4dof_ckf_update:(x[12],P[12x12],z[4],p[17],R[4x4],mask[4])->(x_post[12],P_post[12x12],innovation[4],S[4x4],ok) */
-static int casadi_f34(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i;
-  casadi_real **res1=res+5, *rr, *w02=w+699, w03, *w05=w+843, w06, *w07=w+939, *w08=w+943, *w09=w+967, *w10=w+1063, *w11=w+1079, *w12=w+1083;
-  casadi_real *w13=w+1087, *w14=w+1091, *w15=w+1107, *w16=w+1155, *w17=w+1171, w18;
-  const casadi_real **arg1=arg+6, *cs, *wr00, *wr01, *wr04, *wr10;
+static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+5, *w02=w+123, w03, *w05=w+267, *w06=w+271, *w07=w+367, *w08=w+383, *w09=w+387, *w10=w+391, *w11=w+395, *w12=w+411, *w13=w+459;
+  casadi_real w14, *w15=w+475, w16;
+  const casadi_real **arg1=arg+6, *wr00, *wr01, *wr04, *wr07;
   /* #0: @0 = input[0][0] */
   wr00 = arg[0] ? arg[0] : casadi_zeros;
   /* #1: @1 = input[1][0] */
@@ -11231,86 +12109,70 @@ static int casadi_f34(const casadi_real** arg, casadi_real** res, casadi_int* iw
   if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
   /* #3: @4 = input[3][0] */
   wr04 = arg[3] ? arg[3] : casadi_zeros;
-  /* #4: @5 = rov4dof_ckf_measured_points(@0, @2, @4) */
+  /* #4: {@5, @6, @7} = rov4dof_ckf_measured_moments(@0, @2, @4) */
   arg1[0]=wr00;
   arg1[1]=w02;
   arg1[2]=wr04;
   res1[0]=w05;
-  if (casadi_f35(arg1, res1, iw, w, 0)) return 1;
-  /* #5: @6 = 0.0416667 */
-  w06 = 4.1666666666666664e-02;
-  /* #6: @7 = zeros(4x1) */
-  casadi_clear(w07, 4);
-  /* #7: @8 = ones(24x1) */
-  casadi_fill(w08, 24, 1.);
-  /* #8: @7 = mac(@5,@8,@7) */
-  casadi_mtimes_dense(w05, 4, 24, w08, 1, w07, 0);
-  /* #9: @7 = (@6*@7) */
-  for (i=0, rr=w07, cs=w07; i<4; ++i) (*rr++)  = (w06*(*cs++));
-  /* #10: {@9, @10} = rov4dof_residual_0_24(@5, @7) */
-  arg1[0]=w05;
-  arg1[1]=w07;
-  res1[0]=w09;
-  res1[1]=w10;
-  if (casadi_f36(arg1, res1, iw, w, 0)) return 1;
-  /* #11: @10 = (@6*@10) */
-  for (i=0, rr=w10, cs=w10; i<16; ++i) (*rr++)  = (w06*(*cs++));
-  /* #12: @11 = input[2][0] */
-  casadi_copy(arg[2], 4, w11);
-  /* #13: @12 = input[5][0] */
-  casadi_copy(arg[5], 4, w12);
-  /* #14: {@13, @14, @15} = rov4dof_ckf_moments(@2, @9, @10, @7, @11, @12) */
+  res1[1]=w06;
+  res1[2]=w07;
+  if (casadi_f30(arg1, res1, iw, w, 0)) return 1;
+  /* #5: @8 = input[2][0] */
+  casadi_copy(arg[2], 4, w08);
+  /* #6: @9 = input[5][0] */
+  casadi_copy(arg[5], 4, w09);
+  /* #7: {@10, @11, @12} = rov4dof_ckf_moments(@2, @6, @7, @5, @8, @9) */
   arg1[0]=w02;
+  arg1[1]=w06;
+  arg1[2]=w07;
+  arg1[3]=w05;
+  arg1[4]=w08;
+  arg1[5]=w09;
+  res1[0]=w10;
+  res1[1]=w11;
+  res1[2]=w12;
+  if (casadi_f31(arg1, res1, iw, w, 0)) return 1;
+  /* #8: @7 = input[4][0] */
+  wr07 = arg[4] ? arg[4] : casadi_zeros;
+  /* #9: {@13, @14} = rov4dof_noise(@7, @9, @11, @10) */
+  arg1[0]=wr07;
   arg1[1]=w09;
-  arg1[2]=w10;
-  arg1[3]=w07;
-  arg1[4]=w11;
-  arg1[5]=w12;
+  arg1[2]=w11;
+  arg1[3]=w10;
   res1[0]=w13;
-  res1[1]=w14;
-  res1[2]=w15;
-  if (casadi_f37(arg1, res1, iw, w, 0)) return 1;
-  /* #15: @10 = input[4][0] */
-  wr10 = arg[4] ? arg[4] : casadi_zeros;
-  /* #16: {@16, @6} = rov4dof_noise(@10, @12, @14, @13) */
-  arg1[0]=wr10;
-  arg1[1]=w12;
-  arg1[2]=w14;
-  arg1[3]=w13;
-  res1[0]=w16;
-  res1[1]=(&w06);
-  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
-  /* #17: {@17, @2, @10, @18} = rov4dof_kalman(@0, @1, @14, @15, @16, @13) */
+  res1[1]=(&w14);
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #10: {@15, @2, @7, @16} = rov4dof_kalman(@0, @1, @11, @12, @13, @10) */
   arg1[0]=wr00;
   arg1[1]=wr01;
-  arg1[2]=w14;
-  arg1[3]=w15;
-  arg1[4]=w16;
-  arg1[5]=w13;
-  res1[0]=w17;
+  arg1[2]=w11;
+  arg1[3]=w12;
+  arg1[4]=w13;
+  arg1[5]=w10;
+  res1[0]=w15;
   res1[1]=w02;
-  res1[2]=w10;
-  res1[3]=(&w18);
-  if (casadi_f20(arg1, res1, iw, w, 0)) return 1;
-  /* #18: output[0][0] = @17 */
-  casadi_copy(w17, 12, res[0]);
-  /* #19: output[1][0] = @2 */
+  res1[2]=w07;
+  res1[3]=(&w16);
+  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
+  /* #11: output[0][0] = @15 */
+  casadi_copy(w15, 12, res[0]);
+  /* #12: output[1][0] = @2 */
   casadi_copy(w02, 144, res[1]);
-  /* #20: output[2][0] = @13 */
-  casadi_copy(w13, 4, res[2]);
-  /* #21: output[3][0] = @10 */
-  casadi_copy(w10, 16, res[3]);
-  /* #22: @3 = (@3*@6) */
-  w03 *= w06;
-  /* #23: @3 = (@3*@18) */
-  w03 *= w18;
-  /* #24: output[4][0] = @3 */
+  /* #13: output[2][0] = @10 */
+  casadi_copy(w10, 4, res[2]);
+  /* #14: output[3][0] = @7 */
+  casadi_copy(w07, 16, res[3]);
+  /* #15: @3 = (@3*@14) */
+  w03 *= w14;
+  /* #16: @3 = (@3*@16) */
+  w03 *= w16;
+  /* #17: output[4][0] = @3 */
   if (res[4]) res[4][0] = w03;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int rov4dof_ckf_update(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f34(arg, res, iw, w, mem);
+  return casadi_f29(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int rov4dof_ckf_update_checkout(void) {
@@ -11384,22 +12246,22 @@ CASADI_SYMBOL_EXPORT const casadi_int* rov4dof_ckf_update_sparsity_out(casadi_in
 
 CASADI_SYMBOL_EXPORT int rov4dof_ckf_update_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
   if (sz_arg) *sz_arg = 12;
-  if (sz_res) *sz_res = 11;
+  if (sz_res) *sz_res = 9;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 1183;
+  if (sz_w) *sz_w = 487;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int rov4dof_ckf_update_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
   if (sz_arg) *sz_arg = 12*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 11*sizeof(casadi_real*);
+  if (sz_res) *sz_res = 9*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 1183*sizeof(casadi_real);
+  if (sz_w) *sz_w = 487*sizeof(casadi_real);
   return 0;
 }
 
 /* rov4dof_ckf_step:(x[12],P[12x12],u[4],p[17],dt,Q[12x12],z[4],R[4x4],mask[4])->(x_post[12],P_post[12x12],innovation[4],S[4x4],ok) */
-static int casadi_f38(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f32(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real **res1=res+5, *w00=w+3565, *w01=w+3577, *w02=w+3721, w04, *w06=w+3725, *w07=w+3737, w08, *w10=w+3881, *w11=w+3885, *w12=w+3889;
   const casadi_real **arg1=arg+9, *wr00, *wr01, *wr03, *wr05, *wr09;
   /* #0: @0 = input[0][0] */
@@ -11424,7 +12286,7 @@ static int casadi_f38(const casadi_real** arg, casadi_real** res, casadi_int* iw
   res1[0]=w06;
   res1[1]=w07;
   res1[2]=(&w08);
-  if (casadi_f29(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f24(arg1, res1, iw, w, 0)) return 1;
   /* #7: @2 = input[6][0] */
   casadi_copy(arg[6], 4, w02);
   /* #8: @9 = input[7][0] */
@@ -11443,7 +12305,7 @@ static int casadi_f38(const casadi_real** arg, casadi_real** res, casadi_int* iw
   res1[2]=w11;
   res1[3]=w12;
   res1[4]=(&w04);
-  if (casadi_f34(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f29(arg1, res1, iw, w, 0)) return 1;
   /* #11: output[0][0] = @0 */
   casadi_copy(w00, 12, res[0]);
   /* #12: output[1][0] = @1 */
@@ -11460,7 +12322,7 @@ static int casadi_f38(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int rov4dof_ckf_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f38(arg, res, iw, w, mem);
+  return casadi_f32(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int rov4dof_ckf_step_checkout(void) {
@@ -11540,7 +12402,7 @@ CASADI_SYMBOL_EXPORT const casadi_int* rov4dof_ckf_step_sparsity_out(casadi_int 
 
 CASADI_SYMBOL_EXPORT int rov4dof_ckf_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
   if (sz_arg) *sz_arg = 27;
-  if (sz_res) *sz_res = 16;
+  if (sz_res) *sz_res = 14;
   if (sz_iw) *sz_iw = 0;
   if (sz_w) *sz_w = 3905;
   return 0;
@@ -11548,9 +12410,195 @@ CASADI_SYMBOL_EXPORT int rov4dof_ckf_step_work(casadi_int *sz_arg, casadi_int* s
 
 CASADI_SYMBOL_EXPORT int rov4dof_ckf_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
   if (sz_arg) *sz_arg = 27*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 16*sizeof(casadi_real*);
+  if (sz_res) *sz_res = 14*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
   if (sz_w) *sz_w = 3905*sizeof(casadi_real);
+  return 0;
+}
+
+/* rov4dof_ckf_predict_points:(x[12],P[12x12])->(X[24x12],ok) */
+static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_int i, j;
+  casadi_real **res1=res+2, *rr, *w2=w+91, w3, *w4=w+235, *w5=w+523;
+  const casadi_real **arg1=arg+2, *cs, *wr0, *wr1;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: {@2, @3} = rov4dof_cholesky(@1) */
+  arg1[0]=wr1;
+  res1[0]=w2;
+  res1[1]=(&w3);
+  if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
+  /* #3: @4 = rov4dof_ckf_points(@0, @2) */
+  arg1[0]=wr0;
+  arg1[1]=w2;
+  res1[0]=w4;
+  if (casadi_f25(arg1, res1, iw, w, 0)) return 1;
+  /* #4: @5 = @4' */
+  for (i=0, rr=w5, cs=w4; i<24; ++i) for (j=0; j<12; ++j) rr[i+j*24] = *cs++;
+  /* #5: output[0][0] = @5 */
+  casadi_copy(w5, 288, res[0]);
+  /* #6: output[1][0] = @3 */
+  if (res[1]) res[1][0] = w3;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int rov4dof_ckf_predict_points(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f33(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int rov4dof_ckf_predict_points_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void rov4dof_ckf_predict_points_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void rov4dof_ckf_predict_points_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void rov4dof_ckf_predict_points_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int rov4dof_ckf_predict_points_n_in(void) { return 2;}
+
+CASADI_SYMBOL_EXPORT casadi_int rov4dof_ckf_predict_points_n_out(void) { return 2;}
+
+CASADI_SYMBOL_EXPORT casadi_real rov4dof_ckf_predict_points_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* rov4dof_ckf_predict_points_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "x";
+    case 1: return "P";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* rov4dof_ckf_predict_points_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "X";
+    case 1: return "ok";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* rov4dof_ckf_predict_points_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s0;
+    case 1: return casadi_s1;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* rov4dof_ckf_predict_points_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s9;
+    case 1: return casadi_s4;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int rov4dof_ckf_predict_points_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 4;
+  if (sz_res) *sz_res = 4;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 811;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int rov4dof_ckf_predict_points_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 4*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 4*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 811*sizeof(casadi_real);
+  return 0;
+}
+
+/* rov4dof_ckf_predict_weights:()->(wm[24],wc[24]) */
+static int casadi_f34(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real *w0=w+0;
+  /* #0: @0 = all_0.0416667(24x1) */
+  casadi_fill(w0, 24, 4.1666666666666664e-02);
+  /* #1: output[0][0] = @0 */
+  casadi_copy(w0, 24, res[0]);
+  /* #2: output[1][0] = @0 */
+  casadi_copy(w0, 24, res[1]);
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int rov4dof_ckf_predict_weights(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f34(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int rov4dof_ckf_predict_weights_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void rov4dof_ckf_predict_weights_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void rov4dof_ckf_predict_weights_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void rov4dof_ckf_predict_weights_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int rov4dof_ckf_predict_weights_n_in(void) { return 0;}
+
+CASADI_SYMBOL_EXPORT casadi_int rov4dof_ckf_predict_weights_n_out(void) { return 2;}
+
+CASADI_SYMBOL_EXPORT casadi_real rov4dof_ckf_predict_weights_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* rov4dof_ckf_predict_weights_name_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* rov4dof_ckf_predict_weights_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "wm";
+    case 1: return "wc";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* rov4dof_ckf_predict_weights_sparsity_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* rov4dof_ckf_predict_weights_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s10;
+    case 1: return casadi_s10;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int rov4dof_ckf_predict_weights_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 0;
+  if (sz_res) *sz_res = 3;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 24;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int rov4dof_ckf_predict_weights_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 0*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 3*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 24*sizeof(casadi_real);
   return 0;
 }
 
@@ -11582,16 +12630,56 @@ CASADI_SYMBOL_EXPORT int rov4dof_ukf_predict_batch(casadi_int N, const casadi_re
 CASADI_SYMBOL_EXPORT int rov4dof_ukf_update_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
   const casadi_real* a[14];
-  casadi_real* r[11];
+  casadi_real* r[9];
   casadi_int iw[1];
-  casadi_real w[1466];
+  casadi_real w[670];
   casadi_int j, k;
   for (k = 0; k < 14; ++k) a[k] = 0;
-  for (k = 0; k < 11; ++k) r[k] = 0;
+  for (k = 0; k < 9; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
     for (k = 0; k < 7; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
     for (k = 0; k < 5; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
     if (rov4dof_ukf_update(a, r, iw, w, 0)) return (int)(1 + j);
+  }
+  return 0;
+}
+
+/* rov4dof_ukf_predict_points_batch: evaluate rov4dof_ukf_predict_points for j = 0..N-1 on slices arg[k] + j*arg_step[k] and
+ * res[k] + j*res_step[k] (a step of 0 shares the argument). Returns 0, or 1 + j of the first
+ * failing evaluation. */
+CASADI_SYMBOL_EXPORT int rov4dof_ukf_predict_points_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
+                                  casadi_real** res, const casadi_int* res_step) {
+  const casadi_real* a[6];
+  casadi_real* r[4];
+  casadi_int iw[1];
+  casadi_real w[995];
+  casadi_int j, k;
+  for (k = 0; k < 6; ++k) a[k] = 0;
+  for (k = 0; k < 4; ++k) r[k] = 0;
+  for (j = 0; j < N; ++j) {
+    for (k = 0; k < 3; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
+    for (k = 0; k < 2; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
+    if (rov4dof_ukf_predict_points(a, r, iw, w, 0)) return (int)(1 + j);
+  }
+  return 0;
+}
+
+/* rov4dof_ukf_predict_weights_batch: evaluate rov4dof_ukf_predict_weights for j = 0..N-1 on slices arg[k] + j*arg_step[k] and
+ * res[k] + j*res_step[k] (a step of 0 shares the argument). Returns 0, or 1 + j of the first
+ * failing evaluation. */
+CASADI_SYMBOL_EXPORT int rov4dof_ukf_predict_weights_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
+                                  casadi_real** res, const casadi_int* res_step) {
+  const casadi_real* a[2];
+  casadi_real* r[4];
+  casadi_int iw[1];
+  casadi_real w[57];
+  casadi_int j, k;
+  for (k = 0; k < 2; ++k) a[k] = 0;
+  for (k = 0; k < 4; ++k) r[k] = 0;
+  for (j = 0; j < N; ++j) {
+    for (k = 0; k < 1; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
+    for (k = 0; k < 2; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
+    if (rov4dof_ukf_predict_weights(a, r, iw, w, 0)) return (int)(1 + j);
   }
   return 0;
 }
@@ -11602,12 +12690,12 @@ CASADI_SYMBOL_EXPORT int rov4dof_ukf_update_batch(casadi_int N, const casadi_rea
 CASADI_SYMBOL_EXPORT int rov4dof_mcukf_update_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
   const casadi_real* a[15];
-  casadi_real* r[11];
+  casadi_real* r[9];
   casadi_int iw[1];
-  casadi_real w[1466];
+  casadi_real w[670];
   casadi_int j, k;
   for (k = 0; k < 15; ++k) a[k] = 0;
-  for (k = 0; k < 11; ++k) r[k] = 0;
+  for (k = 0; k < 9; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
     for (k = 0; k < 8; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
     for (k = 0; k < 5; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
@@ -11622,12 +12710,12 @@ CASADI_SYMBOL_EXPORT int rov4dof_mcukf_update_batch(casadi_int N, const casadi_r
 CASADI_SYMBOL_EXPORT int rov4dof_huber_ukf_update_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
   const casadi_real* a[15];
-  casadi_real* r[11];
+  casadi_real* r[9];
   casadi_int iw[1];
-  casadi_real w[1466];
+  casadi_real w[670];
   casadi_int j, k;
   for (k = 0; k < 15; ++k) a[k] = 0;
-  for (k = 0; k < 11; ++k) r[k] = 0;
+  for (k = 0; k < 9; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
     for (k = 0; k < 8; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
     for (k = 0; k < 5; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
@@ -11662,12 +12750,12 @@ CASADI_SYMBOL_EXPORT int rov4dof_ckf_predict_batch(casadi_int N, const casadi_re
 CASADI_SYMBOL_EXPORT int rov4dof_ckf_update_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
   const casadi_real* a[12];
-  casadi_real* r[11];
+  casadi_real* r[9];
   casadi_int iw[1];
-  casadi_real w[1359];
+  casadi_real w[663];
   casadi_int j, k;
   for (k = 0; k < 12; ++k) a[k] = 0;
-  for (k = 0; k < 11; ++k) r[k] = 0;
+  for (k = 0; k < 9; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
     for (k = 0; k < 6; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
     for (k = 0; k < 5; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
@@ -11682,16 +12770,56 @@ CASADI_SYMBOL_EXPORT int rov4dof_ckf_update_batch(casadi_int N, const casadi_rea
 CASADI_SYMBOL_EXPORT int rov4dof_ckf_step_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
   const casadi_real* a[27];
-  casadi_real* r[16];
+  casadi_real* r[14];
   casadi_int iw[1];
   casadi_real w[4084];
   casadi_int j, k;
   for (k = 0; k < 27; ++k) a[k] = 0;
-  for (k = 0; k < 16; ++k) r[k] = 0;
+  for (k = 0; k < 14; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
     for (k = 0; k < 9; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
     for (k = 0; k < 5; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
     if (rov4dof_ckf_step(a, r, iw, w, 0)) return (int)(1 + j);
+  }
+  return 0;
+}
+
+/* rov4dof_ckf_predict_points_batch: evaluate rov4dof_ckf_predict_points for j = 0..N-1 on slices arg[k] + j*arg_step[k] and
+ * res[k] + j*res_step[k] (a step of 0 shares the argument). Returns 0, or 1 + j of the first
+ * failing evaluation. */
+CASADI_SYMBOL_EXPORT int rov4dof_ckf_predict_points_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
+                                  casadi_real** res, const casadi_int* res_step) {
+  const casadi_real* a[4];
+  casadi_real* r[4];
+  casadi_int iw[1];
+  casadi_real w[968];
+  casadi_int j, k;
+  for (k = 0; k < 4; ++k) a[k] = 0;
+  for (k = 0; k < 4; ++k) r[k] = 0;
+  for (j = 0; j < N; ++j) {
+    for (k = 0; k < 2; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
+    for (k = 0; k < 2; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
+    if (rov4dof_ckf_predict_points(a, r, iw, w, 0)) return (int)(1 + j);
+  }
+  return 0;
+}
+
+/* rov4dof_ckf_predict_weights_batch: evaluate rov4dof_ckf_predict_weights for j = 0..N-1 on slices arg[k] + j*arg_step[k] and
+ * res[k] + j*res_step[k] (a step of 0 shares the argument). Returns 0, or 1 + j of the first
+ * failing evaluation. */
+CASADI_SYMBOL_EXPORT int rov4dof_ckf_predict_weights_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
+                                  casadi_real** res, const casadi_int* res_step) {
+  const casadi_real* a[1];
+  casadi_real* r[3];
+  casadi_int iw[1];
+  casadi_real w[24];
+  casadi_int j, k;
+  for (k = 0; k < 1; ++k) a[k] = 0;
+  for (k = 0; k < 3; ++k) r[k] = 0;
+  for (j = 0; j < N; ++j) {
+    for (k = 0; k < 0; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
+    for (k = 0; k < 2; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
+    if (rov4dof_ckf_predict_weights(a, r, iw, w, 0)) return (int)(1 + j);
   }
   return 0;
 }

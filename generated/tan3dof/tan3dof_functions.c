@@ -6,6 +6,11 @@
  * of the function itself or of the leaves it calls, times the calls):
  *   tan3dof_fuzzy_sigma               319 operations
  */
+
+/* CasADi's calling convention passes iw, w and mem to every function; not every function uses them. */
+#if defined(__GNUC__)
+#pragma GCC diagnostic ignored "-Wunused-parameter"
+#endif
 /* How to prefix internal symbols */
 #ifdef CASADI_CODEGEN_PREFIX
   #define CASADI_NAMESPACE_CONCAT(NS, ID) _CASADI_NAMESPACE_CONCAT(NS, ID)

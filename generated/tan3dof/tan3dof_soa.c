@@ -22,10 +22,17 @@
 #if defined(__AVX512F__) && defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
 #pragma GCC target("prefer-vector-width=512")
 #endif
+/* The loops are OpenMP simd loops when compiled with -fopenmp-simd -DABYSSAL_OPENMP_SIMD (abyssal's own
+ * builds) or -fopenmp; otherwise plain C99 loops (any compiler, no unknown-pragma warning). */
+#if defined(ABYSSAL_OPENMP_SIMD) || defined(_OPENMP)
+#define ABYSSAL_SIMD_LOOP _Pragma("omp simd")
+#else
+#define ABYSSAL_SIMD_LOOP
+#endif
 /* glibc's libmvec has vector variants of sin, cos (and since 2.35 tan); declaring them lets the loops
  * below vectorise. const: errno is never read here, and without it gcc 12 does not if-convert a loop
  * that has a call and a comparison, so it would stay scalar. */
-#if defined(__x86_64__) && defined(__GLIBC__) && !defined(ABYSSAL_NO_LIBMVEC)
+#if defined(__x86_64__) && defined(__GLIBC__) && !defined(ABYSSAL_NO_LIBMVEC) && (defined(ABYSSAL_OPENMP_SIMD) || defined(_OPENMP))
 #pragma omp declare simd notinbranch
 extern double sin(double) __attribute__((const));
 #pragma omp declare simd notinbranch
@@ -44,36 +51,40 @@ CASADI_SYMBOL_EXPORT int tan3dof_f_soa(casadi_int N, casadi_int ld, const casadi
   const casadi_real* a3 = arg[3];
   casadi_real* r0 = res[0];
   casadi_int j;
-#pragma omp simd
+  const casadi_real c2=a3[0];
+  const casadi_real c6=2.0;
+  const casadi_real c9=0.01;
+  const casadi_real c11=1.0;
+  const casadi_real c14=6.0;
+  const casadi_real c16=20.0;
+  const casadi_real c18=42.0;
+  const casadi_real c38=a2[0];
+  const casadi_real c39=c38*c2;
+  const casadi_real c46=a2[1];
+  const casadi_real c47=c46*c2;
+  ABYSSAL_SIMD_LOOP
   for (j = 0; j < N; ++j) {
-    casadi_real w0, w1, w2, w3, w4, w5, w6, w7, w8, w9, w10;
+    casadi_real w0, w1, w3, w4, w5, w6, w7, w8, w9;
     w0=a0[0*ld+j];
     w1=a1[0*ld+j];
-    w2=a3[0];
-    w1=w1*w2;
+    w1=w1*c2;
     w3=a1[1*ld+j];
-    w3=w3*w2;
-    w4=2.0;
-    w4=w3/w4;
+    w3=w3*c2;
+    w4=w3/c6;
     w5=fabs(w4);
-    w6=0.01;
-    w5=(w5<w6);
-    w6=1.0;
+    w5=(w5<c9);
     w7=w4*w5;
     w7=w7*w7;
-    w8=6.0;
-    w8=w7/w8;
-    w9=20.0;
-    w9=w7/w9;
-    w10=42.0;
-    w7=w7/w10;
-    w7=w6-w7;
+    w8=w7/c14;
+    w9=w7/c16;
+    w7=w7/c18;
+    w7=c11-w7;
     w9=w9*w7;
-    w9=w6-w9;
+    w9=c11-w9;
     w8=w8*w9;
-    w8=w6-w8;
+    w8=c11-w8;
     w8=w5*w8;
-    w6=w6-w5;
+    w6=c11-w5;
     w5=w4+w5;
     w9=sin(w5);
     w9=w9/w5;
@@ -85,17 +96,13 @@ CASADI_SYMBOL_EXPORT int tan3dof_f_soa(casadi_int N, casadi_int ld, const casadi
     w6=cos(w4);
     w6=w1*w6;
     w0=w0+w6;
-    w6=a2[0];
-    w6=w6*w2;
-    w0=w0+w6;
+    w0=w0+c39;
     r0[0*ld+j]=w0;
     w0=a0[1*ld+j];
     w4=sin(w4);
     w1=w1*w4;
     w0=w0+w1;
-    w1=a2[1];
-    w1=w1*w2;
-    w0=w0+w1;
+    w0=w0+c47;
     r0[1*ld+j]=w0;
     w8=w8+w3;
     r0[2*ld+j]=w8;
@@ -106,10 +113,9 @@ CASADI_SYMBOL_EXPORT int tan3dof_f_soa(casadi_int N, casadi_int ld, const casadi
 /* tan3dof_h_soa(x[], p): inputs marked [] vary per particle. */
 CASADI_SYMBOL_EXPORT int tan3dof_h_soa(casadi_int N, casadi_int ld, const casadi_real** arg, casadi_real** res) {
   const casadi_real* a0 = arg[0];
-  const casadi_real* a1 = arg[1];
   casadi_real* r0 = res[0];
   casadi_int j;
-#pragma omp simd
+  ABYSSAL_SIMD_LOOP
   for (j = 0; j < N; ++j) {
     casadi_real w0;
     w0=a0[2*ld+j];

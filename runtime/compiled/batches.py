@@ -1,9 +1,12 @@
 """Batched calls of generated C over particles or mixture components, on preallocated buffers.
 
 ``ModelBatch`` runs the SIMD structure-of-arrays kernels of f and h over (n, N) particle
-batches; ``CubaturePredictBatch`` / ``CubatureUpdateBatch`` / ``CubatureStepBatch`` run the
-generated cubature steps over (n, cap) means and (n, n, cap) covariances through the
-``<name>_batch`` entry points, split over the cores by ``ParallelBatch``.
+batches; ``PredictBatch`` / ``UpdateBatch`` run a generated sigma-point predict or update
+(cubature: ``CubaturePredictBatch`` / ``CubatureUpdateBatch`` / ``CubatureStepBatch``; unscented
+and robust: ``UnscentedPredictBatch`` / ``UnscentedUpdateBatch``) over (n, cap) means and
+(n, n, cap) covariances through the ``<name>_batch`` entry points, split over the cores by
+``ParallelBatch``. Every call takes the number of slices to evaluate (a particle filter's active
+count), never more than the capacity its buffers were sized for.
 """
 from __future__ import annotations
 
@@ -72,6 +75,8 @@ class ParallelBatch:
 
     def __init__(self, fn, inputs, batched, outputs, capacity: int):
         self.capacity = capacity
+        inputs = [_as_slices(a) if b else a for a, b in zip(inputs, batched)]
+        outputs = [_as_slices(a) for a in outputs]
         n_chunks = min(os.cpu_count() or 1, 4) if capacity >= PARALLEL_MIN_SLICES else 1
         bounds = np.linspace(0, capacity, n_chunks + 1).astype(int)
         self._chunks = []
@@ -113,6 +118,12 @@ class ParallelBatch:
                 raise error
 
 
+def _as_slices(a: np.ndarray) -> np.ndarray:
+    """A stack of (r, 1) slices (r, 1, cap) as the (r, cap) view a generated batch binds (an (r, 1) argument
+    batches as a vector: e.g. S or R of a model with one output)."""
+    return a.reshape(a.shape[0], a.shape[2], order="F") if a.ndim == 3 and a.shape[1] == 1 else a
+
+
 def _run_chunk(binding, lo: int, hi: int, then) -> None:
     binding(hi - lo)
     if then is not None:
@@ -125,12 +136,17 @@ def nearest_positive_definite(covariances: np.ndarray) -> np.ndarray:
 
 
 def _repair_failed_slices(ok: np.ndarray, cov: np.ndarray, evaluate, count: int) -> None:
-    """Slices whose Cholesky guard failed (ok = 0): evaluate again on their repaired input covariance. The input
-    buffer is given back as it was (a call reads its inputs, never changes them: a caller's refused step has
-    nothing of the batch's to undo)."""
+    """Slices whose Cholesky guard failed (ok = 0): evaluate again on their repaired input covariance (a covariance
+    that is not finite cannot be repaired: its slice keeps ok = 0). The input buffer is given back as it was (a call
+    reads its inputs, never changes them: a caller's refused step has nothing of the batch's to undo)."""
     if count and ok[0, :count].min() == 0:  # ok is 0 or 1
         failed = np.flatnonzero(ok[0, :count] == 0)
         original = cov[:, :, failed]  # fancy indexing: a copy
+        finite = np.isfinite(original).all(axis=(0, 1))
+        if not finite.all():  # nothing to repair: the caller sees ok = 0 and the non-finite result
+            failed, original = failed[finite], original[:, :, finite]
+            if not failed.size:
+                return
         cov[:, :, failed] = nearest_positive_definite(original)
         try:
             evaluate(count)
@@ -138,67 +154,120 @@ def _repair_failed_slices(ok: np.ndarray, cov: np.ndarray, evaluate, count: int)
             cov[:, :, failed] = original
 
 
-class CubaturePredictBatch:
-    """``ckf_predict`` (eqs. 22-24) over up to `capacity` Gaussians held in preallocated buffers.
+class PredictBatch:
+    """A generated sigma-point predict (x, P, u, p, dt, Q, *rule) -> (x_pred, P_pred, ok) over up to `capacity`
+    Gaussians held in preallocated buffers: mean (n, cap), cov (n, n, cap) (Fortran-ordered), u (n_u,), dt; Q is
+    one (n, n, cap) process noise per slice (``Q=None``: the Gaussian-sum filters) or one shared (n, n) matrix.
+    A slice whose Cholesky guard fails is evaluated again on its repaired input covariance (the input is given
+    back as it was)."""
 
-    Inputs: mean (n, cap), cov (n, n, cap), Q (n, n, cap) (all Fortran-ordered), u (n_u,), dt;
-    outputs mean_pred, cov_pred, ok (1, cap).
-    """
-
-    def __init__(self, bundle, capacity: int, p: np.ndarray):
+    def __init__(self, bundle, function: str, capacity: int, p: np.ndarray, *, Q: np.ndarray | None = None, rule=()):
         n = bundle.n_x
         self.capacity = capacity
-        self.mean, self.cov, self.Q = _f_zeros(n, capacity), _f_zeros(n, n, capacity), _f_zeros(n, n, capacity)
+        self.mean, self.cov = _f_zeros(n, capacity), _f_zeros(n, n, capacity)
+        self.Q = _f_zeros(n, n, capacity) if Q is None else np.array(Q, dtype=np.float64, order="F")
         self.u, self.p, self.dt = np.zeros(bundle.n_u), _parameter_buffer(p), np.zeros(1)
         self.mean_pred, self.cov_pred, self.ok = _f_zeros(n, capacity), _f_zeros(n, n, capacity), _f_zeros(1, capacity)
-        self._eval = ParallelBatch(bundle.function("ckf_predict"), [self.mean, self.cov, self.u, self.p, self.dt, self.Q],
-                                   [True, True, False, False, False, True], [self.mean_pred, self.cov_pred, self.ok], capacity)
+        rule = [np.asarray(r, dtype=np.float64) for r in rule]
+        self._eval = ParallelBatch(bundle.function(function), [self.mean, self.cov, self.u, self.p, self.dt, self.Q, *rule],
+                                   [True, True, False, False, False, Q is None] + [False] * len(rule),
+                                   [self.mean_pred, self.cov_pred, self.ok], capacity)
 
     def __call__(self, count: int) -> None:
         self._eval(count)
         _repair_failed_slices(self.ok, self.cov, self._eval, count)
 
 
-class CubatureUpdateBatch:
-    """``ckf_update`` (eqs. 25-29) over up to `capacity` Gaussians.
+class CubaturePredictBatch(PredictBatch):
+    """``ckf_predict`` (seed 000 eqs. 22-24) with one process noise Q (n, n, cap) per slice."""
 
-    Inputs: mean (n, cap), cov (n, n, cap) -- pass the predict batch's outputs to chain without
-    copying -- z (n_y, cap), R (n_y, n_y, cap); outputs mean_post, cov_post, innovation, S, ok.
+    def __init__(self, bundle, capacity: int, p: np.ndarray):
+        super().__init__(bundle, "ckf_predict", capacity, p)
 
-    Missing entries: ``present`` (n_y,) is the caller's mask of this measurement (0: left out of
-    every slice, with z there set to anything finite); the gate below only masks further.
 
-    Outlier gate: a measurement entry whose innovation exceeds ``gate_sigma`` standard deviations
-    of S is masked out of that slice's update (all slices when ``gate_jointly``, so mixture
-    components stay comparable) and the batch is re-evaluated. At the default 100 sigma this only
-    fires on absurd measurements; it keeps an outlier far beyond every particle from throwing the
-    cubature means (and the nonlinear model after them) to overflow. For the particle filters it
-    changes only the proposal, never the weights, which keep the exact likelihood.
+class UnscentedPredictBatch(PredictBatch):
+    """``ukf_predict`` with the scaled unscented rule abk = (alpha, beta, kappa) and one shared Q."""
+
+    def __init__(self, bundle, capacity: int, p: np.ndarray, Q: np.ndarray, abk: np.ndarray):
+        super().__init__(bundle, "ukf_predict", capacity, p, Q=Q, rule=(abk,))
+
+
+class UpdateBatch:
+    """A generated sigma-point update (x, P, z, p, R, mask, *rule) -> (x_post, P_post, innovation, S, ok) over up
+    to `capacity` Gaussians: mean (n, cap), cov (n, n, cap) -- pass a predict batch's outputs to chain without
+    copying; outputs mean_post, cov_post, innovation (n_y, cap), S (n_y, n_y, cap), ok (1, cap).
+
+    The measurement z, R and mask are one per slice (``per_slice``: (n_y, cap), (n_y, n_y, cap)) or shared by
+    all slices ((n_y,), (n_y, n_y)); ``set_measurement(z)`` writes z either way. ``present`` (n_y,) is the
+    caller's mask of this measurement (0: left out of every slice, z there anything finite). A slice whose
+    Cholesky guard fails is evaluated again on its repaired input covariance (given back as it was).
     """
 
-    def __init__(self, bundle, capacity: int, p: np.ndarray, mean: np.ndarray | None = None,
-                 cov: np.ndarray | None = None, gate_sigma: float = 100.0, gate_jointly: bool = False):
+    def __init__(self, bundle, function: str, capacity: int, p: np.ndarray, mean: np.ndarray | None = None,
+                 cov: np.ndarray | None = None, *, per_slice: bool, R: np.ndarray | None = None, rule=()):
         n, m = bundle.n_x, bundle.n_y
         self.capacity = capacity
         self.mean = _f_zeros(n, capacity) if mean is None else mean
         self.cov = _f_zeros(n, n, capacity) if cov is None else cov
-        self.z, self.R, self.mask = _f_zeros(m, capacity), _f_zeros(m, m, capacity), np.ones((m, capacity), order="F")
+        if per_slice:
+            self.z, self.R, self.mask = _f_zeros(m, capacity), _f_zeros(m, m, capacity), np.ones((m, capacity), order="F")
+        else:
+            self.z, self.mask = np.zeros(m), np.ones(m)
+            self.R = _f_zeros(m, m) if R is None else np.array(R, dtype=np.float64, order="F")
         self.p = _parameter_buffer(p)
         #: (n_y,) entries present in this measurement (0: left out of every slice), set by the caller
         self.present = np.ones(m)
-        self.gate_sigma, self.gate_jointly = gate_sigma, gate_jointly
-        self.gated = 0  # number of measurement entries masked by the gate in the last call
         self.mean_post, self.cov_post = _f_zeros(n, capacity), _f_zeros(n, n, capacity)
         self.innovation, self.S, self.ok = _f_zeros(m, capacity), _f_zeros(m, m, capacity), _f_zeros(1, capacity)
-        self._eval = ParallelBatch(bundle.function("ckf_update"), [self.mean, self.cov, self.z, self.p, self.R, self.mask],
-                                   [True, True, True, False, True, True],
+        rule = [np.asarray(r, dtype=np.float64) for r in rule]
+        self._eval = ParallelBatch(bundle.function(function), [self.mean, self.cov, self.z, self.p, self.R, self.mask, *rule],
+                                   [True, True, per_slice, False, per_slice, per_slice] + [False] * len(rule),
                                    [self.mean_post, self.cov_post, self.innovation, self.S, self.ok], capacity)
 
+    def set_measurement(self, z: np.ndarray) -> None:
+        """z (n_y,) for every slice (absent entries: anything finite)."""
+        if self.z.ndim == 2:
+            self.z[...] = z[:, None]
+        else:
+            self.z[:] = z
+
     def __call__(self, count: int) -> None:
-        self.mask[...] = self.present[:, None]
-        self.gated = 0
+        self.mask[...] = self.present[:, None] if self.mask.ndim == 2 else self.present
         self._eval(count)
         _repair_failed_slices(self.ok, self.cov, self._eval, count)
+
+
+class UnscentedUpdateBatch(UpdateBatch):
+    """``ukf_update``, ``huber_ukf_update`` (extra: gamma) or ``mcukf_update`` (extra: sigma), with the scaled
+    unscented rule abk and one shared z, R and mask."""
+
+    def __init__(self, bundle, function: str, capacity: int, p: np.ndarray, mean: np.ndarray, cov: np.ndarray,
+                 R: np.ndarray, abk: np.ndarray, extra=()):
+        super().__init__(bundle, function, capacity, p, mean, cov, per_slice=False, R=R, rule=(abk, *extra))
+
+
+class CubatureUpdateBatch(UpdateBatch):
+    """``ckf_update`` (seed 000 eqs. 25-29) with z (n_y, cap), R (n_y, n_y, cap) and the mask per slice.
+
+    Outlier gate: a measurement entry whose innovation exceeds ``gate_sigma`` standard deviations
+    of S is masked out of that slice's update (all slices when ``gate_jointly``, so mixture
+    components stay comparable) and the batch is re-evaluated. At the default 100 sigma this only
+    fires on absurd measurements; it keeps an outlier far beyond every component from throwing the
+    cubature means (and the nonlinear model after them) to overflow (``gate_sigma=inf``: no gate; the
+    particle filters gate the whole cloud's predicted measurement instead, engine.py).
+    """
+
+    def __init__(self, bundle, capacity: int, p: np.ndarray, mean: np.ndarray | None = None,
+                 cov: np.ndarray | None = None, gate_sigma: float = 100.0, gate_jointly: bool = False):
+        super().__init__(bundle, "ckf_update", capacity, p, mean, cov, per_slice=True)
+        self.gate_sigma, self.gate_jointly = gate_sigma, gate_jointly
+        self.gated = 0  # number of measurement entries masked by the gate in the last call
+
+    def __call__(self, count: int) -> None:
+        self.gated = 0
+        super().__call__(count)
+        if self.gate_sigma == np.inf:
+            return
         outliers = self.outliers(count)
         if outliers.any():
             if self.gate_jointly:
@@ -231,8 +300,9 @@ class CubatureStepBatch:
     (``ckf_step`` is the composition of ``ckf_predict`` and ``ckf_update``), so when every slice
     passes its Cholesky guards and no innovation trips the outlier gate the results are those of
     the two-stage path; otherwise the step is redone by the two-stage path, which owns the repair
-    and gating logic. Only valid when nothing is added between predict and update (zero-mean
-    process noise).
+    and gating logic. The update's present entries are the fused mask (with a per-slice outlier
+    gate, a measurement with missing entries goes the two-stage path). Only valid when nothing is
+    added between predict and update (zero-mean process noise).
     """
 
     def __init__(self, bundle, predict: CubaturePredictBatch, update: CubatureUpdateBatch):
@@ -251,15 +321,18 @@ class CubatureStepBatch:
         """Predict + update slices 0..count-1. `then(lo, hi)` is passed to ``ParallelBatch`` (it
         sees the fused results). Returns False when the step was redone by the two-stage path (the
         results `then` saw are stale)."""
-        self._eval(count, then)
-        if count and not self.update.present.all():
-            self.predict(count)  # missing entries: the two-stage path owns the mask
-            self.update(count)
+        update = self.update
+        gate = update.gate_sigma != np.inf
+        if count and gate and not update.present.all():
+            self.predict(count)  # missing entries and a per-slice gate: the two-stage path owns the mask
+            update(count)
             return False
-        if count == 0 or (self.update.ok[0, :count].min() != 0 and not self.update.outliers(count).any()):
+        self.mask[...] = update.present[:, None]
+        self._eval(count, then)
+        if count == 0 or (update.ok[0, :count].min() != 0 and not (gate and update.outliers(count).any())):
             return True  # every slice passed its guards (ok is 0 or 1) and nothing was gated
         self.predict(count)
-        self.update(count)
+        update(count)
         return False
 
 
@@ -280,8 +353,9 @@ class MeasureBatch:
         self._h = bundle.function("h").bind_soa([self.x, self.p], [self.y])
 
     def __call__(self, count: int) -> np.ndarray:
+        """h at the first `count` columns of x: the (n_y, count) view of y."""
         self._h(count)
-        return self.y
+        return self.y if count == self.y.shape[1] else self.y[:, :count]
 
 
 class ModelBatch:

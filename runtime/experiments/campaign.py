@@ -28,11 +28,21 @@ Decisions:
 * Seeds inside a run: ``derive(seed, *keys)`` gives a sub-stream without calling ``spawn`` (which
   mutates the SeedSequence: a retried run in the same process would otherwise draw new numbers).
 * Resume/merge: the rows are checkpointed to ``csv_path`` (rewritten atomically, at most every
-  ``checkpoint_seconds`` and at the end, so the file is always a whole table); ``resume=True``
-  reads it and runs only the runs it does not contain. Child ``i`` of ``SeedSequence(seed)`` does
-  not depend on how many children are spawned, so ``--runs 20 --resume`` after ``--runs 10`` adds
-  runs 10..19 to the same table. A sidecar ``<csv>.meta.json`` records the experiment, seed and
-  configuration; resuming with a different one is refused.
+  ``checkpoint_seconds`` and at the end, so the file is always a whole table of finished runs);
+  ``resume=True`` reads it and runs only the runs it does not contain. Child ``i`` of
+  ``SeedSequence(seed)`` does not depend on how many children are spawned, so ``--runs 20 --resume``
+  after ``--runs 10`` adds runs 10..19 to the same table, and ``--runs 5 --resume`` keeps runs 5..9
+  on disk (the result reports runs 0..4). Nothing is adopted on trust: a sidecar ``<csv>.meta.json``
+  (written before the table, both atomically) records the experiment, seed, configuration and columns,
+  the sha256 of the table as last written, and for each finished run its row count, the sha256 of its
+  rows and a short digest of each row. Resume refuses (``TableRefused``, a ValueError; nothing is run
+  or written) a table without a sidecar, a sidecar that is damaged, older or of another experiment,
+  configuration or seed, and a table that is not byte for byte the one written (or the one before it,
+  when a write was interrupted between the sidecar and the table), naming the file and the first lines
+  that differ: a changed or cut value, a duplicated, deleted or foreign row, a run cut short. A run
+  counts as done only with all its rows exactly as written. NaN is a value an experiment may write (no
+  particle count for a Kalman filter), so finiteness is not required of a row: that the value is the
+  one written is.
 * CSV floats are written with ``repr`` (shortest round-trip form), so a table made from a read-back
   CSV is bit-identical to one made from the rows in memory.
 * Progress: a tqdm bar on a terminal, plain ``[label] run i/n done`` lines otherwise (logs).
@@ -40,6 +50,7 @@ Decisions:
 from __future__ import annotations
 
 import csv
+import hashlib
 import io
 import json
 import math
@@ -132,7 +143,7 @@ def sort_rows(rows: Iterable[dict], columns: Sequence[str] = TIDY_COLUMNS) -> li
 def _checked_rows(rows, run: int, columns: Sequence[str]) -> list[dict]:
     if not isinstance(rows, list):
         raise TypeError(f"run_one must return a list of dicts, got {type(rows).__name__}")
-    out = []
+    out, seen = [], set()
     for row in rows:
         missing = [c for c in columns if c not in row]
         if missing:
@@ -142,30 +153,74 @@ def _checked_rows(rows, run: int, columns: Sequence[str]) -> list[dict]:
         clean = {c: row[c] for c in columns}
         clean["run"] = run
         clean["value"] = float(row["value"])
+        key = _key(clean, columns)
+        if key in seen:
+            raise ValueError(f"run_one returned two rows with the key {key} (one value per run x key)")
+        seen.add(key)
         out.append(clean)
     return out
 
 
-def write_csv(path: Path, rows: Sequence[dict], columns: Sequence[str]) -> None:
-    """Write the rows atomically (temporary file + rename): the file is always a whole table."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+def _line(fields: Sequence) -> str:
+    """One row as its CSV line (no line terminator), exactly as the table holds it."""
     buffer = io.StringIO()
-    writer = csv.writer(buffer, lineterminator="\n")
-    writer.writerow(columns)
-    for row in rows:
-        writer.writerow([repr(row[c]) if c == "value" else row[c] for c in columns])
+    csv.writer(buffer, lineterminator="\n").writerow(fields)
+    return buffer.getvalue()[:-1]
+
+
+def _fields(row: dict, columns: Sequence[str]) -> list:
+    return [repr(row[c]) if c == "value" else row[c] for c in columns]
+
+
+def _table_text(rows: Sequence[dict], columns: Sequence[str]) -> str:
+    return "".join(_line(line) + "\n" for line in [list(columns)] + [_fields(row, columns) for row in rows])
+
+
+def _replace(path: Path, text: str) -> None:
+    """Write text to path atomically (a temporary file renamed over it): a reader sees the old or the new file."""
     tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(buffer.getvalue())
+    with open(tmp, "w", encoding="utf-8", newline="") as handle:
+        handle.write(text)
+        handle.flush()
+        os.fsync(handle.fileno())
     os.replace(tmp, path)
 
 
+def _parse_value(text: str, where: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        raise ValueError(f"{where}: value {text!r} is not a number") from None
+
+
+def _parse_run(text: str, where: str) -> int:
+    if not text.isdigit():
+        raise ValueError(f"{where}: run {text!r} is not a run number")
+    return int(text)
+
+
+def _parsed_lines(path: Path, text: str, columns: Sequence[str]):
+    """(line number, fields) of every data line; the header must be the columns."""
+    reader = csv.reader(io.StringIO(text, newline=""))
+    header = next(reader, None)
+    if header is None or tuple(header) != tuple(columns):
+        raise ValueError(f"{path}, line 1: columns {header} differ from this experiment's {list(columns)}")
+    for fields in reader:
+        yield reader.line_num, fields
+
+
 def read_csv(path: Path, columns: Sequence[str] = TIDY_COLUMNS) -> list[dict]:
-    with open(path, newline="") as handle:
-        reader = csv.DictReader(handle)
-        if tuple(reader.fieldnames or ()) != tuple(columns):
-            raise ValueError(f"{path}: columns {reader.fieldnames} differ from this experiment's {list(columns)}")
-        return [{**row, "run": int(row["run"]), "value": float(row["value"])} for row in reader]
+    """The rows of a campaign table (run as int, value as float); a malformed line is refused naming it."""
+    path = Path(path)
+    rows = []
+    for number, fields in _parsed_lines(path, path.read_text(encoding="utf-8"), columns):
+        where = f"{path}, line {number}"
+        if len(fields) != len(columns):
+            raise ValueError(f"{where}: {len(fields)} fields where the table has {len(columns)} (a cut or damaged line)")
+        row = dict(zip(columns, fields))
+        row["run"], row["value"] = _parse_run(row["run"], where), _parse_value(row["value"], where)
+        rows.append(row)
+    return rows
 
 
 # ---------------------------------------------------------------------------------------------
@@ -219,21 +274,196 @@ class _Progress:
 # the harness
 
 
+SIDECAR_FORMAT = "abyssal campaign table 2"
+#: how many problems a refused table's message lists
+_PROBLEMS_SHOWN = 6
+
+
+class TableRefused(ValueError):
+    """--resume found a table it cannot trust (no or another sidecar, or rows changed after they were written)."""
+
+
+def sidecar_path(csv_path: Path) -> Path:
+    return Path(csv_path).with_name(Path(csv_path).name + ".meta.json")
+
+
+def _sha256(text: str) -> str:
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+def _digest(line: str) -> str:
+    """A short digest of one line: enough to tell which row changed (the run's sha256 is the authority)."""
+    return hashlib.blake2b(line.encode("utf-8"), digest_size=6).hexdigest()
+
+
+def _run_records(lines_by_run: dict[int, list[str]]) -> dict[str, dict]:
+    """Per finished run: its row count, the sha256 of its lines and each line's short digest (in table order)."""
+    return {str(run): {"rows": len(lines), "sha256": _sha256("\n".join(lines)),
+                       "row_digests": " ".join(_digest(line) for line in lines)}
+            for run, lines in sorted(lines_by_run.items())}
+
+
+class _Table:
+    """The table on disk and its sidecar ``<csv>.meta.json``.
+
+    The sidecar records the experiment, seed, configuration and columns, the sha256 of the table as last
+    written (and of the one before it), and for every finished run its row count, the sha256 of its rows
+    and a short digest of each row. Every write puts the sidecar first, then the table (each atomically),
+    so after an interruption between the two the table on disk is the one written before: ``resume``
+    accepts the table whose sha256 is either of the two, and nothing else.
+    """
+
+    def __init__(self, csv_path: Path, meta: dict):
+        self.path, self.sidecar, self.meta = Path(csv_path), sidecar_path(csv_path), meta
+        self.columns = tuple(meta["columns"])
+        self.written_sha256: str | None = None  # the table on disk, when this process knows it
+
+    # ------------------------------------------------------------------ writing
+    def write(self, rows: Sequence[dict]) -> None:
+        lines_by_run: dict[int, list[str]] = {}
+        for row in rows:
+            lines_by_run.setdefault(row["run"], []).append(_line(_fields(row, self.columns)))
+        text = _table_text(rows, self.columns)
+        sha = _sha256(text)
+        sidecar = {"format": SIDECAR_FORMAT, **self.meta, "table_sha256": sha,
+                   "previous_table_sha256": self.written_sha256, "runs": _run_records(lines_by_run)}
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        _replace(self.sidecar, json.dumps(sidecar, indent=1) + "\n")
+        _replace(self.path, text)
+        self.written_sha256 = sha
+
+    # ------------------------------------------------------------------ reading (resume)
+    def read(self) -> list[dict]:
+        """The rows of the table on disk, after checking it is exactly a table this campaign wrote."""
+        if not self.path.exists():
+            return []
+        if not self.sidecar.exists():
+            raise TableRefused(f"--resume: {self.path} has no sidecar ({self.sidecar.name}): a table abyssal did not "
+                               "write, or one copied without it, is never adopted. Use another --out, or drop --resume "
+                               f"to start afresh (that replaces {self.path.name})")
+        sidecar = self._read_sidecar()
+        changed = [k for k in ("experiment", "seed", "config", "columns") if sidecar.get(k) != self.meta[k]]
+        if changed:
+            raise TableRefused(f"--resume: {self.path} was made with a different {', '.join(changed)} "
+                               f"(its sidecar {self.sidecar.name} says experiment {sidecar.get('experiment')!r}, seed "
+                               f"{sidecar.get('seed')!r}); use another --out or drop --resume")
+        text = self.path.read_text(encoding="utf-8")
+        sha = _sha256(text)
+        rows, problems = self._check(text, sidecar["runs"])
+        if sha not in (sidecar["table_sha256"], sidecar["previous_table_sha256"]) and not problems:
+            present = {row["run"] for row in rows}
+            problems += [f"run {run}: all {record['rows']} of its rows are missing" for run, record in
+                         sidecar["runs"].items() if int(run) not in present]
+            problems = problems or ["its bytes differ from the table abyssal wrote (sha256 in the sidecar), though "
+                                    "every row matches its run's record: reordered or re-encoded by another program?"]
+        if problems:
+            shown = "\n  ".join(problems[:_PROBLEMS_SHOWN])
+            more = f"\n  ... and {len(problems) - _PROBLEMS_SHOWN} more" if len(problems) > _PROBLEMS_SHOWN else ""
+            raise TableRefused(f"--resume: {self.path} is not the table abyssal wrote ({len(problems)} problem(s)); "
+                               f"nothing was run or changed:\n  {shown}{more}\nUse another --out, or drop --resume to "
+                               f"start afresh (that replaces {self.path.name})")
+        self.written_sha256 = sha
+        return rows
+
+    def _read_sidecar(self) -> dict:
+        try:
+            sidecar = json.loads(self.sidecar.read_text(encoding="utf-8"))
+        except (UnicodeDecodeError, json.JSONDecodeError) as error:
+            raise TableRefused(f"--resume: the sidecar {self.sidecar} of {self.path.name} is damaged ({error}); "
+                               f"without it {self.path.name} cannot be checked. Use another --out, or drop --resume "
+                               "to start afresh") from None
+        if not isinstance(sidecar, dict) or sidecar.get("format") != SIDECAR_FORMAT:
+            found = sidecar.get("format") if isinstance(sidecar, dict) else type(sidecar).__name__
+            raise TableRefused(f"--resume: the sidecar {self.sidecar} is not a {SIDECAR_FORMAT!r} sidecar (format "
+                               f"{found!r}: written by an older abyssal, without the hashes of its rows), so "
+                               f"{self.path.name}'s runs cannot be checked. Use another --out, or drop --resume")
+        runs = sidecar.get("runs")
+        wellformed = isinstance(runs, dict) and all(
+            isinstance(r, dict) and isinstance(r.get("rows"), int) and isinstance(r.get("sha256"), str)
+            and isinstance(r.get("row_digests"), str) for r in runs.values())
+        missing = [k for k in ("table_sha256", "previous_table_sha256", *self.meta) if k not in sidecar]
+        if missing or not wellformed:
+            raise TableRefused(f"--resume: the sidecar {self.sidecar} is damaged "
+                               f"({'missing ' + ', '.join(missing) if missing else 'malformed run records'}); "
+                               "use another --out, or drop --resume")
+        return sidecar
+
+    def _check(self, text: str, records: dict) -> tuple[list[dict], list[str]]:
+        """The rows, and every way the table differs from the recorded runs, in line order (each naming the
+        line, the run and the row)."""
+        columns, path = self.columns, self.path
+        key_columns = [c for c in columns if c != "value"]
+        rows: list[dict] = []
+        problems: list[tuple[int, str]] = []
+        lines_by_run: dict[int, list[tuple[int, str]]] = {}
+        foreign: dict[int, list[int]] = {}
+        seen: dict[tuple, int] = {}
+        try:
+            parsed = list(_parsed_lines(path, text, columns))
+        except (ValueError, csv.Error) as error:
+            return [], [str(error)]
+        for number, fields in parsed:
+            where = f"line {number}"
+            if len(fields) != len(columns):
+                problems.append((number, f"{where}: {len(fields)} fields where the table has {len(columns)} "
+                                         f"({_line(fields)!r}: a cut or damaged line)"))
+                continue
+            row = dict(zip(columns, fields))
+            try:
+                run = _parse_run(row["run"], where)
+            except ValueError as error:
+                problems.append((number, str(error)))
+                continue
+            key = tuple(row[c] for c in key_columns)
+            where = f"line {number} (run {run}, {', '.join(key[1:])})"
+            if str(run) not in records:
+                foreign.setdefault(run, []).append(number)
+                continue
+            if key in seen:
+                problems.append((number, f"{where}: duplicates line {seen[key]}"))
+                continue
+            seen[key] = number
+            try:
+                row["value"] = _parse_value(row["value"], where)
+            except ValueError as error:
+                problems.append((number, str(error)))
+            row["run"] = run
+            rows.append(row)
+            lines_by_run.setdefault(run, []).append((number, _line(fields)))
+        for run, numbers in foreign.items():
+            problems.append((numbers[0], f"line {numbers[0]} (run {run}; {len(numbers)} line(s) in all): run {run} is "
+                                         "not a finished run of this table's sidecar (rows of another table?)"))
+        for run, numbered in lines_by_run.items():
+            problems += self._check_run(run, numbered, records[str(run)])
+        return rows, [message for _, message in sorted(problems, key=lambda p: p[0])]
+
+    @staticmethod
+    def _check_run(run: int, numbered: list[tuple[int, str]], record: dict) -> list[tuple[int, str]]:
+        """How the lines of one run differ from its record (row count, sha256, the digest of each row)."""
+        lines = [line for _, line in numbered]
+        if len(lines) == record["rows"] and _sha256("\n".join(lines)) == record["sha256"]:
+            return []
+        expected = record["row_digests"].split()
+        digests = [_digest(line) for line in lines]
+        for i, (number, line) in enumerate(numbered):
+            if i < len(expected) and digests[i] == expected[i]:
+                continue
+            shown = f"line {number} (run {run}: {line!r})"
+            if i + 1 < len(expected) and digests[i] == expected[i + 1]:
+                return [(number, f"{shown}: the row of run {run} before it is missing (run {run} has {len(lines)} of "
+                                 f"its {record['rows']} rows)")]
+            if digests[i] in expected:
+                return [(number, f"{shown}: out of place among run {run}'s rows")]
+            return [(number, f"{shown}: differs from the row written when run {run} finished (a changed or cut value?)")]
+        last = numbered[-1][0]
+        if len(lines) < record["rows"]:
+            return [(last, f"run {run} has {len(lines)} of its {record['rows']} rows: the rows after line {last} are "
+                           "missing (a cut table?)")]
+        return [(last, f"run {run}: its rows differ from its record (sha256) though each row matches")]
+
+
 def _meta(experiment: str, seed: int, config, columns) -> dict:
     return {"experiment": experiment, "seed": int(seed), "config": repr(config), "columns": list(columns)}
-
-
-def _read_previous(csv_path: Path, meta: dict, columns) -> list[dict]:
-    meta_path = csv_path.with_name(csv_path.name + ".meta.json")
-    if not csv_path.exists():
-        return []
-    if meta_path.exists():
-        previous = json.loads(meta_path.read_text())
-        if previous != meta:
-            changed = [k for k in meta if previous.get(k) != meta[k]]
-            raise ValueError(f"--resume: {csv_path} was made with a different {', '.join(changed)}; "
-                             "use another --out or drop --resume")
-    return read_csv(csv_path, columns)
 
 
 def run_campaign(run_one: RunOne, config, runs: int, seed: int = 0, *, workers: int | None = None,
@@ -250,11 +480,10 @@ def run_campaign(run_one: RunOne, config, runs: int, seed: int = 0, *, workers: 
     if workers is not None and workers < 0:
         raise ValueError(f"workers must be >= 0, got {workers}")
     columns = tuple(TIDY_COLUMNS[:-1]) + tuple(extra_columns) + ("value",)
-    meta = _meta(experiment, seed, config, columns)
-    csv_path = Path(csv_path) if csv_path is not None else None
     if resume and csv_path is None:
         raise ValueError("resume needs a csv_path (--out)")
-    previous = _read_previous(csv_path, meta, columns) if resume else []
+    table = _Table(Path(csv_path), _meta(experiment, seed, config, columns)) if csv_path is not None else None
+    previous = table.read() if resume else []
     # finished runs beyond this call's range stay in the table on disk (never deleted by a smaller --runs);
     # the result holds the runs asked for
     beyond = [row for row in previous if row["run"] >= runs]
@@ -262,9 +491,6 @@ def run_campaign(run_one: RunOne, config, runs: int, seed: int = 0, *, workers: 
     done = {row["run"] for row in previous}
     seeds = run_seeds(seed, runs)
     todo = [s for s in seeds if run_index(s) not in done]
-    if csv_path is not None:
-        csv_path.parent.mkdir(parents=True, exist_ok=True)
-        csv_path.with_name(csv_path.name + ".meta.json").write_text(json.dumps(meta, indent=1))
 
     rows: list[dict] = list(previous)
     failures: list[RunFailure] = []
@@ -272,8 +498,8 @@ def run_campaign(run_one: RunOne, config, runs: int, seed: int = 0, *, workers: 
     t0 = time.perf_counter()
 
     def checkpoint(force: bool = False) -> None:
-        if csv_path is not None and (force or time.monotonic() - last_write[0] >= checkpoint_seconds):
-            write_csv(csv_path, sort_rows(rows + beyond, columns), columns)
+        if table is not None and (force or time.monotonic() - last_write[0] >= checkpoint_seconds):
+            table.write(sort_rows(rows + beyond, columns))
             last_write[0] = time.monotonic()
 
     checkpoint(force=True)  # from now on the CSV holds exactly the rows of this configuration

@@ -118,7 +118,10 @@ class GaussianMixture:
         object.__setattr__(self, "_log_norm", log_norm)
         # Zero-mean mixtures with diagonal covariances (the usual noise models): the quadratic forms of
         # all components are one (K, d) @ (d, N) product of the squared points.
-        diagonal = not mu.any() and np.array_equal(cov, variances[:, :, None] * np.eye(mu.shape[1])) and np.all(variances > 0)
+        # (not for a subnormal variance, whose -0.5 / variance overflows: -inf * 0 at the mean would be NaN;
+        # the Cholesky path's 1 / sqrt(variance) stays finite there)
+        diagonal = not mu.any() and np.array_equal(cov, variances[:, :, None] * np.eye(mu.shape[1])) and np.all(
+            variances >= np.finfo(np.float64).tiny)
         object.__setattr__(self, "_neg_half_precision", -0.5 / variances if diagonal else None)
 
     @staticmethod
@@ -213,9 +216,9 @@ class GaussianMixture:
 
 def weighted_moments(points: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Weighted mean (d,) and covariance (d, d) of the columns of points, weights summing to one."""
-    mean = points @ weights
+    mean = points.dot(weights)  # (ndarray.dot: BLAS, several times faster than @ for a matrix times a vector)
     centred = points - mean[:, None]
-    return mean, (centred * weights) @ centred.T
+    return mean, (centred * weights).dot(centred.T)
 
 
 @dataclass(frozen=True)

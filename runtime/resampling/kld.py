@@ -2,6 +2,7 @@
 
     n = kld_sample_size(k, epsilon, delta)                     # Fox's bound, no clamping
     ancestors = kld_resample(weights, states, rng, KLDResampling(...))
+    SIRFilter(..., policy=KLDResampling(n_max=2000))          # a resampling policy: every step, N adapts
 
 ``kld_sample_size(k, epsilon, delta)`` is the number of draws that keeps the Kullback-Leibler
 distance between the histogram of the draws over k occupied bins and the true (binned)
@@ -33,12 +34,23 @@ fewer than N_min. Each draw is an independent categorical draw from the weights;
 time depends on them (through the bins they occupy). tests/runtime/test_kld.py checks that the
 resampled frequencies copies_i / n match w_i within their standard errors and that the weighted
 mean is preserved.
+
+Bins: the regular grid floor(x / width) along each binned coordinate, indexed relative to the cloud's
+lowest occupied bin (never from the origin, so a cloud far from the origin with small bins is binned like
+one near it). The indices of a cloud spanning fewer than 2^21 bins per coordinate are packed into one
+int64 key; a wider cloud is binned row-wise (``numpy.unique`` over the index rows). Beyond 2^53 bin
+widths from the origin doubles no longer resolve neighbouring bins: such particles share bins.
+
+As a resampling policy of the SIR engine (``ResamplingPolicy``'s interface): KLD-resampling resamples
+every step (``due``), its ``ancestors`` are ``kld_resample``'s (their number is the next step's
+particle number), and ``capacity(n)`` = max(n, n_max) sizes the engine's buffers.
 """
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import ClassVar
 
 import numpy as np
 from scipy.special import ndtri
@@ -77,13 +89,17 @@ def kld_sample_size(k, epsilon: float, delta: float):
 
 @dataclass(frozen=True)
 class KLDResampling:
-    """Parameters of KLD-resampling (defaults: seed 002 Table 6 and section 4.1).
+    """Parameters of KLD-resampling (defaults: seed 002 Table 6 and section 4.1), and the resampling policy
+    that applies it (module docstring).
 
     epsilon, delta: the KLD error bound and its confidence (0.15, 0.01); bin_size: bin widths
     along ``coordinates`` (the state rows binned: x, y with 10 m bins); n_min, n_max: the clamp of
     the particle number (n_max = 2000; n_min = 50, ours: the paper states none); chunk: draws per
     vectorised chunk.
     """
+
+    #: resample every step (a policy's threshold; not a field)
+    threshold: ClassVar[float] = 1.0
 
     epsilon: float = 0.15
     delta: float = 0.01
@@ -109,6 +125,24 @@ class KLDResampling:
         """limit(k) for k = 0..n_max (entry 0 unused), computed once per parameter set."""
         return _limit_table(self.epsilon, self.delta, int(self.n_min), int(self.n_max))
 
+    # ---------------------------------------------------------------- the resampling policy
+    def capacity(self, n_particles: int) -> int:
+        """The most particles a filter starting with n_particles holds: max(n_particles, n_max)."""
+        return max(int(n_particles), int(self.n_max))
+
+    def check(self, n_states: int) -> None:
+        """The binned coordinates must be rows of the state."""
+        if not all(0 <= c < n_states for c in self.coordinates):
+            raise ValueError(f"resampling.coordinates must name rows of the {n_states}-state, got {self.coordinates}")
+
+    def due(self, ess: float, n: int) -> bool:
+        """Every step."""
+        return True
+
+    def ancestors(self, weights: np.ndarray, rng: np.random.Generator, states: np.ndarray | None = None) -> np.ndarray:
+        """``kld_resample`` of the weighted states: n_min..n_max indices, the next particle number."""
+        return kld_resample(weights, states, rng, self)
+
 
 @lru_cache(maxsize=32)
 def _limit_table(epsilon, delta, n_min, n_max) -> np.ndarray:
@@ -116,15 +150,24 @@ def _limit_table(epsilon, delta, n_min, n_max) -> np.ndarray:
     return np.concatenate([[n_min], table])
 
 
-def _bin_keys(states: np.ndarray, params: KLDResampling) -> np.ndarray:
-    """One int64 key per column of states (n, N): the bin index along each binned coordinate, packed."""
-    key = np.zeros(states.shape[1], dtype=np.int64)
-    for row, width in zip(params.coordinates, params.bin_size):
-        index = np.floor(states[row] / width)
-        if not np.all(np.abs(index) < 2**20):
-            raise ValueError("kld_resample: a particle lies more than 2^20 bins from the origin (or is not finite)")
-        key = key * (2**21) + (index.astype(np.int64) + 2**20)
-    return key
+def _bin_of(states: np.ndarray, params: KLDResampling) -> np.ndarray:
+    """A dense bin number (0, 1, ...) per column of states (n, N): equal for particles in the same bin of the
+    grid along the binned coordinates (module docstring: indices relative to the cloud)."""
+    if not np.isfinite(states[list(params.coordinates)]).all():
+        raise ValueError("kld_resample: states must be finite along the binned coordinates")
+    index = np.empty((len(params.coordinates), states.shape[1]))
+    for i, (row, width) in enumerate(zip(params.coordinates, params.bin_size)):
+        with np.errstate(over="ignore"):
+            np.divide(states[row], width, out=index[i])
+        np.clip(index[i], -1e300, 1e300, out=index[i])  # a huge state over a tiny width: one far bin, never inf
+        np.floor(index[i], out=index[i])
+        index[i] -= index[i].min()  # relative to the cloud's lowest bin (exact for |index| < 2^53)
+    if 21 * index.shape[0] <= 63 and index.max(initial=0.0) < 2**21:
+        key = np.zeros(states.shape[1], dtype=np.int64)
+        for row in index:
+            key = key * (2**21) + row.astype(np.int64)
+        return np.unique(key, return_inverse=True)[1]
+    return np.unique(index, axis=1, return_inverse=True)[1].reshape(-1)
 
 
 def kld_resample(weights, states: np.ndarray, rng: np.random.Generator,
@@ -139,7 +182,7 @@ def kld_resample(weights, states: np.ndarray, rng: np.random.Generator,
     states = np.asarray(states, dtype=np.float64)
     if states.ndim != 2 or states.shape[1] != w.shape[0]:
         raise ValueError(f"states must have shape (n, {w.shape[0]}), got {states.shape}")
-    _, bin_of = np.unique(_bin_keys(states, params), return_inverse=True)  # dense bin index per particle
+    bin_of = _bin_of(states, params)
     occupied = np.zeros(int(bin_of.max()) + 1, dtype=bool)
     limit = params.limit_table()
     cumulative = np.cumsum(w)

@@ -151,7 +151,9 @@ def normalise_log_weights(log_weights: np.ndarray) -> tuple[np.ndarray, float]:
     weights fall back to uniform and the log-mean is -inf. The caller keeps the particles, which
     is the only unbiased choice without information, and can see from the -inf that it happened.
     """
-    log_weights = _real_vector(log_weights, "log_weights")
+    if not (type(log_weights) is np.ndarray and log_weights.dtype == np.float64 and log_weights.ndim == 1
+            and log_weights.shape[0]):  # (the checks cost more than the work for a filter's own weights)
+        log_weights = _real_vector(log_weights, "log_weights")
     n = log_weights.shape[0]
     peak = float(log_weights.max())  # NaN anywhere makes the maximum NaN
     if peak == -math.inf:
@@ -175,10 +177,16 @@ def effective_sample_size(weights: np.ndarray) -> float:
 
 @dataclass(frozen=True)
 class ResamplingPolicy:
-    """When and how to resample.
+    """When and how to resample, at a fixed particle number.
 
     scheme: a key of RESAMPLERS. threshold: resample when ESS < threshold * N; 1.0 (or more)
     means every step, 0 never.
+
+    A resampling policy (this class, or ``KLDResampling`` which also sets the next particle number) tells
+    the SIR engine (filters/particle/engine.py) three things: ``capacity(n)``, the most particles it can
+    ever ask for when a filter starts with n; ``due(ess, n)``, whether to resample now; and
+    ``ancestors(weights, rng, states)``, the indices of the particles kept (as many as the next step runs
+    with).
     """
 
     scheme: str = "systematic"
@@ -192,8 +200,20 @@ class ResamplingPolicy:
         if not self.threshold >= 0:
             raise ValueError(f"threshold must be >= 0, got {self.threshold}")
 
-    def should_resample(self, weights: np.ndarray) -> bool:
-        return self.threshold >= 1.0 or effective_sample_size(weights) < self.threshold * weights.shape[0]
+    def capacity(self, n_particles: int) -> int:
+        """The largest particle number this policy leads to from n_particles: n_particles (fixed N)."""
+        return n_particles
 
-    def ancestors(self, weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    def check(self, n_states: int) -> None:
+        """Whether the policy fits a state of n_states rows (nothing to check at a fixed N)."""
+
+    def due(self, ess: float, n: int) -> bool:
+        """Resample now? (every step at threshold >= 1, else when ESS < threshold * N)"""
+        return self.threshold >= 1.0 or ess < self.threshold * n
+
+    def should_resample(self, weights: np.ndarray) -> bool:
+        return self.due(effective_sample_size(weights), weights.shape[0])
+
+    def ancestors(self, weights: np.ndarray, rng: np.random.Generator, states: np.ndarray | None = None) -> np.ndarray:
+        """N ancestor indices drawn by the scheme (states unused at a fixed N)."""
         return RESAMPLERS[self.scheme](weights, rng, None)

@@ -6,8 +6,10 @@
     <m>_ukf_predict(x, P, u, p, dt, Q, abk)    -> (x_pred, P_pred, ok)
     <m>_ukf_update(x, P, z, p, R, mask, abk)   -> (x_post, P_post, innovation, S, ok)
     <m>_ckf_step(x, P, u, p, dt, Q, z, R, mask) -> (x_post, P_post, innovation, S, ok)
-                                                  calls predict then update (one C call per
-                                                  step for the runtime's step())
+                                                  calls predict then update (one C call)
+    <m>_ckf_predict_points(x, P)               -> (X, ok)           the points and weights of a predict, for
+    <m>_ckf_predict_weights()                  -> (wm, wc)          the C runtime (generated/c): it propagates
+    <m>_ukf_predict_points(x, P, abk), <m>_ukf_predict_weights(abk)  X through <m>_f_soa and forms the moments
 
 Predict (seed 000 eqs. 22-24, seed 002 eqs. 7-10): points from the symmetrised P by a guarded
 Cholesky factor, propagated through f, weighted mean, covariance of the residuals + Q (the
@@ -27,7 +29,9 @@ import casadi as ca
 from ..model import Model
 from .common import call_columns, exported, leaf, measurement, step_inputs, transition
 from .families import FUNCTIONS
-from .linalg import all_finite, guarded_cholesky, symmetrise, upper_mirrored, weight_groups, weighted_outer
+from .linalg import (
+    all_finite, guarded_cholesky, symmetrise, upper_mirrored, weight_groups, weighted_outer, weighted_sum,
+)
 from .measurement import gain_update, masked_columns, masked_covariance, masked_innovation, residual
 from .sigma_points import SigmaPointRule, cubature_rule, scaled_unscented_rule
 
@@ -40,6 +44,11 @@ STEP_IN = PREDICT_IN + ["z", "R", "mask"]
 #: a measurement of at most this many SX instructions (a selection of states, a range) is inlined at every
 #: point of an update instead of called in a loop: the loop's copies would cost more than h (benchmarks/README.md)
 INLINE_MEASUREMENT = 64
+#: an update whose measurement is inlined (INLINE_MEASUREMENT) and whose residual products m (m + 1) / 2 per point,
+#: times the points, are at most this many computes h at the points, their mean, the residuals and their weighted
+#: outer products in one leaf (straight-line SX) instead of a loop of calls over the points, whose calls and copies
+#: cost more than the few products (rov4dof: 240 products)
+INLINE_RESIDUALS = 1000
 
 
 def noise_leaf(model: Model, name: str, measurement_noise, extra_args=(), extra_names=()) -> ca.Function:
@@ -106,6 +115,9 @@ class SigmaPointFamily:
         <prefix>_measured_points(x, L, p, *rule_args) -> Z h at every point, inlined (a measurement of
                                                            at most INLINE_MEASUREMENT instructions;
                                                            a costlier h is called in a loop instead)
+        <prefix>_measured_moments(x, L, p, *rule_args) -> (z_pred, DZ, Czz)   instead, when the residuals'
+                                                           products are few (INLINE_RESIDUALS): h, the mean,
+                                                           the residuals and sum_k wc_k dz_k dz_k^T in one leaf
         <prefix>_weights(*rule_args) -> (wm, wc)           one mean and one covariance weight per
                                                            group of points with equal weights
         <prefix>_moments(L, DZ, Czz, z_pred, z, mask, *rule_args) -> (innovation, Pzz, Pxz)   masked,
@@ -130,13 +142,21 @@ class SigmaPointFamily:
         x, L = ca.SX.sym("x", n), ca.SX.sym("L", n, n)
         X = self.rule.points(x, ca.tril(L))
         self.points = leaf(f"{prefix}_points", [x, L, *self.rule_args], [X], ["x", "L", *self.rule_names], ["X"])
-        self.measured_points = None
+        self.measured_points = self.measured_moments = None
+        m, points = model.n_y, self.rule.n_points
         if self.shared.h.n_instructions() <= INLINE_MEASUREMENT:
             p = ca.SX.sym("p", model.n_p)
             h = ca.Function("h", [model.x, model.p], [model.y])  # inlined at each point
-            Z = ca.horzcat(*[h(X[:, k], p) for k in range(self.rule.n_points)])
-            self.measured_points = leaf(f"{prefix}_measured_points", [x, L, p, *self.rule_args], [Z],
-                                        ["x", "L", "p", *self.rule_names], ["Z"])
+            Z = ca.horzcat(*[h(X[:, k], p) for k in range(points)])
+            if m * (m + 1) // 2 * points <= INLINE_RESIDUALS:
+                z_pred = weighted_sum(Z, self.rule.wm)
+                DZ = ca.horzcat(*[residual(Z[:, k], z_pred, model.angle_outputs) for k in range(points)])
+                self.measured_moments = leaf(f"{prefix}_measured_moments", [x, L, p, *self.rule_args],
+                                             [z_pred, DZ, weighted_outer(DZ, self.rule.wc)],
+                                             ["x", "L", "p", *self.rule_names], ["z_pred", "DZ", "Czz"])
+            else:
+                self.measured_points = leaf(f"{prefix}_measured_points", [x, L, p, *self.rule_args], [Z],
+                                            ["x", "L", "p", *self.rule_names], ["Z"])
         groups_m, groups_c = weight_groups(self.rule.wm), weight_groups(self.rule.wc)
         self.ranges = [(ks[0], ks[-1] + 1) for _, ks in groups_m]
         if [list(range(a, b)) for a, b in self.ranges] != [ks for _, ks in groups_m] or \
@@ -212,6 +232,24 @@ class SigmaPointFamily:
         P_pred, ok_moments = self.shared.predicted(x_pred, C, s["Q"])
         return exported(name, s, {"x_pred": x_pred, "P_pred": P_pred, "ok": ok_points * ok_moments})
 
+    def predict_points_function(self, name: str) -> ca.Function:
+        """(x, P, *rule_args) -> (X, ok): the first half of the predict, the points as the rows of X
+        (n_points, n_x). Column-major, point k's entry i is at X[k + i n_points]: the structure-of-arrays layout
+        of the model's SIMD kernel <m>_f_soa with ld = n_points, so the C runtime propagates them in one call."""
+        s, rule, _ = self._inputs(["x", "P"])
+        L, ok = self.shared.cholesky(s["P"])
+        return exported(name, s, {"X": self.points(s["x"], L, *rule).T, "ok": ok})
+
+    def predict_weights_function(self, name: str) -> ca.Function:
+        """(*rule_args) -> (wm, wc): the mean and covariance weight of each point, in the order of predict_points'
+        rows (the C runtime forms the predicted moments of the propagated points with them, in loops over the
+        points that the compiler vectorises)."""
+        inputs = {name_: ca.MX.sym(name_, *arg.shape) for name_, arg in zip(self.rule_names, self.rule_args)}
+        rule = ca.Function(f"{self.prefix}_point_weights", self.rule_args,
+                           [ca.vertcat(*self.rule.wm), ca.vertcat(*self.rule.wc)], self.rule_names, ["wm", "wc"])
+        wm, wc = rule(*inputs.values()) if inputs else (ca.MX(ca.DM(rule()["wm"])), ca.MX(ca.DM(rule()["wc"])))
+        return exported(name, inputs, {"wm": wm, "wc": wc})
+
     def update_function(self, name: str, noise: ca.Function | None = None, extra_args=(), extra_names=()) -> ca.Function:
         """(x, P, z, p, R, mask, *rule_args, *extra) -> (x_post, P_post, innovation, S, ok).
 
@@ -220,13 +258,16 @@ class SigmaPointFamily:
         """
         s, rule, extra = self._inputs(UPDATE_IN, extra_args, extra_names)
         L, ok_points = self.shared.cholesky(s["P"])
-        if self.measured_points is not None:
-            Z = self.measured_points(s["x"], L, s["p"], *rule)
+        if self.measured_moments is not None:
+            z_pred, DZ, Czz = self.measured_moments(s["x"], L, s["p"], *rule)
         else:
-            Z = call_columns(self.shared.h, self.points(s["x"], L, *rule), s["p"])
-        wm, wc = self._group_weights(rule)
-        z_pred = self._mean(wm, Z)
-        DZ, Czz = self._looped(wc, self.shared.residual, [Z], [z_pred], summed=(1,))
+            if self.measured_points is not None:
+                Z = self.measured_points(s["x"], L, s["p"], *rule)
+            else:
+                Z = call_columns(self.shared.h, self.points(s["x"], L, *rule), s["p"])
+            wm, wc = self._group_weights(rule)
+            z_pred = self._mean(wm, Z)
+            DZ, Czz = self._looped(wc, self.shared.residual, [Z], [z_pred], summed=(1,))
         innovation, Pzz, Pxz = self.measurement_moments(L, DZ, Czz, z_pred, s["z"], s["mask"], *rule)
         R_used, ok_noise = (noise or self.shared.noise)(s["R"], s["mask"], Pzz, innovation, *extra)
         x_post, P_post, S, ok = self.shared.kalman(s["x"], s["P"], Pzz, Pxz, R_used, innovation)
@@ -250,7 +291,9 @@ def ckf_functions(model: Model, shared: SharedLeaves | None = None) -> tuple[ca.
     names = FUNCTIONS["ckf"]
     predict = family.predict_function(f"{m}_{names['predict']}")
     update = family.update_function(f"{m}_{names['update']}")
-    return predict, update, fused_step(f"{m}_{names['step']}", model, predict, update)
+    return (predict, update, fused_step(f"{m}_{names['step']}", model, predict, update),
+            family.predict_points_function(f"{m}_{names['predict_points']}"),
+            family.predict_weights_function(f"{m}_{names['predict_weights']}"))
 
 
 def unscented_family(model: Model, shared: SharedLeaves | None = None) -> SigmaPointFamily:
@@ -265,4 +308,6 @@ def ukf_functions(model: Model, family: SigmaPointFamily | None = None) -> tuple
     m = model.name
     family = family or unscented_family(model)
     names = FUNCTIONS["ukf"]
-    return family.predict_function(f"{m}_{names['predict']}"), family.update_function(f"{m}_{names['update']}")
+    return (family.predict_function(f"{m}_{names['predict']}"), family.update_function(f"{m}_{names['update']}"),
+            family.predict_points_function(f"{m}_{names['predict_points']}"),
+            family.predict_weights_function(f"{m}_{names['predict_weights']}"))

@@ -51,7 +51,8 @@ def test_the_model_step_is_emitted_once_for_every_sigma_point_family(chain_files
 
 
 def test_fused_steps_call_predict_and_update_in_the_same_file(chain_files):
-    assert set(chain_files) == {"chain3_model.c", "chain3_ekf.c", "chain3_sigma_points.c", "chain3_soa.c", "manifest.json"}
+    assert set(chain_files) == {"chain3_model.c", "chain3_ekf.c", "chain3_sigma_points.c", "chain3_soa.c",
+                                "chain3_descriptor.c", "manifest.json"}
     for family, file in (("ekf", "chain3_ekf.c"), ("ckf", "chain3_sigma_points.c")):
         for part in ("predict", "update", "step"):
             assert leaf_definitions(chain_files[file], f"chain3_{family}_{part}") == 1, (family, part)
@@ -105,3 +106,14 @@ def test_generated_steps_keep_their_values_when_restructured():
     np.testing.assert_allclose(np.array(x_pred).ravel(), np.array(ca.evalf(mean)).ravel(), rtol=1e-13, atol=1e-15)
     np.testing.assert_allclose(np.array(P_pred), np.array(ca.evalf(cov)), rtol=1e-12, atol=1e-15)
     assert float(ok) == 1.0
+
+
+def test_soa_kernels_compute_shared_work_once_before_the_loop(chain_files):
+    """What depends only on p, dt and constants (here g/l, the damping, the spring, dt/2, dt/6) is evaluated once
+    per call, before the loop over particles; sin stays in the loop (libmvec's vector sin)."""
+    text = chain_files["chain3_soa.c"]
+    kernel = text[text.index("int chain3_f_soa("):]
+    before, loop = kernel.split("ABYSSAL_SIMD_LOOP", 1)
+    assert before.count("const casadi_real c") >= 6 and "a2[" in before and "a3[" in before
+    loop = loop[: loop.index("return 0;")]
+    assert "a2[" not in loop and "a3[" not in loop and "sin(" in loop and "sin(" not in before

@@ -64,6 +64,12 @@ def test_non_editable_install_writes_only_into_the_user_folder(tmp_path):
     checked = subprocess.run([abyssal, "regenerate", "--model", "cybership.py:cybership", "--out", "gen", "--check"],
                              cwd=project, env=env, capture_output=True, text=True)
     assert checked.returncode == 0, checked.stderr
+    exported = subprocess.run([abyssal, "export", "gen/cybership", "--filter", "ekf", "--out", "cybership_ekf", "--steps",
+                               "200"], cwd=project, env=env, capture_output=True, text=True)
+    assert exported.returncode == 0, exported.stderr  # the runtime's C and the project's templates are package data
+    for name in ("CMakeLists.txt", "include/abyssal_kalman.hpp", "src/abyssal_kalman.c", "examples/run_csv.c",
+                 "tests/wrapper_test.cpp", "tests/vectors/expected.csv"):
+        assert (project / "cybership_ekf" / name).is_file(), name
     inside = subprocess.run([abyssal, "regenerate", "--model", "cybership.py:cybership", "--out", str(installed)],
                             cwd=project, env=env, capture_output=True, text=True)
     assert inside.returncode == 2 and "never written to" in inside.stderr

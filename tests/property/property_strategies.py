@@ -109,8 +109,6 @@ KNOWN_BUGS = {
 #: registered filter classes that cannot be fuzzed until a known bug is fixed (their property tests are
 #: marked xfail(strict=True) with the bug's reason)
 CLASS_BUGS: dict[str, str] = {}
-#: registered filter classes with a known permanent divergence in the quick soak
-SOAK_BUGS: dict[str, str] = {}
 
 
 

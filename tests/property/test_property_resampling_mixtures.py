@@ -157,10 +157,10 @@ def test_kld_resample_refuses_or_draws_valid_ancestors(weights, data, seed):
         with pytest.raises(ValueError, match="weights"):
             kld_resample(weights, states, rng, params)
         return
-    if fault is not None:
+    if fault in ("nan", "shape"):
         with pytest.raises(ValueError, match="states|particle"):
             kld_resample(weights, states, rng, params)
         return
-    idx = kld_resample(weights, states, rng, params)
+    idx = kld_resample(weights, states, rng, params)  # a huge (finite) state is binned relative to the cloud
     assert 5 <= idx.size <= 60 and idx.dtype.kind == "i"
     assert np.all((idx >= 0) & (idx < weights.size)) and np.all(weights[idx] > 0)

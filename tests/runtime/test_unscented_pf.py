@@ -20,16 +20,21 @@ def trial():
 def test_batched_update_equals_single_calls(cn, trial):
     f = UnscentedParticleFilter(cn, trial.x0, trial.P0, Q, R, 100, 0, update="mcc")
     f.step(trial.U[0], trial.dt, trial.Z[0], trial.params[0])
-    f._u[:], f._dt[0], f.p[:] = trial.U[1], trial.dt, trial.params[1]
-    f._z[:] = trial.Z[1]
-    f._predict_batch(f.N)
-    f._update_batch(f.N)
+    proposal = f.proposal
+    pb, ub = proposal._pb, proposal._ub
+    mean, cov = f.particles.copy(), f.carried.copy()
+    pb.mean[:, :f.N], pb.u[:], pb.dt[0], f.p[:] = mean, trial.U[1], trial.dt, trial.params[1]
+    ub.set_measurement(trial.Z[1])
+    pb(f.N)
+    ub(f.N)
     for j in (0, 17, 99):
-        xp, Pp, _ = cn.function("ukf_predict")(f.mean[:, j], f.cov[:, :, j], trial.U[1], trial.params[1], trial.dt, Q, f.abk)
-        np.testing.assert_allclose(np.ravel(xp), f.mean_pred[:, j], rtol=1e-13, atol=1e-9)
-        xu, Pu, *_ = cn.function("mcukf_update")(xp, Pp, trial.Z[1], trial.params[1], R, np.ones(1), f.abk, np.array([15.0]))
-        np.testing.assert_allclose(np.ravel(xu), f.mean_post[:, j], rtol=1e-13, atol=1e-9)
-        np.testing.assert_allclose(np.asarray(Pu), f.cov_post[:, :, j], rtol=1e-12, atol=1e-12)
+        xp, Pp, _ = cn.function("ukf_predict")(mean[:, j], cov[:, :, j], trial.U[1], trial.params[1], trial.dt, Q,
+                                               proposal.abk)
+        np.testing.assert_allclose(np.ravel(xp), pb.mean_pred[:, j], rtol=1e-13, atol=1e-9)
+        xu, Pu, *_ = cn.function("mcukf_update")(xp, Pp, trial.Z[1], trial.params[1], R, np.ones(1), proposal.abk,
+                                                 np.array([15.0]))
+        np.testing.assert_allclose(np.ravel(xu), ub.mean_post[:, j], rtol=1e-13, atol=1e-9)
+        np.testing.assert_allclose(np.asarray(Pu), ub.cov_post[:, :, j], rtol=1e-12, atol=1e-12)
 
 
 @pytest.mark.parametrize("update,kw", [("mcc", {"sigma": np.inf}), ("huber", {"gamma": 1e12})])
@@ -72,7 +77,7 @@ def test_refused_step_leaves_filter_bit_identical(cn, trial):
             f.step(**args)
         after = f.checkpoint()
         np.testing.assert_array_equal(before["particles"], after["particles"])
-        np.testing.assert_array_equal(before["carried"], after["carried"])
+        np.testing.assert_array_equal(before["proposal"]["carried"], after["proposal"]["carried"])
         assert before["rng"] == after["rng"]  # random generator state
 
 

@@ -137,6 +137,9 @@ def test_filter_units_follow_the_naming_contract():
         "cn2d_ekf_step": (predict_in + ["z", "R", "mask"], update_out),
         "cn2d_F": (["x", "u", "p", "dt"], ["dfdx"]),
         "cn2d_ckf_step": (predict_in + ["z", "R", "mask"], update_out),
+        # the rule of a sigma-point predict, for the C runtime (it propagates X through the SIMD kernel)
+        "cn2d_ckf_predict_points": (["x", "P"], ["X", "ok"]), "cn2d_ckf_predict_weights": ([], ["wm", "wc"]),
+        "cn2d_ukf_predict_points": (["x", "P", "abk"], ["X", "ok"]), "cn2d_ukf_predict_weights": (["abk"], ["wm", "wc"]),
     }
     assert set(functions) == set(expected)
     for name, (ins, outs) in expected.items():
@@ -144,6 +147,13 @@ def test_filter_units_follow_the_naming_contract():
         assert fn.name_in() == ins and fn.name_out() == outs, name
         if name == "cn2d_F":
             assert fn.size_out(0) == (model.n_x, model.n_x)
+            continue
+        if name.endswith("_predict_points"):  # the points as rows: the SIMD kernel's layout
+            points = 2 * model.n_x + ("ukf" in name)
+            assert fn.size_out("X") == (points, model.n_x) and fn.size_out("ok") == (1, 1)
+            continue
+        if name.endswith("_predict_weights"):
+            assert fn.size_out("wm") == fn.size_out("wc") == (2 * model.n_x + ("ukf" in name), 1)
             continue
         assert fn.size_out("ok") == (1, 1)
         assert fn.size_out(1) == (model.n_x, model.n_x)

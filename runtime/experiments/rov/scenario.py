@@ -217,18 +217,21 @@ def make_filter(name: str, bundle, scenario: RovScenario, sea: SeaState, n_parti
     Names: FILTER_NAMES, plus "CPF-optimal" (the CPF with the locally optimal proposal). The
     process noise is the covariance matrix Q_k of the scenario's reading (singular under
     "plain": the particle filters then work on its positive-definite subspace); the CKF gets the
-    moment-matched R of the sea state. `options` go to the filter's constructor.
+    moment-matched R of the sea state. `options` go to the filter's constructor. The SIR filters run
+    without the innovation gate, as the paper's (with it, the carried-P^i CPF, overconfident at sea
+    states 0 and 1-2, is gated there and its numbers change).
     """
     from ...filters import kalman as kf, mixture as mix, particle as pf
 
     x0, P0 = np.asarray(scenario.x0_hat, dtype=np.float64), scenario.P0
     Q, R = scenario.process_covariance(bundle), sea.measurement_noise()
+    ungated = {"gate_probability": 0.0, **options}  # the paper's particle filters have no innovation gate
     builders = {
-        "PF": lambda: pf.ParticleFilter(bundle, x0, P0, Q, R, n_particles, rng, **options),
+        "PF": lambda: pf.ParticleFilter(bundle, x0, P0, Q, R, n_particles, rng, **ungated),
         "CKF": lambda: kf.CKF(bundle, x0, P0, Q, R.covariance(), **options),
-        "CPF": lambda: pf.CubatureParticleFilter(bundle, x0, P0, Q, R, n_particles, rng, **options),
+        "CPF": lambda: pf.CubatureParticleFilter(bundle, x0, P0, Q, R, n_particles, rng, **ungated),
         "CPF-optimal": lambda: pf.CubatureParticleFilter(bundle, x0, P0, Q, R, n_particles, rng,
-                                                         **{"proposal": "optimal", **options}),
+                                                         **{"proposal": "optimal", **ungated}),
         "MOGCPF": lambda: mix.MixtureCubatureParticleFilter(bundle, x0, P0, Q, R, n_particles, rng, **options),
         "EM-MOGCPF": lambda: mix.EMMixtureCubatureParticleFilter(bundle, x0, P0, Q, R, n_particles, rng, **options),
         "GS-CKF": lambda: mix.GaussianSumCKF(bundle, x0, P0, Q, R, rng=rng, **options),

@@ -15,113 +15,130 @@ cannot follow): each further update that gates it asks for P to be multiplied by
 until the entry passes (inflation, not a reset: a reset returns to the state the filter could not
 follow). ``gated`` counts the entries left out, ``inflations`` the inflations.
 
+One implementation: the rule is C (generated/c/abyssal_kalman_gate.c: the quantiles, the NIS by a Cholesky
+factor of S, the selection's rounds, the streaks); this class holds a gate object in a NumPy buffer and calls
+it, as the Kalman runtime does from C inside every EKF/UKF/CKF step. The NIS is computed exactly (a guarded
+Cholesky factor of S, +inf when S is not positive definite or the value overflows): in C it costs less than
+any bound, so ``S_dominates_R`` is accepted and not needed.
+
 Conventions of the generated updates: nu is (m,) with 0 on unused entries and S (m, m) with
 identity rows there, so a NIS over all rows is the NIS of the present ones.
 """
 from __future__ import annotations
 
-import math
-
 import numpy as np
-from scipy.stats import chi2
+
+from abyssal.generated import kalman_runtime as kr
 
 from ...contract import Stateful
 
 __all__ = ["InnovationGate"]
 
-_INF = math.inf
+_ACCEPT, _RETRY, _REJECT = 0, 1, 2
 
 
 class InnovationGate(Stateful):
     """Chi-square innovation gate with entry-wise outlier rejection and recovery by inflation (module docstring).
 
-    S_dominates_R: S = (predicted measurement covariance) + R with a positive semi-definite first term,
-    so nu^T R^-1 nu bounds the NIS from above (the EKF, the CKF, a UKF with non-negative weights): a
-    complete measurement is then passed on that bound before any exact NIS is computed.
+    R: the measurement covariance (its size m is the gate's; the gate needs no more of it).
     """
+
+    _state = ("_block",)
 
     def __init__(self, R: np.ndarray, *, probability: float = 1e-10, patience: int = 5, inflation: float = 4.0,
                  S_dominates_R: bool = False):
-        if not 0.0 <= probability < 1.0:
-            raise ValueError(f"gate_probability must be in [0, 1) (0: no gate), got {probability!r}")
-        if not (inflation >= 1.0 and int(patience) >= 1):
-            raise ValueError(f"gate_inflation >= 1 and gate_patience >= 1 are required, got {inflation!r}, {patience!r}")
-        m = R.shape[0]
-        self.probability, self.patience, self.inflation = float(probability), int(patience), float(inflation)
+        runtime = kr.KalmanRuntime.standalone()
+        m = int(np.shape(R)[0])
+        size = runtime.gate_size(m)
+        memory = np.zeros(size // 8)
+        code = runtime.gate_init(memory.ctypes.data, size, m, float(probability), int(patience), float(inflation), None)
+        if code != 0:
+            raise ValueError(f"gate_probability must be in [0, 1) (0: no gate), gate_patience >= 1 and 1 <= gate_inflation "
+                             f"< inf are required, got gate_probability={probability!r}, gate_patience={patience!r}, "
+                             f"gate_inflation={inflation!r}")
         self.S_dominates_R = S_dominates_R
-        # chi-square quantiles, index = degrees of freedom (inf: gate off)
-        self.thresholds = np.full(m + 1, _INF) if probability == 0 else np.concatenate(
-            [[_INF], chi2.isf(probability, np.arange(1, m + 1))])
-        self._m = m
-        #: measurement entries left out so far
-        self.gated = 0
-        #: covariance inflations asked for after `patience` consecutive gated updates of an entry
-        self.inflations = 0
-        self._streak = np.zeros(m, dtype=int)  # consecutive gated updates of each entry
-        #: any streak > 0 (a bool: the hot path reads it before calling accepted_all)
-        self.streaking = False
-        self.set_R(R)
+        self._attach(runtime, memory, 0)
+
+    @classmethod
+    def over(cls, memory: np.ndarray, offset: int) -> "InnovationGate":
+        """The gate object at byte `offset` of `memory` (a Kalman filter's), without copying it."""
+        gate = cls.__new__(cls)
+        gate.S_dominates_R = False
+        gate._attach(kr.KalmanRuntime.standalone(), memory, offset)
+        return gate
+
+    def _attach(self, runtime, memory: np.ndarray, offset: int) -> None:
+        header = kr.GateHeader.from_buffer(memory, offset)
+        self._runtime, self._memory, self._address = runtime, memory, memory.ctypes.data + offset
+        self._m = header.m
+        self.probability, self.patience, self.inflation = header.probability, header.patience, header.inflation
+        self._block = np.frombuffer(memory, np.float64, header.bytes // 8, offset)
+        #: chi-square quantiles, index = degrees of freedom (inf: gate off); a view of the C gate's
+        self.thresholds = np.frombuffer(memory, np.float64, self._m + 1, offset + header.thresholds)
+        self._counters = {name: np.frombuffer(memory, np.int64, 1, offset + getattr(kr.GateHeader, name).offset)
+                          for name in ("gated", "inflations", "streaking")}
+        self._scratch = np.zeros(self._m * self._m + self._m)
+        self._nis = np.zeros(1)
+
+    @property
+    def gated(self) -> int:
+        """Measurement entries left out so far."""
+        return int(self._counters["gated"][0])
+
+    @property
+    def inflations(self) -> int:
+        """Covariance inflations asked for after `patience` consecutive gated updates of an entry."""
+        return int(self._counters["inflations"][0])
+
+    @property
+    def streaking(self) -> bool:
+        """Whether some entry has been gated in its last update(s)."""
+        return bool(self._counters["streaking"][0])
 
     def set_R(self, R: np.ndarray) -> None:
-        """The measurement covariance behind the cheap bounds (R must be positive definite)."""
-        self._R_inv = np.linalg.inv(R)
-        self._R_inv_norm = 1.0 / float(np.linalg.eigvalsh(R)[0])  # 1 / lambda_min(R)
+        """Kept for the API: the exact NIS needs nothing of R (its size is fixed at construction)."""
+        if np.shape(R)[0] != self._m:
+            raise ValueError(f"R must be ({self._m}, {self._m}) for this gate, got {np.shape(R)}")
 
-    # the counters are the gate's state; a tuple (not the generic dict) keeps an update's snapshot cheap
-    def checkpoint(self):
-        return self.gated, self.inflations, self._streak.copy() if self.streaking else None
+    def _vectors(self, nu, S):
+        nu = np.ascontiguousarray(nu, dtype=np.float64)
+        S = np.asfortranarray(S, dtype=np.float64)
+        if nu.shape != (self._m,) or S.shape != (self._m, self._m):
+            raise ValueError(f"nu must be ({self._m},) and S ({self._m}, {self._m}), got {nu.shape} and {S.shape}")
+        return nu, S
 
-    def restore(self, state) -> None:
-        self.gated, self.inflations, streak = state
-        self._streak[:] = 0 if streak is None else streak
-        self.streaking = streak is not None
+    def nis(self, nu: np.ndarray, S: np.ndarray) -> float:
+        """nu^T S^-1 nu by a Cholesky factor of S (+inf when S is not positive definite or it overflows)."""
+        nu, S = self._vectors(nu, S)
+        return float(self._runtime.nis(self._m, nu.ctypes.data, S.ctypes.data, self._scratch.ctypes.data))
 
     def passes(self, nu: np.ndarray, S: np.ndarray, dof: int) -> bool:
-        """Whether an update with innovation nu and covariance S over dof entries passes. Cheap bounds first
-        (S >= R): NIS <= |nu|^2 / lambda_min(R), then NIS <= nu^T R^-1 nu, then the exact NIS."""
+        """Whether an update with innovation nu and covariance S over dof entries passes."""
         threshold = self.thresholds[dof]
-        if threshold == _INF:
-            return True
-        if self.S_dominates_R and dof == self._m:
-            bound = nu.dot(nu) * self._R_inv_norm  # >= nu^T R^-1 nu, so the next line cannot overflow below 1e300
-            if bound <= threshold or (bound < 1e300 and nu.dot(self._R_inv).dot(nu) <= threshold):
-                return True
-        with np.errstate(over="ignore", invalid="ignore"):  # a huge innovation: inf/NaN fail the gate
-            nis = float(nu @ np.linalg.solve(S, nu))
-        return math.isfinite(nis) and nis <= threshold
+        return bool(threshold == np.inf or self.nis(nu, S) <= threshold)
 
     def select(self, evaluate, present: np.ndarray) -> tuple[np.ndarray | None, np.ndarray]:
         """(the entries of the accepted update or None, the entries gated), trying the update with the present
         entries and then at most once without the entries to blame. evaluate(entries) runs the update with
         those entries and returns its (nu, S); the last call is the accepted update when one is returned."""
-        gated = np.zeros_like(present)
-        for _ in range(2):
-            nu, S = evaluate(present)
-            if self.passes(nu, S, int(present.sum())):
+        present = np.array(present, dtype=bool)
+        gated = np.zeros(self._m, dtype=bool)
+        for round_ in range(2):
+            nu, S = self._vectors(*evaluate(present.copy()))
+            verdict = self._runtime.gate_judge(self._address, round_, nu.ctypes.data, S.ctypes.data, present.ctypes.data,
+                                               gated.ctypes.data, self._nis.ctypes.data, self._scratch.ctypes.data)
+            if verdict == _ACCEPT:
                 return present, gated
-            with np.errstate(over="ignore", invalid="ignore"):
-                outliers = present & ~(nu * nu <= self.thresholds[1] * np.diag(S))  # NaN/inf count as outliers
-            if not outliers.any() or outliers.sum() == present.sum():
+            if verdict == _REJECT:
                 break
-            gated = gated | outliers
-            present = present & ~outliers
-        return None, gated | present  # nothing usable is left: the whole measurement is gated
+        return None, gated
 
     def note(self, gated: np.ndarray, present: np.ndarray) -> bool:
         """Count the gated entries of an update over `present`; True when P is to be inflated."""
-        self.gated += int(gated.sum())
-        streak = self._streak
-        streak[present & ~gated] = 0
-        streak[gated] += 1
-        self.streaking = bool(streak.any())
-        if gated.any() and streak.max() >= self.patience:
-            self.inflations += 1
-            return True
-        return False
+        gated = np.ascontiguousarray(gated, dtype=bool)
+        present = np.ascontiguousarray(present, dtype=bool)
+        return bool(self._runtime.gate_note(self._address, gated.ctypes.data, present.ctypes.data))
 
     def accepted_all(self) -> None:
         """A complete measurement passed: every streak ends."""
-        if self.streaking:
-            self._streak[:] = 0
-            self.streaking = False
-
+        self._runtime.gate_accepted_all(self._address)

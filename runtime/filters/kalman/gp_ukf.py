@@ -17,6 +17,9 @@ On the filter contract (abyssal.runtime.contract, FilterBase): checked inputs, N
 left out, ``step`` one transaction, refusals leave the filter unchanged; the innovation gate and
 the growth limit of every Kalman-type filter (gate.py, numerics.grew_beyond); dt must equal the
 step the GPs were trained on (their increments are over that step), anything else is refused.
+Parameters: the learned prediction has none (the GPs were trained at fixed parameters), so
+``predict(u, dt, p)`` with a p is refused rather than ignored; p is the observation model's, used
+by ``update(z, p)`` and by the update of ``step(u, dt, z, p)``.
 """
 from __future__ import annotations
 
@@ -26,7 +29,7 @@ import math
 import casadi as ca
 import numpy as np
 
-from ...contract import FilterBase, check_covariance, check_dt, check_state, register
+from ...contract import FilterBase, check_covariance, check_dt, check_p, check_state, register
 from ...numerics import factorable_covariance, grew_beyond
 from .gate import InnovationGate
 
@@ -91,6 +94,13 @@ class GPUKF(FilterBase):
         return self.gate.gated
 
     # ------------------------------------------------------------------ the contract's hooks (FilterBase)
+    def _predict_call(self, u, dt, p) -> None:
+        if p is not None:  # a malformed p is named as such first
+            check_p(p, self.model)
+            raise ValueError("GPUKF.predict: p is not used by a prediction (the GPs learned the dynamics at fixed "
+                             "parameters); p is the observation model's: give it to update() or step(). State unchanged")
+        super()._predict_call(u, dt, None)
+
     def _predict(self, u, dt) -> None:
         if abs(dt - self.gp_dt) > 1e-9 * self.gp_dt:
             raise ValueError(f"dt must be the GPs' training step {self.gp_dt} s (their increments are over it), got {dt}")

@@ -33,7 +33,7 @@ import numpy as np
 from scipy.special import digamma
 
 from ...contract import FilterBase, check_covariance, check_state, register
-from ...numerics import factorable_covariance, grew_beyond
+from ...numerics import angle_indices, factorable_covariance, grew_beyond, wrap_angles
 from .gate import InnovationGate
 
 __all__ = ["IVBCKF"]
@@ -46,10 +46,20 @@ class IVBCKF(FilterBase):
     gate_probability, gate_patience, gate_inflation: the innovation gate of every Kalman-type filter
     (gate.py), applied to the update at the prior (the first fixed-point pass); growth_limit: a predict
     whose covariance grows more than this (numerics.grew_beyond) is refused (this filter does not subdivide dt).
+
+    A vanished measurement: the VB discounts an outlier by E[lambda] (R scaled by 1 / E[lambda]). When it ends
+    below ``DISCOUNTED`` in ``gate_patience`` consecutive updates, the filter, not the sensor, is taken to be
+    wrong (its estimate jumped: a glitch of u accepted, or a long outage; with a huge P a nonlinear h makes B,
+    and so 1 / E[lambda], huge at every later update, a fixed point that never lets a measurement in): the next
+    updates are plain cubature updates with the measurement at face value (E[xi] = E[lambda] = 1, counted in
+    ``recoveries``) until the E[lambda] the VB would give is back above ``DISCOUNTED``.
     """
 
     name = "IVBCKF"
-    _state = ("_x", "_P", "nis", "nis_dof", "xi", "lam", "gate")
+    _state = ("_x", "_P", "nis", "nis_dof", "xi", "lam", "gate", "_discounted_streak", "recoveries")
+    #: an update whose E[lambda] ends below this counted the measurement at under a thousandth of its weight
+    #: (a squared Mahalanobis residual of ~6000 with the default nu): the measurement was discounted
+    DISCOUNTED = 1e-3
 
     def __init__(self, model, x0, P0, Q, R, *, chi: float = 5.0, phi: float = 1.0, kappa: float = 5.0,
                  zeta: float = 1.0, u: float | None = None, t: float | None = None, iterations: int = 10,
@@ -75,8 +85,12 @@ class IVBCKF(FilterBase):
         self._predict_fn = model.function("ckf_predict")
         self._update_fn = model.function("ckf_update")
         self._h = model.function("h")
+        self._angle_outputs = angle_indices(model, "outputs")
         self.nis, self.nis_dof = math.nan, 0
         self.xi, self.lam = 1.0, 1.0  # the last step's E[xi], E[lambda] (for inspection)
+        self._discounted_streak = 0  # consecutive updates whose measurement the VB discounted (E[lambda] < DISCOUNTED)
+        #: updates run with the measurement at face value (E[lambda] = 1) after gate_patience discounted ones
+        self.recoveries = 0
 
     @property
     def gated(self) -> int:
@@ -102,7 +116,10 @@ class IVBCKF(FilterBase):
         if self.gate.probability > 0.0:  # (off: no prior update to test)
             accepted, gated = self.gate.select(lambda entries: self._prior_innovation(z, entries), present)
         if accepted is not None:
-            self._vb_update(z, accepted)
+            trust_sensor = self._discounted_streak >= self.gate.patience
+            self._vb_update(z, accepted, trust_sensor)
+            self.recoveries += trust_sensor
+            self._discounted_streak = self._discounted_streak + 1 if self.lam < self.DISCOUNTED else 0
         if self.gate.note(gated, present):
             self._P = self._P * self.gate.inflation
         return accepted is not None
@@ -116,15 +133,17 @@ class IVBCKF(FilterBase):
         return np.asarray(innovation, dtype=float).reshape(-1), np.atleast_2d(np.asarray(S, dtype=float))
 
     def _cubature_B(self, x, P, z, p, present) -> np.ndarray:
-        """E[(z - h(x))(z - h(x))^T] over the 2n cubature points of N(x, P) (present rows)."""
+        """E[(z - h(x))(z - h(x))^T] over the 2n cubature points of N(x, P) (present rows; angle outputs' residuals
+        wrapped to (-pi, pi], as the generated update wraps its innovation: a heading state 2 pi away from the
+        compass is the same heading, not a 2 pi outlier that would scale R up and starve every update)."""
         n = x.size
         L = np.linalg.cholesky(0.5 * (P + P.T))
         points = x[:, None] + math.sqrt(n) * np.hstack([L, -L])
-        Y = np.stack([np.asarray(self._h(points[:, i], p)).reshape(-1) for i in range(2 * n)], axis=1)
-        r = (z[present, None] - Y[present])
+        Y = np.asarray(self._h.batch(2 * n, np.asfortranarray(points), p)).reshape(-1, 2 * n)  # one C call, 2n slices
+        r = wrap_angles(z[:, None] - Y, self._angle_outputs, axis=0)[present]
         return r @ r.T / (2 * n)
 
-    def _vb_update(self, z, present) -> None:
+    def _vb_update(self, z, present, trust_sensor: bool = False) -> None:
         p = self._p
         n, m_all = self.model.n_x, self.model.n_y
         m = int(present.sum())
@@ -138,7 +157,7 @@ class IVBCKF(FilterBase):
         E_xi = E_lam = 1.0
         E_omega, E_nu = self.chi / self.phi, self.kappa / self.zeta
         R_full = np.array(self.R)
-        for _ in range(self.iterations):
+        for _ in range(1 if trust_sensor else self.iterations):  # trusted: one plain cubature update (xi = lambda = 1)
             P_t = np.linalg.inv(E_Pinv) / E_xi
             R_t = np.linalg.inv(E_Rinv) / E_lam
             R_full[np.ix_(present, present)] = R_t
@@ -149,12 +168,14 @@ class IVBCKF(FilterBase):
             x, P = np.asarray(x).reshape(-1), np.asarray(P)
             if not ok:
                 raise ValueError("IVBCKF update failed (covariance not positive definite)")
+            if trust_sensor:
+                break
             d = x - x_prior
             A = np.outer(d, d) + P
-            B = self._cubature_B(x, P, z, p, present)
             eta, theta = 0.5 * (E_omega + n), 0.5 * (E_omega + np.trace(A @ E_Pinv))
             E_xi = eta / theta
             E_omega = (self.chi + 0.5) / (self.phi + 0.5 * E_xi - 0.5 - 0.5 * (digamma(eta) - math.log(theta)))
+            B = self._cubature_B(x, P, z, p, present)
             eta_l, theta_l = 0.5 * (E_nu + m), 0.5 * (E_nu + np.trace(B @ E_Rinv))
             E_lam = eta_l / theta_l
             E_nu = (self.kappa + 0.5) / (self.zeta + 0.5 * E_lam - 0.5 - 0.5 * (digamma(eta_l) - math.log(theta_l)))
@@ -162,6 +183,8 @@ class IVBCKF(FilterBase):
             E_Rinv = (self.t - m) * np.linalg.inv(T0 + E_lam * B)
         if not (np.all(np.isfinite(x)) and np.all(np.isfinite(P))):
             raise ValueError("IVBCKF update diverged")
+        if trust_sensor:  # report the E[lambda] the VB would give at this posterior (it decides whether to go on trusting)
+            E_lam = (E_nu + m) / (E_nu + np.trace(self._cubature_B(x, P, z, p, present) @ E_Rinv))
         self._x, self._P = x, 0.5 * (P + P.T)
         nu = np.asarray(innovation).reshape(-1)[present]
         S = np.atleast_2d(np.asarray(S))

@@ -49,12 +49,13 @@ Decisions where seed 000 is ambiguous:
   components would never separate under EM or Gaussian-sum updates).
 * Extra baseline ``GaussianSumCKF``: the Gaussian-sum CKF with the exact mixture measurement
   noise (MOGCPF without particles), reduced to G components by ``reduce_mixture``.
-* Outlier gate (not in the paper): a measurement entry more than 100 standard deviations of S
-  from its prediction is left out of the cubature update (see ``CubatureUpdateBatch``); the
-  particle weights still use the exact likelihood, normalised in the log domain. When the
-  likelihood underflows at every particle (below the smallest normal double) the measurement is
-  treated as carrying no information for the weights (``informative``): the log domain would
-  otherwise hand all the weight to whichever particle lies nearest the outlier.
+* Outlier gate (not in the paper): the engine's innovation gate on the cloud's predicted
+  measurement (engine.py; ``gate_probability`` 1e-10, ``gate_patience``, ``gate_inflation``, as the
+  Kalman filters') leaves an entry far outside the cloud out of the proposal and the weights, and
+  widens the cloud when an entry stays gated (a jump). When the likelihood underflows at every
+  particle (below the smallest normal double) the measurement is treated as carrying no
+  information for the weights (``informative``): the log domain would otherwise hand all the
+  weight to whichever particle lies nearest the outlier.
 * A cubature step whose Cholesky guard fails (ok = 0) is rerun after repairing the offending
   input covariances (``numerics.repair_covariance``).
 """
@@ -75,9 +76,11 @@ class ParticleFilter(SIRFilter):
     name = "PF"
 
     def __init__(self, model, x0, P0, process_noise, measurement_noise, n_particles, rng, *,
-                 policy: ResamplingPolicy = ResamplingPolicy()):
+                 policy: ResamplingPolicy = ResamplingPolicy(), gate_probability: float = 1e-10,
+                 gate_patience: int = 5, gate_inflation: float = 4.0):
         super().__init__(model, x0, P0, process_noise, measurement_noise, n_particles, rng,
-                         proposal=BootstrapProposal(), policy=policy)
+                         proposal=BootstrapProposal(), policy=policy, gate_probability=gate_probability,
+                         gate_patience=gate_patience, gate_inflation=gate_inflation)
 
 
 CPF_PROPOSALS = {"carried": CarriedCubatureProposal, "optimal": OptimalCubatureProposal}
@@ -94,8 +97,10 @@ class CubatureParticleFilter(SIRFilter):
     name = "CPF"
 
     def __init__(self, model, x0, P0, process_noise, measurement_noise, n_particles, rng, *,
-                 proposal: str = "carried", policy: ResamplingPolicy = ResamplingPolicy()):
+                 proposal: str = "carried", policy: ResamplingPolicy = ResamplingPolicy(),
+                 gate_probability: float = 1e-10, gate_patience: int = 5, gate_inflation: float = 4.0):
         if proposal not in CPF_PROPOSALS:
             raise ValueError(f"proposal must be one of {sorted(CPF_PROPOSALS)}, got {proposal!r}")
         super().__init__(model, x0, P0, process_noise, measurement_noise, n_particles, rng,
-                         proposal=CPF_PROPOSALS[proposal](), policy=policy)
+                         proposal=CPF_PROPOSALS[proposal](), policy=policy, gate_probability=gate_probability,
+                         gate_patience=gate_patience, gate_inflation=gate_inflation)

@@ -1,0 +1,142 @@
+/* run_csv: the exported filter over rows of a CSV file (an example of the C API, and the test-vector runner).
+ *
+ *     run_csv SETUP INPUT OUTPUT
+ *
+ * SETUP  lines "name value ...": x0 (n_x values), P0, Q (n_x * n_x, column-major), R (n_y * n_y) and, optionally,
+ *        any option of abyssal_kalman_options by its field name (e.g. "gate_probability 1e-10"). Missing options
+ *        keep the defaults of the exported filter (ABYSSAL_EXPORTED_FILTER).
+ * INPUT  a header line, then one row per step: dt, u_0 ... u_{n_u - 1}, z_0 ... z_{n_y - 1} (comma-separated;
+ *        "nan" marks a missing entry: a row with every z entry nan only predicts).
+ * OUTPUT a header line, then one row per step: k, code, nis, x_0 ... x_{n_x - 1}, and the upper triangle of P
+ *        row by row (P_0_0, P_0_1, ..., P_{n-1}_{n-1}). code is abyssal_kalman_step's return: 1 a measurement
+ *        was used, 0 predicted only, < 0 the step was refused and the state is the previous row's.
+ *
+ * Everything lives in static memory (no heap): the filter object, and the setup's arrays sized by the exported
+ * model's header. C99.
+ */
+#include <errno.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "abyssal_exported.h"
+
+#define LINE 65536
+
+#define N_X ABYSSAL_EXPORTED_N_X
+#define N_U ABYSSAL_EXPORTED_N_U
+#define N_Y ABYSSAL_EXPORTED_N_Y
+
+static double memory[(ABYSSAL_EXPORTED_BYTES + 7) / 8];
+static double x0[N_X], P0[N_X * N_X], Q[N_X * N_X], R[N_Y * N_Y], row[1 + N_U + N_Y];
+static char line[LINE];
+
+static int fail(const char* what, const char* detail) {
+  fprintf(stderr, "run_csv: %s%s%s\n", what, detail ? ": " : "", detail ? detail : "");
+  return 2;
+}
+
+/* n numbers from text (separated by spaces or commas) into out; 0, or -1 when fewer were found. */
+static int numbers(char* text, double* out, int n) {
+  int k;
+  for (k = 0; k < n; ++k) {
+    char* end;
+    while (*text == ' ' || *text == ',' || *text == '\t') ++text;
+    errno = 0;
+    out[k] = strtod(text, &end);
+    if (end == text) return -1;
+    text = end;
+  }
+  return 0;
+}
+
+static int set_option(abyssal_kalman_options* o, const char* name, double value) {
+  if (!strcmp(name, "alpha")) o->alpha = value;
+  else if (!strcmp(name, "beta")) o->beta = value;
+  else if (!strcmp(name, "kappa")) o->kappa = value;
+  else if (!strcmp(name, "sigma")) o->sigma = value;
+  else if (!strcmp(name, "gamma")) o->gamma = value;
+  else if (!strcmp(name, "gate_probability")) o->gate_probability = value;
+  else if (!strcmp(name, "gate_patience")) o->gate_patience = (int)value;
+  else if (!strcmp(name, "gate_inflation")) o->gate_inflation = value;
+  else if (!strcmp(name, "growth_limit")) o->growth_limit = value;
+  else if (!strcmp(name, "max_substeps")) o->max_substeps = (int)value;
+  else if (!strcmp(name, "repair_floor")) o->repair_floor = value;
+  else return -1;
+  return 0;
+}
+
+int main(int argc, char** argv) {
+  const abyssal_model* model = ABYSSAL_EXPORTED_MODEL;
+  abyssal_kalman_options options = abyssal_kalman_default_options(ABYSSAL_EXPORTED_FILTER);
+  abyssal_kalman* filter;
+  abyssal_kalman_report report;
+  const int n = N_X, n_u = N_U, m = N_Y;
+  int k, i, j, code, status, found = 0;
+  FILE *setup, *in, *out;
+  if (argc != 4) return fail("usage: run_csv SETUP INPUT OUTPUT", 0);
+  if (model->n_x != N_X || model->n_u != N_U || model->n_y != N_Y) return fail("the model's sizes differ", model->name);
+  setup = fopen(argv[1], "r");
+  if (!setup) return fail("cannot open", argv[1]);
+  while (fgets(line, LINE, setup)) {
+    char name[64];
+    int used;
+    if (line[0] == '#' || sscanf(line, "%63s%n", name, &used) != 1) continue;
+    if (!strcmp(name, "x0")) found |= numbers(line + used, x0, n) ? 0 : 1;
+    else if (!strcmp(name, "P0")) found |= numbers(line + used, P0, n * n) ? 0 : 2;
+    else if (!strcmp(name, "Q")) found |= numbers(line + used, Q, n * n) ? 0 : 4;
+    else if (!strcmp(name, "R")) found |= numbers(line + used, R, m * m) ? 0 : 8;
+    else {
+      double value;
+      if (numbers(line + used, &value, 1) || set_option(&options, name, value)) {
+        fclose(setup);
+        return fail("unknown setup line", name);
+      }
+    }
+  }
+  fclose(setup);
+  if (found != 15) return fail("the setup needs the lines x0, P0, Q and R with all their values", argv[1]);
+  if (abyssal_kalman_work_size(model, &options) > sizeof memory) return fail("the filter needs more memory", 0);
+  code = abyssal_kalman_init(memory, sizeof memory, model, &options, x0, P0, Q, R, &filter);
+  if (code != ABYSSAL_OK) return fail("abyssal_kalman_init", abyssal_kalman_message(code));
+  in = fopen(argv[2], "r");
+  if (!in) return fail("cannot open", argv[2]);
+  out = fopen(argv[3], "w");
+  if (!out) {
+    fclose(in);
+    return fail("cannot write", argv[3]);
+  }
+  fprintf(out, "k,code,nis");
+  for (i = 0; i < n; ++i) fprintf(out, ",x_%s", model->state_names[i]);
+  for (i = 0; i < n; ++i)
+    for (j = i; j < n; ++j) fprintf(out, ",P_%d_%d", i, j);
+  fprintf(out, "\n");
+  status = fgets(line, LINE, in) ? 0 : fail("empty input", argv[2]); /* the header */
+  for (k = 0; status == 0 && fgets(line, LINE, in); ++k) {
+    const double *x, *P;
+    int any = 0;
+    if (numbers(line, row, 1 + n_u + m)) {
+      fprintf(stderr, "run_csv: row %d of %s has fewer than %d numbers\n", k + 1, argv[2], 1 + n_u + m);
+      status = 2;
+      break;
+    }
+    for (i = 0; i < m; ++i) any |= !isnan(row[1 + n_u + i]);
+    code = abyssal_kalman_step(filter, row + 1, row[0], any ? row + 1 + n_u : 0, 0, 0);
+    abyssal_kalman_get_report(filter, &report);
+    x = abyssal_kalman_x(filter);
+    P = abyssal_kalman_P(filter);
+    fprintf(out, "%d,%d,%.17g", k, code, code == ABYSSAL_UPDATED ? report.nis : NAN);
+    for (i = 0; i < n; ++i) fprintf(out, ",%.17g", x[i]);
+    for (i = 0; i < n; ++i)
+      for (j = i; j < n; ++j) fprintf(out, ",%.17g", P[i + j * n]);
+    fprintf(out, "\n");
+  }
+  fclose(in);
+  if (fclose(out) != 0) return fail("cannot write", argv[3]);
+  if (status != 0) return status;
+  abyssal_kalman_get_report(filter, &report);
+  printf("%d steps; gated %lld entries, %lld inflations, %lld repairs, %lld subdivided predicts\n", k, report.gated,
+         report.inflations, report.repairs, report.substeps);
+  return 0;
+}

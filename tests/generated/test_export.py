@@ -1,0 +1,188 @@
+"""`abyssal export`, checked as a vehicle engineer would: the exported project builds with CMake (ctest runs the
+recorded vectors and the C++17 wrapper) and with a bare strict C99 compiler, runs clean under AddressSanitizer and
+UBSan, passes cppcheck, cross-compiles for aarch64 and runs under qemu-user, and reproduces the Python filter's
+run: to 1e-12 (x, P; the NIS to 1e-9) with other flags, bit for bit with abyssal's own. A user's model from
+examples/own_vehicle goes the same way. A missing tool skips its test, saying so."""
+from __future__ import annotations
+
+import importlib
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import abyssal
+
+build = importlib.import_module("abyssal.generated.build")  # the module (the package exports a function `build`)
+ROOT = Path(__file__).resolve().parents[2]
+STEPS = 10_000
+STRICT = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic"]
+
+
+def tool(name: str, why: str) -> str:
+    path = shutil.which(name)
+    if path is None:
+        pytest.skip(f"skipped, because {name} is not installed ({why}; .ci/run installs it)")
+    return path
+
+
+def run(cmd, cwd=None, timeout=900) -> subprocess.CompletedProcess:
+    result = subprocess.run([str(c) for c in cmd], cwd=cwd, capture_output=True, text=True, timeout=timeout)
+    assert result.returncode == 0, f"{' '.join(map(str, cmd))}\n{result.stdout[-3000:]}\n{result.stderr[-3000:]}"
+    return result
+
+
+def rows(path: Path) -> dict[int, np.ndarray]:
+    lines = Path(path).read_text().splitlines()[1:]
+    return {int(line.split(",", 1)[0]): np.array([float(v) for v in line.split(",")[1:]]) for line in lines}
+
+
+def differences(folder: Path, output: Path) -> tuple[float, float]:
+    """(largest relative difference of x and P, of the NIS) of run_csv's output against the recorded rows; the codes
+    (refusals included) must be equal."""
+    expected, actual = rows(folder / "tests/vectors/expected.csv"), rows(output)
+    worst = worst_nis = 0.0
+    for k, e in expected.items():
+        a = actual[k]
+        assert a[0] == e[0], f"step {k}: code {a[0]}, recorded {e[0]}"
+        if np.isnan(e[1]):
+            assert np.isnan(a[1]), k
+        else:
+            worst_nis = max(worst_nis, abs(a[1] - e[1]) / max(1.0, abs(e[1])))
+        worst = max(worst, float(np.max(np.abs(a[2:] - e[2:]) / np.maximum(1.0, np.abs(e[2:])))))
+    return worst, worst_nis
+
+
+def run_csv(folder: Path, exe: Path, prefix=()) -> Path:
+    out = exe.with_suffix(".csv")
+    vectors = folder / "tests/vectors"
+    result = run([*prefix, exe, vectors / "setup.txt", vectors / "input.csv", out])
+    assert f"{STEPS} steps" in result.stdout and "runtime error" not in result.stderr
+    return out
+
+
+def sources(folder: Path) -> list[Path]:
+    return sorted((folder / "src").glob("*.c")) + [folder / "examples/run_csv.c"]
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory) -> Path:
+    folder = abyssal.export("rov4dof", filter="ckf", out=tmp_path_factory.mktemp("export") / "rov4dof_ckf", steps=STEPS)
+    return folder
+
+
+def test_the_project_is_self_contained_and_documents_the_model(exported):
+    marker = json.loads((exported / ".abyssal-export.json").read_text())
+    vectors = marker["vectors"]
+    # the recorded run has what the checks are about: missing entries, gated outliers, a subdivided long dt, refusals
+    assert vectors["steps"] == STEPS and vectors["missing_entries"] > 1000 and vectors["gated"] >= 10
+    assert vectors["substeps"] == 1 and vectors["long_dt"] >= 5.0
+    assert {"-12", "-13", "-14"} <= set(vectors["codes"])  # u, dt, z refused
+    header = (exported / "include/rov4dof_filter.h").read_text()
+    for text in ("[ 3] psi", "rad", "tau_X", "N m", "T_b", "ROV4DOF_CKF_BYTES", "bytes", "rov4dof_descriptor"):
+        assert text in header, text
+    includes = {line.split()[1] for path in exported.rglob("*.[ch]") for line in path.read_text().splitlines()
+                if line.startswith("#include")}
+    assert not any("Python" in i or "numpy" in i.lower() for i in includes)
+    project_headers = {f'"{p.name}"' for p in (exported / "include").iterdir()}
+    assert {i for i in includes if i.startswith('"')} <= project_headers
+    assert not (exported / "src/abyssal_kalman_binding.c").exists()  # Python's binding stays home
+
+
+def test_cmake_builds_it_and_ctest_reproduces_the_python_filter(exported):
+    tool("cmake", "the exported project's build")
+    build_dir = exported / "build"
+    run(["cmake", "-S", exported, "-B", build_dir, "-DABYSSAL_WERROR=ON"])
+    run(["cmake", "--build", build_dir, "-j", "2"])
+    result = run(["ctest", "--output-on-failure"], cwd=build_dir)
+    assert "vectors_equal_python" in result.stdout and "tests passed" in result.stdout
+    if shutil.which("c++") or shutil.which("g++"):
+        assert "cpp_wrapper" in result.stdout  # the C++17 wrapper, compiled and run over the vectors
+    assert (build_dir / "librov4dof_filter.a").is_file() and (build_dir / "librov4dof_filter.so").is_file()
+    worst, worst_nis = differences(exported, run_csv(exported, build_dir / "run_csv"))
+    assert worst <= 1e-12 and worst_nis <= 1e-9
+
+
+def test_a_strict_c99_build_under_the_sanitizers_runs_clean(exported, tmp_path):
+    cc = tool("cc", "a C compiler")
+    exe = tmp_path / "run_csv_sanitized"
+    run([cc, *STRICT, "-O1", "-g", "-fsanitize=address,undefined", "-fno-sanitize-recover=all", "-fno-omit-frame-pointer",
+         f"-I{exported / 'include'}", *sources(exported), "-o", exe, "-lm"])
+    worst, worst_nis = differences(exported, run_csv(exported, exe))
+    assert worst <= 1e-12 and worst_nis <= 1e-9
+
+
+def test_with_abyssals_own_flags_the_results_are_bit_identical(exported, tmp_path):
+    """Python's library and this executable compile the same C with the same compiler and flags (build.py)."""
+    cc, flags = build.compiler(), build.cflags()
+    objects = []
+    for source in sources(exported):
+        obj = tmp_path / (source.name + ".o")
+        file_flags = build._file_flags(source.name, flags)
+        run([cc, *file_flags, f"-I{exported / 'include'}", "-c", source, "-o", obj])
+        objects.append(obj)
+    exe = tmp_path / "run_csv_same_flags"
+    run([cc, *flags, *objects, "-o", exe, *build._libraries()])
+    out = run_csv(exported, exe)
+    expected, actual = rows(exported / "tests/vectors/expected.csv"), rows(out)
+    for k, e in expected.items():
+        assert np.array_equal(actual[k], e, equal_nan=True), f"step {k} differs"
+
+
+def test_cppcheck_finds_nothing_in_the_runtime_and_examples(exported):
+    cppcheck = tool("cppcheck", "static analysis of the C")
+    files = sorted((exported / "src").glob("abyssal_kalman*.c")) + [exported / "examples/run_csv.c",
+                                                                     exported / "tests/compare_csv.c"]
+    result = run([cppcheck, "--enable=warning,portability,performance", "--error-exitcode=1", "--std=c99", "-q",
+                  f"-I{exported / 'include'}", *files])
+    assert result.stderr.strip() == ""
+
+
+def test_cross_compiled_for_aarch64_it_reproduces_the_vectors_under_qemu(exported, tmp_path):
+    cc = tool("aarch64-linux-gnu-gcc", "the cross compiler, Debian's gcc-aarch64-linux-gnu")
+    qemu = tool("qemu-aarch64", "user-mode emulation, Debian's qemu-user")
+    exe = tmp_path / "run_csv_aarch64"
+    run([cc, *STRICT, "-O2", "-static", f"-I{exported / 'include'}", *sources(exported), "-o", exe, "-lm"])
+    assert exe.read_bytes()[18] == 0xB7  # ELF e_machine: AArch64
+    worst, worst_nis = differences(exported, run_csv(exported, exe, prefix=[qemu]))
+    assert worst <= 1e-12 and worst_nis <= 1e-9
+
+
+def test_a_users_model_regenerated_outside_the_clone_exports_and_builds(tmp_path):
+    tool("cmake", "the exported project's build")
+    project = tmp_path / "own_vehicle"
+    shutil.copytree(ROOT / "examples/own_vehicle", project)
+    env = {**os.environ, "PYTHONPATH": ""}
+    subprocess.run([sys.executable, "-m", "abyssal.runtime.cli", "regenerate", "--model", "cybership.py:cybership",
+                    "--out", "gen", "--filters", "ckf"], cwd=project, check=True, capture_output=True, env=env, timeout=600)
+    out = tmp_path / "cybership_ckf"
+    result = subprocess.run([sys.executable, "-m", "abyssal.runtime.cli", "export", str(project / "gen/cybership"),
+                             "--filter", "ckf", "--out", str(out), "--steps", "3000"], capture_output=True, text=True,
+                            env=env, timeout=600)
+    assert result.returncode == 0, result.stderr
+    assert "int cybership_ckf_update" in (out / "src/cybership_sigma_points.c").read_text()
+    run(["cmake", "-S", out, "-B", out / "build"])
+    run(["cmake", "--build", out / "build", "-j", "2"])
+    assert "tests passed" in run(["ctest", "--output-on-failure"], cwd=out / "build").stdout
+
+
+def test_refusals_name_what_is_wrong(tmp_path):
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine/notes.txt").write_text("mine")
+    with pytest.raises(FileExistsError, match="did not write"):
+        abyssal.export("linear_cv", filter="ekf", out=tmp_path / "mine", steps=200)
+    with pytest.raises(ValueError, match="'ckf' filter family"):
+        abyssal.export("remus100", filter="ckf", out=tmp_path / "remus", steps=200)
+    with pytest.raises(ValueError, match="--filter"):
+        abyssal.export("linear_cv", filter="pf", out=tmp_path / "x", steps=200)
+    result = subprocess.run([sys.executable, "-m", "abyssal.runtime.cli", "export", "no_such_model", "--filter", "ekf",
+                             "--out", str(tmp_path / "y")], capture_output=True, text=True, timeout=300)
+    assert result.returncode == 2 and "no_such_model" in result.stderr
+    folder = abyssal.export("linear_cv", filter="ekf", out=tmp_path / "again", steps=200)
+    assert abyssal.export("linear_cv", filter="ukf", out=folder, steps=200) == folder  # an earlier export is replaced
+    assert json.loads((folder / ".abyssal-export.json").read_text())["filter"] == "ukf"
