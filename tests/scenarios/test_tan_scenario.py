@@ -1,6 +1,7 @@
 """Seed 003's experiment (runtime/experiments/tan): the tracks and their terrain, the run_one shape, determinism,
 the flat-area finding, the statement at 0.1 m/s, and `reproduce tan` end to end."""
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -139,6 +140,30 @@ def test_the_statement_at_0_1_names_the_tracks_where_a_fixed_sigma_kept_every_ru
     assert experiment.verdict(experiment.summary(rows), config) == {
         "arctic": {"tracking": {"start_10_40": ["sigma_2"]}, "none": ["drift_along"]}}
     assert experiment.lost_count(experiment.summary(rows)["arctic/start_10_40/current_0.1"]["sigma_3"]) == (1, 8)
+
+
+def test_quick_is_a_shorter_smaller_campaign_that_says_so():
+    default, quick = TanConfig(), TanConfig().quick()
+    assert quick.duration_s < default.duration_s and quick.currents == (experiment.MAIN_CURRENT,)
+    assert quick.maps == default.maps and len(quick.cases()) < len(default.cases())
+    for m in quick.maps:
+        assert quick.tracks_of(m) == list(experiment.QUICK_TRACKS)
+    assert "--quick" in quick.settings(1, 0) and "--quick" not in default.settings(8, 0)
+    # figures: the best track of each map only (the default also draws the worst and the flat-area track)
+    rows = _rows({(f"{m}/{t}/current_0.1", "sigma_2"): [t == "drift_along"] for m in quick.maps
+                  for t in experiment.QUICK_TRACKS})
+    assert experiment.figure_cases(rows, quick) == [(m, "drift_across", "0.1") for m in quick.maps]
+    assert len(experiment.figure_cases(rows, replace(quick, quick_run=False))) == 2 * len(quick.maps)
+
+
+def test_the_papers_short_verdicts_are_its_quoted_claims():
+    from abyssal.runtime.experiments.tan import paper
+
+    assert set(paper.VERDICTS) <= set(paper.CLAIMS)
+    for key, words in paper.VERDICTS.items():
+        claim = paper.CLAIMS[key]
+        first = words.split(",")[0].split("\n")[0].strip()
+        assert first in claim or (first == "lost" and "exceeds 1000 m" in claim), (key, words)
 
 
 def test_reproduce_tan_writes_table_json_csv_and_figures(tmp_path, capsys):
