@@ -717,12 +717,13 @@ def _fuzzy_inputs_figure(plt, config: TanConfig, m, t, c, truth, fz):
     axes[0, 1].scatter(fz.gradient * fz.gradient_rate, fz.sigma, s=2, color=style("fuzzy")["color"])
     axes[0, 1].set(xlabel=f"gradient x gradient rate ({gradient_unit} x {rate_unit})", ylabel="fuzzy sigma (m)",
                    title="inner product vs sigma (cf. Fig. 13)")
-    axes[1, 0].hist(np.clip(fz.gradient, -25, 25), bins=50, color="#0072B2")
-    axes[1, 0].set(xlabel=f"gradient ({gradient_unit}; clipped to the fuzzy domain [-20, 20])", ylabel="steps",
-                   title="distribution of the gradient input")
-    axes[1, 1].hist(np.clip(fz.gradient_rate, -25, 25), bins=50, color="#0072B2")
-    axes[1, 1].set(xlabel=f"gradient rate ({rate_unit}; domain [-20, 20])", ylabel="steps",
-                   title="distribution of the gradient-rate input")
+    for ax, values, unit, what in ((axes[1, 0], fz.gradient, gradient_unit, "gradient"),
+                                   (axes[1, 1], fz.gradient_rate, rate_unit, "gradient-rate")):
+        ax.hist(np.clip(values, -25, 25), bins=50, range=(-25, 25), color="#0072B2")
+        for edge in (-20.0, 20.0):
+            ax.axvline(edge, color="black", lw=0.9, ls="--")
+        ax.set(xlabel=f"{what} ({unit}; values beyond ±25 piled at ±25)", ylabel="steps",
+               title=f"{what} input (dashed: fuzzy domain ±20)")
     fig.suptitle(f"fuzzy sigma's inputs: {m} / {t}, current {c} m/s (run 0)")
     fig.tight_layout(rect=(0, 0.03, 1, 1))
     return fig
