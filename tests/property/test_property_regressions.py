@@ -183,7 +183,7 @@ def test_load_of_a_path_under_an_unknown_home_is_a_clear_refusal():
 
 
 #: soak entries of other branches that fail today: label -> the branch that fixes it
-SOAK_OWNERS = {"UPF": "sir-merge", "MCUPF far from origin": "sir-merge", "TAN-SIR": "sir-c"}
+SOAK_OWNERS = {"TAN-SIR": "sir-c"}
 #: steps of the short soak per scenario (the benchmark runs 10-50x more)
 SHORT_SOAK = {"vehicle": 1000, "ranges": 200, "terrain": 500, "linear": 400}
 
