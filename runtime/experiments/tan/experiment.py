@@ -693,7 +693,7 @@ def _track_run_figure(plt, config: TanConfig, m, t, c, truth, runs):
     ax_err.axhline(500.0, **{**claim, "linestyle": "-.", "linewidth": 1.4})
     ax_map.plot([], [], **{**claim, "linestyle": "-.", "linewidth": 1.4},
                 label="error panel: THE PAPER, fuzzy within one 500 m cell (abstract)")
-    ax_map.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=3, frameon=False)
+    ax_map.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=2, frameon=False)
     ax_err.set(ylabel="position error (m)", title="error over time (cf. Figs. 9, 11, 15)")
     ax_std.set(ylabel="filter's own spread sqrt(Pxx + Pyy) (m)", title="the filter's own spread (below the error: "
                "confidently wrong)")
