@@ -29,7 +29,7 @@ FILTERS = {"ekf": 1, "ukf": 2, "ckf": 3, "mcukf": 4, "huber": 5}
 # return codes of abyssal_kalman.h
 UPDATED, OK = 1, 0
 (E_MEMORY, E_MODEL, E_FILTER, E_SIGMA_POINTS, E_ROBUST, E_GATE, E_SUBSTEPS, E_X0, E_P0, E_Q, E_R, E_U, E_DT, E_Z, E_P,
- E_DIVERGED, E_UNSTABLE, E_STATE) = range(-1, -19, -1)
+ E_DIVERGED, E_UNSTABLE, E_STATE, E_UNSTABLE_INPUT) = range(-1, -20, -1)
 
 #: the calls of abyssal_kalman_binding.c (abyssal_kalman_<name>_call)
 CALLS = ("step", "predict", "update", "check_p")

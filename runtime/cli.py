@@ -236,9 +236,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="seed of the recorded run (default: %(default)s)")
     p.set_defaults(run=_export)
 
-    from .experiments.reproduce import EXPERIMENTS  # the registry (light: the experiments load when run)
+    from .experiments.reproduce import EXPERIMENTS, quick_help  # the registry (light: the experiments load when run)
 
-    p = sub.add_parser("reproduce", help="rerun the experiments of the four papers")
+    p = sub.add_parser("reproduce", help="rerun the experiments of the four papers", epilog=quick_help(),
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("experiment", choices=[*EXPERIMENTS, "all"])
     runs = ", ".join(f"{e.name} {e.runs} ({e.quick_runs} with --quick)" for e in EXPERIMENTS.values())
     p.add_argument("--runs", type=int, default=None, help=f"Monte-Carlo runs (default: {runs})")
@@ -249,7 +250,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT",
                    help="run on an existing Dask scheduler instead of a local cluster")
     p.add_argument("--resume", action="store_true", help="keep the runs already in <out>/<experiment>.csv; run the rest")
-    p.add_argument("--quick", action="store_true", help="a short smoke version of the experiment (remus: 300 s, 3 runs; rov: 20 s of the 200 s path)")
+    p.add_argument("--quick", action="store_true", help="a short version of the experiment (each one's is listed below)")
     p.add_argument("--out", default="out", help="folder for the tidy CSV, JSON and figures (default: %(default)s)")
     p.add_argument("--json", action="store_true")
     p.set_defaults(run=_reproduce)

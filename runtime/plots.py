@@ -41,7 +41,7 @@ FILTER_STYLES = {
     "PF": {"color": PALETTE[4], "linestyle": "--", "marker": "P"},
     "CPF": {"color": PALETTE[1], "linestyle": "--", "marker": "X"},
     "UPF": {"color": PALETTE[3], "linestyle": "--", "marker": "<"},
-    "HRUPF": {"color": PALETTE[10], "linestyle": "--", "marker": ">"},
+    "HRUPF": {"color": PALETTE[9], "linestyle": "--", "marker": ">"},  # the Huber family's olive (not UPF's pink)
     "MCUPF": {"color": PALETTE[1], "linestyle": "-", "marker": "D"},
     "MCC-UPF": {"color": PALETTE[11], "linestyle": "--", "marker": "h"},
     "MOGCPF": {"color": PALETTE[3], "linestyle": "-.", "marker": "h"},
@@ -57,41 +57,65 @@ PAPER_STYLE = {"color": "black", "marker": "D", "markerfacecolor": "none", "mark
 VARIANT_HATCHES = ("", "//", "..", "xx", "\\\\", "++")
 
 
+#: suffixes that name a variant of a filter ("MCUPF tuned": the same filter with other noise matrices)
+VARIANT_SUFFIXES = (" tuned",)
+
+
 def _family(name: str) -> str:
-    """The filter a labelled variant belongs to: "CKF (mismatched Q)" -> "CKF", "EM-MOGCPF N=1000" -> "EM-MOGCPF"."""
-    return name.split(" (")[0].split(" N=")[0]
+    """The filter a labelled variant belongs to: "CKF (mismatched Q)" -> "CKF", "EM-MOGCPF N=1000" -> "EM-MOGCPF",
+    "MCUPF tuned" -> "MCUPF"."""
+    name = name.split(" (")[0].split(" N=")[0]
+    for suffix in VARIANT_SUFFIXES:
+        name = name.removesuffix(suffix)
+    return name
 
 
 def filter_style(name: str, ordered: tuple[str, ...] = ()) -> dict:
     """The look of a filter in every figure: {"color", "linestyle", "marker"} (matplotlib keywords).
 
-    A name in FILTER_STYLES keeps its look; a variant of a listed family ("CKF (matched model)") keeps the
-    family's colour and marker with a line style chosen by its place among the family's variants in
+    A name in FILTER_STYLES keeps its look; a variant of a listed family ("CKF (matched model)", "MCUPF tuned")
+    keeps the family's colour and marker with a line style chosen by its place among the family's variants in
     ``ordered``; a fixed-sigma family ("sigma=1 m" ... "sigma=6 m") or any other unlisted name gets a colour of
-    PALETTE by its index in ``ordered`` (give every figure of one experiment the same ``ordered`` list, so a
-    filter looks the same in all of them)."""
+    PALETTE by its place among the unlisted names of ``ordered``, skipping the colours the listed names of
+    ``ordered`` already have (give every figure of one experiment the same ``ordered`` list, so a filter looks the
+    same in all of them and no two filters of it share a colour while the palette lasts)."""
     if name in FILTER_STYLES:
         return dict(FILTER_STYLES[name])
     family = _family(name)
     if family in FILTER_STYLES:
         style = dict(FILTER_STYLES[family])
         variants = [n for n in ordered if _family(n) == family and n != family]
-        k = variants.index(name) + 1 if name in variants else 1
-        style["linestyle"] = LINESTYLES[k % len(LINESTYLES)]
+        k = variants.index(name) if name in variants else 0
+        others = [ls for ls in LINESTYLES if ls != style["linestyle"]]  # never the family's own line style
+        style["linestyle"] = others[k % len(others)]
         return style
-    k = ordered.index(name) if name in ordered else zlib.crc32(name.encode()) % len(PALETTE)
-    return {"color": PALETTE[k % len(PALETTE)], "linestyle": LINESTYLES[(k // len(PALETTE)) % len(LINESTYLES)],
+    taken = {FILTER_STYLES[_family(n)]["color"] for n in ordered if _family(n) in FILTER_STYLES}
+    free = [c for c in PALETTE if c not in taken] or list(PALETTE)
+    unlisted = [n for n in ordered if _family(n) not in FILTER_STYLES]
+    k = unlisted.index(name) if name in unlisted else zlib.crc32(name.encode()) % len(PALETTE)
+    return {"color": free[k % len(free)], "linestyle": LINESTYLES[(k // len(free)) % len(LINESTYLES)],
             "marker": MARKERS[k % len(MARKERS)]}
-
-
-def _colour(name: str) -> str:
-    return filter_style(name)["color"]
 
 
 def stamp_settings(fig, text: str) -> None:
     """Write the run's settings ("quick run: 3 runs x 300 s, seed 0") in the figure's bottom-left corner, so a
     figure says where it came from wherever it is copied to."""
     fig.text(0.005, 0.005, text, fontsize=7, color="#444444", ha="left", va="bottom")
+
+
+def plain_log_labels(ax, axis: str = "y") -> None:
+    """Tick labels of a log axis as plain numbers (0.3, 1, 20) rather than 3 x 10^-1."""
+    from matplotlib.ticker import FuncFormatter
+
+    def minor(value, _):  # label 2, 3 and 5 times a power of ten only, so the labels never crowd
+        if value <= 0:
+            return ""
+        digit = round(value / 10 ** np.floor(np.log10(value)))
+        return f"{value:g}" if digit in (2, 3, 5) else ""
+
+    target = ax.yaxis if axis == "y" else ax.xaxis
+    target.set_major_formatter(FuncFormatter(lambda value, _: f"{value:g}"))
+    target.set_minor_formatter(FuncFormatter(minor))
 
 
 def _break_at_wraps(values: np.ndarray) -> np.ndarray:
@@ -102,61 +126,104 @@ def _break_at_wraps(values: np.ndarray) -> np.ndarray:
 
 
 def error_vs_time(times: np.ndarray, errors: dict[str, np.ndarray], labels, title: str, path: Path,
-                  wrapped_panels=()) -> Path:
-    """2 x 2 panels, one per state component, each with every filter's error over time.
+                  wrapped_panels=(), *, ordered: tuple[str, ...] = (), settings: str | None = None,
+                  scales=None) -> Path:
+    """2 x 2 panels, one per state component, each with every filter's error over time (the paper's error plots).
 
-    errors: {filter: (T, 4)}; labels: 4 axis labels. The y range of a panel covers the 99th
-    percentile of every filter's |error| (a diverging filter's excursions are clipped, not hidden:
-    its RMSE is in the table and the bar chart). Panels in wrapped_panels hold angle errors wrapped
-    to (-pi, pi]; their lines break at the wraps.
+    errors: {filter: (T, 4)}; labels: 4 axis labels with their units ("x error (m)"); scales: optional factor per
+    component applied before plotting (e.g. 180/pi for an angle in deg: the label must say the unit plotted).
+    Each filter has its ``filter_style`` (``ordered``: the experiment's filter list). The y range of a panel
+    covers the 99th percentile of every filter's |error| (a diverging filter's excursions are clipped, not
+    hidden: its RMSE is in the table and the bar chart). Panels in wrapped_panels hold angle errors wrapped to
+    (-pi, pi] (before scaling); their lines break at the wraps. settings: the run's settings, stamped in a corner.
     """
+    ordered = tuple(ordered) or tuple(errors)
+    scales = np.ones(4) if scales is None else np.asarray(scales, dtype=float)
     fig, axes = plt.subplots(2, 2, figsize=(11, 7), sharex=True)
     for i, ax in enumerate(axes.flat):
         limit = 0.0
         for name, e in errors.items():
-            values = _break_at_wraps(e[:, i]) if i in wrapped_panels else e[:, i]
-            ax.plot(times, values, lw=0.8, color=_colour(name), label=name, alpha=0.9)
-            limit = max(limit, float(np.percentile(np.abs(e[:, i]), 99)))
-        ax.set_ylim(-1.15 * limit, 1.15 * limit)
+            values = (_break_at_wraps(e[:, i]) if i in wrapped_panels else e[:, i]) * scales[i]
+            style = filter_style(name, ordered)
+            ax.plot(times, values, lw=0.9, color=style["color"], linestyle=style["linestyle"], label=name, alpha=0.9)
+            finite = np.abs(e[:, i][np.isfinite(e[:, i])]) * scales[i]
+            if finite.size:
+                limit = max(limit, float(np.percentile(finite, 99)))
+        if limit > 0:
+            ax.set_ylim(-1.15 * limit, 1.15 * limit)
         ax.axhline(0, color="black", lw=0.5)
         ax.set_ylabel(labels[i])
         ax.grid(alpha=0.3)
         ax.set_title(f"({'abcd'[i]}) {labels[i]}", fontsize=10, loc="left")
     for ax in axes[1]:
         ax.set_xlabel("time (s)")
-    axes[0, 0].legend(ncol=3, fontsize=8, loc="upper left")
+    handles, names = axes[0, 0].get_legend_handles_labels()
+    fig.legend(handles, names, ncol=min(6, len(names)), fontsize=8, loc="lower center", bbox_to_anchor=(0.5, 0.02),
+               frameon=False)
     fig.suptitle(title)
-    fig.tight_layout()
+    if settings:
+        stamp_settings(fig, settings)
+    fig.tight_layout(rect=(0, 0.07, 1, 1))
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
 
 
-def rmse_bars(metrics: dict[str, dict], paper: dict[str, dict[str, float]] | None, title: str, path: Path) -> Path:
-    """Grouped bars of our RMSE per axis and filter (like the paper's Figures 11-12); the paper's
-    values as black diamonds over the filters it reports. Log scale: the filters differ by decades."""
-    axes_names = ("x", "y", "z", "psi")
+def rmse_bars(metrics: dict[str, dict], paper: dict[str, dict[str, float]] | None, title: str, path: Path, *,
+              panels=((("x", "y", "z"), "RMSE (m)"), (("psi",), "RMSE (rad)")), paper_axes=None,
+              paper_label: str = "paper (Table 3)", notes: dict | None = None, ordered: tuple[str, ...] = (),
+              settings: str | None = None) -> Path:
+    """Grouped bars of our RMSE per axis and filter (like the paper's Figures 11-12), one panel per unit.
+
+    metrics: {filter: {"rmse": {axis: value}, "rmse_sd": {axis: sd over runs} (optional: drawn as error bars)}};
+    panels: ((axes, y label with its unit), ...): axes of one unit share a panel, so no axis shows two units.
+    paper: {filter: {axis: value}}, drawn as PAPER_STYLE markers on the filter's own bar, above every bar and
+    kept out of the legend's way (the legend sits below the panels), on the axes of ``paper_axes`` only
+    (default: all; leave an axis out where the paper's unit is not known). notes: {panel index: text} written
+    inside that panel. Log scale: the filters differ by decades. ordered: the experiment's filter list (styles).
+    """
     filters = list(metrics)
-    width = 0.8 / len(filters)
-    fig, ax = plt.subplots(figsize=(10, 5.6))
-    centres = np.arange(len(axes_names))
-    variants: dict[str, int] = {}
-    for j, name in enumerate(filters):
-        offsets = centres - 0.4 + width * (j + 0.5)
-        values = [metrics[name]["rmse"][a] for a in axes_names]
-        k = variants[_family(name)] = variants.get(_family(name), -1) + 1
-        ax.bar(offsets, values, width, color=_colour(name), hatch=VARIANT_HATCHES[k % len(VARIANT_HATCHES)],
-               edgecolor="white", linewidth=0, label=f"{name} (ours)")
-        if paper and name in paper:
-            ax.plot(offsets, [paper[name][a] for a in axes_names], "kD", ms=4,
-                    label="paper (Table 3)" if j == 0 or "paper (Table 3)" not in ax.get_legend_handles_labels()[1] else None)
-    ax.set_xticks(centres, ["x (m)", "y (m)", "z (m)", "psi (rad)"])
-    ax.set_yscale("log")
-    ax.set_ylabel("RMSE")
-    ax.grid(axis="y", alpha=0.3, which="both")
-    ax.legend(ncol=4, fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.08), frameon=False)
-    ax.set_title(title)
-    fig.tight_layout()
+    ordered = tuple(ordered) or tuple(filters)
+    paper_axes = set(paper_axes) if paper_axes is not None else {a for axes, _ in panels for a in axes}
+    sizes = [len(axes) for axes, _ in panels]
+    fig, axs = plt.subplots(1, len(panels), figsize=(4.2 * sum(sizes) + 1.5, 5.6), squeeze=False,
+                            gridspec_kw={"width_ratios": sizes})
+    width = 0.84 / len(filters)
+    handles: dict[str, object] = {}
+    for p, (axes_names, ylabel) in enumerate(panels):
+        ax = axs[0, p]
+        centres = np.arange(len(axes_names))
+        variants: dict[str, int] = {}
+        for j, name in enumerate(filters):
+            offsets = centres - 0.42 + width * (j + 0.5)
+            values = [metrics[name]["rmse"][a] for a in axes_names]
+            sd = metrics[name].get("rmse_sd", {})
+            errors = [sd.get(a, np.nan) for a in axes_names]
+            k = variants[_family(name)] = variants.get(_family(name), -1) + 1
+            bars = ax.bar(offsets, values, width, color=filter_style(name, ordered)["color"],
+                          hatch=VARIANT_HATCHES[k % len(VARIANT_HATCHES)], edgecolor="white", linewidth=0.4,
+                          yerr=[e if np.isfinite(e) else 0.0 for e in errors], ecolor="#333333",
+                          error_kw={"elinewidth": 0.8, "capsize": 1.5})
+            handles.setdefault(f"{name} (ours)", bars)
+            if paper and name in paper:
+                shown = [(o, paper[name][a]) for o, a in zip(offsets, axes_names) if a in paper_axes and a in paper[name]]
+                if shown:
+                    (line,) = ax.plot([o for o, _ in shown], [v for _, v in shown], **PAPER_STYLE)
+                    handles.setdefault(paper_label, line)
+        ax.set_xticks(centres, list(axes_names))
+        ax.set_yscale("log")
+        plain_log_labels(ax)
+        ax.set_ylabel(ylabel)
+        ax.grid(axis="y", alpha=0.3, which="both")
+        if notes and p in notes:  # above the panel, where no bar reaches
+            ax.set_title(notes[p], fontsize=7, loc="left")
+    fig.legend(list(handles.values()), list(handles), ncol=4, fontsize=8, loc="lower center",
+               bbox_to_anchor=(0.5, 0.02), frameon=False)
+    fig.suptitle(title)
+    if settings:
+        stamp_settings(fig, settings)
+    rows_of_legend = -(-len(handles) // 4)
+    fig.tight_layout(rect=(0, 0.035 + 0.045 * rows_of_legend, 1, 1))
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path

@@ -331,18 +331,29 @@ static long long cached_pieces(const abyssal_kalman* f, double dt) {
 static int predict_into(abyssal_kalman* f, const double* u, const double* p, double dt, pending* out) {
   int c = f->current, a = (c + 1) % 3, b = (c + 2) % 3, n = f->n;
   const double* Q = DOUBLES(f, f->Q);
+  const double limit = f->options.growth_limit;
   long long pieces;
-  if (dt <= f->checked_dt) {
-    int prior;
-    out->set = a;
-    if (predict_once(f, c, a, u, p, dt, Q)) return ABYSSAL_OK;
-    prior = repaired(f, c, b);
-    if (prior < 0) return ABYSSAL_E_STATE;
-    if (!predict_once(f, prior, a, u, p, dt, Q)) return ABYSSAL_E_DIVERGED;
-    out->repairs += 1;
-    return ABYSSAL_OK;
+  int known_dt = dt <= f->checked_dt;
+  if (known_dt) { /* a dt found stable before: one predict, checked like any other */
+    int prior = c, ok = predict_once(f, c, a, u, p, dt, Q), repairs = 0;
+    if (!ok) { /* maybe only a covariance to repair */
+      prior = repaired(f, c, b);
+      if (prior < 0) return ABYSSAL_E_STATE;
+      ok = predict_once(f, prior, a, u, p, dt, Q);
+      repairs = 1;
+    }
+    if (ok && !abyssal_grew_beyond(n, limit, PS(f, prior), PS(f, a), Q)) {
+      out->set = a;
+      out->repairs += repairs;
+      return ABYSSAL_OK;
+    }
+    /* it blew up at this state and input (a glitch of u accepted as finite: rov4dof at u = 1e5 N went to |x| ~ 1e39
+     * in one 0.1 s predict): subdivided like a long dt, but not remembered for this dt */
+    pieces = 2;
+  } else {
+    pieces = cached_pieces(f, dt);
   }
-  for (pieces = cached_pieces(f, dt); pieces <= f->options.max_substeps; pieces *= 2) {
+  for (; pieces <= f->options.max_substeps; pieces *= 2) {
     double* Qk = DOUBLES(f, f->Qk);
     double piece = dt / (double)pieces;
     int src = c, stable = 1, repairs = 0, k;
@@ -358,7 +369,7 @@ static int predict_into(abyssal_kalman* f, const double* u, const double* p, dou
         ok = prior >= 0 && predict_once(f, prior, dst, u, p, piece, Qk);
         repairs = ok;
       }
-      if (!ok || abyssal_grew_beyond(n, f->options.growth_limit, PS(f, prior), PS(f, dst), Qk)) {
+      if (!ok || abyssal_grew_beyond(n, limit, PS(f, prior), PS(f, dst), Qk)) {
         stable = 0;
         break;
       }
@@ -370,14 +381,16 @@ static int predict_into(abyssal_kalman* f, const double* u, const double* p, dou
       if (pieces == 1) {
         out->checked_dt = dt;
       } else {
-        out->cache_dt = dt;
-        out->cache_pieces = pieces;
+        if (!known_dt) {
+          out->cache_dt = dt;
+          out->cache_pieces = pieces;
+        }
         out->substeps += 1;
       }
       return ABYSSAL_OK;
     }
   }
-  return ABYSSAL_E_UNSTABLE;
+  return known_dt ? ABYSSAL_E_UNSTABLE_INPUT : ABYSSAL_E_UNSTABLE;
 }
 
 /* The update of the prior in buffer set `src` (the state, or a prediction) with the present entries of z. */
@@ -684,6 +697,11 @@ const char* abyssal_kalman_message(int code) {
                                     "filter diverged, or dt is beyond the model's stable range at this state. State "
                                     "left unchanged.";
     case ABYSSAL_E_STATE: return "the filter state is not finite";
+    case ABYSSAL_E_UNSTABLE_INPUT: return "u or p: the predict blew up at a dt that was stable before, even in "
+                                          "max_substeps substeps (the covariance grew more than growth_limit times in "
+                                          "one substep, or the integration overflowed): the input drives the model out "
+                                          "of its stable range at this state, or the filter diverged. State left "
+                                          "unchanged.";
     default: return "unknown return code";
   }
 }

@@ -13,9 +13,12 @@
  *   - the innovation gate with patience and inflation (abyssal_kalman_gate.h);
  *   - covariance repair: a step whose Cholesky guard trips on a covariance that is not numerically positive
  *     definite is retried once on the repaired covariance (eigenvalues clipped, counted in `repairs`);
- *   - dt beyond the stable range: the first predict with a dt larger than any seen is checked for a covariance
- *     that grows more than growth_limit times in one step; such a step is split into 2, 4, ... max_substeps
- *     pieces (counted in `substeps`), or refused with ABYSSAL_E_UNSTABLE.
+ *   - dt beyond the stable range: every predict is checked for a covariance that grows more than growth_limit
+ *     times in one step (or an integration that overflows); such a step is split into 2, 4, ... max_substeps
+ *     pieces (counted in `substeps`), or refused: with ABYSSAL_E_UNSTABLE when dt is larger than any found
+ *     stable before (the pieces found for such a dt are remembered), with ABYSSAL_E_UNSTABLE_INPUT when it is not
+ *     (then u or p, at this state, blew it up: an accepted glitch of u must not leave a finite but absurd state
+ *     that every later step refuses).
  *
  * Layouts: vectors are arrays of doubles; matrices n x n column-major (symmetric matrices read the same in
  * either order). The state, input, parameter and output layouts, with units, are in the model's header.
@@ -78,7 +81,9 @@ enum {
   ABYSSAL_E_DIVERGED = -16,   /* the step failed (non-finite outputs, or a covariance that is not positive
                                  definite) even after repairing P */
   ABYSSAL_E_UNSTABLE = -17,   /* dt: the predict blew up even in max_substeps pieces */
-  ABYSSAL_E_STATE = -18       /* the filter state is not finite */
+  ABYSSAL_E_STATE = -18,      /* the filter state is not finite */
+  ABYSSAL_E_UNSTABLE_INPUT = -19 /* u or p: the predict blew up at a dt that was stable before, even in
+                                    max_substeps pieces (the input drives the model out of its stable range) */
 };
 
 typedef struct abyssal_kalman abyssal_kalman;

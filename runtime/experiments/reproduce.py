@@ -5,10 +5,13 @@ same shape: ``paper.py`` (the paper's printed numbers, quoted and labelled as th
 (the truth: the simulated world) and ``experiment.py``, which gives this module
 
     Config                                    dataclass: Config() is the paper's set-up, .quick() the --quick one
+                                              (its docstring is what `reproduce --help` says --quick does)
     EXTRA_COLUMNS                             tidy-table columns beyond run, case, filter, metric, value
     run_one(config, seed) -> rows             one Monte-Carlo run (campaign.py maps it over the runs)
     report(rows, config) -> str               the tables, the paper's numbers beside ours
-    figures(rows, out, config, seed, prepared) -> [Path]   PNG figures
+    figures(rows, out, config, seed, prepared[, settings]) -> [Path]   PNG figures; ``settings`` (when the
+                                              function takes it) is the command that made the run, for
+                                              plots.stamp_settings
     document(rows, config, prepared) -> dict  the experiment's entries of <out>/<name>.json
 
 and, where its record says so, ``prepare(config, out, say) -> (config, prepared)`` before the campaign.
@@ -20,7 +23,10 @@ twice (named with its seed).
 """
 from __future__ import annotations
 
+import ast
 import importlib
+import importlib.util
+import inspect
 import json
 import math
 import sys
@@ -50,13 +56,47 @@ class Experiment:
 
 #: the registry, in the order `all` runs it
 EXPERIMENTS: dict[str, Experiment] = {e.name: e for e in (
-    Experiment("rov", ".rov.experiment", ("rov4dof",), runs=10, quick_runs=10, timings_apart=True,
+    Experiment("rov", ".rov.experiment", ("rov4dof",), runs=10, quick_runs=3, timings_apart=True,
                case="sea state"),
-    Experiment("cn", ".cn.experiment", ("cn2d",), runs=10, quick_runs=10),
-    Experiment("tan", ".tan.experiment", ("tan3dof",), runs=8, quick_runs=1),
+    Experiment("cn", ".cn.experiment", ("cn2d",), runs=10, quick_runs=2, timings_apart=True,
+               case="geometry x noise case"),
+    Experiment("tan", ".tan.experiment", ("tan3dof",), runs=8, quick_runs=1, case="map x track x current"),
     Experiment("remus", ".remus.experiment", ("remus100",), runs=20, quick_runs=3,
                needs={"sklearn": "the GP process model"}, particles=False, prepare=True),
 )}
+
+
+def quick_description(experiment: Experiment) -> str:
+    """What `--quick` runs for one experiment: its quick run count and the docstring of its ``Config.quick``,
+    read from the module's source (nothing is imported, so `abyssal --help` stays fast and an experiment whose
+    optional packages are missing still gets its line)."""
+    runs = f"{experiment.quick_runs} run{'s' if experiment.quick_runs != 1 else ''}"
+    try:
+        spec = importlib.util.find_spec(experiment.module, __package__)
+        tree = ast.parse(Path(spec.origin).read_text())
+        aliases = {node.targets[0].id: node.value.id for node in tree.body if isinstance(node, ast.Assign)
+                   and len(node.targets) == 1 and isinstance(node.targets[0], ast.Name) and isinstance(node.value, ast.Name)}
+        name = aliases.get("Config", "Config")
+        cls = next(node for node in tree.body if isinstance(node, ast.ClassDef) and node.name == name)
+        quick = next(node for node in cls.body if isinstance(node, ast.FunctionDef) and node.name == "quick")
+        doc = ast.get_docstring(quick)
+    except (AttributeError, OSError, StopIteration, SyntaxError, ImportError, TypeError):
+        doc = None
+    text = " ".join(doc.split()) if doc else "(its Config.quick has no docstring)"
+    for prefix in ("`abyssal reproduce", "abyssal reproduce"):  # a docstring that opens with the command itself
+        if text.startswith(prefix):
+            text = text.split(":", 1)[-1].strip()
+    return f"{runs}; {text}"
+
+
+def quick_help() -> str:
+    """The `reproduce --help` epilog: one line per experiment saying what its --quick version is."""
+    import textwrap
+
+    lines = ["--quick, per experiment (derived from each experiment's Config.quick):"]
+    lines += [textwrap.fill(quick_description(e), width=100, initial_indent=f"  {e.name:<7}", subsequent_indent=" " * 9)
+              for e in EXPERIMENTS.values()]
+    return "\n".join(lines)
 
 
 def _strict_json(value):
@@ -116,7 +156,7 @@ def run(name: str, args, config=None) -> int:
     rows = result.rows
     say(f"{result.runs_done} run(s) done, {result.runs_reused} reused from the table, {len(result.failures)} failed; "
         f"{result.wall_seconds:.1f} s on {result.where}")
-    figures = module.figures(rows, out, config, args.seed, prepared) if out and rows else []
+    figures = _figures(module, rows, out, config, args.seed, prepared, name, quick, runs) if out and rows else []
     document = {"experiment": name, "runs": runs, "runs_in_table": len(result.runs),
                 "seed": args.seed, "quick": quick, "config": repr(config), **module.document(rows, config, prepared),
                 "failures": [f.describe() for f in result.failures], "wall_seconds": result.wall_seconds,
@@ -125,6 +165,15 @@ def run(name: str, args, config=None) -> int:
     if experiment.timings_apart and rows:
         report += "\n\n" + module.timing_table(rows)
     return _publish(experiment, args, out, result, _strict_json(document), report, figures)
+
+
+def _figures(module, rows, out, config, seed, prepared, name: str, quick: bool, runs: int) -> list:
+    """The experiment's figures; an experiment whose ``figures`` takes ``settings`` gets the command that made the
+    run, to stamp into every figure (plots.stamp_settings)."""
+    if "settings" in inspect.signature(module.figures).parameters:
+        settings = f"abyssal reproduce {name}{' --quick' if quick else ''} --runs {runs} --seed {seed}"
+        return module.figures(rows, out, config, seed, prepared, settings=settings)
+    return module.figures(rows, out, config, seed, prepared)
 
 
 def _publish(experiment: Experiment, args, out, result, document: dict, report: str, figures) -> int:

@@ -116,7 +116,8 @@ def test_the_option_struct_mirrors_the_c_one(runtime):
 
 @pytest.mark.parametrize("code, words", [
     (kr.E_U, "u has non-finite"), (kr.E_DT, "dt must be"), (kr.E_Z, "use NaN"), (kr.E_P, "p has non-finite"),
-    (kr.E_DIVERGED, "diverged"), (kr.E_UNSTABLE, "max_substeps"), (kr.E_SIGMA_POINTS, "alpha"), (kr.E_GATE, "gate_"),
+    (kr.E_DIVERGED, "diverged"), (kr.E_UNSTABLE, "max_substeps"), (kr.E_UNSTABLE_INPUT, "u or p: the predict blew up"),
+    (kr.E_SIGMA_POINTS, "alpha"), (kr.E_GATE, "gate_"),
     (kr.E_SUBSTEPS, "growth_limit"), (kr.E_MODEL, "model"), (kr.E_R, "R:"), (kr.E_MEMORY, "memory"),
 ])
 def test_the_python_codes_mirror_the_c_messages(runtime, code, words):

@@ -167,11 +167,12 @@ def test_reproduce_rov_json_csv_and_figures_on_the_campaign(tmp_path, capsys):
     report = json.loads(capsys.readouterr().out)
     assert report["experiment"] == "rov" and report["runs"] == 2 and not report["failures"]
     assert {"plain|3|CPF", "density|0|CKF (matched model)", "plain|1-2|EM-MOGCPF"} <= set(report["summary"])
-    assert set(report["summary"]["plain|3|CPF"]) == {"rmse", "anees", "ess_mean", "step_ms", "runs", "refused_runs"}
+    assert set(report["summary"]["plain|3|CPF"]) == {"rmse", "rmse_sd", "rmse_ci95", "rmse_pooled", "anees", "anees_sd",
+                                                     "ess_mean", "step_ms", "runs", "refused_runs"}
     rows = campaign.read_csv(tmp_path / "rov.csv", campaign.TIDY_COLUMNS[:-1] + experiment.EXTRA_COLUMNS + ("value",))
     assert {r["run"] for r in rows} == {0, 1}
     assert report["summary"]["plain|3|CPF"] == experiment.summary(rows)[("plain", "3", "CPF")]  # made from the rows
-    assert len(list(tmp_path.glob("rov_rmse_sea_*.png"))) == 3
+    assert len(list(tmp_path.glob("rov_rmse_sea_*.png"))) == 3 and len(list(tmp_path.glob("rov_errors_sea_*.png"))) == 3
     # the text tables: the paper's Table 3 beside ours, the sensitivity table and the rankings
     args.json = False
     args.resume = True  # nothing left to run: the tables come from the CSV alone
@@ -179,6 +180,7 @@ def test_reproduce_rov_json_csv_and_figures_on_the_campaign(tmp_path, capsys):
     text = capsys.readouterr().out
     assert "CKF (matched model)" in text and "CKF (mismatched Q)" in text and "1.8577" in text
     assert "Wall time per filter step" in text  # the timings, apart from the tables
+    assert "sample sd over runs (ddof = 1)" in text and "psi rad" in text  # the statistic and the unit, named
     assert "Sensitivity to the process-noise reading" in text and "paper: EM-MOGCPF < CPF" in text
 
 
@@ -204,3 +206,31 @@ def test_table3_prints_each_paper_number_in_its_own_cell():
             cells = lines[start + offset].split()[-8:]  # ours, paper for PF, CKF, CPF, EM-MOGCPF
             quoted = [float(c) for c in cells[1::2]]
             assert quoted == [filters[f][axis] for f in ("PF", "CKF", "CPF", "EM-MOGCPF")], (sea, axis)
+
+
+def test_summary_is_the_mean_of_per_run_rmse_with_the_sample_sd_and_names_the_pooled_one_apart():
+    mse = [0.04, 0.25, 0.09]  # per-run RMSE 0.2, 0.5, 0.3
+    rows = [{"run": r, "case": "0", "filter": "PF", "metric": m, "reading": "plain", "value": v}
+            for r, x in enumerate(mse) for m, v in {**{f"mse_{a}": x for a in paper.AXES}, "anees": 1.0 + r,
+                                                    "ess_mean": 100.0, "step_ms": 1.0, "refused": 0.0}.items()]
+    rows.append({"run": 3, "case": "0", "filter": "PF", "metric": "refused", "reading": "plain", "value": 1.0})
+    rows += [{"run": 3, "case": "0", "filter": "PF", "metric": f"mse_{a}", "reading": "plain", "value": float("nan")}
+             for a in paper.AXES]
+    s = experiment.summary(rows)[("plain", "0", "PF")]
+    assert s["rmse"]["x"] == pytest.approx(np.mean([0.2, 0.5, 0.3]))
+    assert s["rmse_sd"]["x"] == pytest.approx(np.std([0.2, 0.5, 0.3], ddof=1))
+    assert s["rmse_pooled"]["x"] == pytest.approx(np.sqrt(np.mean(mse))) and s["rmse_pooled"]["x"] > s["rmse"]["x"]
+    from scipy import stats
+
+    low, high = stats.t.interval(0.95, 2, loc=np.mean([0.2, 0.5, 0.3]), scale=stats.sem([0.2, 0.5, 0.3]))
+    assert s["rmse_ci95"]["x"] == pytest.approx((high - low) / 2)
+    assert s["runs"] == 3 and s["refused_runs"] == 1 and s["anees"] == pytest.approx(2.0)
+
+
+def test_quick_keeps_every_case_and_main_filter_and_leaves_the_costly_sweep_out():
+    default = experiment.RovConfig()
+    quick = default.quick()
+    assert quick.cases() == default.cases() and quick.scenario.duration == 20.0
+    labels = {f.label for f in quick.filters}
+    assert labels == {f.label for f in experiment.MAIN_FILTERS}
+    assert not labels & {f.label for f in experiment.N_SWEEP}

@@ -1,65 +1,101 @@
-"""`abyssal reproduce cn`: seed 002's Table 7 and Figs. 7-9 on the simulated lake trial (scenario.py).
+"""`abyssal reproduce cn`: seed 002's Table 7 and Figs. 7-9 on the simulated lake trial (scenario.py), under the
+leader geometries the paper does not publish.
 
-One campaign run (``run_one``) simulates one trial per noise case and runs every filter on it:
-dead reckoning, CKF, MCUKF, PF, UPF, HRUPF, IVBCKF, MCUPF -- and, ours, MCC-UPF: MCUPF's MCC proposal
-with a fixed N = 5000 and multinomial resampling, to separate the proposal's effect from
-KLD-resampling's -- with the paper's printed tuning
-Q = diag(10^2, 10^2) m^2 per 5 s step and R = 0.1 m^2 (Table 6 parameters). Rows: per run x case x
-filter, ``ape_m`` (eq. 46), ``final_error_m``, ``step_ms`` (wall clock per step, mean over the
-run) and ``mean_particles``. The table quotes the paper's Table 7 (MATLAB on a 2.9 GHz Pentium,
-real lake data) beside our means over runs; it is never our data.
+Cases. The paper's trial geometry is unpublished (its Fig. 6 shows the AUV between the two leaders, nothing
+more), and the geometry decides how well two ranges fix the AUV, so it is a case of the campaign:
+scenario.GEOMETRIES "collinear" (both leaders on one line through the AUV: range lines crossing at ~10 deg),
+"crossing60" and "crossing90", crossed with the range-noise cases of scenario.NOISE_CASES. One run simulates one
+trial per noise case from ``derive(seed, case)``; the leaders' layout draws no random numbers, so the AUV, its
+sensors and the range noise are the same under every geometry (paired comparisons). The report gives each
+geometry's measured crossing angle and 2-range GDOP (median and the bad tail over every ping of every run).
 
-Every filter runs with the innovation gate off (``gate_probability=0``): the paper's filters
-have none, and a gate would make the plain CKF robust (and the tuned UPFs in the multipath case). The MCUKF and the UPF family use the
-paper's lambda = 3 - n sigma points (alpha = 1, beta = 0, kappa = 3 - n).
+Filters: dead reckoning, CKF, MCUKF, PF, UPF, HRUPF, IVBCKF, MCUPF -- and, ours, MCC-UPF: MCUPF's MCC proposal
+with a fixed N = N_start and multinomial resampling, to separate the proposal's effect from KLD-resampling's --
+with the paper's printed tuning Q = diag(10^2, 10^2) m^2 per 5 s step and R = 0.1 m^2 (Table 6 parameters):
+that is the paper's case. Every filter runs with the innovation gate off (``gate_probability=0``): the paper's
+filters have none, and a gate would make the plain CKF robust (and the tuned UPFs in the multipath case). The MCUKF
+and the UPF family use the paper's lambda = 3 - n sigma points (alpha = 1, beta = 0, kappa = 3 - n). "<filter>
+tuned" rows use Q = diag(1, 1) m^2 per step (the DR drift over 5 s is well below
+1 m) and R = the variance of the simulated range error as the filter sees it: the range noise (1 m^2) plus the
+leader's broadcast GPS error along the line of sight (1.53^2 m^2), everything else unchanged. They show what the
+printed Q, R cost under each geometry (with R = 1 m^2, the range noise alone, a CKF's ANEES on the crossing60
+layout was ~2 and 79 % of its NEES inside the 95 % bound; with the GPS term, 0.6 and 99 %, on 6 trials).
 
-Tuned rows ("<filter> tuned"): on this simulation the printed Q = (10 m)^2 per 5 s step lets the
-estimate random-walk 10 m per step along the direction a single range does not observe, so the
-filters end up near dead reckoning (measured: CKF and UPF APE 18-25 m against DR 18-31 m on two
-seeds, and 4-5 m with Q = (1 m)^2, R = 1 m^2). The printed values stay the reproduction; the
-tuned rows use Q = diag(1, 1) m^2 per step (the DR drift over 5 s is well below 1 m) and R = the
-simulated nominal range variance (1 m^2), everything else unchanged.
+Random streams: a particle filter's error on one trial depends on its random numbers (on the collinear
+geometry MCUPF's APE on one trial differs by metres between streams), so every particle filter runs
+``streams`` times per trial on independent streams ``derive(seed, case, 1, crc32(label), stream)`` (a filter's
+numbers do not depend on which other filters run). Its per-run APE is the mean over its streams; the spread
+between streams (sd, ddof = 1, across the streams of one trial; median over trials) is reported apart.
+
+Rows (``EXTRA_COLUMNS`` = geometry, stream): per filter and stream ``ape_m`` (eq. 46, over the 352 pings),
+``final_error_m``, ``anees`` (mean over pings of NEES / 2 with the filter's own covariance; NaN for DR; inf where a
+particle cloud collapsed to one point), ``coverage95`` (share of pings whose NEES is inside the 95 % chi-square
+bound),
+``mean_particles`` (mean over all steps: step 0 runs N_start), ``steady_particles`` (mean over steps 1..: the
+count KLD-resampling settles on), ``step_ms`` (wall clock, kept out of the compared tables), ``refused`` (1 when
+the filter refused a step of this trial: its other metrics are then NaN and left out of the averages); per trial
+(filter "trial") ``crossing_median_deg``, ``crossing_p10_deg``, ``gdop_median``, ``gdop_p90``. The tables
+quote the paper's Table 7 (MATLAB on a 2.9 GHz Pentium, real lake data) beside ours; it is never our data.
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+import zlib
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from ...extras import require
-from ..campaign import derive, run_index
+from ..campaign import TIMING_METRICS, derive, run_index, run_seeds
+from ..tables import MEAN_SD, fraction, over_runs
 from . import paper
-from .scenario import NOISE_CASES, CnScenario, ape, position_errors, simulate
+from .scenario import GEOMETRIES, GPS_SIGMA, NOISE_CASES, CnScenario, crossing_angles, gdop, position_errors, simulate
 
 FILTERS = ("DR", "CKF", "MCUKF", "PF", "UPF", "HRUPF", "IVBCKF", "MCUPF", "MCC-UPF")
-EXTRA_COLUMNS: tuple[str, ...] = ()
+PARTICLE_FILTERS = frozenset({"PF", "UPF", "HRUPF", "MCUPF", "MCC-UPF"})
+EXTRA_COLUMNS: tuple[str, ...] = ("geometry", "stream")
+TRIAL = "trial"  # the filter column of the per-trial geometry rows
+GEOMETRY_METRICS = ("crossing_median_deg", "crossing_p10_deg", "gdop_median", "gdop_p90")
+METRICS = ("ape_m", "final_error_m", "anees", "coverage95", "mean_particles", "steady_particles", "step_ms")
 
 
 @dataclass(frozen=True)
 class CnConfig:
-    """One campaign's set-up: the scenario, the noise cases, the filters and their tuning."""
+    """One campaign's set-up: the scenario, the cases (geometries x noise cases), the filters and their tuning."""
 
     scenario: CnScenario = field(default_factory=CnScenario)
+    geometries: tuple = tuple(GEOMETRIES)
     cases: tuple = NOISE_CASES
     filters: tuple = FILTERS
-    n_particles: int = 5000          # PF, UPF, HRUPF; MCUPF's N_start
+    n_particles: int = 5000          # PF, UPF, HRUPF, MCC-UPF; MCUPF's N_start
     kld_n_max: int = 2000            # Table 6
-    kld_n_min: int = 50              # ours (the paper states none)
+    kld_n_min: int = 50              # ours (the paper states none; N = 1 collapses the filter for good)
     q_std: float = 10.0              # Q = diag(q_std^2, q_std^2) per step
     r: float = 0.1                   # R (m^2) as printed
     sigma: float = 15.0              # MCC kernel bandwidth
     gamma: float = 1.345             # Huber threshold
     ivb_iterations: int = 10         # ours: the paper does not state T_i1
-    tuned: tuple = ("CKF", "MCUKF", "IVBCKF", "UPF", "MCUPF", "MCC-UPF")  # also run with the tuned Q, R (docstring)
+    tuned: tuple = ("CKF", "MCUKF", "IVBCKF", "MCUPF")  # also run with the tuned Q, R (module docstring)
     q_std_tuned: float = 1.0
-    r_tuned: float = 1.0
+    r_tuned: float = 1.0 + GPS_SIGMA**2  # range noise + the leader's GPS error along the line of sight, m^2
+    streams: int = 3                 # random streams per trial for every particle filter
+
+    def __post_init__(self):
+        unknown = [g for g in self.geometries if g not in GEOMETRIES]
+        if unknown or not self.geometries:
+            raise ValueError(f"geometries must name some of {tuple(GEOMETRIES)}, got {self.geometries!r}")
+        if int(self.streams) < 1:
+            raise ValueError(f"streams must be >= 1, got {self.streams}")
 
     def quick(self) -> "CnConfig":
-        from dataclasses import replace
+        """every leader geometry, noise cases gaussian and multipath, a 600 s trial (120 pings), N_start = 1000
+        (KLD N_max = 500), 2 random streams per particle filter"""
+        scenario = replace(self.scenario, duration=600.0, leg_seconds=(200.0, 60.0, 200.0, 60.0, 100.0))
+        return replace(self, scenario=scenario, cases=("gaussian", "multipath"), n_particles=1000, kld_n_max=500,
+                       streams=2)
 
-        return replace(self, scenario=replace(self.scenario, duration=600.0, leg_seconds=(200.0, 60.0, 200.0, 60.0, 100.0)),
-                       n_particles=1000, kld_n_max=500)
+    def scenario_for(self, geometry: str) -> CnScenario:
+        return replace(self.scenario, leaders=GEOMETRIES[geometry])
 
 
 def make_filter(name: str, model, trial, config: CnConfig, rng: np.random.Generator):
@@ -107,36 +143,101 @@ def filter_names(config: CnConfig) -> list[str]:
     return list(config.filters) + [f"{f} tuned" for f in config.tuned if f in config.filters]
 
 
-def run_filters(config: CnConfig, seed: np.random.SeedSequence, case_index: int):
-    """(trial, {filter: (estimates (K, 2), step seconds (K,), particles (K,))}) for one case of one run."""
+def is_particle_filter(label: str) -> bool:
+    return label.removesuffix(" tuned") in PARTICLE_FILTERS
+
+
+@dataclass
+class FilterTrace:
+    """One filter's run on one trial: what the rows and the figures are made from."""
+
+    x: np.ndarray          # (K, 2) estimates
+    nees: np.ndarray       # (K,) NaN for DR
+    particles: np.ndarray  # (K,) NaN for Kalman filters and DR
+    step_time: np.ndarray  # (K,) s
+
+
+def run_filters(config: CnConfig, seed: np.random.SeedSequence, geometry: str, case_index: int,
+                streams: int | None = None, labels=None):
+    """(trial, {(label, stream): FilterTrace, or None where the filter refused a step}) for one geometry and noise
+    case of one run; ``streams`` (default config.streams) random streams for the particle filters, one for the
+    others."""
     import abyssal.generated
 
     model = abyssal.generated.load("cn2d")
     case = config.cases[case_index]
-    trial = simulate(config.scenario, case, np.random.default_rng(derive(seed, case_index)))
+    trial = simulate(config.scenario_for(geometry), case, np.random.default_rng(derive(seed, case_index)))
+    streams = config.streams if streams is None else streams
+    K = len(trial.t)
     out = {}
-    for j, name in enumerate(filter_names(config)):
-        if name == "DR":
-            out[name] = (trial.dr, np.zeros(len(trial.t)), np.full(len(trial.t), np.nan))
+    for label in labels or filter_names(config):
+        if label == "DR":
+            out[(label, 0)] = FilterTrace(trial.dr, np.full(K, np.nan), np.full(K, np.nan), np.zeros(K))
             continue
-        filt = make_filter(name, model, trial, config, np.random.default_rng(derive(seed, case_index, 100 + j)))
-        result = filt.run(trial.U, trial.Z, trial.dt, params=trial.params)
-        out[name] = (result.x, result.step_time, result.particles)
+        for stream in range(streams if is_particle_filter(label) else 1):
+            rng = np.random.default_rng(derive(seed, case_index, 1, zlib.crc32(label.encode()), stream))
+            filt = make_filter(label, model, trial, config, rng)
+            try:
+                with np.errstate(over="ignore"):  # the NEES of a cloud collapsed to one point (P = 0) is inf
+                    result = filt.run(trial.U, trial.Z, trial.dt, params=trial.params, truth=trial.truth)
+            except (ValueError, ArithmeticError, np.linalg.LinAlgError):
+                out[(label, stream)] = None  # the filter refused a step: an outcome of this filter on this trial
+                continue
+            out[(label, stream)] = FilterTrace(result.x, result.nees, result.particles, result.step_time)
     return trial, out
 
 
+def trial_geometry(trial) -> dict:
+    """The trial's crossing angle (deg) and 2-range GDOP: median and the bad tail over its pings."""
+    angle, dop = crossing_angles(trial), gdop(trial)
+    return {"crossing_median_deg": float(np.median(angle)), "crossing_p10_deg": float(np.percentile(angle, 10)),
+            "gdop_median": float(np.median(dop)), "gdop_p90": float(np.percentile(dop, 90))}
+
+
+#: chi-square 95 % quantile with 2 degrees of freedom (= -2 ln 0.05): a consistent filter's NEES is below it at 95 %
+#: of the pings
+NEES_BOUND_95 = -2.0 * math.log(0.05)
+
+
+def _anees(nees: np.ndarray) -> float:
+    """Mean over the pings of NEES / n_x (n_x = 2); inf when a particle cloud collapsed to a point (P = 0); NaN for
+    DR (no covariance)."""
+    if np.isnan(nees).all():
+        return math.nan
+    with np.errstate(over="ignore"):
+        return float(np.mean(nees) / 2.0)
+
+
+def _coverage(nees: np.ndarray) -> float:
+    """Share of the pings whose NEES lies inside the 95 % chi-square bound (NaN for DR)."""
+    return math.nan if np.isnan(nees).all() else float(np.mean(nees <= NEES_BOUND_95))
+
+
 def run_one(config: CnConfig, seed: np.random.SeedSequence) -> list[dict]:
-    """One campaign run: every noise case x filter; tidy rows (campaign.py)."""
+    """One campaign run: every geometry x noise case x filter (x stream); tidy rows (campaign.py)."""
     run = run_index(seed)
     rows = []
-    for i, case in enumerate(config.cases):
-        trial, results = run_filters(config, seed, i)
-        for name, (x, step_time, particles) in results.items():
-            pe = position_errors(x, trial.truth)
-            values = {"ape_m": float(pe.mean()), "final_error_m": float(pe[-1]),
-                      "step_ms": float(np.mean(step_time) * 1e3),
-                      "mean_particles": float(np.nanmean(particles)) if np.isfinite(particles).any() else math.nan}
-            rows += [{"run": run, "case": case, "filter": name, "metric": k, "value": v} for k, v in values.items()]
+
+    def add(case, geometry, label, stream, metrics):
+        rows.extend({"run": run, "case": case, "filter": label, "metric": k, "geometry": geometry, "stream": stream,
+                     "value": v} for k, v in metrics.items())
+
+    for geometry in config.geometries:
+        for i, case in enumerate(config.cases):
+            trial, traces = run_filters(config, seed, geometry, i)
+            add(case, geometry, TRIAL, 0, trial_geometry(trial))
+            for (label, stream), tr in traces.items():
+                if tr is None:  # refused: NaN metrics (left out of the averages, counted in "refused")
+                    add(case, geometry, label, stream, {**{m: math.nan for m in METRICS}, "refused": 1.0})
+                    continue
+                pe = position_errors(tr.x, trial.truth)
+                counted = np.isfinite(tr.particles)
+                add(case, geometry, label, stream, {
+                    "ape_m": float(pe.mean()), "final_error_m": float(pe[-1]),
+                    "anees": _anees(tr.nees), "coverage95": _coverage(tr.nees),
+                    "mean_particles": float(np.mean(tr.particles)) if counted.all() else math.nan,
+                    "steady_particles": float(np.mean(tr.particles[1:])) if counted.all() and len(counted) > 1 else math.nan,
+                    "step_ms": float(np.mean(tr.step_time) * 1e3), "refused": 0.0})
     return rows
 
 
@@ -144,84 +245,207 @@ def run_one(config: CnConfig, seed: np.random.SeedSequence) -> list[dict]:
 # tables
 
 
-def summary(rows) -> dict:
-    """{case: {filter: {metric: mean over runs, metric_std: std over runs}}}."""
-    table: dict = {}
-    for r in rows:
-        table.setdefault(r["case"], {}).setdefault(r["filter"], {}).setdefault(r["metric"], []).append(r["value"])
-    out = {}
-    for case, filters in table.items():
-        out[case] = {}
-        for f, metrics in filters.items():
-            entry = {}
-            for k, v in metrics.items():
-                v = np.asarray(v, dtype=float)
-                entry[k] = float(np.nanmean(v)) if np.isfinite(v).any() else math.nan
-                entry[k + "_std"] = float(np.nanstd(v)) if np.isfinite(v).sum() > 1 else math.nan
-            entry["runs"] = int(len(metrics.get("ape_m", [])))
-            out[case][f] = entry
+def _per_run(rows) -> dict:
+    """{(geometry, case, filter, metric): {run: [value per stream]}} (streams in order)."""
+    out: dict = {}
+    for r in sorted(rows, key=lambda r: (r["run"], int(r["stream"]))):
+        out.setdefault((r["geometry"], r["case"], r["filter"], r["metric"]), {}).setdefault(r["run"], []).append(r["value"])
     return out
 
 
-def beats_dr(rows) -> dict:
-    """{case: {filter: fraction of runs whose APE is below dead reckoning's}}."""
-    ape_of = {(r["run"], r["case"], r["filter"]): r["value"] for r in rows if r["metric"] == "ape_m"}
+def _stream_mean(values: list) -> float:
+    """Mean over one trial's streams, a refused stream (NaN) left out (inf stays inf; NaN if every one refused)."""
+    v = np.asarray(values, dtype=float)
+    v = v[~np.isnan(v)]
+    return float(np.mean(v)) if v.size else math.nan
+
+
+def summary(rows) -> dict:
+    """{(geometry, case, filter): {metric: OverRuns of the per-run value (a particle filter's = mean over its
+    streams), "stream_sd_m": median over runs of the APE's sd across streams (ddof = 1), "below_dr", "below_dr4":
+    (runs whose APE < DR's, < DR's / 4, runs)}}; the trial rows give the geometry metrics (over runs' medians)."""
+    per_run = _per_run(rows)
     out: dict = {}
-    for (run, case, f), v in ape_of.items():
-        if f == "DR":
-            continue
-        out.setdefault(case, {}).setdefault(f, []).append(v < ape_of[(run, case, "DR")])
-    return {c: {f: float(np.mean(v)) for f, v in d.items()} for c, d in out.items()}
+    for (geometry, case, label, metric), runs in per_run.items():
+        entry = out.setdefault((geometry, case, label), {})
+        entry[metric] = over_runs(_stream_mean(v) for v in runs.values())
+        if metric == "refused":
+            entry["refused_streams"] = int(sum(sum(v) for v in runs.values()))
+        if metric == "ape_m":
+            sds = [float(np.std(v, ddof=1)) for v in runs.values() if len(v) > 1]
+            entry["stream_sd_m"] = float(np.median(sds)) if sds else math.nan
+            entry["streams"] = max(len(v) for v in runs.values())
+            dr = per_run.get((geometry, case, "DR", "ape_m"), {})
+            pairs = [(_stream_mean(v), dr[run][0]) for run, v in runs.items() if run in dr]
+            pairs = [(a, d) for a, d in pairs if not math.isnan(a)]
+            entry["below_dr"] = fraction(a < d for a, d in pairs)
+            entry["below_dr4"] = fraction(a < d / 4 for a, d in pairs)
+            entry["ratio_to_dr"] = over_runs(a / d for a, d in pairs)
+    return out
+
+
+def geometry_summary(rows) -> dict:
+    """{geometry: {metric: median over the trials (runs x noise cases) of each trial's statistic over its pings}}:
+    the crossing angle's median and 10th percentile, the GDOP's median and 90th percentile."""
+    values: dict = {}
+    for r in rows:
+        if r["filter"] == TRIAL:
+            values.setdefault(r["geometry"], {}).setdefault(r["metric"], []).append(r["value"])
+    return {g: {m: float(np.median(v)) for m, v in metrics.items()} for g, metrics in values.items()}
+
+
+def best_counts(rows, labels) -> dict:
+    """{(geometry, case): {label: runs where label has the lowest APE among labels}} and the number of runs."""
+    per_run = _per_run(rows)
+    out: dict = {}
+    keys = {(g, c) for (g, c, f, m) in per_run if m == "ape_m"}
+    for g, c in keys:
+        apes = {f: {run: _stream_mean(v) for run, v in per_run[(g, c, f, "ape_m")].items()}
+                for f in labels if (g, c, f, "ape_m") in per_run}
+        runs = sorted(set.intersection(*(set(v) for v in apes.values()))) if apes else []
+        wins = {f: 0 for f in apes}
+        for run in runs:
+            wins[min(apes, key=lambda f: apes[f][run])] += 1
+        out[(g, c)] = (wins, len(runs))
+    return out
+
+
+def _g(value: float) -> str:
+    """A consistency number, short: 1.03, 12.5, 3.4e+05, inf."""
+    return f"{value:.3g}" if math.isfinite(value) else str(value)
+
+
+def _leaders_text(geometry: str) -> str:
+    (a, b), (c, d) = GEOMETRIES[geometry]
+    return f"leader 0 at ({a:+.0f}, {b:+.0f}) m, leader 1 at ({c:+.0f}, {d:+.0f}) m"
 
 
 def report(rows, config: CnConfig) -> str:
-    s, wins = summary(rows), beats_dr(rows)
+    s, geo = summary(rows), geometry_summary(rows)
     runs = len({r["run"] for r in rows})
-    lines = [f"Seed 002, Table 7 on a SIMULATED lake trial (scenario.py; the paper's Lake Thai data is not public), "
-             f"{runs} run(s). Ours: mean (std over runs); paper: real data, MATLAB on a 2.9 GHz Pentium (a different "
-             f"machine, language and data set). Tuning as printed: Q = diag({config.q_std:g}^2, {config.q_std:g}^2), "
-             f"R = {config.r:g}; true range noise sigma = {math.sqrt(config.scenario.range_variance):g} m."]
-    for case in config.cases:
-        if case not in s:
+    labels = [f for f in filter_names(config) if any(k[2] == f for k in s)]
+    cases = [c for c in config.cases if any(k[1] == c for k in s)]
+    printed = [f for f in labels if f in paper.TABLE7]
+    lines = [
+        f"Seed 002, Table 7 on a SIMULATED lake trial (scenario.py; the paper's Lake Thai data is not public): {runs} "
+        f"run(s) x {len(config.geometries)} leader geometries x {len(cases)} range-noise cases, particle filters on "
+        f"{config.streams} random stream(s) per trial (N_start = {config.n_particles}).",
+        f"The paper's case: its printed tuning Q = diag({config.q_std:g}^2, {config.q_std:g}^2) m^2 per ping, "
+        f"R = {config.r:g} m^2; 'tuned' rows: Q = diag({config.q_std_tuned:g}^2, {config.q_std_tuned:g}^2), "
+        f"R = {config.r_tuned:.3g} (the simulated range noise, sigma = {math.sqrt(config.scenario.range_variance):g} m, "
+        f"plus the leader's GPS error, {config.scenario.gps_sigma:.2f} m per axis).",
+        f"APE (eq. 46, m): {MEAN_SD}; a particle filter's per-run APE is the mean over its streams.",
+        "Paper: Table 7, real lake data of unpublished geometry, MATLAB on a 2.9 GHz Pentium -- quoted, not ours.",
+    ]
+    for geometry in config.geometries:
+        if geometry not in geo:
             continue
-        lines += ["", f"noise case: {case}",
-                  f"{'filter':8s} {'APE m (ours)':>18s} {'beats DR':>9s} {'ms/step':>9s} {'particles':>10s}   "
-                  f"{'paper APE m':>11s} {'paper ms':>9s}"]
-        for f in filter_names(config):
-            e = s[case].get(f)
-            if e is None:
-                continue
-            pa = None if f.endswith("tuned") else paper.TABLE7.get(f)
-            win = "" if f == "DR" else f"{100 * wins[case][f]:7.0f} %"
-            ape_s = f"{e['ape_m']:8.2f} ({e['ape_m_std']:.2f})" if math.isfinite(e["ape_m_std"]) else f"{e['ape_m']:8.2f}"
-            parts = f"{e['mean_particles']:10.0f}" if math.isfinite(e["mean_particles"]) else f"{'-':>10s}"
-            paper_s = f"{pa[0]:11.1f} {pa[1] * 1e3:9.3f}" if pa else f"{'-':>11s} {'-':>9s}"
-            lines.append(f"{f:8s} {ape_s:>18s} {win:>9s} {e['step_ms']:9.3f} {parts}   {paper_s}")
-        ranking = sorted((f for f in s[case] if f in paper.TABLE7), key=lambda f: s[case][f]["ape_m"])
-        lines.append("our APE ranking (printed tuning): " + " < ".join(ranking))
-        lines.append("paper's ranking (Table 7):        " + " < ".join(paper.APE_RANKING))
+        g = geo[geometry]
+        lines += ["", f"== geometry {geometry}: {_leaders_text(geometry)} from (the AUV's smoothed east, the centre line)",
+                  f"   range lines cross at {g['crossing_median_deg']:.1f} deg (median; 10th percentile "
+                  f"{g['crossing_p10_deg']:.1f} deg), 2-range GDOP {g['gdop_median']:.2f} (median; 90th percentile "
+                  f"{g['gdop_p90']:.3g}); medians over the trials of each trial's statistic over its pings", ""]
+        head = f"{'APE m':14s}" + "".join(f"{c:>17s}" for c in cases) + f"{'paper APE m':>13s}"
+        lines += [head, "-" * len(head)]
+        for f in labels:
+            cells = "".join(f"{s[(geometry, c, f)]['ape_m'].cell('.2f') if (geometry, c, f) in s else '-':>17s}"
+                            for c in cases)
+            pa = paper.TABLE7.get(f)
+            lines.append(f"{f:14s}{cells}{(f'{pa[0]:.1f}' if pa else '-'):>13s}")
+        lines += _filter_table("vs DR, streams", "runs with APE < DR/4 (< DR); particle filters: APE sd between streams "
+                               "(m, median over runs); R<k>: k refused streams", s, geometry, cases, labels, _vs_dr_cell)
+        lines += _filter_table("consistency", "ANEES (NEES / 2, median over runs) / pings inside the 95 % NEES bound "
+                               "(mean over runs; 95 % if consistent)", s, geometry, cases, labels, _consistency_cell)
+        wins = best_counts([r for r in rows if r["geometry"] == geometry], printed)
+        for c in cases:
+            if (geometry, c) in wins:
+                w, n = wins[(geometry, c)]
+                best = max(w, key=w.get) if w else "-"
+                lines.append(f"   {c}: MCUPF has the lowest APE of the printed-tuning filters in {w.get('MCUPF', 0)}/{n} "
+                             f"runs (most often lowest: {best}, {w.get(best, 0)}/{n})")
+    lines += ["", "Paper's APE ranking (Table 7): " + " < ".join(paper.APE_RANKING), "", kld_table(rows, config)]
     return "\n".join(lines)
 
 
+def _filter_table(title: str, note: str, s: dict, geometry: str, cases, labels, cell) -> list[str]:
+    """A sub-table of one geometry: a row per filter (DR left out), a column per noise case, ``cell(f, entry)``."""
+    lines = ["", f"{title:14s}" + "".join(f"{c:>22s}" for c in cases) + "   " + note]
+    for f in labels:
+        if f != "DR":
+            entries = [s.get((geometry, c, f)) for c in cases]
+            lines.append(f"{f:14s}" + "".join(f"{cell(f, e) if e else '-':>22s}" for e in entries))
+    return lines
+
+
+def _vs_dr_cell(f: str, e: dict) -> str:
+    (k4, n), (k1, _) = e["below_dr4"], e["below_dr"]
+    cell = f"{k4}/{n} ({k1}/{n})" + (f" R{e['refused_streams']}" if e.get("refused_streams") else "")
+    if is_particle_filter(f) and math.isfinite(e["stream_sd_m"]):
+        cell += f" sd {e['stream_sd_m']:.2f}"
+    return cell
+
+
+def _consistency_cell(f: str, e: dict) -> str:
+    return f"{_g(e['anees'].median)} / {100 * e['coverage95'].mean:.0f} %" if e["coverage95"].n else "-"
+
+
+def kld_table(rows, config: CnConfig) -> str:
+    """MCUPF's particle count: the mean over every step (step 0 runs N_start) and the steady count (steps 1..)."""
+    s = summary(rows)
+    kld = [f for f in filter_names(config) if f.removesuffix(" tuned") == "MCUPF"]
+    lines = [f"KLD-resampling particle count (N_start = {config.n_particles}, N_max = {config.kld_n_max}, our floor "
+             f"n_min = {config.kld_n_min}): steady = mean over steps 1.. (mean over every step, step 0 included), "
+             "mean over runs and streams"]
+    for f in kld:
+        for geometry in config.geometries:
+            cells = []
+            for c in config.cases:
+                e = s.get((geometry, c, f))
+                if e and e["steady_particles"].n:
+                    cells.append(f"{c} {e['steady_particles'].mean:.0f} ({e['mean_particles'].mean:.0f})")
+            if cells:
+                lines.append(f"  {f:12s} {geometry:11s} " + "; ".join(cells))
+    return "\n".join(lines)
+
+
+def timing_table(rows) -> str:
+    """Mean wall time per step (machine- and load-dependent: not part of the reproducible tables)."""
+    values: dict = {}
+    for r in rows:
+        if r["metric"] in TIMING_METRICS and r["filter"] not in ("DR", TRIAL):
+            values.setdefault(r["filter"], []).append(r["value"])
+    parts = [f"{f} {np.mean(v):.3f}" for f, v in values.items()]
+    return ("Wall time per filter step, ms, mean over every run, case and stream (varies with the machine and its "
+            "load; `abyssal bench` measures them side by side):\n  " + "; ".join(parts))
+
+
 def document(rows, config: CnConfig, prepared=None) -> dict:
-    """The JSON summary's entries: what the data is, and ``json_document``'s cases."""
-    return {"data": "simulated lake trial (the paper's data is not public)", "cases": json_document(rows)}
+    """The JSON summary's entries: what the data is, the geometries (leaders, crossing angle, GDOP) and the
+    cases {geometry: {noise case: {filter: {...}}}}."""
+    geo = geometry_summary(rows)
+    return {"data": "simulated lake trial (the paper's data is not public)",
+            "statistic": f"ape_m: {MEAN_SD}; per-run APE of a particle filter = mean over its streams",
+            "geometries": {g: {"leaders_m": [list(p) for p in GEOMETRIES[g]], **geo.get(g, {})} for g in config.geometries},
+            "cases": json_document(rows)}
 
 
 def json_document(rows) -> dict:
-    """{case: {filter: {ape_m, step_ms, mean_particles (particle filters), ...}}} (NaN kept: reproduce writes null)."""
-    s = summary(rows)
-    out = {}
-    for case, filters in s.items():
-        out[case] = {}
-        for f, e in filters.items():
-            entry = {"ape_m": e["ape_m"], "ape_m_std": e["ape_m_std"], "final_error_m": e["final_error_m"],
-                     "step_ms": e["step_ms"], "runs": e["runs"]}
-            if math.isfinite(e["mean_particles"]):
-                entry["mean_particles"] = e["mean_particles"]
-            if f in paper.TABLE7:  # (tuned rows have no paper number)
-                entry["paper_ape_m"], entry["paper_step_ms"] = paper.TABLE7[f][0], paper.TABLE7[f][1] * 1e3
-            out[case][f] = entry
+    """{geometry: {case: {filter: {ape_m, ape_m_sd, ape_m_ci95, runs, ...}}}} (NaN kept: reproduce writes null)."""
+    out: dict = {}
+    for (geometry, case, f), e in summary(rows).items():
+        if f == TRIAL:
+            continue
+        ape = e["ape_m"]
+        entry = {"ape_m": ape.mean, "ape_m_sd": ape.sd, "ape_m_ci95": ape.ci95, "runs": ape.n,
+                 "final_error_m": e["final_error_m"].mean, "anees_median": e["anees"].median,
+                 "coverage95": e["coverage95"].mean,
+                 "runs_below_dr": e["below_dr"][0], "runs_below_quarter_dr": e["below_dr4"][0]}
+        if is_particle_filter(f):
+            entry.update(streams=e["streams"], stream_sd_m=e["stream_sd_m"], mean_particles=e["mean_particles"].mean,
+                         steady_particles=e["steady_particles"].mean)
+        if f in paper.TABLE7:  # (tuned rows have no paper number)
+            entry["paper_ape_m"] = paper.TABLE7[f][0]
+        out.setdefault(geometry, {}).setdefault(case, {})[f] = entry
     return out
 
 
@@ -229,53 +453,180 @@ def json_document(rows) -> dict:
 # figures
 
 
-def figures(rows, out, config: CnConfig, seed: int = 0, prepared=None) -> list:
-    """Figs. 7-9 analogues (paths, positions, position errors) and MCUPF's particle count, for run 0 of each
-    case (re-run here from the same seed, so they show a run that is in the table)."""
-    require("matplotlib", "the experiment figures").use("Agg")
-    plt = require("matplotlib.pyplot", "the experiment figures")
-
-    from ..campaign import run_seeds
-
+def _figure_runs(config: CnConfig, seed: int):
+    """Run 0 of the first noise case, stream 0, under every geometry (re-run from the same seed, so the figures
+    show runs that are in the table): {geometry: (trial, {label: FilterTrace})}."""
     s0 = run_seeds(seed, 1)[0]
+    out = {}
+    for geometry in config.geometries:
+        trial, traces = run_filters(config, s0, geometry, 0, streams=1)
+        out[geometry] = (trial, {label: tr for (label, _), tr in traces.items() if tr is not None})
+    return out
+
+
+def _settings_text(rows, config: CnConfig, seed: int, settings: str | None) -> str:
+    runs = len({r["run"] for r in rows})
+    detail = (f"{runs} run(s), seed {seed}, {config.scenario.duration:g} s trials, N_start {config.n_particles}, "
+              f"{config.streams} stream(s)")
+    return f"{settings}: {detail}" if settings else detail
+
+
+def figures(rows, out, config: CnConfig, seed: int = 0, prepared=None, settings: str | None = None) -> list:
+    """cn_geometry.png (tracks, leaders, crossing angle), cn_errors.png (position error vs time, the paper's Fig. 9),
+    cn_ape.png (APE per filter, geometry and noise case, the paper's Table 7 as markers), cn_kld.png (MCUPF's
+    particle count). The time plots show run 0 of the first noise case (stream 0)."""
+    from ... import plots
+
+    plt = require("matplotlib.pyplot", "the experiment figures")
+    stamp = _settings_text(rows, config, seed, settings)
+    labels = filter_names(config)
+    runs0 = _figure_runs(config, seed)
+    case0 = config.cases[0]
     paths = []
-    for i, case in enumerate(config.cases):
-        trial, res = run_filters(config, s0, i)
-        fig, axes = plt.subplots(2, 2, figsize=(13, 9))
-        colours = dict(zip(res, plt.get_cmap("tab20").colors))
-        ax = axes[0, 0]
-        ax.plot(trial.truth[:, 0], trial.truth[:, 1], "k", lw=2, label="truth")
-        for k in range(2):
-            ax.plot(trial.leaders_true[k, :, 0], trial.leaders_true[k, :, 1], "--", color="grey", lw=1,
-                    label="leaders" if k == 0 else None)
-        for f, (x, _, _) in res.items():
-            ax.plot(x[:, 0], x[:, 1], lw=1, label=f, color=colours[f])
-        ax.set(xlabel="east (m)", ylabel="north (m)", title=f"paths (Fig. 7 analogue), {case}")
+
+    # geometry: tracks and leaders (top), crossing angle over time (bottom)
+    n = len(config.geometries)
+    fig, axes = plt.subplots(2, n, figsize=(4.6 * n, 8), squeeze=False, gridspec_kw={"height_ratios": (3, 2)})
+    for j, geometry in enumerate(config.geometries):
+        trial, _ = runs0[geometry]
+        ax = axes[0, j]
+        ax.plot(trial.truth[:, 0], trial.truth[:, 1], color="black", lw=1.6, label="AUV (truth)")
+        ax.plot(trial.dr[:, 0], trial.dr[:, 1], **_line(plots.filter_style("DR", tuple(labels))), label="dead reckoning")
+        for k, marker in ((0, "^"), (1, "v")):
+            ax.plot(trial.leaders_true[k, :, 0], trial.leaders_true[k, :, 1], color="#777777", lw=1, ls="--")
+            ax.plot(trial.leaders_true[k, ::40, 0], trial.leaders_true[k, ::40, 1], marker, color="#777777", ls="none",
+                    label=f"leader {k}")
+        ax.set(xlabel="east (m)", ylabel="north (m)", title=f"{geometry}: {_leaders_text(geometry)}", aspect="equal")
+        ax.title.set_fontsize(8)
+        ax.legend(fontsize=7, loc="best")  # the least-covered corner: the tracks differ per geometry and duration
+        ax = axes[1, j]
+        angle = crossing_angles(trial)
+        ax.plot(trial.t, angle, color="black", lw=1)
+        ax.axhline(np.median(angle), color="black", lw=0.8, ls=":",
+                   label=f"median {np.median(angle):.1f} deg, GDOP {np.median(gdop(trial)):.2f}")
+        ax.set(xlabel="time (s)", ylabel="range-line crossing angle (deg)", ylim=(0, 92))
+        ax.legend(fontsize=7, loc="lower right")
+        ax.grid(alpha=0.3)
+    fig.suptitle(f"seed 002 simulated lake trial: leader geometries (run 0, noise case {case0})")
+    paths.append(_save(fig, out / "cn_geometry.png", stamp, plots))
+
+    # position error vs time: rows geometries, columns printed / tuned
+    tuned = [f for f in labels if f.endswith(" tuned")]
+    columns = [("printed tuning (the paper's Q, R)", [f for f in labels if not f.endswith(" tuned")])]
+    if tuned:
+        columns.append(("tuned Q, R", ["DR"] + tuned))
+    fig, axes = plt.subplots(n, len(columns), figsize=(7 * len(columns), 3.3 * n), squeeze=False, sharex=True)
+    for i, geometry in enumerate(config.geometries):
+        trial, traces = runs0[geometry]
+        for j, (title, names) in enumerate(columns):
+            ax = axes[i, j]
+            for f in names:
+                if f in traces:
+                    pe = position_errors(traces[f].x, trial.truth)
+                    ax.plot(trial.t, pe, **_line(plots.filter_style(f, tuple(labels)), every=max(1, len(pe) // 12)),
+                            label=f"{f} ({pe.mean():.1f})")
+            ax.set(yscale="log", ylabel="position error (m)", title=f"{geometry}, {title}")
+            plots.plain_log_labels(ax)
+            ax.title.set_fontsize(9)
+            ax.grid(alpha=0.3, which="both")
+            ax.legend(fontsize=6.5, ncol=3, loc="upper left", title="filter (APE, m)", title_fontsize=6.5)
+    for ax in axes[-1]:
+        ax.set_xlabel("time (s)")
+    fig.suptitle(f"position error PE(k), eq. 45 (cf. the paper's Fig. 9): run 0, noise case {case0}, stream 0")
+    paths.append(_save(fig, out / "cn_errors.png", stamp, plots))
+
+    paths.append(_ape_figure(rows, config, out, stamp, labels, plots, plt))
+
+    # KLD particle count
+    kld = [f for f in labels if f.removesuffix(" tuned") == "MCUPF"]
+    if kld:
+        fig, ax = plt.subplots(figsize=(8, 4.2))
+        styles = ("-", "--", ":", "-.")
+        for g_index, geometry in enumerate(config.geometries):
+            trial, traces = runs0[geometry]
+            for f in (f for f in kld if f in traces):
+                count = traces[f].particles
+                style = plots.filter_style(f, tuple(labels))
+                ax.step(trial.t, count, where="post", color=style["color"], ls=styles[g_index % len(styles)],
+                        lw=1.2 if f == "MCUPF" else 0.8,
+                        label=f"{f}, {geometry} (steady {np.mean(count[1:]):.0f})")
+        ax.axhline(config.kld_n_min, color="#777777", lw=0.8, ls=":", label=f"floor n_min = {config.kld_n_min}")
+        ax.set(yscale="log", xlabel="time (s)", ylabel="particles",
+               title=f"MCUPF particle number under KLD-resampling (N_start = {config.n_particles}, "
+                     f"N_max = {config.kld_n_max}); run 0, {case0}")
+        ax.title.set_fontsize(9)
+        plots.plain_log_labels(ax)
+        ax.grid(alpha=0.3, which="both")
         ax.legend(fontsize=7, ncol=2)
-        ax = axes[0, 1]
-        for f, (x, _, _) in res.items():
-            ax.plot(trial.t, x[:, 0] - trial.truth[:, 0], lw=1, label=f, color=colours[f])
-        ax.set(xlabel="t (s)", ylabel="east error (m)", title="east position minus truth (Fig. 8 analogue)")
-        ax = axes[1, 0]
-        for f, (x, _, _) in res.items():
-            ax.plot(trial.t, position_errors(x, trial.truth), lw=1, label=f"{f} ({ape(x, trial.truth):.1f} m)",
-                    color=colours[f])
-        ax.set(xlabel="t (s)", ylabel="PE (m)", title="position error, eq. 45 (Fig. 9 analogue)", yscale="log")
-        ax.legend(fontsize=7, ncol=2)
-        ax = axes[1, 1]
-        for f in ("MCUPF", "MCUPF tuned"):
-            if f in res:
-                ax.plot(trial.t, res[f][2], label=f, color=colours[f])
-        ax.set(xlabel="t (s)", ylabel="particles", title="MCUPF particle number (KLD-resampling; N_start = 5000)",
-               yscale="log")
-        ax.legend(fontsize=7)
-        fig.suptitle(f"seed 002 on a SIMULATED lake trial, noise case {case}, run 0")
-        fig.tight_layout()
-        path = out / f"cn_{case}.png"
-        fig.savefig(path, dpi=90)
-        plt.close(fig)
-        paths.append(path)
+        paths.append(_save(fig, out / "cn_kld.png", stamp, plots))
     return paths
+
+
+def _line(style: dict, every: int | None = None) -> dict:
+    """A filter's look as plot keywords (markers spaced ``every`` points apart, so lines stay readable)."""
+    kw = {"color": style["color"], "linestyle": style["linestyle"], "lw": 1.1}
+    if every:
+        kw.update(marker=style["marker"], markevery=every, markersize=4)
+    return kw
+
+
+def _save(fig, path, stamp: str, plots):
+    plots.stamp_settings(fig, stamp)
+    fig.tight_layout(rect=(0, 0.02, 1, 1))
+    fig.savefig(path, dpi=100)
+    require("matplotlib.pyplot", "the experiment figures").close(fig)
+    return path
+
+
+def _ape_figure(rows, config: CnConfig, out, stamp, labels, plots, plt):
+    """One panel per geometry: each filter's APE (mean over runs, sd as the bar) per noise case; the paper's Table 7
+    values in a panel of their own (labelled markers nothing is drawn over; its geometry is unknown)."""
+    s = summary(rows)
+    geo = geometry_summary(rows)
+    cases = [c for c in config.cases if any(k[1] == c for k in s)]
+    names = [f for f in labels if any(k[2] == f for k in s)]
+    n = len(config.geometries)
+    fig, axes = plt.subplots(1, n + 1, figsize=(4.8 * n + 2.2, 5.4), squeeze=False, sharey=True,
+                             gridspec_kw={"width_ratios": [max(2, len(cases))] * n + [1.3]})
+    width = 0.8 / max(1, len(names))
+    for j, geometry in enumerate(config.geometries):
+        ax = axes[0, j]
+        for k, f in enumerate(names):
+            style = plots.filter_style(f, tuple(labels))
+            xs = [i - 0.4 + width * (k + 0.5) for i in range(len(cases))]
+            stats = [s.get((geometry, c, f), {}).get("ape_m") for c in cases]
+            mean = [e.mean if e else np.nan for e in stats]
+            sd = [e.sd if e and math.isfinite(e.sd) else 0.0 for e in stats]
+            ax.errorbar(xs, mean, yerr=sd, color=style["color"], marker=style["marker"], ls="none", ms=5, capsize=2,
+                        markerfacecolor="white" if f.endswith(" tuned") else style["color"], label=f)
+        ax.set_xticks(range(len(cases)), cases, fontsize=8)
+        ax.set(yscale="log", xlabel="range-noise case",
+               title=f"{geometry}: lines cross at {geo.get(geometry, {}).get('crossing_median_deg', math.nan):.0f} deg")
+        ax.title.set_fontsize(10)
+        plots.plain_log_labels(ax)
+        ax.grid(alpha=0.3, which="both", axis="y")
+    axes[0, 0].set_ylabel("APE (m): mean over runs ± sd (ddof = 1)")
+    ax = axes[0, n]
+    quoted = [f for f in paper.APE_RANKING[::-1] if f in paper.TABLE7]
+    ax.plot(range(len(quoted)), [paper.TABLE7[f][0] for f in quoted], **plots.PAPER_STYLE,
+            label="paper's Table 7 APE (real lake data, geometry unknown)")
+    ax.set_xticks(range(len(quoted)), quoted, rotation=70, fontsize=8)
+    ax.set_xlim(-0.7, len(quoted) - 0.3)
+    ax.set_title("paper, Table 7 (quoted)", fontsize=10)
+    ax.grid(alpha=0.3, which="both", axis="y")
+    handles, names_ = [], []
+    for a in axes[0, [0, n]]:
+        h, lab = a.get_legend_handles_labels()
+        handles += h
+        names_ += lab
+    fig.legend(handles, names_, ncol=8, fontsize=7, loc="lower center", bbox_to_anchor=(0.5, 0.03), frameon=False)
+    fig.suptitle("APE (eq. 46) per filter, range-noise case and leader geometry (tuned rows hollow)")
+    plots.stamp_settings(fig, stamp)
+    fig.tight_layout(rect=(0, 0.1, 1, 1))
+    path = out / "cn_ape.png"
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
 
 
 #: the name `abyssal reproduce` looks up (reproduce.py)

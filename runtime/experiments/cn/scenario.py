@@ -7,10 +7,18 @@ modems, DS-99 DVL, HZ001 compass) was never published, so every number abyssal r
 * Follower AUV (truth at 1 Hz, T = 1760 s): 1.5 m/s forward, a lawnmower of five legs (east,
   north, west, north, east; 60 s turns at a constant rate), a small sway speed (AR(1), 0.05 m/s).
   Its path lies between the two leaders, as in the paper's Fig. 6.
-* Leaders (CNAs): two surface vessels 400 m north and south of the survey area's centre line,
-  following the AUV's (smoothed) east position, one 250 m ahead and one 250 m behind (so the two
-  range directions cross at about 60 deg and both position axes are observable), each broadcasting its GPS position with
-  every packet (OEMV-2RT-2, 1.8 m CEP: sigma = 1.8 / 1.1774 = 1.53 m per axis, ours from the CEP).
+* Leaders (CNAs): two surface vessels, one north and one south of the AUV's path (the paper's Fig. 6: "AUV
+  was between two leaders"), each keeping a fixed offset from (the AUV's smoothed east position, the survey's
+  centre line) and broadcasting its GPS position with every packet (OEMV-2RT-2, 1.8 m CEP: sigma = 1.8 /
+  1.1774 = 1.53 m per axis, ours from the CEP). The paper does not publish the geometry (its text gives no
+  positions, and its Fig. 6 is not in our copy), and the geometry decides how well a range pair fixes the AUV:
+  ``GEOMETRIES`` names three layouts, and ``crossing_angles`` / ``gdop`` measure each trial's. "collinear"
+  (the default, this scenario's first layout: leader 0 250 m ahead and 400 m north, leader 1 250 m behind
+  and 400 m south) puts both leaders on one line through the AUV at the centre line: over the pings of 10
+  trials the two range lines cross at a median 12 deg (10th percentile 0.3 deg, never above 18 deg; 2-range
+  GDOP median 6.7, 90th percentile 260), so the direction along the range lines is barely observed.
+  "crossing60" and "crossing90" put both leaders ahead of the AUV, one north and one south: the lines cross
+  at a median 62 deg (55-68) and 88 deg (85-90), GDOP 1.6 and 1.4.
 * Acoustic channel: one range every 5 s, the two leaders alternating (time-division: leader 0 at
   t = 5, 15, 25 ... s, leader 1 at t = 10, 20, ...), so each leader pings every 10 s. The
   broadcast leader position is the runtime parameter p of the cn2d model at that step.
@@ -39,6 +47,14 @@ import numpy as np
 
 NOISE_CASES = ("gaussian", "eps0.1", "eps0.3", "multipath")
 GPS_SIGMA = 1.8 / 1.1774  # 1.8 m CEP -> per-axis sigma
+#: leader layouts: each leader's (east, north) offset in m from (the AUV's smoothed east position, the centre
+#: line of the survey); at the centre line the range lines cross at 0, 60 and 90 deg (the AUV's north-south
+#: legs move it +-150 m off that line, which spreads the angle over a run: ``crossing_angles``)
+GEOMETRIES = {
+    "collinear": ((250.0, 400.0), (-250.0, -400.0)),
+    "crossing60": ((400.0 / np.sqrt(3.0), 400.0), (400.0 / np.sqrt(3.0), -400.0)),
+    "crossing90": ((400.0, 400.0), (400.0, -400.0)),
+}
 
 
 @dataclass(frozen=True)
@@ -50,8 +66,7 @@ class CnScenario:
     speed: float = 1.5
     leg_seconds: tuple = (520.0, 60.0, 500.0, 60.0, 500.0)  # east, north, west, north, east (+ turns)
     turn_seconds: float = 30.0
-    leader_offset: float = 400.0
-    leader_stagger: float = 250.0
+    leaders: tuple = GEOMETRIES["collinear"]  # ((east, north) of leader 0, of leader 1), m (GEOMETRIES)
     range_variance: float = 1.0  # R_true, m^2
     outlier_scale: float = 10.0  # eq. (1): N(0, 10 R)
     multipath_rate: float = 0.05
@@ -95,9 +110,12 @@ def _headings(sc: CnScenario, t: np.ndarray) -> np.ndarray:
 
 
 def simulate(sc: CnScenario, case: str, rng: np.random.Generator) -> Trial:
-    """One trial of noise case `case` (NOISE_CASES)."""
+    """One trial of noise case `case` (NOISE_CASES). The leaders' layout draws no random numbers, so one rng
+    state gives the same AUV, sensors and range noise under every layout."""
     if case not in NOISE_CASES:
         raise ValueError(f"unknown noise case {case!r}; choose one of {NOISE_CASES}")
+    if np.shape(sc.leaders) != (2, 2) or not np.all(np.isfinite(sc.leaders)):
+        raise ValueError(f"leaders must be two finite (east, north) offsets, got {sc.leaders!r}")
     n = int(round(sc.duration))
     t = np.arange(n + 1, dtype=float)  # 1 Hz
     theta = _headings(sc, t)
@@ -120,8 +138,7 @@ def simulate(sc: CnScenario, case: str, rng: np.random.Generator) -> Trial:
     # leaders: follow the AUV's east position (smoothed), north/south of the centre line
     centre_y = 0.5 * (truth[:, 1].max() + truth[:, 1].min())
     lead_x = np.convolve(np.pad(truth[:, 0], 60, mode="edge"), np.ones(121) / 121, mode="valid")
-    leaders = np.stack([np.stack([lead_x + sc.leader_stagger, np.full(n + 1, centre_y + sc.leader_offset)], 1),
-                        np.stack([lead_x - sc.leader_stagger, np.full(n + 1, centre_y - sc.leader_offset)], 1)])
+    leaders = np.stack([np.stack([lead_x + dx, np.full(n + 1, centre_y + dy)], 1) for dx, dy in sc.leaders])
     # pings
     step = int(round(sc.ping_period))
     idx = np.arange(step, n + 1, step)
@@ -155,3 +172,26 @@ def position_errors(estimate: np.ndarray, truth: np.ndarray) -> np.ndarray:
 def ape(estimate: np.ndarray, truth: np.ndarray) -> float:
     """APE of eq. 46: the mean position error."""
     return float(position_errors(estimate, truth).mean())
+
+
+def line_of_sight(trial: Trial) -> np.ndarray:
+    """(2, K, 2) unit vectors from the AUV's true position to each leader's true position at every ping."""
+    d = trial.leaders_true - trial.truth[None]
+    return d / np.linalg.norm(d, axis=2, keepdims=True)
+
+
+def crossing_angles(trial: Trial) -> np.ndarray:
+    """(K,) the acute angle (deg) at which the two range lines (circles about the leaders) cross at the AUV's
+    true position, at every ping: 90 deg observes both axes equally, 0 deg leaves the direction along the
+    range lines unobserved."""
+    u = line_of_sight(trial)
+    cos = np.clip(np.abs(np.sum(u[0] * u[1], axis=1)), 0.0, 1.0)
+    return np.degrees(np.arccos(cos))
+
+
+def gdop(trial: Trial) -> np.ndarray:
+    """(K,) geometric dilution of precision of the two ranges at the AUV's true position: sqrt(trace((H^T H)^-1))
+    with H the two unit lines of sight, = sqrt(2) / sin(crossing angle) (1.41 at 90 deg; inf when collinear)."""
+    s = np.sin(np.radians(crossing_angles(trial)))
+    with np.errstate(divide="ignore"):
+        return np.where(s > 0, np.sqrt(2.0) / s, np.inf)

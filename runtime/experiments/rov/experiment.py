@@ -6,8 +6,9 @@
 (sea states, process-noise readings, the catenary run) is scenario.py.
 
 Rows: ``{"run", "case" (sea state), "filter" (label), "metric", "reading" (the truth's process-noise
-reading), "value"}`` with metrics ``mse_x, mse_y, mse_z, mse_psi`` (mean over the run's steps;
-RMSE over a campaign = sqrt of their mean over runs, every run having the same length), ``anees``
+reading), "value"}`` with metrics ``mse_x, mse_y, mse_z, mse_psi`` (mean over the run's steps: a run's RMSE is
+their square root; the tables print the mean of the per-run RMSE ± its sample sd over runs, tables.MEAN_SD, and the
+JSON adds the RMSE pooled over runs, tables.POOLED; psi in rad, the state's unit), ``anees``
 (mean over steps of NEES / n_x, the NEES of ``FilterResult.nees``), ``ess_mean`` (mean effective
 sample size per step; NaN for a Kalman filter), ``step_ms`` (wall time, kept out of the compared
 tables) and ``refused`` (1 when the filter refused a step of this run, its other metrics then NaN).
@@ -46,7 +47,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..campaign import TIMING_METRICS, derive, run_index
+from ..campaign import TIMING_METRICS, derive, run_index, run_seeds
+from ..tables import MEAN_SD, over_runs, pooled_rms
 from .paper import table3_rmse
 from .scenario import POSE_AXES, PROCESS_NOISE_READINGS, SEA_STATES, RovScenario, make_filter, simulate
 
@@ -113,8 +115,11 @@ class RovConfig:
     filters: tuple[FilterSpec, ...] = MAIN_FILTERS + N_SWEEP
 
     def quick(self) -> "RovConfig":
-        """`abyssal reproduce rov --quick`: every filter and case of this config, on the first 20 s of the path."""
-        return replace(self, scenario=replace(self.scenario, duration=20.0))
+        """every sea state under both process-noise readings, the first 20 s of the path (200 steps), the main
+        filters (the N sweep and the analytic-covariance ablation left out)"""
+        sweep = {spec.label for spec in N_SWEEP}
+        return replace(self, scenario=replace(self.scenario, duration=20.0),
+                       filters=tuple(f for f in self.filters if f.label not in sweep))
 
     def cases(self) -> list[tuple[int, str, str]]:
         """(case number, sea state, truth reading); numbers fixed by the full lists, for stable seeds."""
@@ -137,6 +142,32 @@ def pose_errors(bundle, estimates: np.ndarray, states: np.ndarray) -> np.ndarray
     return wrap_angles(estimates - states, angle_indices(bundle, "states"), axis=1)
 
 
+def run_case(config: RovConfig, seed: np.random.SeedSequence, case: int, sea_name: str, reading: str,
+             specs=None):
+    """One case of one run: (truth, {label: FilterResult, or None where the filter refused a step}) for every
+    spec of ``specs`` (default: the config's) that runs on this case. What ``run_one`` makes its rows from and
+    the figures re-run."""
+    from abyssal.generated import load
+
+    bundle = load("rov4dof")
+    sea = SEA_STATES[sea_name]
+    truth_scenario = config.scenario.with_reading(reading)
+    truth = simulate(bundle, truth_scenario, sea, np.random.default_rng(derive(seed, case, 0)))
+    results = {}
+    for spec in config.filters if specs is None else specs:
+        if not spec.runs_on(sea_name, reading):
+            continue
+        rng = np.random.default_rng(derive(seed, case, 1, zlib.crc32(spec.label.encode())))
+        filter_scenario = config.scenario.with_reading(spec.filter_reading(reading))
+        filt = make_filter(spec.kind, bundle, filter_scenario, sea, spec.n_particles or config.n_particles, rng,
+                           **dict(spec.options))
+        try:  # the one contract (runtime/contract.py): estimates, covariances, NEES, ESS, step times
+            results[spec.label] = filt.run(truth.inputs, truth.measurements, truth_scenario.dt, truth=truth.states)
+        except (ValueError, ArithmeticError, np.linalg.LinAlgError):
+            results[spec.label] = None  # the filter refused a step: an outcome of this filter on this truth
+    return truth, results
+
+
 def run_one(config: RovConfig, seed: np.random.SeedSequence) -> list[dict]:
     """Every filter of the config on a fresh truth of every case: tidy rows (see the module docstring)."""
     from abyssal.generated import load
@@ -145,34 +176,20 @@ def run_one(config: RovConfig, seed: np.random.SeedSequence) -> list[dict]:
     run = run_index(seed)
     rows = []
     for case, sea_name, reading in config.cases():
-        sea = SEA_STATES[sea_name]
-        truth_scenario = config.scenario.with_reading(reading)
-        truth = simulate(bundle, truth_scenario, sea, np.random.default_rng(derive(seed, case, 0)))
-        for spec in config.filters:
-            if not spec.runs_on(sea_name, reading):
-                continue
-            rng = np.random.default_rng(derive(seed, case, 1, zlib.crc32(spec.label.encode())))
-            filter_scenario = config.scenario.with_reading(spec.filter_reading(reading))
-            filt = make_filter(spec.kind, bundle, filter_scenario, sea, spec.n_particles or config.n_particles, rng,
-                               **dict(spec.options))
-            try:  # the one contract (runtime/contract.py): estimates, covariances, NEES, ESS, step times
-                result = filt.run(truth.inputs, truth.measurements, truth_scenario.dt, truth=truth.states)
-            except (ValueError, ArithmeticError, np.linalg.LinAlgError):
-                # the filter refused a step: an outcome of this filter on this truth, not of the run
-                rows += [{"run": run, "case": sea_name, "filter": spec.label, "metric": m, "reading": reading,
-                          "value": math.nan} for m in METRICS]
-                rows.append({"run": run, "case": sea_name, "filter": spec.label, "metric": "refused",
-                             "reading": reading, "value": 1.0})
-                continue
-            errors = pose_errors(bundle, result.x, truth.states)
-            finite = np.all(np.isfinite(errors)) and np.all(np.isfinite(result.P))
-            metrics = {f"mse_{axis}": float(np.mean(errors[:, i] ** 2)) if finite else math.inf
-                       for i, axis in enumerate(POSE_AXES)}
-            metrics["anees"] = float(np.mean(result.nees) / bundle.n_x) if finite else math.inf
-            metrics["ess_mean"] = float(np.mean(np.asarray(result.ess, dtype=np.float64)))
-            metrics["step_ms"] = 1e3 * float(np.mean(result.step_time))
-            metrics["refused"] = 0.0
-            rows += [{"run": run, "case": sea_name, "filter": spec.label, "metric": m, "reading": reading, "value": v}
+        truth, results = run_case(config, seed, case, sea_name, reading)
+        for label, result in results.items():
+            if result is None:  # refused: NaN metrics, kept apart from the averages
+                metrics = {**{m: math.nan for m in METRICS}, "refused": 1.0}
+            else:
+                errors = pose_errors(bundle, result.x, truth.states)
+                finite = np.all(np.isfinite(errors)) and np.all(np.isfinite(result.P))
+                metrics = {f"mse_{axis}": float(np.mean(errors[:, i] ** 2)) if finite else math.inf
+                           for i, axis in enumerate(POSE_AXES)}
+                metrics["anees"] = float(np.mean(result.nees) / bundle.n_x) if finite else math.inf
+                metrics["ess_mean"] = float(np.mean(np.asarray(result.ess, dtype=np.float64)))
+                metrics["step_ms"] = 1e3 * float(np.mean(result.step_time))
+                metrics["refused"] = 0.0
+            rows += [{"run": run, "case": sea_name, "filter": label, "metric": m, "reading": reading, "value": v}
                      for m, v in metrics.items()]
     return rows
 
@@ -182,7 +199,10 @@ def run_one(config: RovConfig, seed: np.random.SeedSequence) -> list[dict]:
 
 
 def summary(rows: list[dict]) -> dict:
-    """{(reading, sea, filter): {"rmse": {axis: ..}, "anees", "ess_mean", "step_ms", "runs"}} (rows sorted)."""
+    """{(reading, sea, filter): {"rmse": {axis: mean of the per-run RMSE}, "rmse_sd": {axis: its sample sd over runs
+    (ddof = 1)}, "rmse_ci95": {axis: half-width of its 95 % t interval}, "rmse_pooled": {axis: RMSE pooled over
+    every step of every run}, "anees", "anees_sd" (per-run ANEES: mean, sd), "ess_mean", "step_ms", "runs",
+    "refused_runs"}} over the runs where the filter ran to the end (psi in rad, as the state)."""
     groups: dict[tuple, dict[str, list[float]]] = {}
     for row in rows:
         groups.setdefault((row["reading"], row["case"], row["filter"]), {}).setdefault(row["metric"], []).append(row["value"])
@@ -190,11 +210,16 @@ def summary(rows: list[dict]) -> dict:
     for key, metrics in groups.items():
         kept = [i for i, refused in enumerate(metrics.get("refused", [0.0] * len(metrics.get("mse_x", [])))) if not refused]
 
-        def mean(m):
-            values = [metrics[m][i] for i in kept] if m in metrics else []
-            return math.fsum(values) / len(values) if values else math.nan
-        out[key] = {"rmse": {a: math.sqrt(mean(f"mse_{a}")) for a in POSE_AXES}, "anees": mean("anees"),
-                    "ess_mean": mean("ess_mean"), "step_ms": mean("step_ms"), "runs": len(kept),
+        def values(m):
+            return [metrics[m][i] for i in kept] if m in metrics else []
+
+        rmse = {a: over_runs(math.sqrt(v) for v in values(f"mse_{a}")) for a in POSE_AXES}
+        anees = over_runs(values("anees"))
+        out[key] = {"rmse": {a: r.mean for a, r in rmse.items()}, "rmse_sd": {a: r.sd for a, r in rmse.items()},
+                    "rmse_ci95": {a: r.ci95 for a, r in rmse.items()},
+                    "rmse_pooled": {a: pooled_rms(values(f"mse_{a}")) for a in POSE_AXES},
+                    "anees": anees.mean, "anees_sd": anees.sd, "ess_mean": over_runs(values("ess_mean")).mean,
+                    "step_ms": over_runs(values("step_ms")).mean, "runs": len(kept),
                     "refused_runs": len(metrics.get("mse_x", [])) - len(kept)}
     return out
 
@@ -216,6 +241,25 @@ def _fmt(value: float, width: int, spec: str = ".4f") -> str:
     return f"{'-':>{width}}" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{value:>{width}{spec}}"
 
 
+def _cell(stats: dict | None, axis: str, width: int) -> str:
+    """"mean ± sd" of the per-run RMSE of one axis (the mean alone from one run, "inf" for a diverged filter, "-"
+    without a value)."""
+    mean = stats["rmse"].get(axis, math.nan) if stats else math.nan
+    if not math.isfinite(mean):
+        return f"{'-' if math.isnan(mean) else 'inf':>{width}}"
+    sd = stats["rmse_sd"][axis]
+    text = f"{mean:.3f}" + (f" ± {sd:.3f}" if math.isfinite(sd) else "")
+    return f"{text:>{width}}"
+
+
+#: the unit of each pose axis in our tables (psi as the state: rad)
+UNITS = {"x": "m", "y": "m", "z": "m", "psi": "rad"}
+#: how the paper's psi column is read (it prints no unit)
+PSI_READING = ("psi: ours in rad, the error wrapped to (-pi, pi]. The paper prints no unit for psi; we read it as rad, "
+               "the unit of its SI model (its R and Q), its errors then not wrapped (its values reach 14.6, more than "
+               "pi). A reading in deg cannot be ruled out: its psi cells are this reading, not a printed unit.")
+
+
 def table3(rows: list[dict], reading: str = "plain") -> str:
     """Our RMSE beside the paper's Table 3, for the filters the paper has (truth under `reading`)."""
     paper = table3_rmse()
@@ -223,21 +267,21 @@ def table3(rows: list[dict], reading: str = "plain") -> str:
     seas = [s for s in SEA_STATES if any(k[:2] == (reading, s) for k in stats)]
     labels = [f for f in _labels(rows) if f in PAPER_COLUMN and any(k == (reading, s, f) for s in seas for k in stats)]
     runs = max((v["runs"] for v in stats.values()), default=0)
-    lines = [f"Table 3 (seed 000): RMSE over {runs} run(s), truth under the '{reading}' process-noise reading",
-             "ours | paper (the paper's numbers are quoted; its CKF is one column: compare both of ours)", ""]
-    head = f"{'sea':<5}{'axis':<6}" + "".join(f"{label[:21]:>22}" for label in labels)
-    lines += [head, f"{'':<11}" + "".join(f"{'ours':>12}{'paper':>10}" for _ in labels), "-" * len(head)]
+    lines = [f"Table 3 (seed 000): RMSE, truth under the '{reading}' process-noise reading, {runs} run(s)",
+             f"ours: {MEAN_SD}; paper: Table 3 as printed (how many runs it averages is not stated; its CKF is one "
+             f"column: compare both of ours). {PSI_READING}", ""]
+    head = f"{'sea':<5}{'axis':<8}" + "".join(f"{label[:27]:>28}" for label in labels)
+    lines += [head, f"{'':<13}" + "".join(f"{'ours':>19}{'paper':>9}" for _ in labels), "-" * len(head)]
     for sea in seas:
         for i, axis in enumerate(POSE_AXES):
             cells = []
             for label in labels:
-                ours = stats.get((reading, sea, label), {}).get("rmse", {}).get(axis)
                 theirs = paper.get(sea, {}).get(PAPER_COLUMN[label], {}).get(axis)
-                cells.append(_fmt(ours, 12) + _fmt(theirs, 10))
-            lines.append(f"{(sea if i == 0 else ''):<5}{axis:<6}" + "".join(cells))
+                cells.append(_cell(stats.get((reading, sea, label)), axis, 19) + _fmt(theirs, 9))
+            lines.append(f"{(sea if i == 0 else ''):<5}{axis + ' ' + UNITS[axis]:<8}" + "".join(cells))
         for metric, spec in (("anees", ".3g"), ("ess_mean", ".1f")):
-            cells = [_fmt(stats.get((reading, sea, label), {}).get(metric), 12, spec) + f"{'':>10}" for label in labels]
-            lines.append(f"{'':<5}{('ANEES' if metric == 'anees' else 'ESS'):<6}" + "".join(cells))
+            cells = [_fmt(stats.get((reading, sea, label), {}).get(metric), 19, spec) + f"{'':>9}" for label in labels]
+            lines.append(f"{'':<5}{('ANEES' if metric == 'anees' else 'ESS'):<8}" + "".join(cells))
         lines.append("")
     return "\n".join(lines)
 
@@ -246,16 +290,18 @@ def variants_table(rows: list[dict], reading: str = "plain") -> str:
     """Every filter (including the extra baselines and the EM-MOGCPF variants): RMSE, ANEES, ESS per case."""
     stats = summary(rows)
     labels = _labels(rows)
-    lines = [f"All filters, truth under the '{reading}' reading: RMSE x/y/z/psi, ANEES, mean ESS over the runs where the "
-             "filter ran to the end; refused: runs where it refused a step (left out of its averages)", ""]
-    head = f"{'sea':<5}{'filter':<24}{'x':>9}{'y':>9}{'z':>9}{'psi':>9}{'ANEES':>10}{'ESS':>8}{'refused':>9}"
+    lines = [f"All filters, truth under the '{reading}' reading: RMSE of x, y, z (m) and psi (rad), {MEAN_SD}; ANEES "
+             "and ESS: mean over runs; over the runs where the filter ran to the end (refused: runs where it refused "
+             "a step, left out of its averages)", ""]
+    head = (f"{'sea':<5}{'filter':<26}" + "".join(f"{a + ' ' + UNITS[a]:>17}" for a in POSE_AXES)
+            + f"{'ANEES':>10}{'ESS':>8}{'refused':>9}")
     lines += [head, "-" * len(head)]
     for sea in SEA_STATES:
         for label in labels:
             s = stats.get((reading, sea, label))
             if s is None:
                 continue
-            lines.append(f"{sea:<5}{label[:23]:<24}" + "".join(_fmt(s["rmse"][a], 9) for a in POSE_AXES)
+            lines.append(f"{sea:<5}{label[:25]:<26}" + "".join(_cell(s, a, 17) for a in POSE_AXES)
                          + _fmt(s["anees"], 10, ".3g") + _fmt(s["ess_mean"], 8, ".1f") + f"{s['refused_runs']:>9d}")
         lines.append("")
     return "\n".join(lines)
@@ -269,7 +315,7 @@ def sensitivity_table(rows: list[dict]) -> str:
               if all(any(k[0] == rd and k[2] == f for k in stats) for rd in readings)]
     seas = [s for s in SEA_STATES if any(k[1] == s for k in stats)]
     lines = ["Sensitivity to the process-noise reading of the truth (filters matched unless labelled):",
-             "x RMSE (m) / ANEES / mean ESS per sea state", ""]
+             "x RMSE (m, mean of the per-run RMSE) / ANEES / ESS (means over runs) per sea state", ""]
     head = f"{'reading':<9}{'filter':<22}" + "".join(f"{'sea ' + s:>26}" for s in seas)
     lines += [head, "-" * len(head)]
     for reading in readings:
@@ -348,24 +394,51 @@ def document(rows: list[dict], config: RovConfig, prepared=None) -> dict:
             "summary": {f"{reading}|{sea}|{label}": stats for (reading, sea, label), stats in summary(rows).items()}}
 
 
-def figures(rows: list[dict], out: Path, config: RovConfig | None = None, seed: int = 0, prepared=None) -> list[Path]:
-    """RMSE bars per sea state (the paper's Figs. 11-12) from the rows, the paper's values as diamonds."""
+def figures(rows: list[dict], out: Path, config: RovConfig | None = None, seed: int = 0, prepared=None,
+            settings: str | None = None) -> list[Path]:
+    """Per sea state: ``rov_rmse_sea_<s>.png``, RMSE bars (the paper's Figs. 11-12) from the rows, x, y, z (m) and
+    psi (rad) in panels of their own, the paper's Table 3 values as markers (its psi read as rad: PSI_READING);
+    ``rov_errors_sea_<s>.png``, the pose error over time of the paper's filters in run 0 (its Figs. 5, 7,
+    9), re-run here from the same seed, so it shows a run that is in the table."""
+    from abyssal.generated import load
+
     from ... import plots
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    config = config or RovConfig()
     paper = table3_rmse()
     stats = summary(rows)
     readings = _order(rows, lambda r: r["reading"])
     main = "plain" if "plain" in readings else readings[0]
+    labels = tuple(_labels(rows))
+    runs = len({r["run"] for r in rows})
+    stamp = (f"{settings}: " if settings else "") + (f"{runs} run(s), seed {seed}, {config.scenario.duration:g} s of the "
+                                                      f"path, N = {config.n_particles}")
+    note = {1: "paper's psi: no unit printed, read as rad\n(its SI model; 14.6 > pi: errors not wrapped)"}
     written = []
     for sea in SEA_STATES:
         metrics = {k[2]: v for k, v in stats.items() if k[0] == main and k[1] == sea}
         if not metrics:
             continue
+        metrics = {label: metrics[label] for label in labels if label in metrics}
         theirs = {label: paper[sea][col] for label, col in PAPER_COLUMN.items() if label in metrics and col in paper.get(sea, {})}
-        written.append(plots.rmse_bars(metrics, theirs, f"RMSE, sea state {sea}, '{main}' reading (cf. the paper's Figs. 11-12)",
-                                       out / f"rov_rmse_sea_{sea.replace('-', '_')}.png"))
+        written.append(plots.rmse_bars(
+            metrics, theirs, f"RMSE, sea state {sea}, '{main}' reading: mean of the per-run RMSE ± sd over runs "
+            "(cf. the paper's Figs. 11-12)", out / f"rov_rmse_sea_{sea.replace('-', '_')}.png",
+            paper_label="paper, Table 3 (quoted)", notes=note, ordered=labels, settings=stamp))
+    shown = tuple(spec for spec in config.filters if spec.label in PAPER_COLUMN)
+    seed0 = run_seeds(seed, 1)[0]
+    for case, sea, reading in config.cases():
+        if reading != main or not shown:
+            continue
+        truth, results = run_case(config, seed0, case, sea, reading, shown)
+        bundle = load("rov4dof")
+        errors = {label: pose_errors(bundle, r.x, truth.states)[:, :4] for label, r in results.items() if r is not None}
+        written.append(plots.error_vs_time(
+            truth.times, errors, ("x error (m)", "y error (m)", "z error (m)", "psi error (rad)"),
+            f"Pose error, sea state {sea}, '{main}' reading, run 0 (cf. the paper's Figs. 5, 7, 9)",
+            out / f"rov_errors_sea_{sea.replace('-', '_')}.png", wrapped_panels=(3,), ordered=labels, settings=stamp))
     return written
 
 

@@ -34,12 +34,15 @@ Contract
   0 turns it off), ``gate_patience`` (5) and ``gate_inflation`` (4); an update with every entry gated returns
   False (the predict stands). Counted in ``gated`` and ``inflations``. (rov4dof, CKF, a permanent 25 m jump
   of the x fix: re-acquired within 5 + 5 updates; tests/runtime/test_kalman.py.)
-* dt beyond the model's stable range: the first predict with a dt larger than any seen so far is checked
-  for a covariance that grows more than ``growth_limit`` (default 1e3) times (max diag P + max diag Q) in one
-  step, or an integration that stops being finite (sigma points at high speed make explicit RK4 unstable:
-  rov4dof at dt = 1 s). Such a step is split into 2, 4, ..., ``max_substeps`` (64) predicts of dt / k, each
-  adding Q / k; the k found is remembered for that dt (``substeps`` counts the subdivided predicts). If even
-  max_substeps fails, the call is refused naming dt.
+* dt beyond the model's stable range: every predict is checked for a covariance that grows more than
+  ``growth_limit`` (default 1e3) times (max diag P + max diag Q) in one step, or an integration that stops
+  being finite (sigma points at high speed make explicit RK4 unstable: rov4dof at dt = 1 s). Such a step is
+  split into 2, 4, ..., ``max_substeps`` (64) predicts of dt / k, each adding Q / k (``substeps`` counts the
+  subdivided predicts); for a dt larger than any found stable before, the k found is remembered for that dt. If
+  even max_substeps fails, the call is refused naming dt -- or, when dt was stable before, naming u and p (an
+  input that blows the step up at this state: rov4dof at u = 1e5 N went to |x| ~ 1e39 in one 0.1 s predict,
+  was accepted as finite, and every later step was refused; now it is integrated in 64 substeps, and u = 1e8 N
+  is refused).
 * Sigma-point predicts propagate all points through the model's SIMD kernel ``<m>_f_soa`` in one call.
 * ``x`` and ``P`` are copies: the state changes only through the calls and ``reset``.
 * Threads: FilterBase's rule (contract.py): a second thread entering while a call is under way is refused
@@ -380,6 +383,16 @@ class KalmanFilter(FilterBase):
                 f"{name}: dt = {dt!r} s: the step blew up even in {k} substeps of {dt / k:.3g} s (the covariance grew more "
                 f"than {limit:g}x in one substep, or the integration overflowed): either the filter diverged, or dt is "
                 "beyond the model's stable range at this state (the stable limit is below that substep). State left "
+                "unchanged.")
+        if code == kr.E_UNSTABLE_INPUT:
+            k, limit = self.options["max_substeps"], self.options["growth_limit"]
+            given = f"u = {u.tolist()}"
+            if p.size and not np.array_equal(p, self.model.p_default):
+                given += f", p = {p.tolist()}"
+            return ValueError(
+                f"{name}: {given}: the predict over dt = {dt!r} s (a step length that was stable before) blew up even in "
+                f"{k} substeps (the covariance grew more than {limit:g}x in one substep, or the integration overflowed): "
+                "u or p drive the model out of its stable range at this state, or the filter diverged. State left "
                 "unchanged.")
         return ValueError(f"{name}: {self._runtime.message(code)}")
 
