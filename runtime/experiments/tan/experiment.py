@@ -41,9 +41,9 @@ import numpy as np
 
 from ...extras import require
 from ..campaign import derive, run_index
+from ..tables import MEAN_SD, over_runs
 from . import paper
 from .scenario import CURRENTS, TRACKS, Truth, characterise, get_map, nominal_path, simulate
-from .tables import MEAN_SD, aligned, over_runs
 
 EXTRA_COLUMNS: tuple[str, ...] = ()
 SIGMAS = (1.0, 2.0, 3.0, 4.0, 5.0, 6.0)
@@ -375,6 +375,16 @@ def report(rows, config: TanConfig) -> str:
     return "\n".join(lines)
 
 
+def aligned(header: list[str], rows: list[list[str]], left: int = 1) -> list[str]:
+    """Text table lines: the first ``left`` columns left-aligned, the rest right-aligned, two spaces apart."""
+    widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]
+
+    def line(cells):
+        return "  ".join(c.ljust(w) if i < left else c.rjust(w) for i, (c, w) in enumerate(zip(cells, widths))).rstrip()
+
+    return [line(header), *(line(r) for r in rows)]
+
+
 def _short(name: str) -> str:
     return {ORACLE: "oracle", DEAD_RECKONING: "DR", "fuzzy_per_cell": "fuzzy/cell"}.get(name, name.replace("sigma_", "s"))
 
@@ -593,6 +603,8 @@ def _lost_figure(plt, s, config: TanConfig, current: str):
 def _sigma_figure(plt, s, config: TanConfig, m: str):
     """Figs. 7 and 14: mean error and spread vs the fixed sigma, one line per track, one column per current; the
     fuzzy filter at its mean sigma."""
+    from ...plots import plain_log_labels
+
     currents = config.currents
     fig, axes = plt.subplots(2, len(currents), figsize=(max(7.0, 4.6 * len(currents)), 7.5), squeeze=False, sharex=True)
     fixed = [sigma_name(x) for x in config.sigmas]
@@ -614,6 +626,7 @@ def _sigma_figure(plt, s, config: TanConfig, m: str):
         axes[0, j].set_title(f"{m}, current {current} m/s", fontsize=10)
         for i, label in enumerate(("mean position error (m)", "filter's own spread (m)")):
             axes[i, j].set(yscale="log", ylabel=label if j == 0 else None)
+            plain_log_labels(axes[i, j])
             axes[i, j].grid(alpha=0.3, which="both")
         axes[1, j].set_xlabel("fixed process-noise sigma (m per step)")
     axes[0, 0].plot([], [], marker=fz["marker"], ms=9, mfc="none", mec="black", ls="none", label="fuzzy, at its mean sigma")
@@ -654,7 +667,7 @@ def _terrain_vs_lost_figure(plt, s, config: TanConfig, terrain):
 
 def _track_run_figure(plt, config: TanConfig, m, t, c, truth, runs):
     """Figs. 8-11 and 15: paths over the map; error and the filter's own spread over time (run 0)."""
-    from ...plots import PAPER_STYLE
+    from ...plots import PAPER_STYLE, plain_log_labels
 
     terrain = get_map(m, config.map_seed)
     time_s = np.arange(1, truth.states.shape[0]) * config.dt
@@ -685,6 +698,7 @@ def _track_run_figure(plt, config: TanConfig, m, t, c, truth, runs):
                title=f"paths over the map (start: dot; contours every {interval} m)")
     for ax in (ax_err, ax_std):
         ax.set(yscale="log", xlabel="time (s)")
+        plain_log_labels(ax)
         ax.grid(alpha=0.3, which="both")
     # the reference lines go into the one legend (below the map), so no text lies over the curves
     ax_err.axhline(config.lost_m, color="#555555", lw=1.0, ls=":", zorder=9)
