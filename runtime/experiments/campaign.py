@@ -333,8 +333,9 @@ class _Table:
         self.written_sha256 = sha
 
     # ------------------------------------------------------------------ reading (resume)
-    def read(self) -> list[dict]:
-        """The rows of the table on disk, after checking it is exactly a table this campaign wrote."""
+    def read(self, check_config: bool = True) -> list[dict]:
+        """The rows of the table on disk, after checking it is exactly a table this campaign wrote (of this
+        configuration, unless check_config is False: see ``check_resume``)."""
         if not self.path.exists():
             return []
         if not self.sidecar.exists():
@@ -342,7 +343,8 @@ class _Table:
                                "write, or one copied without it, is never adopted. Use another --out, or drop --resume "
                                f"to start afresh (that replaces {self.path.name})")
         sidecar = self._read_sidecar()
-        changed = [k for k in ("experiment", "seed", "config", "columns") if sidecar.get(k) != self.meta[k]]
+        compared = ("experiment", "seed", "config", "columns") if check_config else ("experiment", "seed", "columns")
+        changed = [k for k in compared if sidecar.get(k) != self.meta[k]]
         if changed:
             raise TableRefused(f"--resume: {self.path} was made with a different {', '.join(changed)} "
                                f"(its sidecar {self.sidecar.name} says experiment {sidecar.get('experiment')!r}, seed "
@@ -464,6 +466,15 @@ class _Table:
 
 def _meta(experiment: str, seed: int, config, columns) -> dict:
     return {"experiment": experiment, "seed": int(seed), "config": repr(config), "columns": list(columns)}
+
+
+def check_resume(csv_path: str | Path, experiment: str, seed: int = 0, extra_columns: Sequence[str] = ()) -> None:
+    """Refuse (TableRefused) a table that ``run_campaign(..., resume=True)`` would refuse whatever the
+    configuration: for an experiment whose configuration is known only after an expensive preparation (one that
+    trains models on its first run), so a bad table is refused before that work. The configuration is checked
+    when the campaign starts."""
+    columns = tuple(TIDY_COLUMNS[:-1]) + tuple(extra_columns) + ("value",)
+    _Table(Path(csv_path), _meta(experiment, seed, None, columns)).read(check_config=False)
 
 
 def run_campaign(run_one: RunOne, config, runs: int, seed: int = 0, *, workers: int | None = None,

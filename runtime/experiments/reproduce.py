@@ -148,6 +148,8 @@ def run(name: str, args, config=None) -> int:
     say = lambda message: print(f"[{name}] {message}", file=sys.stderr, flush=True)  # noqa: E731
     prepared = None
     if experiment.prepare:
+        if getattr(args, "resume", False) and out:  # a table resume would refuse, refused before the preparation
+            campaign.check_resume(out / f"{name}.csv", name, args.seed, module.EXTRA_COLUMNS)
         config, prepared = module.prepare(config, out, say)
     result = campaign.run_campaign(
         module.run_one, config, runs, args.seed, workers=getattr(args, "workers", None),

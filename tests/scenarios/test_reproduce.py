@@ -189,17 +189,20 @@ def test_reproduce_remus_prepares_the_gps_then_runs_the_campaign(tmp_path, capsy
     from abyssal.runtime.experiments.remus import experiment
 
     monkeypatch.setattr(experiment, "PREDICTION_STARTS", (20, 30))
-    config = experiment.RemusConfig(duration=60.0, n_train=25)
+    config = experiment.RemusConfig(duration=60.0, sizes=(20,), draws=(4, 5), full_state_sizes=(20,), hyper_max=20,
+                                    readings=("oracle", "euler"))
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # scikit-learn's convergence warnings on 25 points
-        assert reproduce.run("remus", _args(out=str(tmp_path), particles=500), config) == 0  # --particles: ignored
+        warnings.simplefilter("ignore")  # scikit-learn's convergence warnings on 20 points
+        assert reproduce.run("remus", _args(out=str(tmp_path), particles=500, runs=2), config) == 0  # --particles: ignored
     printed = capsys.readouterr().out
-    assert "Table 3: RMSE per state" in printed and "2.424" in printed  # the paper's UKF x RMSE, quoted
+    assert "Table 3, UKF readings" in printed and "2.424" in printed  # the paper's UKF x RMSE, quoted
+    assert "ORACLE" in printed and "BETWEEN training draws" in printed
     document = json.loads((tmp_path / "remus.json").read_text())
-    assert document["gp_regressors"] == 25 and document["duration_s"] == 60.0
-    assert set(document["per_state_rmse"]) == {"UKF", "GP-UKF"}
-    assert np.isfinite(document["per_state_rmse"]["GP-UKF"]["prediction"])
+    assert document["duration_s"] == 60.0 and document["runs"] == 2
+    assert set(document["summary"]) == {"UKF (oracle)", "UKF (Euler, 1 step)", "GP-UKF N=20", "GP-UKF (state) N=20"}
+    assert set(document["gp_per_draw"]["GP-UKF N=20"]["prediction"]) == {"draw 4", "draw 5"}   # run r: draw r mod 2
+    assert np.isfinite(document["summary"]["GP-UKF N=20"]["prediction"]["mean"])
     assert document["paper"]["table4"]["GP-UKF|prediction"] == 2.86
-    assert {p.name for p in tmp_path.glob("remus_fig*.png")} == {
-        "remus_fig3_training_data.png", "remus_fig5_surge.png", "remus_fig6_x.png", "remus_fig7_y.png",
-        "remus_fig8_path3d.png"}
+    assert {p.name for p in tmp_path.glob("remus_*.png")} == {
+        "remus_training_data.png", "remus_position_error.png", "remus_surge_error.png", "remus_rmse_vs_size.png",
+        "remus_state_rmse.png"}

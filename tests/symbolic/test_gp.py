@@ -96,3 +96,60 @@ def test_function_expands_to_sx_for_use_inside_a_model():
     for t in test[:5]:
         assert float(sx(t)[0]) == pytest.approx(float(fn(t)[0]), rel=1e-10)  # sums reassociated
         assert float(sx(t)[1]) == pytest.approx(float(fn(t)[1]), rel=1e-9)
+
+
+def _sklearn_pair():
+    """Two GPs on different data with different hyperparameters, 40 regressors each."""
+    first, test = _fit(KERNELS["C*RBF_ard+W"](), True)
+    X, y, _ = _data(seed=3)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        second = GaussianProcessRegressor(ConstantKernel(2.0) * RBF(np.full(3, 0.5)) + WhiteKernel(1e-3),
+                                          normalize_y=True, random_state=0).fit(X, -4.0 * y)
+    return [first, second], test
+
+
+@pytest.mark.parametrize("block", [100, 16])  # one block; 40 regressors in blocks of 16, padded to 48
+def test_run_time_data_of_several_gps_equal_sklearn(block):
+    gprs, test = _sklearn_pair()
+    layout, data = gp.gp_data(gprs, block=block)
+    assert layout.padded == (40 if block == 100 else 48) and layout.count == 2
+    assert [a.shape for a in data] == 2 * list(layout.shapes().values())
+    means = np.asarray(gp.mean_function(layout, len(test))(test.T, *data))
+    variance = gp.variance_function(layout)
+    for i, g in enumerate(gprs):
+        m_ref, s_ref = g.predict(test, return_std=True)
+        assert np.max(np.abs(means[i] - m_ref)) <= 1e-9 * np.max(np.abs(m_ref))
+        var = np.array([float(np.asarray(variance(t, *data))[i, 0]) for t in test])
+        assert np.max(np.abs(var - s_ref**2) / s_ref**2) <= 1e-9
+
+
+def test_layout_stores_half_the_factor_and_refuses_mismatched_gps():
+    layout = gp.GPLayout(15, 1600, 12)
+    assert layout.block_rows == 100 and layout.n_blocks == 16 * 17 // 2
+    factor_numbers = 12 * np.prod(layout.shapes()["factor_blocks"])
+    assert factor_numbers < 0.55 * 12 * 1600**2      # the lower triangle (+ the diagonal blocks), not N^2
+    gprs, _ = _sklearn_pair()
+    X, y, _ = _data(seed=5, n=30)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        other = GaussianProcessRegressor(RBF(), random_state=0).fit(X, y)
+    with pytest.raises(ValueError, match="X_train_ of shape"):
+        gp.gp_data([gprs[0], other])
+    with pytest.raises(ValueError, match="positive sizes"):
+        gp.GPLayout(3, 0)
+
+
+def test_generated_c_does_not_grow_with_the_regressors():
+    """The data are inputs: the C of 12 GPs on 1600 regressors is about that of 100, and holds no zero array."""
+    sizes = {}
+    for n in (100, 1600):
+        layout = gp.GPLayout(15, n, 12)
+        x, points = ca.MX.sym("x", 15), ca.MX.sym("X", 15, 25)
+        data = layout.symbols()
+        fn = ca.Function(f"gp{n}", [points, x, *data], [gp.mean_function(layout, 25)(points, *data),
+                                                        gp.variance_function(layout)(x, *data)])
+        text = gp.c_source([fn])
+        assert "static const casadi_real casadi_zeros" not in text and "static casadi_real casadi_zeros[" in text
+        sizes[n] = len(text)
+    assert sizes[1600] < 100_000 and sizes[1600] < 1.25 * sizes[100]   # the block maps grow with N/B, not N^2

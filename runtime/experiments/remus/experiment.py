@@ -1,88 +1,145 @@
-"""Seed 004's experiment: ideal UKF vs GP-UKF on the REMUS 100 helix (Tables 3-4, Figs. 3, 5-8).
+"""Seed 004's experiment: the REMUS 100 helix, UKF readings vs GP-UKF per GP size and training draw (Tables 3-4).
 
-    config, prepared = prepare(RemusConfig(), out, say)  # run 1 -> GPs -> generated, compiled GP-UKF predict
-    rows = run_one(config, seed)                          # one run: truth, sensors, both filters, metrics
-    report(rows, config)                                  # Table 3 and Table 4 beside the paper's (paper.py)
+    config, prepared = prepare(RemusConfig(), out, say)  # run 1 -> GP training sets, generated predicts, UKF models
+    rows = run_one(config, seed)                          # one run: truth, sensors, every filter, metrics
+    report(rows, config)                                  # the case tables beside the paper's (paper.py)
 
 The truth (helix, LOS + PID, sensors) is scenario.py; the GPs are gp_model.py, their generated C gp_codegen.py.
 
-Set-up. Run r (1-based) uses sensor-noise seed r (spec 9); run 1 is also the GPs' training run
-(in-sample for the GP-UKF; the other runs differ only in sensor noise, the helix is the same).
-Both filters start at the true x0 with P0 below, predict with the logged 5 Hz inputs (held over
-0.2 s) and update with every sensor sample; R = the sensors' held noise + LSB^2/12 (both filters).
+Set-up. Run r (0-based in the table) uses sensor-noise seed r + 1 (spec 9); the GPs are trained on the spec's
+run 1 (the table's run 0: in-sample for the GP-UKF; the other runs differ only in sensor noise, the helix
+is the same). Every filter starts at the true x0 with P0 below, predicts with the logged 5 Hz inputs (held
+over 0.2 s) and updates with every sensor sample; R = the sensors' held noise + LSB^2/12 (every filter).
+No filter has an innovation gate (the paper's have none).
 
-* Ideal UKF: the true remus100 model (2 RK4 substeps per 0.2 s) with Q = the covariance of the
-  true model's one-step residuals on run 1 (x_{k+1} - f(x_k, u_k) with the logged inputs: the
-  only "process noise" the truth has is the input held over 0.2 s while the simulator's input
-  changes every 0.01 s). "True noise levels" read as: the filter is told the truth's statistics.
-* GP-UKF: abyssal.runtime.filters.kalman.GPUKF, Q_k from the GP variance.
+Cases: the choices the paper leaves open.
+* The UKF's reading (case "true model"). "UKF (oracle)": the true remus100 model (2 RK4 substeps per 0.2 s)
+  with Q = the covariance of its one-step residuals on run 1 (x_{k+1} - f(x_k, u_k) with the logged inputs:
+  the truth's only "process noise" is the input held over 0.2 s while the simulator's changes every 0.01 s).
+  It knows the truth's statistics: an ORACLE, not the paper's UKF. "UKF (Euler, 1 step)" and "UKF (RK4,
+  1 step)": the same recipe with one explicit Euler or RK4 step per 0.2 s (Q from that model's own
+  residuals): paper-like readings of an "ideal UKF" run at the 5 Hz data rate.
+* The GP-UKF (abyssal.runtime.filters.kalman.GPUKF, Q_k from the GP variance) per GP size N (regressors per
+  GP; the paper's 40 % of 800 s at 5 Hz is 1600) and training draw (case "draw <seed>", gp_model), with
+  increment targets ("GP-UKF N=...") and, at ``full_state_sizes``, next-state targets as Deisenroth's
+  gpukf.m ("GP-UKF (state) N=..."). Run r uses draw draws[r mod len(draws)] (every draw gets every
+  len(draws)-th run: the sensor noise is a small part of the GP-UKF's error, the draw a large one).
 
-Metrics (rows of the campaign table):
-* ``rmse_<state>``: RMSE over the run of the filtered (corrected) estimate, angles wrapped (Table 3).
-* ``correction``: the mean of the ten measured states' RMSEs (Table 4 "correction"; the paper does
-  not define it; this is our reading).
-* ``prediction``: horizontal-position RMSE sqrt(mean(e_x^2 + e_y^2)) of the predict-only
-  estimate over windows without updates: from the filtered state at t0 = 100, 150, ..., 750 s,
-  PREDICTION_HORIZON s of predictions with the logged inputs and no measurements, every
-  predicted sample counted (Table 4 "prediction", our definition).
-* ``step_ms``: mean wall time of one filter step (timing; not compared across runs).
+Metrics (rows of the campaign table; errors of the filtered estimate at steps 1..T-1, angles wrapped):
+* ``rmse_<state>``: RMSE over the run (Table 3).
+* ``correction``: the mean of the ten measured states' RMSEs (our reading of Table 4 "correction").
+* ``prediction``: horizontal-position RMSE sqrt(mean(e_x^2 + e_y^2)) of the filtered estimate: x and y
+  have no sensor, so this is the filter's prediction of the unmeasured position (our reading of Table 4
+  "prediction").
+* ``predict_10s``: OURS, not the paper's: horizontal-position RMSE over predict-only windows of
+  PREDICTION_HORIZON s from the filtered state at t0 = 100, 150, ..., 750 s (logged inputs, no updates);
+  ``predict_10s_diverged``: the windows left out because the predict failed (the one-Euler-step model is
+  unstable open loop at 0.2 s: its covariance overflows within seconds).
+* ``anees``, ``anees_measured``, ``anees_xy``: mean over the run of the NEES of all 12 states, of the 10
+  measured ones and of (x, y) (a consistent filter: 12, 10 and 2) from the filter's own P. x and y are never
+  measured, so their P is P0 (1 m^2 each, while the start is exact) plus what the predicts add: an ANEES of
+  (x, y) far below 2 is P0 speaking, one far above 2 a filter whose predicts add too little.
+* ``step_ms``: mean wall time of one filter step (a timing: printed apart, never compared across runs).
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
-from ...extras import require
 from . import paper, scenario
+from .stats import Summary, over_draws, over_runs
 
 STATE_NAMES = scenario.STATE_NAMES
 MEASURED = ("u", "v", "w", "p", "q", "r", "z", "phi", "theta", "psi")
-FILTERS = ("UKF", "GP-UKF")
 P0_DIAG = (1e-4, 1e-4, 1e-4, 1e-6, 1e-6, 1e-6, 1.0, 1.0, 1e-2, 1e-4, 1e-4, 1e-3)
 PREDICTION_STARTS = tuple(range(100, 751, 50))  # s
 PREDICTION_HORIZON = 10.0                       # s
 LOG_DT = 0.2
-#: GP regressors per state. The generated predict holds N(N+1)/2 numbers per GP: N = 100 keeps the
-#: file under ~2 MB and its compile well under 60 s; N = 200 halves the GP-UKF's position RMSE but
-#: writes ~4.7 MB (measured: `abyssal bench`, section remus).
-N_TRAIN = 100
-N_TRAIN_QUICK = 60
-QUICK_DURATION = 300.0
+TRUE_MODEL = "true model"
+#: UKF readings: key -> (filter name, scheme, substeps per 0.2 s); "oracle" is the committed remus100
+READINGS = {"oracle": ("UKF (oracle)", "rk4", 2), "rk4": ("UKF (RK4, 1 step)", "rk4", 1),
+            "euler": ("UKF (Euler, 1 step)", "euler", 1)}
+QUICK_DURATION = 200.0
 
 EXTRA_COLUMNS: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
-class RemusConfig:
-    """What a run needs. The first four fields are the set-up (defaults: `abyssal reproduce remus`); ``prepare``
-    fills in the rest from run 1 (paths and numbers, not libraries: the config is pickled to the workers)."""
+class UKFSetup:
+    """One UKF reading, prepared: its model (a bundle name or generated folder) and Q."""
 
-    duration: float = 800.0             # s per run
-    n_train: int = N_TRAIN              # GP regressors per state
-    features: str = "paper"             # GP inputs: "paper" or "trig" (gp_model)
-    density_at_end: float | None = None  # the 40 % pool's sampling density at the end vs the start (None: gp_model's)
-    Q_ukf: tuple | None = None          # (12, 12) nested tuples: the ideal UKF's Q
-    predict_library: str | None = None  # the compiled GP-UKF predict
-    predict_name: str | None = None
-    gp_dt: float | None = None
+    name: str
+    model: str
+    Q: tuple          # (12, 12) nested tuples
+
+
+@dataclass(frozen=True)
+class GPSetup:
+    """One GP-UKF case, prepared: its training set (gp_model.TrainingSet file) and compiled predict."""
+
+    targets: str
+    n_train: int
+    draw: int
+    data: str          # .npz path
+    digest: str        # its sha256 (the workers' cache key)
+    library: str
+    function: str
+
+    @property
+    def name(self) -> str:
+        return gp_filter_name(self.targets, self.n_train)
+
+
+def gp_filter_name(targets: str, n_train: int) -> str:
+    return f"GP-UKF N={n_train}" if targets == "increments" else f"GP-UKF (state) N={n_train}"
+
+
+def draw_case(draw: int) -> str:
+    return f"draw {draw}"
+
+
+@dataclass(frozen=True)
+class RemusConfig:
+    """What a run needs. The fields up to ``readings`` are the set-up (defaults: `abyssal reproduce remus`);
+    ``prepare`` fills in the rest from run 1 (paths and numbers, not libraries: the config is pickled to the
+    workers)."""
+
+    duration: float = 800.0                    # s per run
+    sizes: tuple[int, ...] = (100, 400, 1600)  # GP regressors per state (1600: the paper's 40 %)
+    draws: tuple[int, ...] = (4, 5, 6)         # training draws (gp_model.draw_order seeds)
+    full_state_sizes: tuple[int, ...] = (100, 400)  # sizes also run with next-state targets (gpukf.m)
+    hyper_max: int = 400                       # hyperparameters from at most this many regressors (gp_model)
+    readings: tuple[str, ...] = tuple(READINGS)  # UKF readings (READINGS)
+    features: str = "paper"                    # GP inputs: "paper" or "trig" (gp_model)
+    density_at_end: float | None = None        # the pool's sampling density at the end vs the start (None: gp_model's)
+    ukfs: tuple = ()                           # UKFSetup per reading (prepare)
+    gps: tuple = ()                            # GPSetup per target x size x draw (prepare)
 
     def quick(self) -> "RemusConfig":
-        """`abyssal reproduce remus --quick`: 300 s runs, 60 regressors per GP."""
-        return replace(self, duration=QUICK_DURATION, n_train=N_TRAIN_QUICK)
+        """`abyssal reproduce remus --quick` (3 runs): 200 s runs; GP-UKFs with increment targets of 40 and 160
+        regressors from 2 training draws, hyperparameters from 40 points (no next-state targets); the three UKF
+        readings. A smoke version, not the paper's set-up (its GPs hold 1600 points of 800 s)."""
+        return replace(self, duration=QUICK_DURATION, sizes=(40, 160), draws=(4, 5), full_state_sizes=(),
+                       hyper_max=40)
 
     @property
     def prepared(self) -> bool:
-        return self.predict_library is not None
+        return bool(self.ukfs)
+
+    def draw_of_run(self, run: int) -> int:
+        return self.draws[run % len(self.draws)]
 
 
 def _setup(duration: float) -> scenario.HelixSetup:
     return scenario.HelixSetup(duration=duration)
 
 
-def ukf_process_noise(log: scenario.HelixLog, bundle) -> np.ndarray:
-    """Covariance of the true model's one-step residuals over the log (see the module docstring)."""
+# ------------------------------------------------------------------------------------------ preparation
+def process_noise(log: scenario.HelixLog, bundle) -> np.ndarray:
+    """Covariance of `bundle`'s one-step residuals over the log (see the module docstring)."""
     X, U = log.x, log.u
     predicted = np.column_stack([bundle.f(X[k], U[k], None, log.dt) for k in range(len(X) - 1)]).T
     residual = X[1:] - predicted
@@ -90,40 +147,138 @@ def ukf_process_noise(log: scenario.HelixLog, bundle) -> np.ndarray:
     return 0.5 * (Q + Q.T) + 1e-12 * np.eye(12)
 
 
+def reading_model(reading: str, out: Path) -> str:
+    """The model of a UKF reading: "remus100" (the oracle's), or remus100 with another integrator generated into
+    <out>/generated/ (UKF functions only; compiled once, cached by source hash)."""
+    _, scheme, substeps = READINGS[reading]
+    if (scheme, substeps) == ("rk4", 2):
+        return "remus100"
+    from abyssal.generated.regenerate import generate
+    from abyssal.symbolic.models.remus100 import remus100
+
+    model = replace(remus100(name=f"remus100_{scheme}{substeps}"), discretisation=scheme, substeps=substeps)
+    return str(generate(model, out / "generated", filters=("ukf",)))
+
+
 def prepare(config: RemusConfig, out_dir: Path | None = None, progress=None):
-    """Run 1, the GPs and the compiled GP-UKF predict (into out_dir, default ./out): (the prepared config,
-    details for the figures and the JSON: {"gp", "compiled", "training"})."""
+    """Run 1, the UKF readings' models and Q, the GP training sets and their compiled predicts (into out_dir,
+    default ./out): (the prepared config, details for the figures and the JSON)."""
     from abyssal import generated
 
     from . import gp_codegen, gp_model
 
     say = progress or (lambda message: None)
+    out = Path(out_dir) if out_dir else Path("out")
     bundle = generated.load("remus100")
     training = scenario.simulate(1, _setup(config.duration), bundle)
-    say(f"fitting 12 GPs on run 1 ({config.n_train} regressors each)")
+    ukfs = []
+    for reading in config.readings:
+        model = reading_model(reading, out)
+        Q = process_noise(training, bundle if model == "remus100" else generated.load(model))
+        ukfs.append(UKFSetup(READINGS[reading][0], model, tuple(map(tuple, Q))))
+    pool = gp_model.pool_size(config.duration, LOG_DT)
+    gps, sets, compiled = [], {}, {}
     density = gp_model.DENSITY_AT_END if config.density_at_end is None else config.density_at_end
-    gpm = gp_model.fit(training, n_train=config.n_train, features=config.features, density_at_end=density)
-    say(f"GPs fitted in {gpm.train_seconds:.1f} s; generating and compiling the GP-UKF predict")
-    compiled = gp_codegen.build_predict(gpm, Path(out_dir) if out_dir else Path("out"))
-    say(f"GP-UKF predict: {compiled.c_bytes / 1e6:.2f} MB of C, generated in {compiled.generate_seconds:.1f} s, "
-        f"compiled in {compiled.compile_seconds:.1f} s (0 when cached)")
-    Q = ukf_process_noise(training, bundle)
-    config = replace(config, Q_ukf=tuple(map(tuple, Q)), predict_library=str(compiled.library),
-                     predict_name=compiled.name, gp_dt=gpm.dt)
-    return config, {"gp": gpm, "compiled": compiled, "training": training}
+    for targets, sizes in (("increments", config.sizes), ("state", config.full_state_sizes)):
+        if not sizes:
+            continue
+        sizes = tuple(sorted({min(int(n), pool) for n in sizes}))
+        for draw in config.draws:
+            found = _cached_sets(out, training, targets, draw, sizes, config, density)
+            if found is None:
+                found = gp_model.fit_draw(training, draw, sizes, targets=targets, features=config.features,
+                                          hyper_max=config.hyper_max, density_at_end=density, say=say)
+                _save_sets(out, training, targets, draw, sizes, config, density, found)
+            else:
+                say(f"draw {draw}, {targets}: training sets read from {_gp_folder(out)} (fitted earlier)")
+            for n, training_set in found.items():
+                sets[(targets, n, draw)] = training_set
+        for n in sizes:
+            c = gp_codegen.build_predict(n, out, features=config.features, targets=targets)
+            compiled[(targets, n)] = c
+            say(f"GP-UKF predict ({targets}, N = {n}): {c.c_bytes / 1e3:.0f} kB of C, generated in "
+                f"{c.generate_seconds:.1f} s, compiled in {c.compile_seconds:.1f} s (0 when cached)")
+        for n in sizes:
+            for draw in config.draws:
+                path = _set_path(out, targets, draw, n)
+                c = compiled[(targets, n)]
+                gps.append(GPSetup(targets, n, draw, str(path), gp_model.file_digest(path), str(c.library), c.name))
+    config = replace(config, ukfs=tuple(ukfs), gps=tuple(gps))
+    return config, {"training": training, "sets": sets, "compiled": compiled}
 
 
-def _filters(config: RemusConfig, bundle):
+def _gp_folder(out: Path) -> Path:
+    return Path(out) / "remus_gp"
+
+
+def _set_path(out: Path, targets: str, draw: int, n: int) -> Path:
+    return _gp_folder(out) / f"{targets}_draw{draw}_n{n}.npz"
+
+
+def _fit_key(training: scenario.HelixLog, targets, draw, sizes, config: RemusConfig, density) -> str:
+    """What a draw's training sets depend on: run 1's data and every setting of gp_model.fit_draw."""
+    import hashlib
+
+    import sklearn
+
+    from . import gp_model
+
+    h = hashlib.sha256()
+    for array in (training.x, training.u, training.z):
+        h.update(np.ascontiguousarray(array).tobytes())
+    h.update(repr((targets, draw, sizes, config.features, config.hyper_max, density, gp_model.POOL_FRACTION,
+                   gp_model.LENGTH_SCALE, gp_model.LENGTH_BOUNDS, gp_model.SIGNAL, gp_model.SIGNAL_BOUNDS, gp_model.NOISE,
+                   gp_model.NOISE_BOUNDS, sklearn.__version__)).encode())
+    return h.hexdigest()
+
+
+def _cached_sets(out, training, targets, draw, sizes, config, density):
+    import json
+
+    from .gp_model import TrainingSet
+
+    key_path = _gp_folder(out) / f"{targets}_draw{draw}.json"
+    if not key_path.exists() or json.loads(key_path.read_text()).get("key") != _fit_key(training, targets, draw, sizes,
+                                                                                          config, density):
+        return None
+    if not all(_set_path(out, targets, draw, n).exists() for n in sizes):
+        return None
+    return {n: TrainingSet.load(_set_path(out, targets, draw, n)) for n in sizes}
+
+
+def _save_sets(out, training, targets, draw, sizes, config, density, sets) -> None:
+    import json
+
+    for n, training_set in sets.items():
+        training_set.save(_set_path(out, targets, draw, n))
+    (_gp_folder(out) / f"{targets}_draw{draw}.json").write_text(
+        json.dumps({"key": _fit_key(training, targets, draw, sizes, config, density)}))
+
+
+# ------------------------------------------------------------------------------------------ one run
+def _filters(config: RemusConfig, run: int):
+    """{filter name: (case, factory (x0, P0) -> filter)} of one run."""
+    from abyssal import generated
+
     from ...filters.kalman import UKF
     from ...filters.kalman.gp_ukf import GPUKF
+    from . import gp_model
 
-    return {
-        "UKF": lambda x, P: UKF(bundle, x, P, np.array(config.Q_ukf), scenario.SENSOR_R),
-        # the paper's GP-UKF, without the innovation gate: its GP variance is overconfident, so with the gate it
-        # gates velocity entries, inflates P and the unobserved position runs away (quick run: x RMSE 0.65 m -> 1.8 km)
-        "GP-UKF": lambda x, P: GPUKF(bundle, config.predict_library, config.predict_name, x, P, scenario.SENSOR_R,
-                                     gp_dt=config.gp_dt, gate_probability=0.0),
-    }
+    bundle = generated.load("remus100")
+    out = {}
+    for u in config.ukfs:
+        model = bundle if u.model == "remus100" else generated.load(u.model)
+        out[u.name] = (TRUE_MODEL, lambda x, P, model=model, Q=np.array(u.Q):
+                       UKF(model, x, P, Q, scenario.SENSOR_R, gate_probability=0.0))
+    draw = config.draw_of_run(run)
+    for g in config.gps:
+        if g.draw != draw:
+            continue
+        _, data = gp_model.runtime_data(g.data, g.digest)
+        out[g.name] = (draw_case(draw), lambda x, P, g=g, data=data:
+                       GPUKF(bundle, g.library, g.function, x, P, scenario.SENSOR_R, gp_dt=LOG_DT, gp_data=data,
+                             gate_probability=0.0))
+    return out
 
 
 def _errors(estimate: np.ndarray, true: np.ndarray) -> np.ndarray:
@@ -138,180 +293,228 @@ def run_one(config: RemusConfig, seed: np.random.SeedSequence) -> list[dict]:
 
 
 def filter_run(config: RemusConfig, seed: np.random.SeedSequence):
-    """(rows, log, traces) of one run; traces[filter] = (estimates (T, 12), [(k0, predict-only path)])."""
+    """(rows, log, traces) of one run; traces[filter] = (estimates (T, 12), covariances (T, 12, 12))."""
     from abyssal import generated
 
+    from ...numerics import nees
     from ..campaign import run_index
 
     if not config.prepared:
         raise ValueError("RemusConfig is not prepared: call prepare(config, out) first (it trains the GPs)")
     run = run_index(seed)                                   # 0-based row key of the campaign table
     sensor_seed = run + 1 + 100_000 * int(seed.entropy)     # spec 9: run r uses seed r (r = 1..M) for --seed 0
-    bundle = generated.load("remus100")
-    log = scenario.simulate(sensor_seed, _setup(config.duration), bundle)
+    log = scenario.simulate(sensor_seed, _setup(config.duration), generated.load("remus100"))
     T = len(log.t)
     P0 = np.diag(P0_DIAG)
+    horizon = int(round(PREDICTION_HORIZON / LOG_DT))
+    measured = [STATE_NAMES.index(s) for s in MEASURED]
     rows, traces = [], {}
-    for name, make in _filters(config, bundle).items():
+    for name, (case, make) in _filters(config, run).items():
         flt = make(log.x[0].copy(), P0)
         X, Ps = np.empty((T, 12)), np.empty((T, 12, 12))
         X[0], Ps[0] = flt.x, flt.P
         result = flt.run(log.u[:-1], log.z[1:], LOG_DT)  # step k: predict with u[k - 1], update with z[k]
         X[1:], Ps[1:] = result.x, result.P
-        step_ms = float(np.mean(result.step_time)) * 1e3
-        err = _errors(X, log.x)
+        err = _errors(X[1:], log.x[1:])
         rmse = np.sqrt(np.mean(err**2, axis=0))
-        for i, state in enumerate(STATE_NAMES):
-            rows.append({"run": run, "case": "helix", "filter": name, "metric": f"rmse_{state}", "value": float(rmse[i])})
-        rows.append({"run": run, "case": "helix", "filter": name, "metric": "correction",
-                     "value": float(np.mean([rmse[STATE_NAMES.index(s)] for s in MEASURED]))})
-        # predict-only windows
-        horizon = int(round(PREDICTION_HORIZON / LOG_DT))
-        sq, count = 0.0, 0
-        window_paths = []
-        for start in PREDICTION_STARTS:
+        values = {f"rmse_{s}": rmse[i] for i, s in enumerate(STATE_NAMES)}
+        values["correction"] = np.mean(rmse[measured])
+        values["prediction"] = np.sqrt(np.mean(err[:, 6] ** 2 + err[:, 7] ** 2))
+        values["anees"] = np.mean(nees(err, Ps[1:]))
+        values["anees_measured"] = np.mean(nees(err[:, measured], Ps[1:][:, measured][:, :, measured]))
+        values["anees_xy"] = np.mean(nees(err[:, 6:8], Ps[1:, 6:8, 6:8]))
+        sq, diverged = [], 0
+        for start in PREDICTION_STARTS:                      # predict-only windows (ours)
             k0 = int(round(start / LOG_DT))
             if k0 + horizon >= T:
                 continue
-            pred = make(X[k0].copy(), Ps[k0])
-            path = []
-            for k in range(k0 + 1, k0 + horizon + 1):
-                pred.predict(log.u[k - 1], LOG_DT)
-                xk = pred.x
-                sq += (xk[6] - log.x[k, 6]) ** 2 + (xk[7] - log.x[k, 7]) ** 2
-                count += 1
-                path.append(xk)
-            window_paths.append((k0, np.array(path)))
-        rows.append({"run": run, "case": "helix", "filter": name, "metric": "prediction",
-                     "value": float(np.sqrt(sq / count)) if count else float("nan")})
-        rows.append({"run": run, "case": "helix", "filter": name, "metric": "step_ms", "value": step_ms})
-        traces[name] = (X, window_paths)
+            pred, window = make(X[k0].copy(), Ps[k0]), []
+            try:
+                for k in range(k0 + 1, k0 + horizon + 1):
+                    pred.predict(log.u[k - 1], LOG_DT)
+                    window.append((pred.x[6] - log.x[k, 6]) ** 2 + (pred.x[7] - log.x[k, 7]) ** 2)
+                sq += window
+            except ValueError:                               # the model's open-loop prediction blew up
+                diverged += 1
+        values["predict_10s"] = math.sqrt(np.mean(sq)) if sq else math.nan
+        values["predict_10s_diverged"] = diverged
+        values["step_ms"] = float(np.mean(result.step_time)) * 1e3
+        rows += [{"run": run, "case": case, "filter": name, "metric": m, "value": float(v)} for m, v in values.items()]
+        traces[name] = (X, Ps)
     return rows, log, traces
 
 
+# ------------------------------------------------------------------------------------------ statistics
+def _values(rows, name: str, metric: str, case: str | None = None) -> list[float]:
+    return [r["value"] for r in rows if r["filter"] == name and r["metric"] == metric and (case is None or r["case"] == case)]
+
+
+def filter_names(rows) -> list[str]:
+    """UKF readings first (in READINGS order), then the GP-UKFs by targets and size."""
+    names = sorted({r["filter"] for r in rows})
+    ukfs = [v[0] for v in READINGS.values() if v[0] in names]
+    gps = sorted((n for n in names if n.startswith("GP-UKF")), key=lambda n: ("(state)" in n, int(n.split("N=")[1])))
+    return ukfs + gps + [n for n in names if n not in ukfs and n not in gps]
+
+
+def is_gp(name: str) -> bool:
+    return name.startswith("GP-UKF")
+
+
+def draws_of(rows, name: str) -> list[str]:
+    return sorted({r["case"] for r in rows if r["filter"] == name}, key=lambda c: int(c.split()[-1]))
+
+
+def per_draw(rows, name: str, metric: str) -> dict[str, Summary]:
+    return {case: over_runs(_values(rows, name, metric, case)) for case in draws_of(rows, name)}
+
+
+def statistic(rows, name: str, metric: str) -> Summary:
+    """A UKF reading: over its runs. A GP-UKF: between its training draws (of the per-draw means over runs)."""
+    if is_gp(name):
+        return over_draws(per_draw(rows, name, metric))
+    return over_runs(_values(rows, name, metric))
+
+
+def ratio_to_paper(rows, name: str) -> dict[str, float]:
+    """Our mean RMSE over the paper's (Table 3, UKF row) per state."""
+    return {s: statistic(rows, name, f"rmse_{s}").mean / paper.TABLE3["UKF"][s] for s in STATE_NAMES}
+
+
+def closest_reading(rows) -> tuple[str, dict]:
+    """(the UKF reading nearest the paper's UKF row, {reading: (median |log10 ratio|, max |log10 ratio|, states
+    within a factor 2)}): distance = median over the 12 states of |log10(ours / paper)|."""
+    scores = {}
+    for name in filter_names(rows):
+        if is_gp(name):
+            continue
+        logs = np.abs(np.log10(np.array(list(ratio_to_paper(rows, name).values()))))
+        scores[name] = (float(np.median(logs)), float(np.max(logs)), int(np.sum(logs <= math.log10(2))))
+    return min(scores, key=lambda n: scores[n][0]), scores
+
+
+def paper_sigma_check() -> list[str]:
+    """The paper's sigma of x and y against sqrt(20) x its mean (paper.py)."""
+    bound = math.sqrt(paper.RUNS)
+    lines = []
+    for s in ("x", "y"):
+        mean, sigma = paper.TABLE3["UKF"][s], paper.TABLE3["sigma-UKF"][s]
+        verdict = "exceeds" if sigma > bound * mean else "is within"
+        lines.append(f"  {s}: sigma {sigma:g} m {verdict} sqrt({paper.RUNS}) x mean = {bound * mean:.3g} m "
+                     f"(ratio sigma/mean {sigma / mean:.2f} vs {bound:.2f})")
+    return lines
+
+
 # ------------------------------------------------------------------------------------------ tables
-def summary(rows) -> dict:
-    """{filter: {metric: (mean, std over runs)}} of the comparable metrics."""
-    out: dict = {}
-    for name in FILTERS:
-        metrics = sorted({r["metric"] for r in rows if r["filter"] == name})
-        out[name] = {}
-        for metric in metrics:
-            values = np.array([r["value"] for r in rows if r["filter"] == name and r["metric"] == metric])
-            out[name][metric] = (float(np.mean(values)), float(np.std(values, ddof=1)) if len(values) > 1 else 0.0)
-    return out
+def _conditions(rows, config: RemusConfig | None) -> str:
+    runs = len({r["run"] for r in rows})
+    if config is None:
+        return f"{runs} run(s)"
+    return (f"{runs} run(s) x {config.duration:g} s at 5 Hz; GPs trained on run 0 (spec run 1), {len(config.draws)} "
+            f"training draw(s) {', '.join(map(str, config.draws))} (run r uses draw r mod {len(config.draws)}), "
+            f"hyperparameters from <= {config.hyper_max} regressors")
 
 
 def report(rows, config: RemusConfig | None = None) -> str:
-    """Table 3 and Table 4, ours (mean ± std over the runs) beside the paper's (paper.py)."""
-    s = summary(rows)
-    runs = len({r["run"] for r in rows})
-    lines = [f"REMUS 100 helix (seed 004): ideal UKF vs GP-UKF, {runs} run(s); OURS = mean ± std over runs, "
-             "THEIRS = the paper's Table 3/4 (quoted; '-' where illegible in the seed text)", "",
-             "Table 3: RMSE per state", f"{'state':<7}{'UKF ours':>22}{'UKF theirs':>20}{'GP-UKF ours':>22}{'GP-UKF theirs':>20}"]
-    for state in STATE_NAMES:
-        cells = []
-        for name, sigma in (("UKF", "sigma-UKF"), ("GP-UKF", "sigma-GP-UKF")):
-            mean, std = s[name][f"rmse_{state}"]
-            cells.append(f"{mean:>11.4g} ± {std:<8.2g}")
-            theirs = paper.TABLE3[name].get(state)
-            tsig = paper.TABLE3[sigma].get(state)
-            cells.append(f"{(f'{theirs:.4g}' if theirs is not None else '-'):>11} ± {(f'{tsig:.2g}' if tsig is not None else '-'):<6}")
-        lines.append(f"{state:<7}" + "".join(f"{c:>21}" for c in cells))
-    lines += ["", "Table 4", f"{'':<28}{'ours':>20}{'theirs':>10}"]
-    for name in FILTERS:
-        for metric in ("correction", "prediction"):
-            mean, std = s[name][metric]
-            lines.append(f"RMSE-{name} {metric:<16}{mean:>11.4g} ± {std:<7.2g}{paper.TABLE4[(name, metric)]:>10}")
-    lines += ["", "correction: mean of the 10 measured states' RMSE; prediction: horizontal-position RMSE (m) of "
-              f"predict-only windows of {PREDICTION_HORIZON:g} s from t0 = {PREDICTION_STARTS[0]}, "
-              f"{PREDICTION_STARTS[1]}, ..., {PREDICTION_STARTS[-1]} s (our definitions: the paper gives none).",
-              "step ms: " + ", ".join(f"{n} {s[n]['step_ms'][0]:.3f}" for n in FILTERS) + " (mean wall time per predict+update)"]
-    return "\n".join(lines)
+    """The case tables (module docstring) beside the paper's numbers (paper.py)."""
+    names = filter_names(rows)
+    ukfs = [n for n in names if not is_gp(n)]
+    gps = [n for n in names if is_gp(n)]
+    L = [f"REMUS 100 helix (seed 004): {_conditions(rows, config)}.",
+         "OURS: a UKF reading = mean ± sample sd (ddof 1) over its runs; a GP-UKF = mean ± sample sd (ddof 1) BETWEEN "
+         "training draws of the per-draw means over runs. THEIRS: the paper's tables, quoted ('-' where illegible).", ""]
+
+    L += ["Table 3, UKF readings: RMSE per state (UKF (oracle) knows the true model and the truth's residual "
+          "covariance: an ORACLE)", f"{'state':<6}{'unit':<6}{'paper UKF':>11}" + "".join(f"{n:>24}" for n in ukfs)]
+    for s in STATE_NAMES:
+        L.append(f"{s:<6}{paper.UNITS[s]:<6}{paper.TABLE3['UKF'][s]:>11.4g}"
+                 + "".join(f"{statistic(rows, n, f'rmse_{s}').text(3):>24}" for n in ukfs))
+    if ukfs:
+        best, scores = closest_reading(rows)
+        L += ["distance to the paper's UKF row: median |log10(ours/paper)| over the 12 states [max]; states within "
+              "a factor 2"]
+        for n in ukfs:
+            med, worst, within = scores[n]
+            ratio = ratio_to_paper(rows, n)
+            L.append(f"  {n:<22} {med:.2f} [{worst:.2f}]  {within:>2}/12   x: {ratio['x']:.3g}x the paper's, "
+                     f"y: {ratio['y']:.3g}x")
+        L.append(f"  closest: {best}" + ("" if scores[best][2] == 12 else
+                                         "; no reading is within a factor 2 of the paper in every state"))
+    if gps:
+        L += ["", "Table 3, GP-UKF: RMSE per state (mean ± sd between training draws)",
+              f"{'state':<6}{'unit':<6}{'paper':>9}" + "".join(f"{n:>22}" for n in gps)]
+        for s in STATE_NAMES:
+            theirs = paper.TABLE3["GP-UKF"].get(s)
+            L.append(f"{s:<6}{paper.UNITS[s]:<6}{(f'{theirs:.4g}' if theirs is not None else '-'):>9}"
+                     + "".join(f"{statistic(rows, n, f'rmse_{s}').text(3):>22}" for n in gps))
+
+    duration = config.duration if config else max(PREDICTION_STARTS) + PREDICTION_HORIZON + LOG_DT
+    windows = sum(1 for t in PREDICTION_STARTS if t + PREDICTION_HORIZON < duration)
+    L += ["", "Table 4: correction (mean of the 10 measured states' RMSEs, mixed units) and prediction (horizontal "
+          "position RMSE of the filtered estimate, m: x, y are never measured); predict_10s (m) is OURS "
+          "(predict-only windows; 'diverged': windows whose predict failed, of all), the paper has no such number",
+          f"{'filter':<24}{'correction':>20}{'paper':>8}{'prediction (m)':>20}{'paper (m)':>10}{'predict_10s (m)':>20}"
+          f"{'diverged':>10}"]
+    for n in names:
+        kind = "GP-UKF" if is_gp(n) else "UKF"
+        diverged = f"{sum(_values(rows, n, 'predict_10s_diverged')):g}/{windows * len(_values(rows, n, 'prediction'))}"
+        L.append(f"{n:<24}{statistic(rows, n, 'correction').text(3):>20}{paper.TABLE4[(kind, 'correction')]:>8}"
+                 f"{statistic(rows, n, 'prediction').text(3):>20}{paper.TABLE4[(kind, 'prediction')]:>10}"
+                 f"{statistic(rows, n, 'predict_10s').text(3):>20}{diverged:>10}")
+
+    if gps:
+        cases = sorted({c for n in gps for c in draws_of(rows, n)}, key=lambda c: int(c.split()[-1]))
+        L += ["", "GP-UKF per training draw: prediction (horizontal position RMSE, m), mean ± sd (ddof 1) over that "
+              "draw's runs [runs]; between draws: mean, sd (ddof 1), min-max of the per-draw means",
+              f"{'filter':<24}" + "".join(f"{c:>22}" for c in cases) + f"{'between draws':>30}"]
+        for n in gps:
+            d = per_draw(rows, n, "prediction")
+            cells = "".join(f"{(d[c].text(3) + f' [{d[c].n}]') if c in d else '-':>22}" for c in cases)
+            b = over_draws(d)
+            L.append(f"{n:<24}{cells}{f'{b.text(3)}, {b.low:.3g}-{b.high:.3g}':>30}")
+
+    L += ["", "Consistency: ANEES from the filter's own P of the 12 states, the 10 measured ones and (x, y) (a consistent "
+          "filter: 12, 10, 2; x, y start exact with P0 = 1 m^2 and are never measured); statistic as above",
+          f"{'filter':<24}{'ANEES (12)':>20}{'measured (10)':>20}{'x, y (2)':>20}"]
+    for n in names:
+        L.append(f"{n:<24}" + "".join(f"{statistic(rows, n, m).text(3):>20}" for m in ("anees", "anees_measured", "anees_xy")))
+
+    L += ["", f"The paper's Table 3 sigma of the UKF (quoted; paper.py) cannot be a standard deviation over its "
+          f"{paper.RUNS} runs: the sample sd of n values >= 0 is at most sqrt(n) x their mean.", *paper_sigma_check(),
+          "  It is printed here and never paired with our sd over runs (a different statistic).", "",
+          "step ms (mean wall time of one predict + update, this machine and its load; not compared across runs): "
+          + ", ".join(f"{n} {statistic(rows, n, 'step_ms').mean:.3g}" for n in names)]
+    return "\n".join(L)
 
 
-def per_state_json(rows) -> dict:
-    s = summary(rows)
-    return {name: {"rmse": {st: s[name][f"rmse_{st}"][0] for st in STATE_NAMES},
-                   "rmse_std": {st: s[name][f"rmse_{st}"][1] for st in STATE_NAMES},
-                   "correction": s[name]["correction"][0], "prediction": s[name]["prediction"][0],
-                   "step_ms": s[name]["step_ms"][0]} for name in FILTERS}
-
-
-# ------------------------------------------------------------------------------------------ figures
 def document(rows, config: RemusConfig, prepared: dict) -> dict:
-    """The JSON summary's entries: the GPs, their generated predict, per-state RMSE and the paper's tables."""
-    gpm, compiled = prepared["gp"], prepared["compiled"]
-    return {"duration_s": config.duration, "gp_regressors": gpm.n_train, "gp_train_seconds": gpm.train_seconds,
-            "gp_predict_c_bytes": compiled.c_bytes, "gp_predict_compile_seconds": compiled.compile_seconds,
-            "per_state_rmse": per_state_json(rows),
+    """The JSON summary's entries: per filter and metric the statistic; the GPs' training and C; the paper's tables."""
+    names = filter_names(rows)
+    metrics = sorted({r["metric"] for r in rows})
+    summary = {n: {m: vars(statistic(rows, n, m)) for m in metrics} for n in names}
+    draws = {n: {m: {c: vars(s) for c, s in per_draw(rows, n, m).items()} for m in ("prediction", "rmse_x", "rmse_y")}
+             for n in names if is_gp(n)}
+    gp = {}
+    if prepared:
+        for (targets, n, draw), s in prepared["sets"].items():
+            gp[f"{targets}|N={n}|draw {draw}"] = {"regressors": s.n_train, "hyperparameter_seconds": s.train_seconds}
+        for (targets, n), c in prepared["compiled"].items():
+            gp[f"{targets}|N={n}|predict"] = {"c_bytes": c.c_bytes, "generate_seconds": c.generate_seconds,
+                                               "compile_seconds": c.compile_seconds}
+    best = closest_reading(rows)[0] if any(not is_gp(n) for n in names) else None
+    return {"duration_s": config.duration, "statistic": "UKF: mean and sd (ddof 1) over runs; GP-UKF: between training "
+            "draws of per-draw means", "summary": summary, "gp_per_draw": draws, "gp": gp,
+            "closest_reading_to_paper_ukf": best,
             "paper": {"table3": paper.TABLE3, "table4": {f"{k[0]}|{k[1]}": v for k, v in paper.TABLE4.items()}}}
 
 
-def figures(rows, out: Path, config: RemusConfig, seed: int, prepared: dict) -> list[Path]:
-    """Figs. 3, 5-8 of the paper from run 1 (training/evaluation data, surge, x(t), y(t), 3-D path), run again
-    here from the campaign's seed for run 1 (the same numbers as the table's)."""
-    require("matplotlib", "the experiment figures").use("Agg")
-    plt = require("matplotlib.pyplot", "the experiment figures")
+# ------------------------------------------------------------------------------------------ figures
+def figures(rows, out: Path, config: RemusConfig, seed: int, prepared: dict, settings: str | None = None) -> list[Path]:
+    """The figures (figures.py of this folder), from the rows and a rerun of run 0 (the same numbers as the table's);
+    settings: the command that made the run (stamped into every figure)."""
+    from . import figures as remus_figures
 
-    from ..campaign import run_seeds
-
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    _, log, traces = filter_run(config, run_seeds(seed, 1)[0])
-    details = prepared
-    written = []
-
-    def save(fig, name):
-        path = out / name
-        fig.tight_layout()
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
-        written.append(path)
-
-    gpm, training = details["gp"], details["training"]
-    fig, ax = plt.subplots(figsize=(8, 3.5))
-    ax.plot(training.t, training.z[:, 0], color="0.7", lw=0.8, label="run 1, measured u (evaluation data)")
-    sel = np.isin(training.t, gpm.train_times)
-    pool = np.isin(training.t, gpm.pool_times)
-    ax.plot(training.t[pool], training.z[pool, 0], ".", ms=2, color="C0", label="40 % pool (denser at the start)")
-    ax.plot(training.t[sel], training.z[sel, 0], "o", ms=3, color="C3", label=f"GP regressors (N = {gpm.n_train})")
-    ax.set(xlabel="t (s)", ylabel="u (m/s)", title="Training vs evaluation data (cf. Fig. 3)")
-    ax.legend(fontsize=7)
-    save(fig, "remus_fig3_training_data.png")
-
-    fig, ax = plt.subplots(figsize=(8, 3.5))
-    ax.plot(log.t, log.z[:, 0], color="0.6", lw=0.6, label="measured")
-    ax.plot(log.t, log.x[:, 0], "k", lw=1, label="true")
-    for name, (X, _) in traces.items():
-        ax.plot(log.t, X[:, 0], lw=0.9, label=name)
-    ax.set(xlabel="t (s)", ylabel="u (m/s)", title="Surge speed (cf. Fig. 5)")
-    ax.legend(fontsize=7)
-    save(fig, "remus_fig5_surge.png")
-
-    for i, axis, fig_no in ((6, "x", 6), (7, "y", 7)):
-        fig, ax = plt.subplots(figsize=(8, 3.5))
-        ax.plot(log.t, log.x[:, i], "k", lw=1, label="true")
-        for j, (name, (X, windows)) in enumerate(traces.items()):
-            ax.plot(log.t, X[:, i], lw=0.8, color=f"C{j}", label=f"{name} (corrected)")
-            for n_w, (k0, path) in enumerate(windows):
-                tt = log.t[k0 + 1:k0 + 1 + len(path)]
-                ax.plot(tt, path[:, i], lw=2, color=f"C{j}", alpha=0.6,
-                        label=f"{name} predict-only windows" if n_w == 0 else None)
-        ax.set(xlabel="t (s)", ylabel=f"{axis} (m)", title=f"Position {axis}: corrected and predicted (cf. Fig. {fig_no})")
-        ax.legend(fontsize=7)
-        save(fig, f"remus_fig{fig_no}_{axis}.png")
-
-    fig = plt.figure(figsize=(6, 5))
-    ax = fig.add_subplot(projection="3d")
-    ax.plot(log.x[:, 6], log.x[:, 7], log.x[:, 8], "k", lw=1, label="true")
-    for name, (X, _) in traces.items():
-        ax.plot(X[:, 6], X[:, 7], X[:, 8], lw=0.8, label=name)
-    ax.invert_zaxis()
-    ax.set(xlabel="x (m)", ylabel="y (m)", zlabel="z (m)", title="Helix: true and estimated (cf. Fig. 8)")
-    ax.legend(fontsize=7)
-    save(fig, "remus_fig8_path3d.png")
-    return written
+    return remus_figures.all_figures(rows, Path(out), config, seed, prepared, settings)
 
 
 #: the name `abyssal reproduce` looks up (reproduce.py)

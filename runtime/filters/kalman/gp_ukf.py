@@ -1,11 +1,13 @@
 """GP-UKF (Ko et al. 2007; seed 004 Table 2): a UKF whose prediction is learned Gaussian processes.
 
-    gpukf = GPUKF(bundle, predict_library, "remus_gpukf_predict", x0, P0, R, gp_dt=0.2)
+    gpukf = GPUKF(bundle, predict_library, "remus_gpukf_predict", x0, P0, R, gp_dt=0.2, gp_data=arrays)
     gpukf.step(u, 0.2, z)
 
 Predict (one generated C call, abyssal.symbolic.filters.gp_ukf): sigma points of (x, P) through
 the GP means of the state increments; Q_k = diag(GP predictive variance at the prior mean),
 including each GP's learned noise; P_pred = points' covariance + Q_k. ``last_Q`` holds Q_k.
+The GPs' data (the feature standardisation, then each GP's training matrix, weights, factor: the inputs of
+abyssal.symbolic.filters.gp_ukf) are ``gp_data``, bound once: the compiled predict holds no data.
 
 Update: the observation model. Seed 004 and Ko et al. learn an observation GP too; here the
 sensors observe states directly (h is remus100's [u v w p q r z phi theta psi]), so the update
@@ -50,12 +52,12 @@ class GPUKF(FilterBase):
     @classmethod
     def contract_example(cls, model, *, x0=None, P0=None, n_particles=None, rng=0):
         """For the contract test: GPs of `model`'s own one-step increments (a small, quickly compiled predict)."""
-        library, name, dt = _example_predict(model.name)
+        library, name, dt, data = _example_predict(model.name)
         n = model.n_x
         return cls(model, library, name, np.zeros(n) if x0 is None else x0, np.eye(n) if P0 is None else P0,
-                   0.5 * np.eye(model.n_y), gp_dt=dt)
+                   0.5 * np.eye(model.n_y), gp_dt=dt, gp_data=data)
 
-    def __init__(self, model, predict_library, predict_name: str, x0, P0, R, *, gp_dt: float,
+    def __init__(self, model, predict_library, predict_name: str, x0, P0, R, *, gp_dt: float, gp_data=(),
                  alpha: float = 1.0, beta: float = 2.0, kappa: float = 0.0, gate_probability: float = 1e-10,
                  gate_patience: int = 5, gate_inflation: float = 4.0, growth_limit: float = 1e3):
         if not hasattr(model, "functions") or "ukf_update" not in model.functions:
@@ -81,6 +83,14 @@ class GPUKF(FilterBase):
         self._pin = [np.zeros(n), np.zeros((n, n), order="F"), np.zeros(model.n_u), self._abk]
         self._pout = [np.zeros(n), np.zeros((n, n), order="F"), np.zeros((n, n), order="F"), np.zeros(1)]
         self._external = ca.external(predict_name, str(predict_library))
+        self._gp_data = [np.asfortranarray(a, dtype=float) for a in gp_data]   # kept alive: bound below
+        if self._external.n_in() != 4 + len(self._gp_data):
+            raise ValueError(f"gp_data: {predict_name} takes {self._external.n_in() - 4} data arrays, got {len(self._gp_data)}")
+        for i, a in enumerate(self._gp_data, start=4):
+            if a.size != self._external.nnz_in(i) or not np.all(np.isfinite(a)):
+                raise ValueError(f"gp_data[{i - 4}] ({self._external.name_in(i)}) must hold {self._external.nnz_in(i)} "
+                                 f"finite numbers, got {a.size}{'' if np.all(np.isfinite(a)) else ' (not all finite)'}")
+        self._pin += self._gp_data
         self._buffer, self._eval = self._external.buffer()
         for i, a in enumerate(self._pin):
             self._buffer.set_arg(i, memoryview(a.reshape(-1, order="F")))
@@ -144,7 +154,7 @@ class GPUKF(FilterBase):
 
 @functools.lru_cache(maxsize=None)
 def _example_predict(model_name: str, dt: float = 0.5, n_train: int = 12):
-    """(library, function name, dt) of a GP-UKF predict learned from `model_name`'s f: one GP
+    """(library, function name, dt, data) of a GP-UKF predict learned from `model_name`'s f: one GP
     (ConstantKernel x RBF + White) per state increment on n_train random (x, u) points."""
     from sklearn.gaussian_process import GaussianProcessRegressor
     from sklearn.gaussian_process.kernels import RBF, ConstantKernel, WhiteKernel
@@ -163,9 +173,8 @@ def _example_predict(model_name: str, dt: float = 0.5, n_train: int = 12):
     gprs = [GaussianProcessRegressor(ConstantKernel() * RBF() + WhiteKernel(1e-3, (1e-12, 1.0)), random_state=0).fit(features, y)
             for y in increments.T]
     name = f"{model_name}_contract_gpukf_predict"
-    points = 2 * bundle.n_x + 1
-    fn = gp_ukf_predict_function(name, [gp.gp_mean_batch_function(g, points, f"{name}_mean{i}") for i, g in enumerate(gprs)],
-                                 [gp.gp_variance_function(g, f"{name}_var{i}") for i, g in enumerate(gprs)], bundle.n_u)
-    cg = ca.CodeGenerator(f"{name}.c", {"with_header": False, "casadi_real": "double", "casadi_int": "long long int"})
-    cg.add(fn)
-    return build(name, {f"{name}.c": cg.dump()}, symbols=(name,)), name, dt
+    layout, data = gp.gp_data(gprs)
+    fn = gp_ukf_predict_function(name, layout, bundle.n_u)
+    d = layout.n_inputs
+    data = (np.zeros(d), np.ones(d), *data)  # features [x; u] as they are
+    return build(name, {f"{name}.c": gp.c_source([fn])}, symbols=(name,)), name, dt, data
