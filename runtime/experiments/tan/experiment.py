@@ -707,14 +707,15 @@ def _track_run_figure(plt, config: TanConfig, m, t, c, truth, runs):
     ax_err.axhline(500.0, **{**claim, "linestyle": "-.", "linewidth": 1.4})
     ax_map.plot([], [], **{**claim, "linestyle": "-.", "linewidth": 1.4},
                 label="error panel: THE PAPER, fuzzy within one 500 m cell (abstract)")
-    ax_map.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=2, frameon=False)
+    handles, labels = ax_map.get_legend_handles_labels()  # one legend for all panels, below them
+    fig.legend(handles, labels, loc="lower center", bbox_to_anchor=(0.5, 0.02), ncol=5, fontsize=7, frameon=False)
     ax_err.set(ylabel="position error (m)", title="error over time (cf. Figs. 9, 11, 15)")
     ax_std.set(ylabel="filter's own spread sqrt(Pxx + Pyy) (m)", title="the filter's own spread (below the error: "
                "confidently wrong)")
     ax_std.set_ylim(ax_err.get_ylim())
     tr = TRACKS[m][t]
     fig.suptitle(f"{m} / {t}: start {tr.label()}, current {c} m/s (run 0)")
-    fig.tight_layout(rect=(0, 0.02, 1, 1))
+    fig.tight_layout(rect=(0, 0.09, 1, 1))
     return fig
 
 
