@@ -60,7 +60,7 @@ EXPERIMENTS: dict[str, Experiment] = {e.name: e for e in (
                case="sea state"),
     Experiment("cn", ".cn.experiment", ("cn2d",), runs=10, quick_runs=2, timings_apart=True,
                case="geometry x noise case"),
-    Experiment("tan", ".tan.experiment", ("tan3dof",), runs=2, quick_runs=1),
+    Experiment("tan", ".tan.experiment", ("tan3dof",), runs=8, quick_runs=1, case="map x track x current"),
     Experiment("remus", ".remus.experiment", ("remus100",), runs=20, quick_runs=3,
                needs={"sklearn": "the GP process model"}, particles=False, prepare=True),
 )}

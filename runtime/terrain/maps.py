@@ -17,7 +17,14 @@ here):
 * ``synthetic_arctic``: a seeded 140 x 60 km map in the spirit of the paper's study area
   (Fig. 2): a continental slope from an 800 m shelf down to a 3000 m abyssal plain in the west,
   cut by ridges and rough relief, with a flat-topped bank on the slope, and a plain in the east
-  whose relief (~1.5 m) is below the altimeter's 5 m noise.
+  whose relief (~1.5 m) is below the altimeter's 5 m noise. Its relief is smooth at the 500 m
+  cell: ridges of 3-9 km wavelength and a random field correlated over ~1.25 km.
+* ``synthetic_arctic(seed, cell_relief=True)`` (``MAPS["arctic_cells"]``): the same map -- the same
+  layout and the same random draws -- with the random part of the relief given a von Karman
+  spectrum (the form Goff & Jordan (1988) fitted to abyssal hills: power ~ (1 + (k/k0)^2)^-(H+1),
+  corner wavelength 4 km, Hurst exponent H = 0.8) instead of the smooth field, at the same 45 m rms.
+  A power law has relief down to the 500 m cell, as a survey grid has: neighbouring nodes differ by
+  tens of metres where the smooth map's differ by the slope's trend.
 """
 from __future__ import annotations
 
@@ -124,17 +131,43 @@ def topobathy_window(width_m: float = 140e3, height_m: float = 60e3, resolution:
                           "land clipped to depth 0",))
 
 
-def _smooth_noise(rng, shape, correlation_cells: float) -> np.ndarray:
-    """Zero-mean, unit-std Gaussian random field with a Gaussian correlation of `correlation_cells`."""
-    from scipy.ndimage import gaussian_filter
-
-    field = gaussian_filter(rng.standard_normal(shape), correlation_cells, mode="wrap")
+def _normalised(field: np.ndarray) -> np.ndarray:
     return field / field.std()
 
 
+def _smooth_noise(rng, shape, correlation_cells: float) -> np.ndarray:
+    """Zero-mean, unit-std Gaussian random field with a Gaussian correlation of `correlation_cells`."""
+    return _smoothed(rng.standard_normal(shape), correlation_cells)
+
+
+def _smoothed(white: np.ndarray, correlation_cells: float) -> np.ndarray:
+    """White noise filtered by a Gaussian of `correlation_cells` (periodic), normalised to unit std."""
+    from scipy.ndimage import gaussian_filter
+
+    return _normalised(gaussian_filter(white, correlation_cells, mode="wrap"))
+
+
+def _von_karman(white: np.ndarray, corner_cells: float, hurst: float) -> np.ndarray:
+    """White noise given the isotropic von Karman spectrum, power ~ (1 + (k corner_cells)^2)^-(hurst + 1) with k
+    in cycles per cell (periodic, like ``_smoothed``), normalised to unit std: relief down to the cell scale."""
+    ny, nx = white.shape
+    k = np.hypot(np.fft.fftfreq(ny)[:, None], np.fft.rfftfreq(nx)[None, :])
+    amplitude = (1.0 + (k * corner_cells) ** 2) ** (-(hurst + 1.0) / 2.0)
+    return _normalised(np.fft.irfft2(np.fft.rfft2(white) * amplitude, s=white.shape))
+
+
+#: the cell-scale relief of ``synthetic_arctic(cell_relief=True)``: corner wavelength (m) and Hurst exponent
+CELL_RELIEF_CORNER_M = 4000.0
+CELL_RELIEF_HURST = 0.8
+
+
 def synthetic_arctic(seed: int = 0, width_m: float = 140e3, height_m: float = 60e3,
-                     resolution: float = 500.0) -> BathymetryMap:
-    """Seeded Arctic-like map: rough continental slope in the west, flat abyssal plain in the east."""
+                     resolution: float = 500.0, cell_relief: bool = False) -> BathymetryMap:
+    """Seeded Arctic-like map: rough continental slope in the west, flat abyssal plain in the east.
+
+    cell_relief: give the slope's 45 m rms random relief a von Karman spectrum reaching the cell scale instead of
+    a ~1.25 km Gaussian correlation (the module docstring); everything else, random draws included, is the same.
+    """
     rng = np.random.default_rng(seed)
     x = np.arange(0.0, width_m + 0.5 * resolution, resolution)
     y = np.arange(0.0, height_m + 0.5 * resolution, resolution)
@@ -151,16 +184,30 @@ def synthetic_arctic(seed: int = 0, width_m: float = 140e3, height_m: float = 60
         angle = rng.uniform(0, np.pi)
         k = 2 * np.pi / wavelength
         ridges += rng.uniform(40, 110) * np.sin(k * (X * np.cos(angle) + Y * np.sin(angle)) + rng.uniform(0, 2 * np.pi))
-    relief = ridges + 45.0 * _smooth_noise(rng, X.shape, 2.5)
+    white = rng.standard_normal(X.shape)
+    random_relief = (_von_karman(white, CELL_RELIEF_CORNER_M / resolution, CELL_RELIEF_HURST) if cell_relief
+                     else _smoothed(white, 2.5))
+    relief = ridges + 45.0 * random_relief
     depth = depth + rough * relief
     # a flat-topped bank on the slope (cf. the paper's "top of the steep area ... suddenly flat")
     bank = 1300.0 * np.exp(-(((X - 33 * km) / (5 * km)) ** 2 + ((Y - 24 * km) / (6 * km)) ** 2))
     depth = np.maximum(depth - bank, np.minimum(depth, 1250.0 + 1.0 * _smooth_noise(rng, X.shape, 8)))
     # the plain: ~1.5 m of long-wavelength relief, below the altimeter noise
     depth = depth + (1 - rough) * 1.5 * _smooth_noise(rng, X.shape, 10)
-    return BathymetryMap(depth, (0.0, 0.0), resolution, "arctic",
-                         (f"synthetic Arctic-like map, seed {seed}: 800-3000 m rough continental slope (west) with a "
-                          "flat-topped bank, flat abyssal plain (east)",))
+    if cell_relief:
+        notes = (f"synthetic Arctic-like map, seed {seed}, relief at the cell scale: the 'arctic' map's layout and draws "
+                 f"with its 45 m rms random relief given a von Karman spectrum (corner {CELL_RELIEF_CORNER_M / km:g} km, "
+                 f"Hurst {CELL_RELIEF_HURST:g})",)
+    else:
+        notes = (f"synthetic Arctic-like map, seed {seed}: 800-3000 m rough continental slope (west) with a "
+                 "flat-topped bank, flat abyssal plain (east)",)
+    return BathymetryMap(depth, (0.0, 0.0), resolution, "arctic_cells" if cell_relief else "arctic", notes)
 
 
-MAPS = {"arctic": synthetic_arctic, "topobathy": topobathy_window}
+def synthetic_arctic_cells(seed: int = 0) -> BathymetryMap:
+    """``synthetic_arctic(seed, cell_relief=True)``: the same map with relief down to the 500 m cell."""
+    return synthetic_arctic(seed, cell_relief=True)
+
+
+#: name -> builder; the synthetic maps take a seed
+MAPS = {"arctic": synthetic_arctic, "arctic_cells": synthetic_arctic_cells, "topobathy": topobathy_window}

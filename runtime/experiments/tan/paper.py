@@ -21,6 +21,15 @@ CLAIMS = {
     ("flat", "all"): "every filter is close to dead reckoning in the flat area (Fig. 15)",
 }
 
+#: the same claims in a word or two, for the figures' "the paper" row: (current, filter) -> words
+VERDICTS = {
+    ("current_0.1", "sigma_1"): "lost", ("current_0.1", "sigma_2"): "good", ("current_0.1", "sigma_3"): "good",
+    ("current_0.1", "sigma_4"): "larger error", ("current_0.1", "sigma_5"): "larger error", ("current_0.1", "sigma_6"): "larger error",
+    ("current_0.1", "fuzzy"): "good",
+    ("current_0.15", "sigma_2"): "lost", ("current_0.15", "sigma_3"): "lost", ("current_0.15", "sigma_4"): "better,\nthen lost",
+    ("current_0.15", "fuzzy"): "good,\n< 500 m",
+}
+
 SUMMARY = ("Fuzzy-PF keeps the position error within one 500 m map cell under both currents (abstract); "
            "fixed sigma = 2 or 3 m tracks at 0.1 m/s but loses the track (> 1000 m) at 0.15 m/s; in the flat "
            "area every filter is close to dead reckoning (Fig. 15); fuzzy gives the smallest localisation "
