@@ -50,7 +50,8 @@ from pathlib import Path
 import numpy as np
 
 from . import paper, scenario
-from .stats import Summary, over_draws, over_runs
+from ..tables import OverRuns
+from ..tables import over_runs as _over_runs
 
 STATE_NAMES = scenario.STATE_NAMES
 MEASURED = ("u", "v", "w", "p", "q", "r", "z", "phi", "theta", "psi")
@@ -365,11 +366,30 @@ def draws_of(rows, name: str) -> list[str]:
     return sorted({r["case"] for r in rows if r["filter"] == name}, key=lambda c: int(c.split()[-1]))
 
 
-def per_draw(rows, name: str, metric: str) -> dict[str, Summary]:
+def over_runs(values) -> OverRuns:
+    """tables.over_runs of the finite values: a run whose metric is inf or NaN is left out of the remus tables."""
+    return _over_runs([v for v in values if math.isfinite(v)])
+
+
+def over_draws(per_draw: dict[str, OverRuns]) -> OverRuns:
+    """Between training draws: over_runs of the per-draw means (per_draw: {draw: over_runs of its runs})."""
+    return over_runs([s.mean for s in per_draw.values()])
+
+
+def cell(s: OverRuns) -> str:
+    """"mean ± sd" (3 and 2 significant digits), the mean alone for one value, "-" for none."""
+    if not math.isfinite(s.mean):
+        return "-"
+    if s.n < 2 or not math.isfinite(s.sd):
+        return f"{s.mean:.3g}"
+    return f"{s.mean:.3g} ± {s.sd:.2g}"
+
+
+def per_draw(rows, name: str, metric: str) -> dict[str, OverRuns]:
     return {case: over_runs(_values(rows, name, metric, case)) for case in draws_of(rows, name)}
 
 
-def statistic(rows, name: str, metric: str) -> Summary:
+def statistic(rows, name: str, metric: str) -> OverRuns:
     """A UKF reading: over its runs. A GP-UKF: between its training draws (of the per-draw means over runs)."""
     if is_gp(name):
         return over_draws(per_draw(rows, name, metric))
@@ -428,7 +448,7 @@ def report(rows, config: RemusConfig | None = None) -> str:
           "covariance: an ORACLE)", f"{'state':<6}{'unit':<6}{'paper UKF':>11}" + "".join(f"{n:>24}" for n in ukfs)]
     for s in STATE_NAMES:
         L.append(f"{s:<6}{paper.UNITS[s]:<6}{paper.TABLE3['UKF'][s]:>11.4g}"
-                 + "".join(f"{statistic(rows, n, f'rmse_{s}').text(3):>24}" for n in ukfs))
+                 + "".join(f"{cell(statistic(rows, n, f'rmse_{s}')):>24}" for n in ukfs))
     if ukfs:
         best, scores = closest_reading(rows)
         L += ["distance to the paper's UKF row: median |log10(ours/paper)| over the 12 states [max]; states within "
@@ -446,7 +466,7 @@ def report(rows, config: RemusConfig | None = None) -> str:
         for s in STATE_NAMES:
             theirs = paper.TABLE3["GP-UKF"].get(s)
             L.append(f"{s:<6}{paper.UNITS[s]:<6}{(f'{theirs:.4g}' if theirs is not None else '-'):>9}"
-                     + "".join(f"{statistic(rows, n, f'rmse_{s}').text(3):>22}" for n in gps))
+                     + "".join(f"{cell(statistic(rows, n, f'rmse_{s}')):>22}" for n in gps))
 
     duration = config.duration if config else max(PREDICTION_STARTS) + PREDICTION_HORIZON + LOG_DT
     windows = sum(1 for t in PREDICTION_STARTS if t + PREDICTION_HORIZON < duration)
@@ -458,9 +478,9 @@ def report(rows, config: RemusConfig | None = None) -> str:
     for n in names:
         kind = "GP-UKF" if is_gp(n) else "UKF"
         diverged = f"{sum(_values(rows, n, 'predict_10s_diverged')):g}/{windows * len(_values(rows, n, 'prediction'))}"
-        L.append(f"{n:<24}{statistic(rows, n, 'correction').text(3):>20}{paper.TABLE4[(kind, 'correction')]:>8}"
-                 f"{statistic(rows, n, 'prediction').text(3):>20}{paper.TABLE4[(kind, 'prediction')]:>10}"
-                 f"{statistic(rows, n, 'predict_10s').text(3):>20}{diverged:>10}")
+        L.append(f"{n:<24}{cell(statistic(rows, n, 'correction')):>20}{paper.TABLE4[(kind, 'correction')]:>8}"
+                 f"{cell(statistic(rows, n, 'prediction')):>20}{paper.TABLE4[(kind, 'prediction')]:>10}"
+                 f"{cell(statistic(rows, n, 'predict_10s')):>20}{diverged:>10}")
 
     if gps:
         cases = sorted({c for n in gps for c in draws_of(rows, n)}, key=lambda c: int(c.split()[-1]))
@@ -469,15 +489,15 @@ def report(rows, config: RemusConfig | None = None) -> str:
               f"{'filter':<24}" + "".join(f"{c:>22}" for c in cases) + f"{'between draws':>30}"]
         for n in gps:
             d = per_draw(rows, n, "prediction")
-            cells = "".join(f"{(d[c].text(3) + f' [{d[c].n}]') if c in d else '-':>22}" for c in cases)
+            cells = "".join(f"{(cell(d[c]) + f' [{d[c].n}]') if c in d else '-':>22}" for c in cases)
             b = over_draws(d)
-            L.append(f"{n:<24}{cells}{f'{b.text(3)}, {b.low:.3g}-{b.high:.3g}':>30}")
+            L.append(f"{n:<24}{cells}{f'{cell(b)}, {b.low:.3g}-{b.high:.3g}':>30}")
 
     L += ["", "Consistency: ANEES from the filter's own P of the 12 states, the 10 measured ones and (x, y) (a consistent "
           "filter: 12, 10, 2; x, y start exact with P0 = 1 m^2 and are never measured); statistic as above",
           f"{'filter':<24}{'ANEES (12)':>20}{'measured (10)':>20}{'x, y (2)':>20}"]
     for n in names:
-        L.append(f"{n:<24}" + "".join(f"{statistic(rows, n, m).text(3):>20}" for m in ("anees", "anees_measured", "anees_xy")))
+        L.append(f"{n:<24}" + "".join(f"{cell(statistic(rows, n, m)):>20}" for m in ("anees", "anees_measured", "anees_xy")))
 
     L += ["", f"The paper's Table 3 sigma of the UKF (quoted; paper.py) cannot be a standard deviation over its "
           f"{paper.RUNS} runs: the sample sd of n values >= 0 is at most sqrt(n) x their mean.", *paper_sigma_check(),
