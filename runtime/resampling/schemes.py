@@ -90,7 +90,7 @@ def _draws(weights: np.ndarray, n_draws) -> int:
     return int(n_draws)
 
 
-def _inverse_cdf(weights: np.ndarray, sorted_uniforms: np.ndarray) -> np.ndarray:
+def inverse_cdf(weights: np.ndarray, sorted_uniforms: np.ndarray) -> np.ndarray:
     """Indices i with cdf[i-1] <= u < cdf[i] for sorted u in [0, 1)."""
     cdf = np.cumsum(weights)
     cdf /= cdf[-1]  # absorb round-off (within WEIGHT_SUM_TOLERANCE) so every u < 1 finds an index
@@ -100,19 +100,19 @@ def _inverse_cdf(weights: np.ndarray, sorted_uniforms: np.ndarray) -> np.ndarray
 def multinomial_resample(weights: np.ndarray, rng: np.random.Generator, n_draws: int | None = None) -> np.ndarray:
     weights = check_weights(weights)
     m = _draws(weights, n_draws)
-    return _inverse_cdf(weights, np.sort(_check_rng(rng).random(m)))
+    return inverse_cdf(weights, np.sort(_check_rng(rng).random(m)))
 
 
 def stratified_resample(weights: np.ndarray, rng: np.random.Generator, n_draws: int | None = None) -> np.ndarray:
     weights = check_weights(weights)
     m = _draws(weights, n_draws)
-    return _inverse_cdf(weights, (np.arange(m) + _check_rng(rng).random(m)) / max(m, 1))
+    return inverse_cdf(weights, (np.arange(m) + _check_rng(rng).random(m)) / max(m, 1))
 
 
 def systematic_resample(weights: np.ndarray, rng: np.random.Generator, n_draws: int | None = None) -> np.ndarray:
     weights = check_weights(weights)
     m = _draws(weights, n_draws)
-    return _inverse_cdf(weights, (np.arange(m) + _check_rng(rng).random()) / max(m, 1))
+    return inverse_cdf(weights, (np.arange(m) + _check_rng(rng).random()) / max(m, 1))
 
 
 def residual_resample(weights: np.ndarray, rng: np.random.Generator, n_draws: int | None = None) -> np.ndarray:
@@ -128,7 +128,7 @@ def residual_resample(weights: np.ndarray, rng: np.random.Generator, n_draws: in
     if n_rest == 0:
         return deterministic
     residual = m * weights - copies
-    rest = _inverse_cdf(residual, np.sort(rng.random(n_rest)))  # multinomial draws from the residual weights
+    rest = inverse_cdf(residual, np.sort(rng.random(n_rest)))  # multinomial draws from the residual weights
     return np.sort(np.concatenate([deterministic, rest]))
 
 

@@ -35,6 +35,7 @@ import numpy as np
 from ...compiled import sir
 from ...compiled.batches import MeasureBatch
 from ...resampling import ResamplingPolicy
+from ...resampling.schemes import inverse_cdf
 
 __all__ = ["CompiledBootstrap"]
 
@@ -44,9 +45,7 @@ def _philox_ancestors(step: sir.CompiledSIR, scheme: int, weights: np.ndarray) -
     n = weights.shape[0]
     key, counter = int(step.rng[0]), int(step.rng[1])
     u = sir.uniforms(key, counter, sir.TAG_RESAMPLING, 1 if scheme == sir.SYSTEMATIC else n)
-    cdf = np.cumsum(weights)
-    cdf /= cdf[-1]
-    return np.minimum(np.searchsorted(cdf, (np.arange(n) + u) / n, side="right"), n - 1)
+    return np.minimum(inverse_cdf(weights, (np.arange(n) + u) / n), n - 1)
 
 
 class CompiledBootstrap:

@@ -113,9 +113,10 @@ class CarriedGaussianProposal(Proposal):
         return self._pb.cov[:, :, :self._engine.N]
 
     def _check_dt(self, engine, u, dt) -> None:
-        if dt > engine._checked_dt and engine.pieces(u, dt) > 1:
+        pieces = 1 if dt <= engine._checked_dt else engine.pieces(u, dt)
+        if pieces > 1:
             raise ValueError(f"{engine.name} ({self.name}): dt = {dt!r} s is beyond the model's stable range (f needs "
-                             f"{engine.pieces(u, dt)} substeps there) and the generated sigma-point step cannot be "
+                             f"{pieces} substeps there) and the generated sigma-point step cannot be "
                              "subdivided; use a smaller dt")
 
     def _inputs(self, engine, u, dt) -> None:
