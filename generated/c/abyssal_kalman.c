@@ -59,13 +59,6 @@ typedef struct {
 #define XS(f, k) DOUBLES(f, (f)->x[k])
 #define PS(f, k) DOUBLES(f, (f)->P[k])
 
-static int all_finite(int count, const double* a) {
-  int k;
-  for (k = 0; k < count; ++k)
-    if (!isfinite(a[k])) return 0;
-  return 1;
-}
-
 static int is_unscented(abyssal_filter filter) { return filter == ABYSSAL_UKF || filter == ABYSSAL_MCUKF || filter == ABYSSAL_HUBER_UKF; }
 
 static const abyssal_function* predict_points(const abyssal_model* model, abyssal_filter filter) {
@@ -308,7 +301,7 @@ static int repaired(abyssal_kalman* f, int src, int spare) {
   int n = f->n;
   double* scratch = DOUBLES(f, f->scratch);
   double* out = scratch + 3 * n * n + n;
-  if (!all_finite(n, XS(f, src)) ||
+  if (!abyssal_all_finite(n, XS(f, src)) ||
       abyssal_repair_covariance(n, PS(f, src), DOUBLES(f, f->Q), f->options.repair_floor, out, scratch) != 0)
     return -1;
   if (src == f->current) {
@@ -485,10 +478,10 @@ static void begin(pending* pd, int set) {
 static int valid(const abyssal_kalman* f) { return f && f->magic == KALMAN_MAGIC; }
 
 static int check_inputs(const abyssal_kalman* f, const double* u, const double* dt, const double* p) {
-  if (u && (f->n_u > 0) && !all_finite(f->n_u, u)) return ABYSSAL_E_U;
+  if (u && (f->n_u > 0) && !abyssal_all_finite(f->n_u, u)) return ABYSSAL_E_U;
   if (!u && f->n_u > 0 && dt) return ABYSSAL_E_U;
   if (dt && !(*dt > 0.0 && *dt < INFINITY)) return ABYSSAL_E_DT;
-  if (p && !all_finite(f->n_p, p)) return ABYSSAL_E_P;
+  if (p && !abyssal_all_finite(f->n_p, p)) return ABYSSAL_E_P;
   return ABYSSAL_OK;
 }
 
@@ -558,7 +551,7 @@ int abyssal_kalman_init(void* memory, size_t bytes, const abyssal_model* model, 
   f->model = model;
   f->options = *options;
   lay_out(f, model, options);
-  if (!x0 || !all_finite(f->n, x0)) rc = ABYSSAL_E_X0;
+  if (!x0 || !abyssal_all_finite(f->n, x0)) rc = ABYSSAL_E_X0;
   if (rc == ABYSSAL_OK) rc = covariance_code(f, f->n, P0, 0, ABYSSAL_E_P0);
   if (rc == ABYSSAL_OK) rc = covariance_code(f, f->n, Q, 0, ABYSSAL_E_Q);
   if (rc == ABYSSAL_OK) rc = covariance_code(f, f->m, R, 1, ABYSSAL_E_R);
@@ -586,7 +579,7 @@ int abyssal_kalman_init(void* memory, size_t bytes, const abyssal_model* model, 
     res[0] = DOUBLES(f, f->wm);
     res[1] = DOUBLES(f, f->wc);
     evaluate(f, predict_weights(model, options->filter), args, is_unscented(options->filter) ? 1 : 0, res, 2);
-    if (!all_finite(f->points, DOUBLES(f, f->wm)) || !all_finite(f->points, DOUBLES(f, f->wc))) {
+    if (!abyssal_all_finite(f->points, DOUBLES(f, f->wm)) || !abyssal_all_finite(f->points, DOUBLES(f, f->wc))) {
       memset(memory, 0, sizeof(struct abyssal_kalman));
       return ABYSSAL_E_SIGMA_POINTS;
     }
@@ -601,7 +594,7 @@ int abyssal_kalman_init(void* memory, size_t bytes, const abyssal_model* model, 
 
 int abyssal_kalman_reset(abyssal_kalman* f, const double* x, const double* P) {
   if (!valid(f)) return ABYSSAL_E_MEMORY;
-  if (!x || !all_finite(f->n, x)) return ABYSSAL_E_X0;
+  if (!x || !abyssal_all_finite(f->n, x)) return ABYSSAL_E_X0;
   if (covariance_code(f, f->n, P, 0, ABYSSAL_E_P0) != ABYSSAL_OK) return ABYSSAL_E_P0;
   memcpy(XS(f, f->current), x, sizeof(double) * f->n);
   abyssal_symmetrise(f->n, P, PS(f, f->current));

@@ -18,13 +18,6 @@ static double largest_magnitude(int count, const double* a) {
   return top;
 }
 
-static int all_finite(int count, const double* a) {
-  int k;
-  for (k = 0; k < count; ++k)
-    if (!isfinite(a[k])) return 0;
-  return 1;
-}
-
 /* One Jacobi rotation in the plane (p, q) that zeroes a[p, q] (a symmetric, both triangles kept). */
 static void rotate(int n, double* a, double* vectors, int p, int q) {
   double apq = AT(a, n, p, q), theta, t, c, s;
@@ -61,7 +54,7 @@ static void rotate(int n, double* a, double* vectors, int p, int q) {
 
 int abyssal_symmetric_eigen(int n, double* a, double* values, double* vectors) {
   int sweep, p, q, i, j;
-  if (!all_finite(n * n, a)) return -1;
+  if (!abyssal_all_finite(n * n, a)) return -1;
   if (vectors) {
     memset(vectors, 0, sizeof(double) * (size_t)n * (size_t)n);
     for (i = 0; i < n; ++i) AT(vectors, n, i, i) = 1.0;
@@ -124,7 +117,7 @@ int abyssal_covariance_problem(int n, const double* A, int definite, double* scr
   double* values = scratch + n * n;
   double scale, asymmetry = 0.0;
   int i, j;
-  if (!all_finite(n * n, A)) return 1;
+  if (!abyssal_all_finite(n * n, A)) return 1;
   scale = largest_magnitude(n * n, A);
   if (scale > 0.0) {
     for (j = 0; j < n; ++j)
@@ -154,7 +147,7 @@ int abyssal_repair_covariance(int n, const double* P, const double* Q, double fl
   double* values = scratch + 2 * n * n;
   double scale, top = 0.0;
   int i, j, k;
-  if (!all_finite(n * n, P)) return -1;
+  if (!abyssal_all_finite(n * n, P)) return -1;
   if (largest_magnitude(n * n, P) == 0.0) { /* the Dirac: its nearest Gaussian */
     double q = largest_magnitude(n * n, Q);
     memset(out, 0, sizeof(double) * (size_t)n * (size_t)n);

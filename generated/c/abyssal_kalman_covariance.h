@@ -6,9 +6,19 @@
 #ifndef ABYSSAL_KALMAN_COVARIANCE_H
 #define ABYSSAL_KALMAN_COVARIANCE_H
 
+#include <math.h>
+
 #ifdef __cplusplus
 extern "C" {
 #endif
+
+/* Whether every one of the count doubles at a is finite (1) or not (0); inline for the per-step input checks. */
+static inline int abyssal_all_finite(int count, const double* a) {
+  int k;
+  for (k = 0; k < count; ++k)
+    if (!isfinite(a[k])) return 0;
+  return 1;
+}
 
 /* The relative asymmetry a given covariance may have: max |A - A^T| <= tol * max |A|. */
 #define ABYSSAL_SYMMETRY_TOLERANCE 1e-9

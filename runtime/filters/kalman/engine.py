@@ -60,7 +60,8 @@ import numpy as np
 
 from abyssal.generated import kalman_runtime as kr
 
-from ...contract import FilterBase, FilterResult, check_covariance, check_dt, check_state, real_array, register
+from ...contract import (FilterBase, FilterResult, _nonfinite_message, _vector, check_covariance, check_dt, check_state,
+                         register)
 from ...numerics import REPAIR_FLOOR, repair_covariance
 
 __all__ = [
@@ -76,18 +77,6 @@ def process_noise(model, x, u, dt, Qw, p=None) -> np.ndarray:
     G = model.G(x, u, p, dt)
     Q = G @ check_covariance(Qw, model.n_w, "Qw") @ G.T
     return (Q + Q.T) / 2
-
-
-def _vector(value, n, name) -> np.ndarray:
-    v = real_array(value, name)
-    if v.shape != (n,):
-        raise ValueError(f"{name} must have shape ({n},), got {v.shape}")
-    return v
-
-
-def _nonfinite(name: str, v: np.ndarray, what: str = "non-finite") -> str:
-    bad = np.flatnonzero(~np.isfinite(v) if what == "non-finite" else np.isinf(v))
-    return f"{name} has {what} entries at {bad.tolist()[:8]} (values {v[bad[:8]].tolist()})"
 
 
 class KalmanFilter(FilterBase):
@@ -370,11 +359,13 @@ class KalmanFilter(FilterBase):
         u, z, p, dt = io[1:1 + n_u], io[1 + n_u:1 + n_u + m], io[1 + n_u + m:], float(io[0])
         name = f"{type(self).__name__}.{call}"
         if code == kr.E_U:
-            return ValueError(f"{name}: {_nonfinite('u', u)}")
+            return ValueError(f"{name}: {_nonfinite_message('u', u)}")
         if code == kr.E_P:
-            return ValueError(f"{name}: {_nonfinite('p', p)}")
+            return ValueError(f"{name}: {_nonfinite_message('p', p)}")
         if code == kr.E_Z:
-            return ValueError(f"{name}: {_nonfinite('z', z, 'infinite')}; use NaN for a missing entry")
+            bad = np.flatnonzero(np.isinf(z))
+            return ValueError(f"{name}: z has infinite entries at {bad.tolist()[:8]} (values {z[bad[:8]].tolist()}); use "
+                              "NaN for a missing entry")
         if code == kr.E_DT:
             return ValueError(f"{name}: dt must be a positive finite number of seconds, got {dt!r}")
         if code == kr.E_UNSTABLE:
