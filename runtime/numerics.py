@@ -170,6 +170,12 @@ def gaussian_draws(mean: np.ndarray, C: np.ndarray, rng: np.random.Generator, co
     return mean[:, None] + covariance_root(C) @ rng.standard_normal((mean.shape[0], count))
 
 
+def stacked_times(L: np.ndarray, xi: np.ndarray) -> np.ndarray:
+    """The columns L_i xi_i (r, K) of a stack of factors L (K, r, r) and draws xi (r, K): a Gaussian
+    square-root draw per particle. One einsum (np.matmul on the stack calls BLAS once per matrix)."""
+    return np.einsum("kij,jk->ik", L, xi)
+
+
 def stacked_cholesky(C: np.ndarray, *, repair: bool) -> tuple[np.ndarray, np.ndarray]:
     """(L, sum log diag L) of a stack of covariances C (K, r, r): lower factors (K, r, r) and (K,).
 

@@ -4,10 +4,10 @@
  *
  * Functions (operations per call: CasADi SX instructions after common-subexpression elimination,
  * of the function itself or of the leaves it calls, times the calls):
- *   cn2d_F                             27 operations
- *   cn2d_ekf_predict                   62 operations
+ *   cn2d_F                              6 operations
+ *   cn2d_ekf_predict                   49 operations
  *   cn2d_ekf_update                   100 operations
- *   cn2d_ekf_step                     163 operations
+ *   cn2d_ekf_step                     133 operations
  */
 
 /* CasADi's calling convention passes iw, w and mem to every function; not every function uses them. */
@@ -34,22 +34,16 @@
 #endif
 
 /* Add prefix to internal symbols */
-#define casadi_clear CASADI_PREFIX(clear)
-#define casadi_copy CASADI_PREFIX(copy)
-#define casadi_densify CASADI_PREFIX(densify)
 #define casadi_f0 CASADI_PREFIX(f0)
 #define casadi_f1 CASADI_PREFIX(f1)
 #define casadi_f2 CASADI_PREFIX(f2)
 #define casadi_f3 CASADI_PREFIX(f3)
-#define casadi_f4 CASADI_PREFIX(f4)
-#define casadi_f5 CASADI_PREFIX(f5)
 #define casadi_fabs CASADI_PREFIX(fabs)
 #define casadi_fmax CASADI_PREFIX(fmax)
 #define casadi_s0 CASADI_PREFIX(s0)
 #define casadi_s1 CASADI_PREFIX(s1)
 #define casadi_s2 CASADI_PREFIX(s2)
 #define casadi_s3 CASADI_PREFIX(s3)
-#define casadi_s4 CASADI_PREFIX(s4)
 #define casadi_sq CASADI_PREFIX(sq)
 
 /* Symbol visibility in DLLs */
@@ -66,50 +60,6 @@
     #define CASADI_SYMBOL_EXPORT
   #endif
 #endif
-
-void casadi_copy(const casadi_real* x, casadi_int n, casadi_real* y) {
-  casadi_int i;
-  if (y) {
-    if (x) {
-      for (i=0; i<n; ++i) *y++ = *x++;
-    } else {
-      for (i=0; i<n; ++i) *y++ = 0.;
-    }
-  }
-}
-
-void casadi_clear(casadi_real* x, casadi_int n) {
-  casadi_int i;
-  if (x) {
-    for (i=0; i<n; ++i) *x++ = 0;
-  }
-}
-
-#define CASADI_CAST(x,y) ((x) y)
-
-void casadi_densify(const casadi_real* x, const casadi_int* sp_x, casadi_real* y, casadi_int tr) {
-  casadi_int nrow_x, ncol_x, i, el;
-  const casadi_int *colind_x, *row_x;
-  if (!y) return;
-  nrow_x = sp_x[0]; ncol_x = sp_x[1];
-  colind_x = sp_x+2; row_x = sp_x+ncol_x+3;
-  casadi_clear(y, nrow_x*ncol_x);
-  if (!x) return;
-  if (tr) {
-    for (i=0; i<ncol_x; ++i) {
-      for (el=colind_x[i]; el!=colind_x[i+1]; ++el) {
-        y[i + row_x[el]*ncol_x] = CASADI_CAST(casadi_real, *x++);
-      }
-    }
-  } else {
-    for (i=0; i<ncol_x; ++i) {
-      for (el=colind_x[i]; el!=colind_x[i+1]; ++el) {
-        y[row_x[el]] = CASADI_CAST(casadi_real, *x++);
-      }
-      y += nrow_x;
-    }
-  }
-}
 
 casadi_real casadi_fabs(casadi_real x) {
 /* Pre-c99 compatibility */
@@ -144,65 +94,20 @@ CASADI_SYMBOL_EXPORT void cn2d_ekf_casadi_version(int* major, int* minor, int* p
 CASADI_SYMBOL_EXPORT int cn2d_ekf_casadi_int_size(void) { return (int) sizeof(casadi_int); }
 CASADI_SYMBOL_EXPORT int cn2d_ekf_casadi_real_size(void) { return (int) sizeof(casadi_real); }
 
-static const casadi_int casadi_s0[7] = {2, 2, 0, 1, 2, 0, 1};
-static const casadi_int casadi_s1[3] = {2, 1, 1};
-static const casadi_int casadi_s2[3] = {3, 1, 1};
-static const casadi_int casadi_s3[3] = {1, 1, 1};
-static const casadi_int casadi_s4[3] = {2, 2, 1};
-
-/* cn2d_step_and_jacobian:(x[2],u[3],p[2],dt)->(x_next[2],F[2x2,2nz]) */
-static int casadi_f1(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real a0, a1, a2, a3, a4, a5, a6, a7;
-  a0=arg[0]? arg[0][0] : 0;
-  a1=arg[3]? arg[3][0] : 0;
-  a2=arg[1]? arg[1][0] : 0;
-  a3=arg[1]? arg[1][2] : 0;
-  a4=cos(a3);
-  a5=(a2*a4);
-  a6=arg[1]? arg[1][1] : 0;
-  a3=sin(a3);
-  a7=(a6*a3);
-  a5=(a5+a7);
-  a5=(a1*a5);
-  a0=(a0+a5);
-  if (res[0]!=0) res[0][0]=a0;
-  a0=arg[0]? arg[0][1] : 0;
-  a2=(a2*a3);
-  a6=(a6*a4);
-  a2=(a2-a6);
-  a1=(a1*a2);
-  a0=(a0+a1);
-  if (res[0]!=0) res[0][1]=a0;
-  a0=1.;
-  if (res[1]!=0) res[1][0]=a0;
-  if (res[1]!=0) res[1][1]=a0;
-  return 0;
-}
+static const casadi_int casadi_s0[3] = {2, 1, 1};
+static const casadi_int casadi_s1[3] = {3, 1, 1};
+static const casadi_int casadi_s2[3] = {1, 1, 1};
+static const casadi_int casadi_s3[3] = {2, 2, 1};
 
 /* cn2d_F:(x[2],u[3],p[2],dt)->(dfdx[2x2]) */
 static int casadi_f0(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+1, *w0=w+8, *w1=w+10, *w2=w+13, w3, *w4=w+15, *w5=w+17;
-  const casadi_real **arg1=arg+4;
-  /* #0: @0 = input[0][0] */
-  casadi_copy(arg[0], 2, w0);
-  /* #1: @1 = input[1][0] */
-  casadi_copy(arg[1], 3, w1);
-  /* #2: @2 = input[2][0] */
-  casadi_copy(arg[2], 2, w2);
-  /* #3: @3 = input[3][0] */
-  w3 = arg[3] ? arg[3][0] : 0;
-  /* #4: {NULL, @4} = cn2d_step_and_jacobian(@0, @1, @2, @3) */
-  arg1[0]=w0;
-  arg1[1]=w1;
-  arg1[2]=w2;
-  arg1[3]=(&w3);
-  res1[0]=0;
-  res1[1]=w4;
-  if (casadi_f1(arg1, res1, iw, w, 0)) return 1;
-  /* #5: @5 = dense(@4) */
-  casadi_densify(w4, casadi_s0, w5, 0);
-  /* #6: output[0][0] = @5 */
-  casadi_copy(w5, 4, res[0]);
+  casadi_real a0, a1;
+  a0=1.;
+  if (res[0]!=0) res[0][0]=a0;
+  a1=0.;
+  if (res[0]!=0) res[0][1]=a1;
+  if (res[0]!=0) res[0][2]=a1;
+  if (res[0]!=0) res[0][3]=a0;
   return 0;
 }
 
@@ -252,125 +157,94 @@ CASADI_SYMBOL_EXPORT const char* cn2d_F_name_out(casadi_int i) {
 
 CASADI_SYMBOL_EXPORT const casadi_int* cn2d_F_sparsity_in(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s1;
-    case 1: return casadi_s2;
-    case 2: return casadi_s1;
-    case 3: return casadi_s3;
+    case 0: return casadi_s0;
+    case 1: return casadi_s1;
+    case 2: return casadi_s0;
+    case 3: return casadi_s2;
     default: return 0;
   }
 }
 
 CASADI_SYMBOL_EXPORT const casadi_int* cn2d_F_sparsity_out(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s4;
+    case 0: return casadi_s3;
     default: return 0;
   }
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_F_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 8;
-  if (sz_res) *sz_res = 3;
+  if (sz_arg) *sz_arg = 4;
+  if (sz_res) *sz_res = 1;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 21;
+  if (sz_w) *sz_w = 0;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_F_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 8*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 3*sizeof(casadi_real*);
+  if (sz_arg) *sz_arg = 4*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 1*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 21*sizeof(casadi_real);
-  return 0;
-}
-
-/* cn2d_ekf_covariance:(x_pred[2],F[2x2,2nz],P[2x2],Q[2x2])->(P_pred[2x2],ok) */
-static int casadi_f3(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real a0, a1, a2, a3, a4, a5;
-  a0=arg[1]? arg[1][0] : 0;
-  a1=arg[2]? arg[2][0] : 0;
-  a1=(a1*a0);
-  a1=(a0*a1);
-  a2=arg[3]? arg[3][0] : 0;
-  a1=(a1+a2);
-  if (res[0]!=0) res[0][0]=a1;
-  a2=5.0000000000000000e-01;
-  a3=arg[2]? arg[2][2] : 0;
-  a4=arg[2]? arg[2][1] : 0;
-  a3=(a3+a4);
-  a3=(a2*a3);
-  a4=arg[1]? arg[1][1] : 0;
-  a3=(a3*a4);
-  a0=(a0*a3);
-  a3=arg[3]? arg[3][2] : 0;
-  a5=arg[3]? arg[3][1] : 0;
-  a3=(a3+a5);
-  a2=(a2*a3);
-  a0=(a0+a2);
-  if (res[0]!=0) res[0][1]=a0;
-  if (res[0]!=0) res[0][2]=a0;
-  a2=arg[2]? arg[2][3] : 0;
-  a2=(a2*a4);
-  a4=(a4*a2);
-  a2=arg[3]? arg[3][3] : 0;
-  a4=(a4+a2);
-  if (res[0]!=0) res[0][3]=a4;
-  a2=arg[0]? arg[0][0] : 0;
-  a3=arg[0]? arg[0][1] : 0;
-  a2=(a2+a3);
-  a2=(a2+a1);
-  a2=(a2+a0);
-  a2=(a2+a0);
-  a2=(a2+a4);
-  a2=casadi_fabs(a2);
-  a4=casadi_inf;
-  a2=(a2<a4);
-  if (res[1]!=0) res[1][0]=a2;
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
 
 /* cn2d_ekf_predict:(x[2],P[2x2],u[3],p[2],dt,Q[2x2])->(x_pred[2],P_pred[2x2],ok) */
-static int casadi_f2(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+3, *w0=w+8, *w1=w+10, *w2=w+13, w3, *w4=w+15, *w5=w+17, *w6=w+19, *w7=w+23, *w8=w+27;
-  const casadi_real **arg1=arg+6;
-  /* #0: @0 = input[0][0] */
-  casadi_copy(arg[0], 2, w0);
-  /* #1: @1 = input[2][0] */
-  casadi_copy(arg[2], 3, w1);
-  /* #2: @2 = input[3][0] */
-  casadi_copy(arg[3], 2, w2);
-  /* #3: @3 = input[4][0] */
-  w3 = arg[4] ? arg[4][0] : 0;
-  /* #4: {@4, @5} = cn2d_step_and_jacobian(@0, @1, @2, @3) */
-  arg1[0]=w0;
-  arg1[1]=w1;
-  arg1[2]=w2;
-  arg1[3]=(&w3);
-  res1[0]=w4;
-  res1[1]=w5;
-  if (casadi_f1(arg1, res1, iw, w, 0)) return 1;
-  /* #5: output[0][0] = @4 */
-  casadi_copy(w4, 2, res[0]);
-  /* #6: @6 = input[1][0] */
-  casadi_copy(arg[1], 4, w6);
-  /* #7: @7 = input[5][0] */
-  casadi_copy(arg[5], 4, w7);
-  /* #8: {@8, @3} = cn2d_ekf_covariance(@4, @5, @6, @7) */
-  arg1[0]=w4;
-  arg1[1]=w5;
-  arg1[2]=w6;
-  arg1[3]=w7;
-  res1[0]=w8;
-  res1[1]=(&w3);
-  if (casadi_f3(arg1, res1, iw, w, 0)) return 1;
-  /* #9: output[1][0] = @8 */
-  casadi_copy(w8, 4, res[1]);
-  /* #10: output[2][0] = @3 */
-  if (res[2]) res[2][0] = w3;
+static int casadi_f1(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a0, a1, a2, a3, a4, a5, a6, a7;
+  a0=arg[0]? arg[0][0] : 0;
+  a1=arg[4]? arg[4][0] : 0;
+  a2=arg[2]? arg[2][0] : 0;
+  a3=arg[2]? arg[2][2] : 0;
+  a4=cos(a3);
+  a5=(a2*a4);
+  a6=arg[2]? arg[2][1] : 0;
+  a3=sin(a3);
+  a7=(a6*a3);
+  a5=(a5+a7);
+  a5=(a1*a5);
+  a0=(a0+a5);
+  if (res[0]!=0) res[0][0]=a0;
+  a5=arg[0]? arg[0][1] : 0;
+  a2=(a2*a3);
+  a6=(a6*a4);
+  a2=(a2-a6);
+  a1=(a1*a2);
+  a5=(a5+a1);
+  if (res[0]!=0) res[0][1]=a5;
+  a1=arg[1]? arg[1][0] : 0;
+  a2=arg[5]? arg[5][0] : 0;
+  a1=(a1+a2);
+  if (res[1]!=0) res[1][0]=a1;
+  a2=5.0000000000000000e-01;
+  a6=arg[1]? arg[1][2] : 0;
+  a4=arg[1]? arg[1][1] : 0;
+  a6=(a6+a4);
+  a6=(a2*a6);
+  a4=arg[5]? arg[5][2] : 0;
+  a3=arg[5]? arg[5][1] : 0;
+  a4=(a4+a3);
+  a2=(a2*a4);
+  a6=(a6+a2);
+  if (res[1]!=0) res[1][1]=a6;
+  if (res[1]!=0) res[1][2]=a6;
+  a2=arg[1]? arg[1][3] : 0;
+  a4=arg[5]? arg[5][3] : 0;
+  a2=(a2+a4);
+  if (res[1]!=0) res[1][3]=a2;
+  a0=(a0+a5);
+  a0=(a0+a1);
+  a0=(a0+a6);
+  a0=(a0+a6);
+  a0=(a0+a2);
+  a0=casadi_fabs(a0);
+  a2=casadi_inf;
+  a0=(a0<a2);
+  if (res[2]!=0) res[2][0]=a0;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ekf_predict(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f2(arg, res, iw, w, mem);
+  return casadi_f1(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ekf_predict_checkout(void) {
@@ -419,43 +293,43 @@ CASADI_SYMBOL_EXPORT const char* cn2d_ekf_predict_name_out(casadi_int i) {
 
 CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ekf_predict_sparsity_in(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s1;
-    case 1: return casadi_s4;
-    case 2: return casadi_s2;
-    case 3: return casadi_s1;
-    case 4: return casadi_s3;
-    case 5: return casadi_s4;
+    case 0: return casadi_s0;
+    case 1: return casadi_s3;
+    case 2: return casadi_s1;
+    case 3: return casadi_s0;
+    case 4: return casadi_s2;
+    case 5: return casadi_s3;
     default: return 0;
   }
 }
 
 CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ekf_predict_sparsity_out(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s1;
-    case 1: return casadi_s4;
-    case 2: return casadi_s3;
+    case 0: return casadi_s0;
+    case 1: return casadi_s3;
+    case 2: return casadi_s2;
     default: return 0;
   }
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ekf_predict_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 10;
-  if (sz_res) *sz_res = 5;
+  if (sz_arg) *sz_arg = 6;
+  if (sz_res) *sz_res = 3;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 31;
+  if (sz_w) *sz_w = 0;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ekf_predict_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 10*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 5*sizeof(casadi_real*);
+  if (sz_arg) *sz_arg = 6*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 3*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 31*sizeof(casadi_real);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
 
 /* cn2d_ekf_update:(x[2],P[2x2],z,p[2],R,mask)->(x_post[2],P_post[2x2],innovation,S,ok) */
-static int casadi_f4(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f2(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13;
   a00=arg[0]? arg[0][0] : 0;
@@ -562,7 +436,7 @@ static int casadi_f4(const casadi_real** arg, casadi_real** res, casadi_int* iw,
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ekf_update(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f4(arg, res, iw, w, mem);
+  return casadi_f2(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ekf_update_checkout(void) {
@@ -613,23 +487,23 @@ CASADI_SYMBOL_EXPORT const char* cn2d_ekf_update_name_out(casadi_int i) {
 
 CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ekf_update_sparsity_in(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s1;
-    case 1: return casadi_s4;
-    case 2: return casadi_s3;
-    case 3: return casadi_s1;
-    case 4: return casadi_s3;
-    case 5: return casadi_s3;
+    case 0: return casadi_s0;
+    case 1: return casadi_s3;
+    case 2: return casadi_s2;
+    case 3: return casadi_s0;
+    case 4: return casadi_s2;
+    case 5: return casadi_s2;
     default: return 0;
   }
 }
 
 CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ekf_update_sparsity_out(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s1;
-    case 1: return casadi_s4;
-    case 2: return casadi_s3;
-    case 3: return casadi_s3;
-    case 4: return casadi_s3;
+    case 0: return casadi_s0;
+    case 1: return casadi_s3;
+    case 2: return casadi_s2;
+    case 3: return casadi_s2;
+    case 4: return casadi_s2;
     default: return 0;
   }
 }
@@ -651,69 +525,147 @@ CASADI_SYMBOL_EXPORT int cn2d_ekf_update_work_bytes(casadi_int *sz_arg, casadi_i
 }
 
 /* cn2d_ekf_step:(x[2],P[2x2],u[3],p[2],dt,Q[2x2],z,R,mask)->(x_post[2],P_post[2x2],innovation,S,ok) */
-static int casadi_f5(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+5, *w00=w+32, *w01=w+34, *w02=w+38, *w03=w+41, w04, *w05=w+43, *w06=w+47, *w07=w+49, w08, w09, w10;
-  casadi_real w11, w12, w13;
-  const casadi_real **arg1=arg+9;
-  /* #0: @0 = input[0][0] */
-  casadi_copy(arg[0], 2, w00);
-  /* #1: @1 = input[1][0] */
-  casadi_copy(arg[1], 4, w01);
-  /* #2: @2 = input[2][0] */
-  casadi_copy(arg[2], 3, w02);
-  /* #3: @3 = input[3][0] */
-  casadi_copy(arg[3], 2, w03);
-  /* #4: @4 = input[4][0] */
-  w04 = arg[4] ? arg[4][0] : 0;
-  /* #5: @5 = input[5][0] */
-  casadi_copy(arg[5], 4, w05);
-  /* #6: {@6, @7, @8} = cn2d_ekf_predict(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=w01;
-  arg1[2]=w02;
-  arg1[3]=w03;
-  arg1[4]=(&w04);
-  arg1[5]=w05;
-  res1[0]=w06;
-  res1[1]=w07;
-  res1[2]=(&w08);
-  if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
-  /* #7: @4 = input[6][0] */
-  w04 = arg[6] ? arg[6][0] : 0;
-  /* #8: @9 = input[7][0] */
-  w09 = arg[7] ? arg[7][0] : 0;
-  /* #9: @10 = input[8][0] */
-  w10 = arg[8] ? arg[8][0] : 0;
-  /* #10: {@0, @1, @11, @12, @13} = cn2d_ekf_update(@6, @7, @4, @3, @9, @10) */
-  arg1[0]=w06;
-  arg1[1]=w07;
-  arg1[2]=(&w04);
-  arg1[3]=w03;
-  arg1[4]=(&w09);
-  arg1[5]=(&w10);
-  res1[0]=w00;
-  res1[1]=w01;
-  res1[2]=(&w11);
-  res1[3]=(&w12);
-  res1[4]=(&w13);
-  if (casadi_f4(arg1, res1, iw, w, 0)) return 1;
-  /* #11: output[0][0] = @0 */
-  casadi_copy(w00, 2, res[0]);
-  /* #12: output[1][0] = @1 */
-  casadi_copy(w01, 4, res[1]);
-  /* #13: output[2][0] = @11 */
-  if (res[2]) res[2][0] = w11;
-  /* #14: output[3][0] = @12 */
-  if (res[3]) res[3][0] = w12;
-  /* #15: @8 = (@8*@13) */
-  w08 *= w13;
-  /* #16: output[4][0] = @8 */
-  if (res[4]) res[4][0] = w08;
+static int casadi_f3(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15, a16;
+  a00=arg[0]? arg[0][0] : 0;
+  a01=arg[4]? arg[4][0] : 0;
+  a02=arg[2]? arg[2][0] : 0;
+  a03=arg[2]? arg[2][2] : 0;
+  a04=cos(a03);
+  a05=(a02*a04);
+  a06=arg[2]? arg[2][1] : 0;
+  a03=sin(a03);
+  a07=(a06*a03);
+  a05=(a05+a07);
+  a05=(a01*a05);
+  a00=(a00+a05);
+  a05=arg[8]? arg[8][0] : 0;
+  a07=0.;
+  a05=(a05!=a07);
+  a07=arg[1]? arg[1][0] : 0;
+  a08=arg[5]? arg[5][0] : 0;
+  a07=(a07+a08);
+  a08=arg[3]? arg[3][0] : 0;
+  a08=(a00-a08);
+  a09=casadi_sq(a08);
+  a10=arg[0]? arg[0][1] : 0;
+  a02=(a02*a03);
+  a06=(a06*a04);
+  a02=(a02-a06);
+  a01=(a01*a02);
+  a10=(a10+a01);
+  a01=arg[3]? arg[3][1] : 0;
+  a01=(a10-a01);
+  a02=casadi_sq(a01);
+  a09=(a09+a02);
+  a09=sqrt(a09);
+  a02=(1./a09);
+  a02=copysign(a02,a09);
+  a08=(a08*a02);
+  a06=(a07*a08);
+  a04=5.0000000000000000e-01;
+  a03=arg[1]? arg[1][2] : 0;
+  a11=arg[1]? arg[1][1] : 0;
+  a03=(a03+a11);
+  a03=(a04*a03);
+  a11=arg[5]? arg[5][2] : 0;
+  a12=arg[5]? arg[5][1] : 0;
+  a11=(a11+a12);
+  a04=(a04*a11);
+  a03=(a03+a04);
+  a01=(a01*a02);
+  a02=(a03*a01);
+  a06=(a06+a02);
+  a02=(a05*a06);
+  a04=casadi_sq(a05);
+  a06=(a08*a06);
+  a08=(a03*a08);
+  a11=arg[1]? arg[1][3] : 0;
+  a12=arg[5]? arg[5][3] : 0;
+  a11=(a11+a12);
+  a12=(a11*a01);
+  a08=(a08+a12);
+  a01=(a01*a08);
+  a06=(a06+a01);
+  a01=arg[7]? arg[7][0] : 0;
+  a06=(a06+a01);
+  a04=(a04*a06);
+  a06=1.;
+  a06=(a06-a05);
+  a04=(a04+a06);
+  a06=1.0000000000000000e-13;
+  a01=casadi_fabs(a04);
+  a06=(a06*a01);
+  a01=1.0000000000000000e-300;
+  a06=(a06+a01);
+  a01=casadi_fmax(a04,a06);
+  a01=sqrt(a01);
+  a12=(1./a01);
+  a12=copysign(a12,a01);
+  a01=(a02*a12);
+  a01=(a01*a12);
+  a13=arg[6]? arg[6][0] : 0;
+  a13=(a13-a09);
+  a09=(a01*a13);
+  a09=(a05?a09:0);
+  a09=(a00+a09);
+  if (res[0]!=0) res[0][0]=a09;
+  a08=(a05*a08);
+  a14=(a08*a12);
+  a14=(a14*a12);
+  a12=(a14*a13);
+  a12=(a05?a12:0);
+  a12=(a10+a12);
+  if (res[0]!=0) res[0][1]=a12;
+  a15=(a01*a02);
+  a15=(a07-a15);
+  a16=(a01*a04);
+  a16=(a16-a02);
+  a02=(a16*a01);
+  a15=(a15+a02);
+  if (res[1]!=0) res[1][0]=a15;
+  a01=(a01*a08);
+  a01=(a03-a01);
+  a16=(a16*a14);
+  a01=(a01+a16);
+  if (res[1]!=0) res[1][1]=a01;
+  if (res[1]!=0) res[1][2]=a01;
+  a16=(a14*a08);
+  a16=(a11-a16);
+  a02=(a14*a04);
+  a02=(a02-a08);
+  a02=(a02*a14);
+  a16=(a16+a02);
+  if (res[1]!=0) res[1][3]=a16;
+  a05=(a05?a13:0);
+  if (res[2]!=0) res[2][0]=a05;
+  if (res[3]!=0) res[3][0]=a04;
+  a00=(a00+a10);
+  a00=(a00+a07);
+  a00=(a00+a03);
+  a00=(a00+a03);
+  a00=(a00+a11);
+  a00=casadi_fabs(a00);
+  a11=casadi_inf;
+  a00=(a00<a11);
+  a06=(a06<a04);
+  a09=(a09+a12);
+  a09=(a09+a15);
+  a09=(a09+a01);
+  a09=(a09+a16);
+  a09=(a09+a05);
+  a09=(a09+a04);
+  a09=casadi_fabs(a09);
+  a09=(a09<a11);
+  a06=(a06*a09);
+  a00=(a00*a06);
+  if (res[4]!=0) res[4][0]=a00;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ekf_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f5(arg, res, iw, w, mem);
+  return casadi_f3(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ekf_step_checkout(void) {
@@ -767,43 +719,43 @@ CASADI_SYMBOL_EXPORT const char* cn2d_ekf_step_name_out(casadi_int i) {
 
 CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ekf_step_sparsity_in(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s1;
-    case 1: return casadi_s4;
-    case 2: return casadi_s2;
-    case 3: return casadi_s1;
-    case 4: return casadi_s3;
-    case 5: return casadi_s4;
-    case 6: return casadi_s3;
-    case 7: return casadi_s3;
-    case 8: return casadi_s3;
+    case 0: return casadi_s0;
+    case 1: return casadi_s3;
+    case 2: return casadi_s1;
+    case 3: return casadi_s0;
+    case 4: return casadi_s2;
+    case 5: return casadi_s3;
+    case 6: return casadi_s2;
+    case 7: return casadi_s2;
+    case 8: return casadi_s2;
     default: return 0;
   }
 }
 
 CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ekf_step_sparsity_out(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s1;
-    case 1: return casadi_s4;
-    case 2: return casadi_s3;
-    case 3: return casadi_s3;
-    case 4: return casadi_s3;
+    case 0: return casadi_s0;
+    case 1: return casadi_s3;
+    case 2: return casadi_s2;
+    case 3: return casadi_s2;
+    case 4: return casadi_s2;
     default: return 0;
   }
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ekf_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 19;
-  if (sz_res) *sz_res = 10;
+  if (sz_arg) *sz_arg = 9;
+  if (sz_res) *sz_res = 5;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 53;
+  if (sz_w) *sz_w = 0;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ekf_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 19*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 10*sizeof(casadi_real*);
+  if (sz_arg) *sz_arg = 9*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 5*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 53*sizeof(casadi_real);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
 
@@ -814,13 +766,13 @@ CASADI_SYMBOL_EXPORT int cn2d_ekf_step_work_bytes(casadi_int *sz_arg, casadi_int
  * failing evaluation. */
 CASADI_SYMBOL_EXPORT int cn2d_F_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
-  const casadi_real* a[8];
-  casadi_real* r[3];
+  const casadi_real* a[4];
+  casadi_real* r[1];
   casadi_int iw[1];
-  casadi_real w[22];
+  casadi_real w[2];
   casadi_int j, k;
-  for (k = 0; k < 8; ++k) a[k] = 0;
-  for (k = 0; k < 3; ++k) r[k] = 0;
+  for (k = 0; k < 4; ++k) a[k] = 0;
+  for (k = 0; k < 1; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
     for (k = 0; k < 4; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
     for (k = 0; k < 1; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
@@ -834,13 +786,13 @@ CASADI_SYMBOL_EXPORT int cn2d_F_batch(casadi_int N, const casadi_real** arg, con
  * failing evaluation. */
 CASADI_SYMBOL_EXPORT int cn2d_ekf_predict_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
-  const casadi_real* a[10];
-  casadi_real* r[5];
+  const casadi_real* a[6];
+  casadi_real* r[3];
   casadi_int iw[1];
-  casadi_real w[32];
+  casadi_real w[8];
   casadi_int j, k;
-  for (k = 0; k < 10; ++k) a[k] = 0;
-  for (k = 0; k < 5; ++k) r[k] = 0;
+  for (k = 0; k < 6; ++k) a[k] = 0;
+  for (k = 0; k < 3; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
     for (k = 0; k < 6; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
     for (k = 0; k < 3; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
@@ -874,13 +826,13 @@ CASADI_SYMBOL_EXPORT int cn2d_ekf_update_batch(casadi_int N, const casadi_real**
  * failing evaluation. */
 CASADI_SYMBOL_EXPORT int cn2d_ekf_step_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
-  const casadi_real* a[19];
-  casadi_real* r[10];
+  const casadi_real* a[9];
+  casadi_real* r[5];
   casadi_int iw[1];
-  casadi_real w[60];
+  casadi_real w[17];
   casadi_int j, k;
-  for (k = 0; k < 19; ++k) a[k] = 0;
-  for (k = 0; k < 10; ++k) r[k] = 0;
+  for (k = 0; k < 9; ++k) a[k] = 0;
+  for (k = 0; k < 5; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
     for (k = 0; k < 9; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
     for (k = 0; k < 5; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;

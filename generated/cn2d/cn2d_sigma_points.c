@@ -4,17 +4,17 @@
  *
  * Functions (operations per call: CasADi SX instructions after common-subexpression elimination,
  * of the function itself or of the leaves it calls, times the calls):
- *   cn2d_ukf_predict                  354 operations
- *   cn2d_ukf_update                   236 operations
- *   cn2d_ukf_predict_points            74 operations
- *   cn2d_ukf_predict_weights           26 operations
- *   cn2d_mcukf_update                 260 operations
- *   cn2d_huber_ukf_update             291 operations
- *   cn2d_ckf_predict                  265 operations
- *   cn2d_ckf_update                   203 operations
- *   cn2d_ckf_step                     469 operations
- *   cn2d_ckf_predict_points            68 operations
- *   cn2d_ckf_predict_weights            4 operations
+ *   cn2d_ukf_predict                  152 operations
+ *   cn2d_ukf_update                   176 operations
+ *   cn2d_ukf_predict_points            56 operations
+ *   cn2d_ukf_predict_weights           25 operations
+ *   cn2d_mcukf_update                 199 operations
+ *   cn2d_huber_ukf_update             231 operations
+ *   cn2d_ckf_predict                  127 operations
+ *   cn2d_ckf_update                   155 operations
+ *   cn2d_ckf_step                     261 operations
+ *   cn2d_ckf_predict_points            52 operations
+ *   cn2d_ckf_predict_weights            9 operations
  */
 
 /* CasADi's calling convention passes iw, w and mem to every function; not every function uses them. */
@@ -41,37 +41,11 @@
 #endif
 
 /* Add prefix to internal symbols */
-#define casadi_clear CASADI_PREFIX(clear)
-#define casadi_copy CASADI_PREFIX(copy)
 #define casadi_f0 CASADI_PREFIX(f0)
 #define casadi_f1 CASADI_PREFIX(f1)
 #define casadi_f10 CASADI_PREFIX(f10)
-#define casadi_f11 CASADI_PREFIX(f11)
-#define casadi_f12 CASADI_PREFIX(f12)
-#define casadi_f13 CASADI_PREFIX(f13)
-#define casadi_f14 CASADI_PREFIX(f14)
-#define casadi_f15 CASADI_PREFIX(f15)
-#define casadi_f16 CASADI_PREFIX(f16)
-#define casadi_f17 CASADI_PREFIX(f17)
-#define casadi_f18 CASADI_PREFIX(f18)
-#define casadi_f19 CASADI_PREFIX(f19)
 #define casadi_f2 CASADI_PREFIX(f2)
-#define casadi_f20 CASADI_PREFIX(f20)
-#define casadi_f21 CASADI_PREFIX(f21)
-#define casadi_f22 CASADI_PREFIX(f22)
-#define casadi_f23 CASADI_PREFIX(f23)
-#define casadi_f24 CASADI_PREFIX(f24)
-#define casadi_f25 CASADI_PREFIX(f25)
-#define casadi_f26 CASADI_PREFIX(f26)
-#define casadi_f27 CASADI_PREFIX(f27)
-#define casadi_f28 CASADI_PREFIX(f28)
-#define casadi_f29 CASADI_PREFIX(f29)
 #define casadi_f3 CASADI_PREFIX(f3)
-#define casadi_f30 CASADI_PREFIX(f30)
-#define casadi_f31 CASADI_PREFIX(f31)
-#define casadi_f32 CASADI_PREFIX(f32)
-#define casadi_f33 CASADI_PREFIX(f33)
-#define casadi_f34 CASADI_PREFIX(f34)
 #define casadi_f4 CASADI_PREFIX(f4)
 #define casadi_f5 CASADI_PREFIX(f5)
 #define casadi_f6 CASADI_PREFIX(f6)
@@ -79,10 +53,8 @@
 #define casadi_f8 CASADI_PREFIX(f8)
 #define casadi_f9 CASADI_PREFIX(f9)
 #define casadi_fabs CASADI_PREFIX(fabs)
-#define casadi_fill CASADI_PREFIX(fill)
 #define casadi_fmax CASADI_PREFIX(fmax)
 #define casadi_fmin CASADI_PREFIX(fmin)
-#define casadi_mtimes_dense CASADI_PREFIX(mtimes_dense)
 #define casadi_s0 CASADI_PREFIX(s0)
 #define casadi_s1 CASADI_PREFIX(s1)
 #define casadi_s2 CASADI_PREFIX(s2)
@@ -92,7 +64,6 @@
 #define casadi_s6 CASADI_PREFIX(s6)
 #define casadi_s7 CASADI_PREFIX(s7)
 #define casadi_sq CASADI_PREFIX(sq)
-#define casadi_zeros CASADI_PREFIX(zeros)
 
 /* Symbol visibility in DLLs */
 #ifndef CASADI_SYMBOL_EXPORT
@@ -129,56 +100,9 @@ casadi_real casadi_fmax(casadi_real x, casadi_real y) {
 #endif
 }
 
-void casadi_copy(const casadi_real* x, casadi_int n, casadi_real* y) {
-  casadi_int i;
-  if (y) {
-    if (x) {
-      for (i=0; i<n; ++i) *y++ = *x++;
-    } else {
-      for (i=0; i<n; ++i) *y++ = 0.;
-    }
-  }
-}
-
-void casadi_clear(casadi_real* x, casadi_int n) {
-  casadi_int i;
-  if (x) {
-    for (i=0; i<n; ++i) *x++ = 0;
-  }
-}
-
 #ifndef casadi_inf
   #define casadi_inf INFINITY
 #endif
-
-void casadi_fill(casadi_real* x, casadi_int n, casadi_real alpha) {
-  casadi_int i;
-  if (x) {
-    for (i=0; i<n; ++i) *x++ = alpha;
-  }
-}
-
-void casadi_mtimes_dense(const casadi_real* x, casadi_int nrow_x, casadi_int ncol_x,
-    const casadi_real* y, casadi_int ncol_y, casadi_real* z, casadi_int tr) {
-  casadi_int i, j, k;
-  if (tr) {
-    for (i=0; i<ncol_y; ++i) {
-      for (j=0; j<ncol_x; ++j) {
-        for (k=0; k<nrow_x; ++k) {
-          z[j + i*ncol_x] += x[k + j*nrow_x] * y[k + i*nrow_x];
-        }
-      }
-    }
-  } else {
-    for (i=0; i<ncol_y; ++i) {
-      for (j=0; j<nrow_x; ++j) {
-        for (k=0; k<ncol_x; ++k) {
-          z[j + i*nrow_x] += x[j + k*nrow_x] * y[k + i*ncol_x];
-        }
-      }
-    }
-  }
-}
 
 casadi_real casadi_fmin(casadi_real x, casadi_real y) {
 /* Pre-c99 compatibility */
@@ -207,418 +131,162 @@ static const casadi_int casadi_s5[3] = {5, 1, 1};
 static const casadi_int casadi_s6[3] = {4, 2, 1};
 static const casadi_int casadi_s7[3] = {4, 1, 1};
 
-static const casadi_real casadi_zeros[10] = 
-  {0.};
-
-/* cn2d_ukf_weights:(abk[3])->(wm[2],wc[2]) */
-static int casadi_f1(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real a0, a1, a2, a3;
-  a0=arg[0]? arg[0][0] : 0;
-  a0=casadi_sq(a0);
-  a1=2.;
-  a2=arg[0]? arg[0][2] : 0;
-  a2=(a1+a2);
-  a2=(a0*a2);
-  a1=(a2-a1);
-  a3=(1./a2);
-  a3=copysign(a3,a2);
-  a1=(a1*a3);
-  if (res[0]!=0) res[0][0]=a1;
-  a2=(2.*a2);
-  a2=(1./a2);
-  if (res[0]!=0) res[0][1]=a2;
-  a3=1.;
-  a1=(a1+a3);
-  a1=(a1-a0);
-  a0=arg[0]? arg[0][1] : 0;
-  a1=(a1+a0);
-  if (res[1]!=0) res[1][0]=a1;
-  if (res[1]!=0) res[1][1]=a2;
-  return 0;
-}
-
-/* cn2d_cholesky:(P[2x2])->(L[2x2],ok) */
-static int casadi_f2(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real a0, a1, a2, a3, a4, a5, a6, a7;
-  a0=arg[0]? arg[0][0] : 0;
-  a1=1.0000000000000000e-13;
-  a2=casadi_fabs(a0);
-  a2=(a1*a2);
-  a3=1.0000000000000000e-300;
-  a2=(a2+a3);
-  a4=casadi_fmax(a0,a2);
-  a4=sqrt(a4);
-  if (res[0]!=0) res[0][0]=a4;
-  a5=5.0000000000000000e-01;
-  a6=arg[0]? arg[0][2] : 0;
-  a7=arg[0]? arg[0][1] : 0;
-  a6=(a6+a7);
-  a5=(a5*a6);
-  a6=(1./a4);
-  a6=copysign(a6,a4);
-  a5=(a5*a6);
-  if (res[0]!=0) res[0][1]=a5;
-  a6=0.;
-  if (res[0]!=0) res[0][2]=a6;
-  a6=arg[0]? arg[0][3] : 0;
-  a5=casadi_sq(a5);
-  a5=(a6-a5);
-  a6=casadi_fabs(a6);
-  a1=(a1*a6);
-  a1=(a1+a3);
-  a3=casadi_fmax(a5,a1);
-  a3=sqrt(a3);
-  if (res[0]!=0) res[0][3]=a3;
-  a2=(a2<a0);
-  a1=(a1<a5);
-  a2=(a2*a1);
-  if (res[1]!=0) res[1][0]=a2;
-  return 0;
-}
-
-/* cn2d_ukf_points:(x[2],L[2x2],abk[3])->(X[2x5]) */
-static int casadi_f3(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real a0, a1, a2, a3, a4, a5;
-  a0=arg[0]? arg[0][0] : 0;
-  if (res[0]!=0) res[0][0]=a0;
-  a1=arg[0]? arg[0][1] : 0;
-  if (res[0]!=0) res[0][1]=a1;
-  a2=arg[1]? arg[1][0] : 0;
-  a3=arg[2]? arg[2][0] : 0;
-  a3=casadi_sq(a3);
-  a4=2.;
-  a5=arg[2]? arg[2][2] : 0;
-  a4=(a4+a5);
-  a3=(a3*a4);
-  a3=sqrt(a3);
-  a2=(a2*a3);
-  a4=(a0+a2);
-  if (res[0]!=0) res[0][2]=a4;
-  a4=arg[1]? arg[1][1] : 0;
-  a4=(a4*a3);
-  a5=(a1+a4);
-  if (res[0]!=0) res[0][3]=a5;
-  if (res[0]!=0) res[0][4]=a0;
-  a5=arg[1]? arg[1][3] : 0;
-  a5=(a5*a3);
-  a3=(a1+a5);
-  if (res[0]!=0) res[0][5]=a3;
-  a2=(a0-a2);
-  if (res[0]!=0) res[0][6]=a2;
-  a4=(a1-a4);
-  if (res[0]!=0) res[0][7]=a4;
-  if (res[0]!=0) res[0][8]=a0;
-  a1=(a1-a5);
-  if (res[0]!=0) res[0][9]=a1;
-  return 0;
-}
-
-/* cn2d_step:(x[2],u[3],p[2],dt)->(x_next[2]) */
-static int casadi_f6(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real a0, a1, a2, a3, a4, a5, a6, a7;
-  a0=arg[0]? arg[0][0] : 0;
-  a1=arg[3]? arg[3][0] : 0;
-  a2=arg[1]? arg[1][0] : 0;
-  a3=arg[1]? arg[1][2] : 0;
-  a4=cos(a3);
-  a5=(a2*a4);
-  a6=arg[1]? arg[1][1] : 0;
-  a3=sin(a3);
-  a7=(a6*a3);
-  a5=(a5+a7);
-  a5=(a1*a5);
-  a0=(a0+a5);
-  if (res[0]!=0) res[0][0]=a0;
-  a0=arg[0]? arg[0][1] : 0;
-  a2=(a2*a3);
-  a6=(a6*a4);
-  a2=(a2-a6);
-  a1=(a1*a2);
-  a0=(a0+a1);
-  if (res[0]!=0) res[0][1]=a0;
-  return 0;
-}
-
-/* map5_cn2d_step:(x[2x5],u[3x5],p[2x5],dt[1x5])->(x_next[2x5]) */
-static int casadi_f5(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i;
-  casadi_real* *res1;
-  const casadi_real* *arg1;
-  arg1 = arg+4;
-  for (i=0; i<4; ++i) arg1[i]=arg[i];
-  res1 = res+1;
-  for (i=0; i<1; ++i) res1[i]=res[i];
-  for (i=0; i<5; ++i) {
-    if (casadi_f6(arg1, res1, iw, w, 0)) return 1;
-    if (arg1[0]) arg1[0]+=2;
-    if (arg1[1]) arg1[1]+=3;
-    if (arg1[2]) arg1[2]+=2;
-    if (arg1[3]) arg1[3]+=1;
-    if (res1[0]) res1[0]+=2;
-  }
-  return 0;
-}
-
-/* cn2d_step_columns:(x[2x5],u[3],p[2],dt)->(x_next[2x5]) */
-static int casadi_f4(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i;
-  casadi_real **res1=res+1, *w1=w+8, *w2=w+11, *w3=w+26, *w4=w+28, w5, *w6=w+38, *w7=w+43;
-  const casadi_real **arg1=arg+4, *wr0;
-  /* #0: @0 = input[0][0] */
-  wr0 = arg[0] ? arg[0] : casadi_zeros;
-  /* #1: @1 = input[1][0] */
-  casadi_copy(arg[1], 3, w1);
-  /* #2: @2 = repmat(@1, 5) */
-  for (i=0;i<5;++i) {
-    casadi_copy(w1, 3, w2+ i*3);
-  }
-  /* #3: @3 = input[2][0] */
-  casadi_copy(arg[2], 2, w3);
-  /* #4: @4 = repmat(@3, 5) */
-  for (i=0;i<5;++i) {
-    casadi_copy(w3, 2, w4+ i*2);
-  }
-  /* #5: @5 = input[3][0] */
-  w5 = arg[3] ? arg[3][0] : 0;
-  /* #6: @6 = repmat(@5, 5) */
-  for (i=0;i<5;++i) {
-    casadi_copy((&w5), 1, w6+ i*1);
-  }
-  /* #7: @7 = map5_cn2d_step(@0, @2, @4, @6) */
-  arg1[0]=wr0;
-  arg1[1]=w2;
-  arg1[2]=w4;
-  arg1[3]=w6;
-  res1[0]=w7;
-  if (casadi_f5(arg1, res1, iw, w, 0)) return 1;
-  /* #8: output[0][0] = @7 */
-  casadi_copy(w7, 10, res[0]);
-  return 0;
-}
-
-/* cn2d_outer:(y[2],mean[2])->(ddT[2x2,3nz]) */
-static int casadi_f8(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real a0, a1, a2;
-  a0=arg[0]? arg[0][0] : 0;
-  a1=arg[1]? arg[1][0] : 0;
-  a0=(a0-a1);
-  a1=casadi_sq(a0);
-  if (res[0]!=0) res[0][0]=a1;
-  a1=arg[0]? arg[0][1] : 0;
-  a2=arg[1]? arg[1][1] : 0;
-  a1=(a1-a2);
-  a0=(a0*a1);
-  if (res[0]!=0) res[0][1]=a0;
-  a1=casadi_sq(a1);
-  if (res[0]!=0) res[0][2]=a1;
-  return 0;
-}
-
-/* cn2d_outer_0_1:(y[2],mean[2])->(ddT[2x2,3nz]) */
-static int casadi_f7(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i, j;
-  casadi_real **res1=res+1, *w0=w+3, *w1=w+5, *w2=w+7, *w3=w+10;
-  const casadi_real **arg1=arg+2;
-  /* #0: @0 = input[0][0] */
-  casadi_copy(arg[0], 2, w0);
-  /* #1: @1 = input[1][0] */
-  casadi_copy(arg[1], 2, w1);
-  /* #2: @2 = cn2d_outer(@0, @1) */
-  arg1[0]=w0;
-  arg1[1]=w1;
-  res1[0]=w2;
-  if (casadi_f8(arg1, res1, iw, w, 0)) return 1;
-  /* #3: @3 = repsum(@2, 1) */
-  casadi_clear(w3, 3);
-    for (i=0;i<1;++i) {
-        for (j=0;j<3;++j) {
-            w3[j] += w2[j+i*3];
-          }
-      }
-  /* #4: output[0][0] = @3 */
-  casadi_copy(w3, 3, res[0]);
-  return 0;
-}
-
-/* map4_cn2d_outer:(y[2x4],mean[2x4])->(ddT[2x8,12nz]) */
-static int casadi_f10(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i;
-  casadi_real* *res1;
-  const casadi_real* *arg1;
-  arg1 = arg+2;
-  for (i=0; i<2; ++i) arg1[i]=arg[i];
-  res1 = res+1;
-  for (i=0; i<1; ++i) res1[i]=res[i];
-  for (i=0; i<4; ++i) {
-    if (casadi_f8(arg1, res1, iw, w, 0)) return 1;
-    if (arg1[0]) arg1[0]+=2;
-    if (arg1[1]) arg1[1]+=2;
-    if (res1[0]) res1[0]+=3;
-  }
-  return 0;
-}
-
-/* cn2d_outer_1_5:(y[2x4],mean[2])->(ddT[2x2,3nz]) */
-static int casadi_f9(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i, j;
-  casadi_real **res1=res+1, *w1=w+3, *w2=w+5, *w3=w+13, *w4=w+25;
-  const casadi_real **arg1=arg+2, *wr0;
-  /* #0: @0 = input[0][0] */
-  wr0 = arg[0] ? arg[0] : casadi_zeros;
-  /* #1: @1 = input[1][0] */
-  casadi_copy(arg[1], 2, w1);
-  /* #2: @2 = repmat(@1, 4) */
-  for (i=0;i<4;++i) {
-    casadi_copy(w1, 2, w2+ i*2);
-  }
-  /* #3: @3 = map4_cn2d_outer(@0, @2) */
-  arg1[0]=wr0;
-  arg1[1]=w2;
-  res1[0]=w3;
-  if (casadi_f10(arg1, res1, iw, w, 0)) return 1;
-  /* #4: @4 = repsum(@3, 4) */
-  casadi_clear(w4, 3);
-    for (i=0;i<4;++i) {
-        for (j=0;j<3;++j) {
-            w4[j] += w3[j+i*3];
-          }
-      }
-  /* #5: output[0][0] = @4 */
-  casadi_copy(w4, 3, res[0]);
-  return 0;
-}
-
-/* cn2d_predicted:(x_pred[2],C[2x2,3nz],Q[2x2])->(P_pred[2x2],ok) */
-static int casadi_f11(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real a0, a1, a2, a3, a4;
-  a0=arg[1]? arg[1][0] : 0;
-  a1=arg[2]? arg[2][0] : 0;
-  a0=(a0+a1);
-  if (res[0]!=0) res[0][0]=a0;
-  a1=arg[1]? arg[1][1] : 0;
-  a2=5.0000000000000000e-01;
-  a3=arg[2]? arg[2][2] : 0;
-  a4=arg[2]? arg[2][1] : 0;
-  a3=(a3+a4);
-  a2=(a2*a3);
-  a1=(a1+a2);
-  if (res[0]!=0) res[0][1]=a1;
-  if (res[0]!=0) res[0][2]=a1;
-  a2=arg[1]? arg[1][2] : 0;
-  a3=arg[2]? arg[2][3] : 0;
-  a2=(a2+a3);
-  if (res[0]!=0) res[0][3]=a2;
-  a3=arg[0]? arg[0][0] : 0;
-  a4=arg[0]? arg[0][1] : 0;
-  a3=(a3+a4);
-  a3=(a3+a0);
-  a3=(a3+a1);
-  a3=(a3+a2);
-  a3=casadi_fabs(a3);
-  a2=casadi_inf;
-  a3=(a3<a2);
-  if (res[1]!=0) res[1][0]=a3;
-  return 0;
-}
-
 /* cn2d_ukf_predict:(x[2],P[2x2],u[3],p[2],dt,Q[2x2],abk[3])->(x_pred[2],P_pred[2x2],ok) */
 static int casadi_f0(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i;
-  casadi_real **res1=res+3, *rr, *w00=w+64, *w01=w+67, *w02=w+69, w03, *w04=w+71, *w05=w+73, *w06=w+77, w07, *w08=w+81, w09;
-  casadi_real *w10=w+91, *w11=w+101, *w12=w+103, *w13=w+111;
-  const casadi_real **arg1=arg+7, *cs;
-  /* #0: @0 = input[6][0] */
-  casadi_copy(arg[6], 3, w00);
-  /* #1: {@1, @2} = cn2d_ukf_weights(@0) */
-  arg1[0]=w00;
-  res1[0]=w01;
-  res1[1]=w02;
-  if (casadi_f1(arg1, res1, iw, w, 0)) return 1;
-  /* #2: @3 = @1[0] */
-  for (rr=(&w03), cs=w01+0; cs!=w01+1; cs+=1) *rr++ = *cs;
-  /* #3: @4 = input[0][0] */
-  casadi_copy(arg[0], 2, w04);
-  /* #4: @5 = input[1][0] */
-  casadi_copy(arg[1], 4, w05);
-  /* #5: {@6, @7} = cn2d_cholesky(@5) */
-  arg1[0]=w05;
-  res1[0]=w06;
-  res1[1]=(&w07);
-  if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
-  /* #6: @8 = cn2d_ukf_points(@4, @6, @0) */
-  arg1[0]=w04;
-  arg1[1]=w06;
-  arg1[2]=w00;
-  res1[0]=w08;
-  if (casadi_f3(arg1, res1, iw, w, 0)) return 1;
-  /* #7: @0 = input[2][0] */
-  casadi_copy(arg[2], 3, w00);
-  /* #8: @4 = input[3][0] */
-  casadi_copy(arg[3], 2, w04);
-  /* #9: @9 = input[4][0] */
-  w09 = arg[4] ? arg[4][0] : 0;
-  /* #10: @10 = cn2d_step_columns(@8, @0, @4, @9) */
-  arg1[0]=w08;
-  arg1[1]=w00;
-  arg1[2]=w04;
-  arg1[3]=(&w09);
-  res1[0]=w10;
-  if (casadi_f4(arg1, res1, iw, w, 0)) return 1;
-  /* #11: @4 = @10[:2] */
-  for (rr=w04, cs=w10+0; cs!=w10+2; cs+=1) *rr++ = *cs;
-  /* #12: @11 = (@3*@4) */
-  for (i=0, rr=w11, cs=w04; i<2; ++i) (*rr++)  = (w03*(*cs++));
-  /* #13: @3 = @1[1] */
-  for (rr=(&w03), cs=w01+1; cs!=w01+2; cs+=1) *rr++ = *cs;
-  /* #14: @1 = zeros(2x1) */
-  casadi_clear(w01, 2);
-  /* #15: @12 = @10[2:10] */
-  for (rr=w12, cs=w10+2; cs!=w10+10; cs+=1) *rr++ = *cs;
-  /* #16: @6 = ones(4x1) */
-  casadi_fill(w06, 4, 1.);
-  /* #17: @1 = mac(@12,@6,@1) */
-  casadi_mtimes_dense(w12, 2, 4, w06, 1, w01, 0);
-  /* #18: @1 = (@3*@1) */
-  for (i=0, rr=w01, cs=w01; i<2; ++i) (*rr++)  = (w03*(*cs++));
-  /* #19: @11 = (@11+@1) */
-  for (i=0, rr=w11, cs=w01; i<2; ++i) (*rr++) += (*cs++);
-  /* #20: output[0][0] = @11 */
-  casadi_copy(w11, 2, res[0]);
-  /* #21: @3 = @2[0] */
-  for (rr=(&w03), cs=w02+0; cs!=w02+1; cs+=1) *rr++ = *cs;
-  /* #22: @0 = cn2d_outer_0_1(@4, @11) */
-  arg1[0]=w04;
-  arg1[1]=w11;
-  res1[0]=w00;
-  if (casadi_f7(arg1, res1, iw, w, 0)) return 1;
-  /* #23: @0 = (@3*@0) */
-  for (i=0, rr=w00, cs=w00; i<3; ++i) (*rr++)  = (w03*(*cs++));
-  /* #24: @3 = @2[1] */
-  for (rr=(&w03), cs=w02+1; cs!=w02+2; cs+=1) *rr++ = *cs;
-  /* #25: @13 = cn2d_outer_1_5(@12, @11) */
-  arg1[0]=w12;
-  arg1[1]=w11;
-  res1[0]=w13;
-  if (casadi_f9(arg1, res1, iw, w, 0)) return 1;
-  /* #26: @13 = (@3*@13) */
-  for (i=0, rr=w13, cs=w13; i<3; ++i) (*rr++)  = (w03*(*cs++));
-  /* #27: @0 = (@0+@13) */
-  for (i=0, rr=w00, cs=w13; i<3; ++i) (*rr++) += (*cs++);
-  /* #28: @6 = input[5][0] */
-  casadi_copy(arg[5], 4, w06);
-  /* #29: {@5, @3} = cn2d_predicted(@11, @0, @6) */
-  arg1[0]=w11;
-  arg1[1]=w00;
-  arg1[2]=w06;
-  res1[0]=w05;
-  res1[1]=(&w03);
-  if (casadi_f11(arg1, res1, iw, w, 0)) return 1;
-  /* #30: output[1][0] = @5 */
-  casadi_copy(w05, 4, res[1]);
-  /* #31: @7 = (@7*@3) */
-  w07 *= w03;
-  /* #32: output[2][0] = @7 */
-  if (res[2]) res[2][0] = w07;
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20;
+  a00=arg[6]? arg[6][0] : 0;
+  a00=casadi_sq(a00);
+  a01=2.;
+  a02=arg[6]? arg[6][2] : 0;
+  a02=(a01+a02);
+  a02=(a00*a02);
+  a01=(a02-a01);
+  a03=(1./a02);
+  a03=copysign(a03,a02);
+  a01=(a01*a03);
+  a03=arg[0]? arg[0][0] : 0;
+  a04=arg[4]? arg[4][0] : 0;
+  a05=arg[2]? arg[2][0] : 0;
+  a06=arg[2]? arg[2][2] : 0;
+  a07=cos(a06);
+  a08=(a05*a07);
+  a09=arg[2]? arg[2][1] : 0;
+  a06=sin(a06);
+  a10=(a09*a06);
+  a08=(a08+a10);
+  a08=(a04*a08);
+  a10=(a03+a08);
+  a11=(a01*a10);
+  a12=arg[1]? arg[1][0] : 0;
+  a13=1.0000000000000000e-13;
+  a14=casadi_fabs(a12);
+  a14=(a13*a14);
+  a15=1.0000000000000000e-300;
+  a14=(a14+a15);
+  a16=casadi_fmax(a12,a14);
+  a16=sqrt(a16);
+  a17=sqrt(a02);
+  a18=(a16*a17);
+  a19=(a03+a18);
+  a19=(a19+a08);
+  a20=(a19+a10);
+  a03=(a03-a18);
+  a03=(a03+a08);
+  a20=(a20+a03);
+  a20=(a20+a10);
+  a02=(2.*a02);
+  a20=(a20/a02);
+  a11=(a11+a20);
+  if (res[0]!=0) res[0][0]=a11;
+  a20=arg[0]? arg[0][1] : 0;
+  a05=(a05*a06);
+  a09=(a09*a07);
+  a05=(a05-a09);
+  a04=(a04*a05);
+  a05=(a20+a04);
+  a09=(a01*a05);
+  a07=5.0000000000000000e-01;
+  a06=arg[1]? arg[1][2] : 0;
+  a08=arg[1]? arg[1][1] : 0;
+  a06=(a06+a08);
+  a06=(a07*a06);
+  a08=(1./a16);
+  a08=copysign(a08,a16);
+  a06=(a06*a08);
+  a08=(a06*a17);
+  a16=(a20+a08);
+  a16=(a16+a04);
+  a18=arg[1]? arg[1][3] : 0;
+  a06=casadi_sq(a06);
+  a06=(a18-a06);
+  a18=casadi_fabs(a18);
+  a13=(a13*a18);
+  a13=(a13+a15);
+  a15=casadi_fmax(a06,a13);
+  a15=sqrt(a15);
+  a15=(a15*a17);
+  a17=(a20+a15);
+  a17=(a17+a04);
+  a18=(a16+a17);
+  a08=(a20-a08);
+  a08=(a08+a04);
+  a18=(a18+a08);
+  a20=(a20-a15);
+  a20=(a20+a04);
+  a18=(a18+a20);
+  a18=(a18/a02);
+  a09=(a09+a18);
+  if (res[0]!=0) res[0][1]=a09;
+  a18=1.;
+  a01=(a01+a18);
+  a01=(a01-a00);
+  a00=arg[6]? arg[6][1] : 0;
+  a01=(a01+a00);
+  a10=(a10-a11);
+  a00=casadi_sq(a10);
+  a18=(a01*a00);
+  a03=(a03-a11);
+  a04=casadi_sq(a03);
+  a19=(a19-a11);
+  a15=casadi_sq(a19);
+  a15=(a00+a15);
+  a04=(a04+a15);
+  a00=(a00+a04);
+  a00=(a00/a02);
+  a18=(a18+a00);
+  a00=arg[5]? arg[5][0] : 0;
+  a18=(a18+a00);
+  if (res[1]!=0) res[1][0]=a18;
+  a05=(a05-a09);
+  a00=(a10*a05);
+  a00=(a01*a00);
+  a20=(a20-a09);
+  a04=(a10*a20);
+  a08=(a08-a09);
+  a03=(a03*a08);
+  a17=(a17-a09);
+  a10=(a10*a17);
+  a16=(a16-a09);
+  a19=(a19*a16);
+  a10=(a10+a19);
+  a03=(a03+a10);
+  a04=(a04+a03);
+  a04=(a04/a02);
+  a00=(a00+a04);
+  a04=arg[5]? arg[5][2] : 0;
+  a03=arg[5]? arg[5][1] : 0;
+  a04=(a04+a03);
+  a07=(a07*a04);
+  a00=(a00+a07);
+  if (res[1]!=0) res[1][1]=a00;
+  if (res[1]!=0) res[1][2]=a00;
+  a05=casadi_sq(a05);
+  a01=(a01*a05);
+  a20=casadi_sq(a20);
+  a08=casadi_sq(a08);
+  a17=casadi_sq(a17);
+  a16=casadi_sq(a16);
+  a17=(a17+a16);
+  a08=(a08+a17);
+  a20=(a20+a08);
+  a20=(a20/a02);
+  a01=(a01+a20);
+  a20=arg[5]? arg[5][3] : 0;
+  a01=(a01+a20);
+  if (res[1]!=0) res[1][3]=a01;
+  a14=(a14<a12);
+  a13=(a13<a06);
+  a14=(a14*a13);
+  a11=(a11+a09);
+  a11=(a11+a18);
+  a11=(a11+a00);
+  a11=(a11+a01);
+  a11=casadi_fabs(a11);
+  a01=casadi_inf;
+  a11=(a11<a01);
+  a14=(a14*a11);
+  if (res[2]!=0) res[2][0]=a14;
   return 0;
 }
 
@@ -694,331 +362,207 @@ CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ukf_predict_sparsity_out(casadi_int 
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ukf_predict_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 19;
-  if (sz_res) *sz_res = 6;
+  if (sz_arg) *sz_arg = 7;
+  if (sz_res) *sz_res = 3;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 114;
+  if (sz_w) *sz_w = 0;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ukf_predict_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 19*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 6*sizeof(casadi_real*);
+  if (sz_arg) *sz_arg = 7*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 3*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 114*sizeof(casadi_real);
-  return 0;
-}
-
-/* cn2d_ukf_measured_moments:(x[2],L[2x2],p[2],abk[3])->(z_pred,DZ[1x5],Czz) */
-static int casadi_f13(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
-  casadi_real a12, a13, a14, a15;
-  a00=arg[3]? arg[3][0] : 0;
-  a00=casadi_sq(a00);
-  a01=2.;
-  a02=arg[3]? arg[3][2] : 0;
-  a02=(a01+a02);
-  a02=(a00*a02);
-  a01=(a02-a01);
-  a03=(1./a02);
-  a03=copysign(a03,a02);
-  a01=(a01*a03);
-  a03=arg[0]? arg[0][0] : 0;
-  a04=arg[2]? arg[2][0] : 0;
-  a05=(a03-a04);
-  a05=casadi_sq(a05);
-  a06=arg[0]? arg[0][1] : 0;
-  a07=arg[2]? arg[2][1] : 0;
-  a08=(a06-a07);
-  a08=casadi_sq(a08);
-  a08=(a05+a08);
-  a08=sqrt(a08);
-  a09=(a01*a08);
-  a10=arg[1]? arg[1][0] : 0;
-  a11=sqrt(a02);
-  a10=(a10*a11);
-  a12=(a03+a10);
-  a12=(a12-a04);
-  a12=casadi_sq(a12);
-  a13=arg[1]? arg[1][1] : 0;
-  a13=(a13*a11);
-  a14=(a06+a13);
-  a14=(a14-a07);
-  a14=casadi_sq(a14);
-  a12=(a12+a14);
-  a12=sqrt(a12);
-  a14=arg[1]? arg[1][3] : 0;
-  a14=(a14*a11);
-  a11=(a06+a14);
-  a11=(a11-a07);
-  a11=casadi_sq(a11);
-  a11=(a05+a11);
-  a11=sqrt(a11);
-  a15=(a12+a11);
-  a03=(a03-a10);
-  a03=(a03-a04);
-  a03=casadi_sq(a03);
-  a13=(a06-a13);
-  a13=(a13-a07);
-  a13=casadi_sq(a13);
-  a03=(a03+a13);
-  a03=sqrt(a03);
-  a15=(a15+a03);
-  a06=(a06-a14);
-  a06=(a06-a07);
-  a06=casadi_sq(a06);
-  a05=(a05+a06);
-  a05=sqrt(a05);
-  a15=(a15+a05);
-  a02=(2.*a02);
-  a06=(1./a02);
-  a06=copysign(a06,a02);
-  a15=(a15*a06);
-  a09=(a09+a15);
-  if (res[0]!=0) res[0][0]=a09;
-  a08=(a08-a09);
-  if (res[1]!=0) res[1][0]=a08;
-  a12=(a12-a09);
-  if (res[1]!=0) res[1][1]=a12;
-  a11=(a11-a09);
-  if (res[1]!=0) res[1][2]=a11;
-  a03=(a03-a09);
-  if (res[1]!=0) res[1][3]=a03;
-  a05=(a05-a09);
-  if (res[1]!=0) res[1][4]=a05;
-  a09=1.;
-  a01=(a01+a09);
-  a01=(a01-a00);
-  a00=arg[3]? arg[3][1] : 0;
-  a01=(a01+a00);
-  a08=casadi_sq(a08);
-  a01=(a01*a08);
-  a12=casadi_sq(a12);
-  a11=casadi_sq(a11);
-  a12=(a12+a11);
-  a03=casadi_sq(a03);
-  a12=(a12+a03);
-  a05=casadi_sq(a05);
-  a12=(a12+a05);
-  a12=(a12*a06);
-  a01=(a01+a12);
-  if (res[2]!=0) res[2][0]=a01;
-  return 0;
-}
-
-/* cn2d_ukf_moments:(L[2x2],DZ[1x5],Czz,z_pred,z,mask,abk[3])->(innovation,Pzz,Pxz[2]) */
-static int casadi_f14(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real a0, a1, a2, a3, a4, a5;
-  a0=arg[5]? arg[5][0] : 0;
-  a1=0.;
-  a0=(a0!=a1);
-  a1=arg[4]? arg[4][0] : 0;
-  a2=arg[3]? arg[3][0] : 0;
-  a1=(a1-a2);
-  a1=(a0?a1:0);
-  if (res[0]!=0) res[0][0]=a1;
-  a1=casadi_sq(a0);
-  a2=arg[2]? arg[2][0] : 0;
-  a1=(a1*a2);
-  if (res[1]!=0) res[1][0]=a1;
-  a1=arg[0]? arg[0][0] : 0;
-  a2=arg[6]? arg[6][0] : 0;
-  a2=casadi_sq(a2);
-  a3=2.;
-  a4=arg[6]? arg[6][2] : 0;
-  a3=(a3+a4);
-  a2=(a2*a3);
-  a3=sqrt(a2);
-  a2=(2.*a2);
-  a4=(1./a2);
-  a4=copysign(a4,a2);
-  a3=(a3*a4);
-  a4=arg[1]? arg[1][1] : 0;
-  a4=(a3*a4);
-  a2=arg[1]? arg[1][3] : 0;
-  a2=(a3*a2);
-  a4=(a4-a2);
-  a1=(a1*a4);
-  a1=(a0*a1);
-  if (res[2]!=0) res[2][0]=a1;
-  a1=arg[0]? arg[0][1] : 0;
-  a1=(a1*a4);
-  a4=arg[0]? arg[0][3] : 0;
-  a2=arg[1]? arg[1][2] : 0;
-  a2=(a3*a2);
-  a5=arg[1]? arg[1][4] : 0;
-  a3=(a3*a5);
-  a2=(a2-a3);
-  a4=(a4*a2);
-  a1=(a1+a4);
-  a0=(a0*a1);
-  if (res[2]!=0) res[2][1]=a0;
-  return 0;
-}
-
-/* cn2d_noise:(R,mask,Pzz,innovation)->(R_used,ok) */
-static int casadi_f15(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real a0, a1, a2;
-  a0=arg[1]? arg[1][0] : 0;
-  a1=0.;
-  a0=(a0!=a1);
-  a1=casadi_sq(a0);
-  a2=arg[0]? arg[0][0] : 0;
-  a1=(a1*a2);
-  a2=1.;
-  a0=(a2-a0);
-  a1=(a1+a0);
-  if (res[0]!=0) res[0][0]=a1;
-  if (res[1]!=0) res[1][0]=a2;
-  return 0;
-}
-
-/* cn2d_kalman:(x[2],P[2x2],Pzz,Pxz[2],R_used,innovation)->(x_post[2],P_post[2x2],S,ok) */
-static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10;
-  a00=arg[0]? arg[0][0] : 0;
-  a01=arg[3]? arg[3][0] : 0;
-  a02=arg[2]? arg[2][0] : 0;
-  a03=arg[4]? arg[4][0] : 0;
-  a02=(a02+a03);
-  a03=1.0000000000000000e-13;
-  a04=casadi_fabs(a02);
-  a03=(a03*a04);
-  a04=1.0000000000000000e-300;
-  a03=(a03+a04);
-  a04=casadi_fmax(a02,a03);
-  a04=sqrt(a04);
-  a05=(1./a04);
-  a05=copysign(a05,a04);
-  a01=(a01*a05);
-  a04=arg[5]? arg[5][0] : 0;
-  a06=(a04*a05);
-  a07=(a01*a06);
-  a00=(a00+a07);
-  if (res[0]!=0) res[0][0]=a00;
-  a07=arg[0]? arg[0][1] : 0;
-  a08=arg[3]? arg[3][1] : 0;
-  a08=(a08*a05);
-  a06=(a08*a06);
-  a07=(a07+a06);
-  if (res[0]!=0) res[0][1]=a07;
-  a06=arg[1]? arg[1][0] : 0;
-  a05=casadi_sq(a01);
-  a06=(a06-a05);
-  if (res[1]!=0) res[1][0]=a06;
-  a05=5.0000000000000000e-01;
-  a09=arg[1]? arg[1][2] : 0;
-  a10=arg[1]? arg[1][1] : 0;
-  a09=(a09+a10);
-  a05=(a05*a09);
-  a01=(a01*a08);
-  a05=(a05-a01);
-  if (res[1]!=0) res[1][1]=a05;
-  if (res[1]!=0) res[1][2]=a05;
-  a01=arg[1]? arg[1][3] : 0;
-  a08=casadi_sq(a08);
-  a01=(a01-a08);
-  if (res[1]!=0) res[1][3]=a01;
-  if (res[2]!=0) res[2][0]=a02;
-  a03=(a03<a02);
-  a00=(a00+a07);
-  a00=(a00+a06);
-  a00=(a00+a05);
-  a00=(a00+a01);
-  a00=(a00+a04);
-  a00=(a00+a02);
-  a00=casadi_fabs(a00);
-  a02=casadi_inf;
-  a00=(a00<a02);
-  a03=(a03*a00);
-  if (res[3]!=0) res[3][0]=a03;
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
 
 /* cn2d_ukf_update:(x[2],P[2x2],z,p[2],R,mask,abk[3])->(x_post[2],P_post[2x2],innovation,S,ok) */
-static int casadi_f12(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+5, *w00=w+16, *w01=w+18, *w02=w+22, w03, *w04=w+26, *w05=w+28, w06, *w07=w+31, w08, w09, w10;
-  casadi_real w11, w12, *w13=w+36;
-  const casadi_real **arg1=arg+7;
-  /* #0: @0 = input[0][0] */
-  casadi_copy(arg[0], 2, w00);
-  /* #1: @1 = input[1][0] */
-  casadi_copy(arg[1], 4, w01);
-  /* #2: {@2, @3} = cn2d_cholesky(@1) */
-  arg1[0]=w01;
-  res1[0]=w02;
-  res1[1]=(&w03);
-  if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
-  /* #3: @4 = input[3][0] */
-  casadi_copy(arg[3], 2, w04);
-  /* #4: @5 = input[6][0] */
-  casadi_copy(arg[6], 3, w05);
-  /* #5: {@6, @7, @8} = cn2d_ukf_measured_moments(@0, @2, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=w02;
-  arg1[2]=w04;
-  arg1[3]=w05;
-  res1[0]=(&w06);
-  res1[1]=w07;
-  res1[2]=(&w08);
-  if (casadi_f13(arg1, res1, iw, w, 0)) return 1;
-  /* #6: @9 = input[2][0] */
-  w09 = arg[2] ? arg[2][0] : 0;
-  /* #7: @10 = input[5][0] */
-  w10 = arg[5] ? arg[5][0] : 0;
-  /* #8: {@11, @12, @4} = cn2d_ukf_moments(@2, @7, @8, @6, @9, @10, @5) */
-  arg1[0]=w02;
-  arg1[1]=w07;
-  arg1[2]=(&w08);
-  arg1[3]=(&w06);
-  arg1[4]=(&w09);
-  arg1[5]=(&w10);
-  arg1[6]=w05;
-  res1[0]=(&w11);
-  res1[1]=(&w12);
-  res1[2]=w04;
-  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
-  /* #9: @8 = input[4][0] */
-  w08 = arg[4] ? arg[4][0] : 0;
-  /* #10: {@6, @9} = cn2d_noise(@8, @10, @12, @11) */
-  arg1[0]=(&w08);
-  arg1[1]=(&w10);
-  arg1[2]=(&w12);
-  arg1[3]=(&w11);
-  res1[0]=(&w06);
-  res1[1]=(&w09);
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #11: {@13, @2, @8, @10} = cn2d_kalman(@0, @1, @12, @4, @6, @11) */
-  arg1[0]=w00;
-  arg1[1]=w01;
-  arg1[2]=(&w12);
-  arg1[3]=w04;
-  arg1[4]=(&w06);
-  arg1[5]=(&w11);
-  res1[0]=w13;
-  res1[1]=w02;
-  res1[2]=(&w08);
-  res1[3]=(&w10);
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #12: output[0][0] = @13 */
-  casadi_copy(w13, 2, res[0]);
-  /* #13: output[1][0] = @2 */
-  casadi_copy(w02, 4, res[1]);
-  /* #14: output[2][0] = @11 */
-  if (res[2]) res[2][0] = w11;
-  /* #15: output[3][0] = @8 */
-  if (res[3]) res[3][0] = w08;
-  /* #16: @3 = (@3*@9) */
-  w03 *= w09;
-  /* #17: @3 = (@3*@10) */
-  w03 *= w10;
-  /* #18: output[4][0] = @3 */
-  if (res[4]) res[4][0] = w03;
+static int casadi_f1(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
+  casadi_real a24, a25, a26, a27, a28;
+  a00=arg[0]? arg[0][0] : 0;
+  a01=arg[5]? arg[5][0] : 0;
+  a02=0.;
+  a01=(a01!=a02);
+  a02=arg[1]? arg[1][0] : 0;
+  a03=1.0000000000000000e-13;
+  a04=casadi_fabs(a02);
+  a04=(a03*a04);
+  a05=1.0000000000000000e-300;
+  a04=(a04+a05);
+  a06=casadi_fmax(a02,a04);
+  a06=sqrt(a06);
+  a07=arg[6]? arg[6][0] : 0;
+  a07=casadi_sq(a07);
+  a08=2.;
+  a09=arg[6]? arg[6][2] : 0;
+  a09=(a08+a09);
+  a09=(a07*a09);
+  a10=sqrt(a09);
+  a11=(2.*a09);
+  a12=(1./a11);
+  a12=copysign(a12,a11);
+  a11=(a10*a12);
+  a13=(a06*a10);
+  a14=(a00+a13);
+  a15=arg[3]? arg[3][0] : 0;
+  a14=(a14-a15);
+  a14=casadi_sq(a14);
+  a16=arg[0]? arg[0][1] : 0;
+  a17=5.0000000000000000e-01;
+  a18=arg[1]? arg[1][2] : 0;
+  a19=arg[1]? arg[1][1] : 0;
+  a18=(a18+a19);
+  a17=(a17*a18);
+  a18=(1./a06);
+  a18=copysign(a18,a06);
+  a18=(a17*a18);
+  a19=(a18*a10);
+  a20=(a16+a19);
+  a21=arg[3]? arg[3][1] : 0;
+  a20=(a20-a21);
+  a20=casadi_sq(a20);
+  a14=(a14+a20);
+  a14=sqrt(a14);
+  a08=(a09-a08);
+  a20=(1./a09);
+  a20=copysign(a20,a09);
+  a08=(a08*a20);
+  a20=(a00-a15);
+  a20=casadi_sq(a20);
+  a09=(a16-a21);
+  a09=casadi_sq(a09);
+  a09=(a20+a09);
+  a09=sqrt(a09);
+  a22=(a08*a09);
+  a23=arg[1]? arg[1][3] : 0;
+  a24=casadi_sq(a18);
+  a24=(a23-a24);
+  a25=casadi_fabs(a23);
+  a25=(a03*a25);
+  a25=(a25+a05);
+  a26=casadi_fmax(a24,a25);
+  a26=sqrt(a26);
+  a10=(a26*a10);
+  a27=(a16+a10);
+  a27=(a27-a21);
+  a27=casadi_sq(a27);
+  a27=(a20+a27);
+  a27=sqrt(a27);
+  a28=(a14+a27);
+  a13=(a00-a13);
+  a13=(a13-a15);
+  a13=casadi_sq(a13);
+  a19=(a16-a19);
+  a19=(a19-a21);
+  a19=casadi_sq(a19);
+  a13=(a13+a19);
+  a13=sqrt(a13);
+  a28=(a28+a13);
+  a10=(a16-a10);
+  a10=(a10-a21);
+  a10=casadi_sq(a10);
+  a20=(a20+a10);
+  a20=sqrt(a20);
+  a28=(a28+a20);
+  a28=(a28*a12);
+  a22=(a22+a28);
+  a14=(a14-a22);
+  a28=(a11*a14);
+  a13=(a13-a22);
+  a10=(a11*a13);
+  a28=(a28-a10);
+  a06=(a06*a28);
+  a06=(a01*a06);
+  a10=casadi_sq(a01);
+  a21=1.;
+  a08=(a08+a21);
+  a08=(a08-a07);
+  a07=arg[6]? arg[6][1] : 0;
+  a08=(a08+a07);
+  a09=(a09-a22);
+  a09=casadi_sq(a09);
+  a08=(a08*a09);
+  a14=casadi_sq(a14);
+  a27=(a27-a22);
+  a09=casadi_sq(a27);
+  a14=(a14+a09);
+  a13=casadi_sq(a13);
+  a14=(a14+a13);
+  a20=(a20-a22);
+  a13=casadi_sq(a20);
+  a14=(a14+a13);
+  a14=(a14*a12);
+  a08=(a08+a14);
+  a08=(a10*a08);
+  a14=arg[4]? arg[4][0] : 0;
+  a10=(a10*a14);
+  a21=(a21-a01);
+  a10=(a10+a21);
+  a08=(a08+a10);
+  a10=casadi_fabs(a08);
+  a03=(a03*a10);
+  a03=(a03+a05);
+  a05=casadi_fmax(a08,a03);
+  a05=sqrt(a05);
+  a10=(1./a05);
+  a10=copysign(a10,a05);
+  a06=(a06*a10);
+  a05=arg[2]? arg[2][0] : 0;
+  a05=(a05-a22);
+  a22=(a05*a10);
+  a21=(a06*a22);
+  a21=(a01?a21:0);
+  a00=(a00+a21);
+  if (res[0]!=0) res[0][0]=a00;
+  a18=(a18*a28);
+  a27=(a11*a27);
+  a11=(a11*a20);
+  a27=(a27-a11);
+  a26=(a26*a27);
+  a18=(a18+a26);
+  a18=(a01*a18);
+  a18=(a18*a10);
+  a22=(a18*a22);
+  a22=(a01?a22:0);
+  a16=(a16+a22);
+  if (res[0]!=0) res[0][1]=a16;
+  a22=casadi_sq(a06);
+  a22=(a02-a22);
+  if (res[1]!=0) res[1][0]=a22;
+  a06=(a06*a18);
+  a17=(a17-a06);
+  if (res[1]!=0) res[1][1]=a17;
+  if (res[1]!=0) res[1][2]=a17;
+  a18=casadi_sq(a18);
+  a23=(a23-a18);
+  if (res[1]!=0) res[1][3]=a23;
+  a01=(a01?a05:0);
+  if (res[2]!=0) res[2][0]=a01;
+  if (res[3]!=0) res[3][0]=a08;
+  a04=(a04<a02);
+  a25=(a25<a24);
+  a04=(a04*a25);
+  a03=(a03<a08);
+  a00=(a00+a16);
+  a00=(a00+a22);
+  a00=(a00+a17);
+  a00=(a00+a23);
+  a00=(a00+a01);
+  a00=(a00+a08);
+  a00=casadi_fabs(a00);
+  a08=casadi_inf;
+  a00=(a00<a08);
+  a03=(a03*a00);
+  a04=(a04*a03);
+  if (res[4]!=0) res[4][0]=a04;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ukf_update(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f12(arg, res, iw, w, mem);
+  return casadi_f1(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ukf_update_checkout(void) {
@@ -1093,54 +637,85 @@ CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ukf_update_sparsity_out(casadi_int i
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ukf_update_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 14;
-  if (sz_res) *sz_res = 9;
+  if (sz_arg) *sz_arg = 7;
+  if (sz_res) *sz_res = 5;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 38;
+  if (sz_w) *sz_w = 0;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ukf_update_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 14*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 9*sizeof(casadi_real*);
+  if (sz_arg) *sz_arg = 7*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 5*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 38*sizeof(casadi_real);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
 
 /* cn2d_ukf_predict_points:(x[2],P[2x2],abk[3])->(X[5x2],ok) */
-static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i, j;
-  casadi_real **res1=res+2, *rr, *w0=w+8, *w1=w+10, *w2=w+14, w3, *w4=w+18, *w5=w+21, *w6=w+31;
-  const casadi_real **arg1=arg+3, *cs;
-  /* #0: @0 = input[0][0] */
-  casadi_copy(arg[0], 2, w0);
-  /* #1: @1 = input[1][0] */
-  casadi_copy(arg[1], 4, w1);
-  /* #2: {@2, @3} = cn2d_cholesky(@1) */
-  arg1[0]=w1;
-  res1[0]=w2;
-  res1[1]=(&w3);
-  if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
-  /* #3: @4 = input[2][0] */
-  casadi_copy(arg[2], 3, w4);
-  /* #4: @5 = cn2d_ukf_points(@0, @2, @4) */
-  arg1[0]=w0;
-  arg1[1]=w2;
-  arg1[2]=w4;
-  res1[0]=w5;
-  if (casadi_f3(arg1, res1, iw, w, 0)) return 1;
-  /* #5: @6 = @5' */
-  for (i=0, rr=w6, cs=w5; i<5; ++i) for (j=0; j<2; ++j) rr[i+j*5] = *cs++;
-  /* #6: output[0][0] = @6 */
-  casadi_copy(w6, 10, res[0]);
-  /* #7: output[1][0] = @3 */
-  if (res[1]) res[1][0] = w3;
+static int casadi_f2(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a0, a1, a2, a3, a4, a5, a6, a7, a8, a9;
+  a0=arg[0]? arg[0][0] : 0;
+  if (res[0]!=0) res[0][0]=a0;
+  a1=arg[1]? arg[1][0] : 0;
+  a2=1.0000000000000000e-13;
+  a3=casadi_fabs(a1);
+  a3=(a2*a3);
+  a4=1.0000000000000000e-300;
+  a3=(a3+a4);
+  a5=casadi_fmax(a1,a3);
+  a5=sqrt(a5);
+  a6=arg[2]? arg[2][0] : 0;
+  a6=casadi_sq(a6);
+  a7=2.;
+  a8=arg[2]? arg[2][2] : 0;
+  a7=(a7+a8);
+  a6=(a6*a7);
+  a6=sqrt(a6);
+  a7=(a5*a6);
+  a8=(a0+a7);
+  if (res[0]!=0) res[0][1]=a8;
+  if (res[0]!=0) res[0][2]=a0;
+  a7=(a0-a7);
+  if (res[0]!=0) res[0][3]=a7;
+  if (res[0]!=0) res[0][4]=a0;
+  a0=arg[0]? arg[0][1] : 0;
+  if (res[0]!=0) res[0][5]=a0;
+  a7=5.0000000000000000e-01;
+  a8=arg[1]? arg[1][2] : 0;
+  a9=arg[1]? arg[1][1] : 0;
+  a8=(a8+a9);
+  a7=(a7*a8);
+  a8=(1./a5);
+  a8=copysign(a8,a5);
+  a7=(a7*a8);
+  a8=(a7*a6);
+  a5=(a0+a8);
+  if (res[0]!=0) res[0][6]=a5;
+  a5=arg[1]? arg[1][3] : 0;
+  a7=casadi_sq(a7);
+  a7=(a5-a7);
+  a5=casadi_fabs(a5);
+  a2=(a2*a5);
+  a2=(a2+a4);
+  a4=casadi_fmax(a7,a2);
+  a4=sqrt(a4);
+  a4=(a4*a6);
+  a6=(a0+a4);
+  if (res[0]!=0) res[0][7]=a6;
+  a8=(a0-a8);
+  if (res[0]!=0) res[0][8]=a8;
+  a0=(a0-a4);
+  if (res[0]!=0) res[0][9]=a0;
+  a3=(a3<a1);
+  a2=(a2<a7);
+  a3=(a3*a2);
+  if (res[1]!=0) res[1][0]=a3;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ukf_predict_points(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f17(arg, res, iw, w, mem);
+  return casadi_f2(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ukf_predict_points_checkout(void) {
@@ -1201,73 +776,54 @@ CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ukf_predict_points_sparsity_out(casa
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ukf_predict_points_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 6;
-  if (sz_res) *sz_res = 4;
+  if (sz_arg) *sz_arg = 3;
+  if (sz_res) *sz_res = 2;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 41;
+  if (sz_w) *sz_w = 0;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ukf_predict_points_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 6*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 4*sizeof(casadi_real*);
+  if (sz_arg) *sz_arg = 3*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 2*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 41*sizeof(casadi_real);
-  return 0;
-}
-
-/* cn2d_ukf_point_weights:(abk[3])->(wm[5],wc[5]) */
-static int casadi_f19(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real a0, a1, a2, a3;
-  a0=arg[0]? arg[0][0] : 0;
-  a1=casadi_sq(a0);
-  a2=2.;
-  a3=arg[0]? arg[0][2] : 0;
-  a3=(a2+a3);
-  a1=(a1*a3);
-  a2=(a1-a2);
-  a2=(a2/a1);
-  if (res[0]!=0) res[0][0]=a2;
-  a1=(2.*a1);
-  a1=(1./a1);
-  if (res[0]!=0) res[0][1]=a1;
-  if (res[0]!=0) res[0][2]=a1;
-  if (res[0]!=0) res[0][3]=a1;
-  if (res[0]!=0) res[0][4]=a1;
-  a3=1.;
-  a2=(a2+a3);
-  a0=casadi_sq(a0);
-  a2=(a2-a0);
-  a0=arg[0]? arg[0][1] : 0;
-  a2=(a2+a0);
-  if (res[1]!=0) res[1][0]=a2;
-  if (res[1]!=0) res[1][1]=a1;
-  if (res[1]!=0) res[1][2]=a1;
-  if (res[1]!=0) res[1][3]=a1;
-  if (res[1]!=0) res[1][4]=a1;
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
 
 /* cn2d_ukf_predict_weights:(abk[3])->(wm[5],wc[5]) */
-static int casadi_f18(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w0=w+4, *w1=w+7, *w2=w+12;
-  const casadi_real **arg1=arg+1;
-  /* #0: @0 = input[0][0] */
-  casadi_copy(arg[0], 3, w0);
-  /* #1: {@1, @2} = cn2d_ukf_point_weights(@0) */
-  arg1[0]=w0;
-  res1[0]=w1;
-  res1[1]=w2;
-  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
-  /* #2: output[0][0] = @1 */
-  casadi_copy(w1, 5, res[0]);
-  /* #3: output[1][0] = @2 */
-  casadi_copy(w2, 5, res[1]);
+static int casadi_f3(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a0, a1, a2, a3;
+  a0=arg[0]? arg[0][0] : 0;
+  a0=casadi_sq(a0);
+  a1=2.;
+  a2=arg[0]? arg[0][2] : 0;
+  a2=(a1+a2);
+  a2=(a0*a2);
+  a1=(a2-a1);
+  a1=(a1/a2);
+  if (res[0]!=0) res[0][0]=a1;
+  a2=(2.*a2);
+  a2=(1./a2);
+  if (res[0]!=0) res[0][1]=a2;
+  if (res[0]!=0) res[0][2]=a2;
+  if (res[0]!=0) res[0][3]=a2;
+  if (res[0]!=0) res[0][4]=a2;
+  a3=1.;
+  a1=(a1+a3);
+  a1=(a1-a0);
+  a0=arg[0]? arg[0][1] : 0;
+  a1=(a1+a0);
+  if (res[1]!=0) res[1][0]=a1;
+  if (res[1]!=0) res[1][1]=a2;
+  if (res[1]!=0) res[1][2]=a2;
+  if (res[1]!=0) res[1][3]=a2;
+  if (res[1]!=0) res[1][4]=a2;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ukf_predict_weights(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f18(arg, res, iw, w, mem);
+  return casadi_f3(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ukf_predict_weights_checkout(void) {
@@ -1324,149 +880,230 @@ CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ukf_predict_weights_sparsity_out(cas
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ukf_predict_weights_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 2;
-  if (sz_res) *sz_res = 4;
+  if (sz_arg) *sz_arg = 1;
+  if (sz_res) *sz_res = 2;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 17;
+  if (sz_w) *sz_w = 0;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ukf_predict_weights_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 2*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 4*sizeof(casadi_real*);
+  if (sz_arg) *sz_arg = 1*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 2*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 17*sizeof(casadi_real);
-  return 0;
-}
-
-/* cn2d_mcc_noise:(R,mask,Pzz,innovation,sigma)->(R_used,ok) */
-static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real a0, a1, a2, a3, a4, a5;
-  a0=arg[1]? arg[1][0] : 0;
-  a1=0.;
-  a0=(a0!=a1);
-  a1=casadi_sq(a0);
-  a2=arg[0]? arg[0][0] : 0;
-  a1=(a1*a2);
-  a2=1.;
-  a2=(a2-a0);
-  a1=(a1+a2);
-  a2=1.0000000000000000e-13;
-  a0=casadi_fabs(a1);
-  a2=(a2*a0);
-  a0=1.0000000000000000e-300;
-  a2=(a2+a0);
-  a0=casadi_fmax(a1,a2);
-  a0=sqrt(a0);
-  a3=arg[3]? arg[3][0] : 0;
-  a4=(1./a0);
-  a4=copysign(a4,a0);
-  a3=(a3*a4);
-  a3=casadi_sq(a3);
-  a4=arg[4]? arg[4][0] : 0;
-  a4=casadi_sq(a4);
-  a4=(2.*a4);
-  a5=(1./a4);
-  a5=copysign(a5,a4);
-  a3=(a3*a5);
-  a5=50.;
-  a3=casadi_fmin(a3,a5);
-  a3=exp(a3);
-  a3=(a0*a3);
-  a3=(a3*a0);
-  if (res[0]!=0) res[0][0]=a3;
-  a2=(a2<a1);
-  if (res[1]!=0) res[1][0]=a2;
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
 
 /* cn2d_mcukf_update:(x[2],P[2x2],z,p[2],R,mask,abk[3],sigma)->(x_post[2],P_post[2x2],innovation,S,ok) */
-static int casadi_f20(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+5, *w00=w+16, *w01=w+18, *w02=w+22, w03, *w04=w+26, *w05=w+28, w06, *w07=w+31, w08, w09, w10;
-  casadi_real w11, w12, w13, *w14=w+36;
-  const casadi_real **arg1=arg+8;
-  /* #0: @0 = input[0][0] */
-  casadi_copy(arg[0], 2, w00);
-  /* #1: @1 = input[1][0] */
-  casadi_copy(arg[1], 4, w01);
-  /* #2: {@2, @3} = cn2d_cholesky(@1) */
-  arg1[0]=w01;
-  res1[0]=w02;
-  res1[1]=(&w03);
-  if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
-  /* #3: @4 = input[3][0] */
-  casadi_copy(arg[3], 2, w04);
-  /* #4: @5 = input[6][0] */
-  casadi_copy(arg[6], 3, w05);
-  /* #5: {@6, @7, @8} = cn2d_ukf_measured_moments(@0, @2, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=w02;
-  arg1[2]=w04;
-  arg1[3]=w05;
-  res1[0]=(&w06);
-  res1[1]=w07;
-  res1[2]=(&w08);
-  if (casadi_f13(arg1, res1, iw, w, 0)) return 1;
-  /* #6: @9 = input[2][0] */
-  w09 = arg[2] ? arg[2][0] : 0;
-  /* #7: @10 = input[5][0] */
-  w10 = arg[5] ? arg[5][0] : 0;
-  /* #8: {@11, @12, @4} = cn2d_ukf_moments(@2, @7, @8, @6, @9, @10, @5) */
-  arg1[0]=w02;
-  arg1[1]=w07;
-  arg1[2]=(&w08);
-  arg1[3]=(&w06);
-  arg1[4]=(&w09);
-  arg1[5]=(&w10);
-  arg1[6]=w05;
-  res1[0]=(&w11);
-  res1[1]=(&w12);
-  res1[2]=w04;
-  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
-  /* #9: @8 = input[4][0] */
-  w08 = arg[4] ? arg[4][0] : 0;
-  /* #10: @6 = input[7][0] */
-  w06 = arg[7] ? arg[7][0] : 0;
-  /* #11: {@9, @13} = cn2d_mcc_noise(@8, @10, @12, @11, @6) */
-  arg1[0]=(&w08);
-  arg1[1]=(&w10);
-  arg1[2]=(&w12);
-  arg1[3]=(&w11);
-  arg1[4]=(&w06);
-  res1[0]=(&w09);
-  res1[1]=(&w13);
-  if (casadi_f21(arg1, res1, iw, w, 0)) return 1;
-  /* #12: {@14, @2, @8, @10} = cn2d_kalman(@0, @1, @12, @4, @9, @11) */
-  arg1[0]=w00;
-  arg1[1]=w01;
-  arg1[2]=(&w12);
-  arg1[3]=w04;
-  arg1[4]=(&w09);
-  arg1[5]=(&w11);
-  res1[0]=w14;
-  res1[1]=w02;
-  res1[2]=(&w08);
-  res1[3]=(&w10);
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #13: output[0][0] = @14 */
-  casadi_copy(w14, 2, res[0]);
-  /* #14: output[1][0] = @2 */
-  casadi_copy(w02, 4, res[1]);
-  /* #15: output[2][0] = @11 */
-  if (res[2]) res[2][0] = w11;
-  /* #16: output[3][0] = @8 */
-  if (res[3]) res[3][0] = w08;
-  /* #17: @3 = (@3*@13) */
-  w03 *= w13;
-  /* #18: @3 = (@3*@10) */
-  w03 *= w10;
-  /* #19: output[4][0] = @3 */
-  if (res[4]) res[4][0] = w03;
+static int casadi_f4(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
+  casadi_real a24, a25, a26, a27, a28;
+  a00=arg[0]? arg[0][0] : 0;
+  a01=arg[5]? arg[5][0] : 0;
+  a02=0.;
+  a01=(a01!=a02);
+  a02=arg[1]? arg[1][0] : 0;
+  a03=1.0000000000000000e-13;
+  a04=casadi_fabs(a02);
+  a04=(a03*a04);
+  a05=1.0000000000000000e-300;
+  a04=(a04+a05);
+  a06=casadi_fmax(a02,a04);
+  a06=sqrt(a06);
+  a07=arg[6]? arg[6][0] : 0;
+  a07=casadi_sq(a07);
+  a08=2.;
+  a09=arg[6]? arg[6][2] : 0;
+  a09=(a08+a09);
+  a09=(a07*a09);
+  a10=sqrt(a09);
+  a11=(2.*a09);
+  a12=(1./a11);
+  a12=copysign(a12,a11);
+  a11=(a10*a12);
+  a13=(a06*a10);
+  a14=(a00+a13);
+  a15=arg[3]? arg[3][0] : 0;
+  a14=(a14-a15);
+  a14=casadi_sq(a14);
+  a16=arg[0]? arg[0][1] : 0;
+  a17=5.0000000000000000e-01;
+  a18=arg[1]? arg[1][2] : 0;
+  a19=arg[1]? arg[1][1] : 0;
+  a18=(a18+a19);
+  a17=(a17*a18);
+  a18=(1./a06);
+  a18=copysign(a18,a06);
+  a18=(a17*a18);
+  a19=(a18*a10);
+  a20=(a16+a19);
+  a21=arg[3]? arg[3][1] : 0;
+  a20=(a20-a21);
+  a20=casadi_sq(a20);
+  a14=(a14+a20);
+  a14=sqrt(a14);
+  a08=(a09-a08);
+  a20=(1./a09);
+  a20=copysign(a20,a09);
+  a08=(a08*a20);
+  a20=(a00-a15);
+  a20=casadi_sq(a20);
+  a09=(a16-a21);
+  a09=casadi_sq(a09);
+  a09=(a20+a09);
+  a09=sqrt(a09);
+  a22=(a08*a09);
+  a23=arg[1]? arg[1][3] : 0;
+  a24=casadi_sq(a18);
+  a24=(a23-a24);
+  a25=casadi_fabs(a23);
+  a25=(a03*a25);
+  a25=(a25+a05);
+  a26=casadi_fmax(a24,a25);
+  a26=sqrt(a26);
+  a10=(a26*a10);
+  a27=(a16+a10);
+  a27=(a27-a21);
+  a27=casadi_sq(a27);
+  a27=(a20+a27);
+  a27=sqrt(a27);
+  a28=(a14+a27);
+  a13=(a00-a13);
+  a13=(a13-a15);
+  a13=casadi_sq(a13);
+  a19=(a16-a19);
+  a19=(a19-a21);
+  a19=casadi_sq(a19);
+  a13=(a13+a19);
+  a13=sqrt(a13);
+  a28=(a28+a13);
+  a10=(a16-a10);
+  a10=(a10-a21);
+  a10=casadi_sq(a10);
+  a20=(a20+a10);
+  a20=sqrt(a20);
+  a28=(a28+a20);
+  a28=(a28*a12);
+  a22=(a22+a28);
+  a14=(a14-a22);
+  a28=(a11*a14);
+  a13=(a13-a22);
+  a10=(a11*a13);
+  a28=(a28-a10);
+  a06=(a06*a28);
+  a06=(a01*a06);
+  a10=casadi_sq(a01);
+  a21=1.;
+  a08=(a08+a21);
+  a08=(a08-a07);
+  a07=arg[6]? arg[6][1] : 0;
+  a08=(a08+a07);
+  a09=(a09-a22);
+  a09=casadi_sq(a09);
+  a08=(a08*a09);
+  a14=casadi_sq(a14);
+  a27=(a27-a22);
+  a09=casadi_sq(a27);
+  a14=(a14+a09);
+  a13=casadi_sq(a13);
+  a14=(a14+a13);
+  a20=(a20-a22);
+  a13=casadi_sq(a20);
+  a14=(a14+a13);
+  a14=(a14*a12);
+  a08=(a08+a14);
+  a08=(a10*a08);
+  a14=arg[4]? arg[4][0] : 0;
+  a10=(a10*a14);
+  a21=(a21-a01);
+  a10=(a10+a21);
+  a21=casadi_fabs(a10);
+  a21=(a03*a21);
+  a21=(a21+a05);
+  a14=casadi_fmax(a10,a21);
+  a14=sqrt(a14);
+  a12=arg[2]? arg[2][0] : 0;
+  a12=(a12-a22);
+  a22=(1./a14);
+  a22=copysign(a22,a14);
+  a22=(a12*a22);
+  a22=(a01?a22:0);
+  a22=casadi_sq(a22);
+  a13=arg[7]? arg[7][0] : 0;
+  a13=casadi_sq(a13);
+  a13=(2.*a13);
+  a09=(1./a13);
+  a09=copysign(a09,a13);
+  a22=(a22*a09);
+  a09=50.;
+  a22=casadi_fmin(a22,a09);
+  a22=exp(a22);
+  a22=(a14*a22);
+  a22=(a22*a14);
+  a08=(a08+a22);
+  a22=casadi_fabs(a08);
+  a03=(a03*a22);
+  a03=(a03+a05);
+  a05=casadi_fmax(a08,a03);
+  a05=sqrt(a05);
+  a22=(1./a05);
+  a22=copysign(a22,a05);
+  a06=(a06*a22);
+  a05=(a12*a22);
+  a14=(a06*a05);
+  a14=(a01?a14:0);
+  a00=(a00+a14);
+  if (res[0]!=0) res[0][0]=a00;
+  a18=(a18*a28);
+  a27=(a11*a27);
+  a11=(a11*a20);
+  a27=(a27-a11);
+  a26=(a26*a27);
+  a18=(a18+a26);
+  a18=(a01*a18);
+  a18=(a18*a22);
+  a05=(a18*a05);
+  a05=(a01?a05:0);
+  a16=(a16+a05);
+  if (res[0]!=0) res[0][1]=a16;
+  a05=casadi_sq(a06);
+  a05=(a02-a05);
+  if (res[1]!=0) res[1][0]=a05;
+  a06=(a06*a18);
+  a17=(a17-a06);
+  if (res[1]!=0) res[1][1]=a17;
+  if (res[1]!=0) res[1][2]=a17;
+  a18=casadi_sq(a18);
+  a23=(a23-a18);
+  if (res[1]!=0) res[1][3]=a23;
+  a01=(a01?a12:0);
+  if (res[2]!=0) res[2][0]=a01;
+  if (res[3]!=0) res[3][0]=a08;
+  a04=(a04<a02);
+  a25=(a25<a24);
+  a04=(a04*a25);
+  a21=(a21<a10);
+  a04=(a04*a21);
+  a03=(a03<a08);
+  a00=(a00+a16);
+  a00=(a00+a05);
+  a00=(a00+a17);
+  a00=(a00+a23);
+  a00=(a00+a01);
+  a00=(a00+a08);
+  a00=casadi_fabs(a00);
+  a08=casadi_inf;
+  a00=(a00<a08);
+  a03=(a03*a00);
+  a04=(a04*a03);
+  if (res[4]!=0) res[4][0]=a04;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_mcukf_update(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f20(arg, res, iw, w, mem);
+  return casadi_f4(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_mcukf_update_checkout(void) {
@@ -1543,181 +1180,262 @@ CASADI_SYMBOL_EXPORT const casadi_int* cn2d_mcukf_update_sparsity_out(casadi_int
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_mcukf_update_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 15;
-  if (sz_res) *sz_res = 9;
+  if (sz_arg) *sz_arg = 8;
+  if (sz_res) *sz_res = 5;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 38;
+  if (sz_w) *sz_w = 0;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_mcukf_update_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 15*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 9*sizeof(casadi_real*);
+  if (sz_arg) *sz_arg = 8*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 5*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 38*sizeof(casadi_real);
-  return 0;
-}
-
-/* cn2d_huber_noise:(R,mask,Pzz,innovation,gamma)->(R_used,ok) */
-static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
-  casadi_real a12;
-  a00=arg[1]? arg[1][0] : 0;
-  a01=0.;
-  a00=(a00!=a01);
-  a01=casadi_sq(a00);
-  a02=arg[0]? arg[0][0] : 0;
-  a01=(a01*a02);
-  a02=1.;
-  a00=(a02-a00);
-  a01=(a01+a00);
-  a00=1.0000000000000000e-13;
-  a03=casadi_fabs(a01);
-  a03=(a00*a03);
-  a04=1.0000000000000000e-300;
-  a03=(a03+a04);
-  a05=casadi_fmax(a01,a03);
-  a05=sqrt(a05);
-  a06=arg[3]? arg[3][0] : 0;
-  a07=(1./a05);
-  a07=copysign(a07,a05);
-  a08=(a06*a07);
-  a08=casadi_fabs(a08);
-  a09=arg[4]? arg[4][0] : 0;
-  a10=(1./a09);
-  a10=copysign(a10,a09);
-  a08=(a08*a10);
-  a08=casadi_fmax(a02,a08);
-  a08=(a05*a08);
-  a08=(a08*a05);
-  a09=arg[2]? arg[2][0] : 0;
-  a11=(a09+a08);
-  a12=casadi_fabs(a11);
-  a12=(a00*a12);
-  a12=(a12+a04);
-  a11=casadi_fmax(a11,a12);
-  a11=sqrt(a11);
-  a12=(1./a11);
-  a12=copysign(a12,a11);
-  a11=(a06*a12);
-  a11=(a11*a12);
-  a08=(a08*a11);
-  a08=(a08*a07);
-  a08=casadi_fabs(a08);
-  a08=(a08*a10);
-  a08=casadi_fmax(a02,a08);
-  a08=(a05*a08);
-  a08=(a08*a05);
-  a09=(a09+a08);
-  a11=casadi_fabs(a09);
-  a00=(a00*a11);
-  a00=(a00+a04);
-  a09=casadi_fmax(a09,a00);
-  a09=sqrt(a09);
-  a00=(1./a09);
-  a00=copysign(a00,a09);
-  a06=(a06*a00);
-  a06=(a06*a00);
-  a08=(a08*a06);
-  a08=(a08*a07);
-  a08=casadi_fabs(a08);
-  a08=(a08*a10);
-  a02=casadi_fmax(a02,a08);
-  a02=(a05*a02);
-  a02=(a02*a05);
-  if (res[0]!=0) res[0][0]=a02;
-  a03=(a03<a01);
-  if (res[1]!=0) res[1][0]=a03;
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
 
 /* cn2d_huber_ukf_update:(x[2],P[2x2],z,p[2],R,mask,abk[3],gamma)->(x_post[2],P_post[2x2],innovation,S,ok) */
-static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+5, *w00=w+16, *w01=w+18, *w02=w+22, w03, *w04=w+26, *w05=w+28, w06, *w07=w+31, w08, w09, w10;
-  casadi_real w11, w12, w13, *w14=w+36;
-  const casadi_real **arg1=arg+8;
-  /* #0: @0 = input[0][0] */
-  casadi_copy(arg[0], 2, w00);
-  /* #1: @1 = input[1][0] */
-  casadi_copy(arg[1], 4, w01);
-  /* #2: {@2, @3} = cn2d_cholesky(@1) */
-  arg1[0]=w01;
-  res1[0]=w02;
-  res1[1]=(&w03);
-  if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
-  /* #3: @4 = input[3][0] */
-  casadi_copy(arg[3], 2, w04);
-  /* #4: @5 = input[6][0] */
-  casadi_copy(arg[6], 3, w05);
-  /* #5: {@6, @7, @8} = cn2d_ukf_measured_moments(@0, @2, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=w02;
-  arg1[2]=w04;
-  arg1[3]=w05;
-  res1[0]=(&w06);
-  res1[1]=w07;
-  res1[2]=(&w08);
-  if (casadi_f13(arg1, res1, iw, w, 0)) return 1;
-  /* #6: @9 = input[2][0] */
-  w09 = arg[2] ? arg[2][0] : 0;
-  /* #7: @10 = input[5][0] */
-  w10 = arg[5] ? arg[5][0] : 0;
-  /* #8: {@11, @12, @4} = cn2d_ukf_moments(@2, @7, @8, @6, @9, @10, @5) */
-  arg1[0]=w02;
-  arg1[1]=w07;
-  arg1[2]=(&w08);
-  arg1[3]=(&w06);
-  arg1[4]=(&w09);
-  arg1[5]=(&w10);
-  arg1[6]=w05;
-  res1[0]=(&w11);
-  res1[1]=(&w12);
-  res1[2]=w04;
-  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
-  /* #9: @8 = input[4][0] */
-  w08 = arg[4] ? arg[4][0] : 0;
-  /* #10: @6 = input[7][0] */
-  w06 = arg[7] ? arg[7][0] : 0;
-  /* #11: {@9, @13} = cn2d_huber_noise(@8, @10, @12, @11, @6) */
-  arg1[0]=(&w08);
-  arg1[1]=(&w10);
-  arg1[2]=(&w12);
-  arg1[3]=(&w11);
-  arg1[4]=(&w06);
-  res1[0]=(&w09);
-  res1[1]=(&w13);
-  if (casadi_f23(arg1, res1, iw, w, 0)) return 1;
-  /* #12: {@14, @2, @8, @10} = cn2d_kalman(@0, @1, @12, @4, @9, @11) */
-  arg1[0]=w00;
-  arg1[1]=w01;
-  arg1[2]=(&w12);
-  arg1[3]=w04;
-  arg1[4]=(&w09);
-  arg1[5]=(&w11);
-  res1[0]=w14;
-  res1[1]=w02;
-  res1[2]=(&w08);
-  res1[3]=(&w10);
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #13: output[0][0] = @14 */
-  casadi_copy(w14, 2, res[0]);
-  /* #14: output[1][0] = @2 */
-  casadi_copy(w02, 4, res[1]);
-  /* #15: output[2][0] = @11 */
-  if (res[2]) res[2][0] = w11;
-  /* #16: output[3][0] = @8 */
-  if (res[3]) res[3][0] = w08;
-  /* #17: @3 = (@3*@13) */
-  w03 *= w13;
-  /* #18: @3 = (@3*@10) */
-  w03 *= w10;
-  /* #19: output[4][0] = @3 */
-  if (res[4]) res[4][0] = w03;
+static int casadi_f5(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
+  casadi_real a24, a25, a26, a27, a28;
+  a00=arg[0]? arg[0][0] : 0;
+  a01=arg[5]? arg[5][0] : 0;
+  a02=0.;
+  a01=(a01!=a02);
+  a02=arg[1]? arg[1][0] : 0;
+  a03=1.0000000000000000e-13;
+  a04=casadi_fabs(a02);
+  a04=(a03*a04);
+  a05=1.0000000000000000e-300;
+  a04=(a04+a05);
+  a06=casadi_fmax(a02,a04);
+  a06=sqrt(a06);
+  a07=arg[6]? arg[6][0] : 0;
+  a07=casadi_sq(a07);
+  a08=2.;
+  a09=arg[6]? arg[6][2] : 0;
+  a09=(a08+a09);
+  a09=(a07*a09);
+  a10=sqrt(a09);
+  a11=(2.*a09);
+  a12=(1./a11);
+  a12=copysign(a12,a11);
+  a11=(a10*a12);
+  a13=(a06*a10);
+  a14=(a00+a13);
+  a15=arg[3]? arg[3][0] : 0;
+  a14=(a14-a15);
+  a14=casadi_sq(a14);
+  a16=arg[0]? arg[0][1] : 0;
+  a17=5.0000000000000000e-01;
+  a18=arg[1]? arg[1][2] : 0;
+  a19=arg[1]? arg[1][1] : 0;
+  a18=(a18+a19);
+  a17=(a17*a18);
+  a18=(1./a06);
+  a18=copysign(a18,a06);
+  a18=(a17*a18);
+  a19=(a18*a10);
+  a20=(a16+a19);
+  a21=arg[3]? arg[3][1] : 0;
+  a20=(a20-a21);
+  a20=casadi_sq(a20);
+  a14=(a14+a20);
+  a14=sqrt(a14);
+  a08=(a09-a08);
+  a20=(1./a09);
+  a20=copysign(a20,a09);
+  a08=(a08*a20);
+  a20=(a00-a15);
+  a20=casadi_sq(a20);
+  a09=(a16-a21);
+  a09=casadi_sq(a09);
+  a09=(a20+a09);
+  a09=sqrt(a09);
+  a22=(a08*a09);
+  a23=arg[1]? arg[1][3] : 0;
+  a24=casadi_sq(a18);
+  a24=(a23-a24);
+  a25=casadi_fabs(a23);
+  a25=(a03*a25);
+  a25=(a25+a05);
+  a26=casadi_fmax(a24,a25);
+  a26=sqrt(a26);
+  a10=(a26*a10);
+  a27=(a16+a10);
+  a27=(a27-a21);
+  a27=casadi_sq(a27);
+  a27=(a20+a27);
+  a27=sqrt(a27);
+  a28=(a14+a27);
+  a13=(a00-a13);
+  a13=(a13-a15);
+  a13=casadi_sq(a13);
+  a19=(a16-a19);
+  a19=(a19-a21);
+  a19=casadi_sq(a19);
+  a13=(a13+a19);
+  a13=sqrt(a13);
+  a28=(a28+a13);
+  a10=(a16-a10);
+  a10=(a10-a21);
+  a10=casadi_sq(a10);
+  a20=(a20+a10);
+  a20=sqrt(a20);
+  a28=(a28+a20);
+  a28=(a28*a12);
+  a22=(a22+a28);
+  a14=(a14-a22);
+  a28=(a11*a14);
+  a13=(a13-a22);
+  a10=(a11*a13);
+  a28=(a28-a10);
+  a06=(a06*a28);
+  a06=(a01*a06);
+  a10=casadi_sq(a01);
+  a21=1.;
+  a08=(a08+a21);
+  a08=(a08-a07);
+  a07=arg[6]? arg[6][1] : 0;
+  a08=(a08+a07);
+  a09=(a09-a22);
+  a09=casadi_sq(a09);
+  a08=(a08*a09);
+  a14=casadi_sq(a14);
+  a27=(a27-a22);
+  a09=casadi_sq(a27);
+  a14=(a14+a09);
+  a13=casadi_sq(a13);
+  a14=(a14+a13);
+  a20=(a20-a22);
+  a13=casadi_sq(a20);
+  a14=(a14+a13);
+  a14=(a14*a12);
+  a08=(a08+a14);
+  a08=(a10*a08);
+  a14=arg[4]? arg[4][0] : 0;
+  a10=(a10*a14);
+  a14=(a21-a01);
+  a10=(a10+a14);
+  a14=casadi_fabs(a10);
+  a14=(a03*a14);
+  a14=(a14+a05);
+  a12=casadi_fmax(a10,a14);
+  a12=sqrt(a12);
+  a13=arg[2]? arg[2][0] : 0;
+  a13=(a13-a22);
+  a22=(1./a12);
+  a22=copysign(a22,a12);
+  a09=(a13*a22);
+  a09=(a01?a09:0);
+  a09=casadi_fabs(a09);
+  a07=arg[7]? arg[7][0] : 0;
+  a19=(1./a07);
+  a19=copysign(a19,a07);
+  a09=(a09*a19);
+  a09=casadi_fmax(a21,a09);
+  a09=(a12*a09);
+  a09=(a09*a12);
+  a07=(a08+a09);
+  a15=casadi_fabs(a07);
+  a15=(a03*a15);
+  a15=(a15+a05);
+  a07=casadi_fmax(a07,a15);
+  a07=sqrt(a07);
+  a15=(1./a07);
+  a15=copysign(a15,a07);
+  a07=(a13*a15);
+  a07=(a07*a15);
+  a09=(a09*a07);
+  a09=(a09*a22);
+  a09=(a01?a09:0);
+  a09=casadi_fabs(a09);
+  a09=(a09*a19);
+  a09=casadi_fmax(a21,a09);
+  a09=(a12*a09);
+  a09=(a09*a12);
+  a07=(a08+a09);
+  a15=casadi_fabs(a07);
+  a15=(a03*a15);
+  a15=(a15+a05);
+  a07=casadi_fmax(a07,a15);
+  a07=sqrt(a07);
+  a15=(1./a07);
+  a15=copysign(a15,a07);
+  a07=(a13*a15);
+  a07=(a07*a15);
+  a09=(a09*a07);
+  a09=(a09*a22);
+  a09=(a01?a09:0);
+  a09=casadi_fabs(a09);
+  a09=(a09*a19);
+  a21=casadi_fmax(a21,a09);
+  a21=(a12*a21);
+  a21=(a21*a12);
+  a08=(a08+a21);
+  a21=casadi_fabs(a08);
+  a03=(a03*a21);
+  a03=(a03+a05);
+  a05=casadi_fmax(a08,a03);
+  a05=sqrt(a05);
+  a21=(1./a05);
+  a21=copysign(a21,a05);
+  a06=(a06*a21);
+  a05=(a13*a21);
+  a12=(a06*a05);
+  a12=(a01?a12:0);
+  a00=(a00+a12);
+  if (res[0]!=0) res[0][0]=a00;
+  a18=(a18*a28);
+  a27=(a11*a27);
+  a11=(a11*a20);
+  a27=(a27-a11);
+  a26=(a26*a27);
+  a18=(a18+a26);
+  a18=(a01*a18);
+  a18=(a18*a21);
+  a05=(a18*a05);
+  a05=(a01?a05:0);
+  a16=(a16+a05);
+  if (res[0]!=0) res[0][1]=a16;
+  a05=casadi_sq(a06);
+  a05=(a02-a05);
+  if (res[1]!=0) res[1][0]=a05;
+  a06=(a06*a18);
+  a17=(a17-a06);
+  if (res[1]!=0) res[1][1]=a17;
+  if (res[1]!=0) res[1][2]=a17;
+  a18=casadi_sq(a18);
+  a23=(a23-a18);
+  if (res[1]!=0) res[1][3]=a23;
+  a01=(a01?a13:0);
+  if (res[2]!=0) res[2][0]=a01;
+  if (res[3]!=0) res[3][0]=a08;
+  a04=(a04<a02);
+  a25=(a25<a24);
+  a04=(a04*a25);
+  a14=(a14<a10);
+  a04=(a04*a14);
+  a03=(a03<a08);
+  a00=(a00+a16);
+  a00=(a00+a05);
+  a00=(a00+a17);
+  a00=(a00+a23);
+  a00=(a00+a01);
+  a00=(a00+a08);
+  a00=casadi_fabs(a00);
+  a08=casadi_inf;
+  a00=(a00<a08);
+  a03=(a03*a00);
+  a04=(a04*a03);
+  if (res[4]!=0) res[4][0]=a04;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_huber_ukf_update(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f22(arg, res, iw, w, mem);
+  return casadi_f5(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_huber_ukf_update_checkout(void) {
@@ -1794,212 +1512,157 @@ CASADI_SYMBOL_EXPORT const casadi_int* cn2d_huber_ukf_update_sparsity_out(casadi
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_huber_ukf_update_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 15;
-  if (sz_res) *sz_res = 9;
+  if (sz_arg) *sz_arg = 8;
+  if (sz_res) *sz_res = 5;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 38;
+  if (sz_w) *sz_w = 0;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_huber_ukf_update_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 15*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 9*sizeof(casadi_real*);
+  if (sz_arg) *sz_arg = 8*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 5*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 38*sizeof(casadi_real);
-  return 0;
-}
-
-/* cn2d_ckf_points:(x[2],L[2x2])->(X[2x4]) */
-static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real a0, a1, a2, a3, a4, a5;
-  a0=arg[0]? arg[0][0] : 0;
-  a1=1.4142135623730951e+00;
-  a2=arg[1]? arg[1][0] : 0;
-  a3=(a1*a2);
-  a3=(a0+a3);
-  if (res[0]!=0) res[0][0]=a3;
-  a3=arg[0]? arg[0][1] : 0;
-  a4=arg[1]? arg[1][1] : 0;
-  a5=(a1*a4);
-  a5=(a3+a5);
-  if (res[0]!=0) res[0][1]=a5;
-  if (res[0]!=0) res[0][2]=a0;
-  a5=arg[1]? arg[1][3] : 0;
-  a1=(a1*a5);
-  a1=(a3+a1);
-  if (res[0]!=0) res[0][3]=a1;
-  a1=-1.4142135623730951e+00;
-  a2=(a1*a2);
-  a2=(a0+a2);
-  if (res[0]!=0) res[0][4]=a2;
-  a4=(a1*a4);
-  a4=(a3+a4);
-  if (res[0]!=0) res[0][5]=a4;
-  if (res[0]!=0) res[0][6]=a0;
-  a1=(a1*a5);
-  a3=(a3+a1);
-  if (res[0]!=0) res[0][7]=a3;
-  return 0;
-}
-
-/* map4_cn2d_step:(x[2x4],u[3x4],p[2x4],dt[1x4])->(x_next[2x4]) */
-static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i;
-  casadi_real* *res1;
-  const casadi_real* *arg1;
-  arg1 = arg+4;
-  for (i=0; i<4; ++i) arg1[i]=arg[i];
-  res1 = res+1;
-  for (i=0; i<1; ++i) res1[i]=res[i];
-  for (i=0; i<4; ++i) {
-    if (casadi_f6(arg1, res1, iw, w, 0)) return 1;
-    if (arg1[0]) arg1[0]+=2;
-    if (arg1[1]) arg1[1]+=3;
-    if (arg1[2]) arg1[2]+=2;
-    if (arg1[3]) arg1[3]+=1;
-    if (res1[0]) res1[0]+=2;
-  }
-  return 0;
-}
-
-/* cn2d_step_columns:(x[2x4],u[3],p[2],dt)->(x_next[2x4]) */
-static int casadi_f26(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i;
-  casadi_real **res1=res+1, *w1=w+8, *w2=w+11, *w3=w+23, *w4=w+25, w5, *w6=w+33, *w7=w+37;
-  const casadi_real **arg1=arg+4, *wr0;
-  /* #0: @0 = input[0][0] */
-  wr0 = arg[0] ? arg[0] : casadi_zeros;
-  /* #1: @1 = input[1][0] */
-  casadi_copy(arg[1], 3, w1);
-  /* #2: @2 = repmat(@1, 4) */
-  for (i=0;i<4;++i) {
-    casadi_copy(w1, 3, w2+ i*3);
-  }
-  /* #3: @3 = input[2][0] */
-  casadi_copy(arg[2], 2, w3);
-  /* #4: @4 = repmat(@3, 4) */
-  for (i=0;i<4;++i) {
-    casadi_copy(w3, 2, w4+ i*2);
-  }
-  /* #5: @5 = input[3][0] */
-  w5 = arg[3] ? arg[3][0] : 0;
-  /* #6: @6 = repmat(@5, 4) */
-  for (i=0;i<4;++i) {
-    casadi_copy((&w5), 1, w6+ i*1);
-  }
-  /* #7: @7 = map4_cn2d_step(@0, @2, @4, @6) */
-  arg1[0]=wr0;
-  arg1[1]=w2;
-  arg1[2]=w4;
-  arg1[3]=w6;
-  res1[0]=w7;
-  if (casadi_f27(arg1, res1, iw, w, 0)) return 1;
-  /* #8: output[0][0] = @7 */
-  casadi_copy(w7, 8, res[0]);
-  return 0;
-}
-
-/* cn2d_outer_0_4:(y[2x4],mean[2])->(ddT[2x2,3nz]) */
-static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i, j;
-  casadi_real **res1=res+1, *w1=w+3, *w2=w+5, *w3=w+13, *w4=w+25;
-  const casadi_real **arg1=arg+2, *wr0;
-  /* #0: @0 = input[0][0] */
-  wr0 = arg[0] ? arg[0] : casadi_zeros;
-  /* #1: @1 = input[1][0] */
-  casadi_copy(arg[1], 2, w1);
-  /* #2: @2 = repmat(@1, 4) */
-  for (i=0;i<4;++i) {
-    casadi_copy(w1, 2, w2+ i*2);
-  }
-  /* #3: @3 = map4_cn2d_outer(@0, @2) */
-  arg1[0]=wr0;
-  arg1[1]=w2;
-  res1[0]=w3;
-  if (casadi_f10(arg1, res1, iw, w, 0)) return 1;
-  /* #4: @4 = repsum(@3, 4) */
-  casadi_clear(w4, 3);
-    for (i=0;i<4;++i) {
-        for (j=0;j<3;++j) {
-            w4[j] += w3[j+i*3];
-          }
-      }
-  /* #5: output[0][0] = @4 */
-  casadi_copy(w4, 3, res[0]);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
 
 /* cn2d_ckf_predict:(x[2],P[2x2],u[3],p[2],dt,Q[2x2])->(x_pred[2],P_pred[2x2],ok) */
-static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i;
-  casadi_real **res1=res+3, *rr, w0, *w1=w+54, *w2=w+56, *w3=w+58, *w4=w+62, w5, *w6=w+66, *w7=w+74, w8, *w9=w+77;
-  const casadi_real **arg1=arg+6, *cs;
-  /* #0: @0 = 0.25 */
-  w0 = 2.5000000000000000e-01;
-  /* #1: @1 = zeros(2x1) */
-  casadi_clear(w1, 2);
-  /* #2: @2 = input[0][0] */
-  casadi_copy(arg[0], 2, w2);
-  /* #3: @3 = input[1][0] */
-  casadi_copy(arg[1], 4, w3);
-  /* #4: {@4, @5} = cn2d_cholesky(@3) */
-  arg1[0]=w3;
-  res1[0]=w4;
-  res1[1]=(&w5);
-  if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
-  /* #5: @6 = cn2d_ckf_points(@2, @4) */
-  arg1[0]=w2;
-  arg1[1]=w4;
-  res1[0]=w6;
-  if (casadi_f25(arg1, res1, iw, w, 0)) return 1;
-  /* #6: @7 = input[2][0] */
-  casadi_copy(arg[2], 3, w7);
-  /* #7: @2 = input[3][0] */
-  casadi_copy(arg[3], 2, w2);
-  /* #8: @8 = input[4][0] */
-  w8 = arg[4] ? arg[4][0] : 0;
-  /* #9: @9 = cn2d_step_columns(@6, @7, @2, @8) */
-  arg1[0]=w6;
-  arg1[1]=w7;
-  arg1[2]=w2;
-  arg1[3]=(&w8);
-  res1[0]=w9;
-  if (casadi_f26(arg1, res1, iw, w, 0)) return 1;
-  /* #10: @4 = ones(4x1) */
-  casadi_fill(w4, 4, 1.);
-  /* #11: @1 = mac(@9,@4,@1) */
-  casadi_mtimes_dense(w9, 2, 4, w4, 1, w1, 0);
-  /* #12: @1 = (@0*@1) */
-  for (i=0, rr=w1, cs=w1; i<2; ++i) (*rr++)  = (w0*(*cs++));
-  /* #13: output[0][0] = @1 */
-  casadi_copy(w1, 2, res[0]);
-  /* #14: @7 = cn2d_outer_0_4(@9, @1) */
-  arg1[0]=w9;
-  arg1[1]=w1;
-  res1[0]=w7;
-  if (casadi_f28(arg1, res1, iw, w, 0)) return 1;
-  /* #15: @7 = (@0*@7) */
-  for (i=0, rr=w7, cs=w7; i<3; ++i) (*rr++)  = (w0*(*cs++));
-  /* #16: @4 = input[5][0] */
-  casadi_copy(arg[5], 4, w4);
-  /* #17: {@3, @0} = cn2d_predicted(@1, @7, @4) */
-  arg1[0]=w1;
-  arg1[1]=w7;
-  arg1[2]=w4;
-  res1[0]=w3;
-  res1[1]=(&w0);
-  if (casadi_f11(arg1, res1, iw, w, 0)) return 1;
-  /* #18: output[1][0] = @3 */
-  casadi_copy(w3, 4, res[1]);
-  /* #19: @5 = (@5*@0) */
-  w5 *= w0;
-  /* #20: output[2][0] = @5 */
-  if (res[2]) res[2][0] = w5;
+static int casadi_f6(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20;
+  a00=2.5000000000000000e-01;
+  a01=arg[0]? arg[0][0] : 0;
+  a02=1.4142135623730951e+00;
+  a03=arg[1]? arg[1][0] : 0;
+  a04=1.0000000000000000e-13;
+  a05=casadi_fabs(a03);
+  a05=(a04*a05);
+  a06=1.0000000000000000e-300;
+  a05=(a05+a06);
+  a07=casadi_fmax(a03,a05);
+  a07=sqrt(a07);
+  a08=(a02*a07);
+  a08=(a01+a08);
+  a09=arg[4]? arg[4][0] : 0;
+  a10=arg[2]? arg[2][0] : 0;
+  a11=arg[2]? arg[2][2] : 0;
+  a12=cos(a11);
+  a13=(a10*a12);
+  a14=arg[2]? arg[2][1] : 0;
+  a11=sin(a11);
+  a15=(a14*a11);
+  a13=(a13+a15);
+  a13=(a09*a13);
+  a08=(a08+a13);
+  a15=(a01+a13);
+  a16=(a08+a15);
+  a17=-1.4142135623730951e+00;
+  a18=(a17*a07);
+  a01=(a01+a18);
+  a01=(a01+a13);
+  a16=(a16+a01);
+  a16=(a16+a15);
+  a16=(a00*a16);
+  if (res[0]!=0) res[0][0]=a16;
+  a13=arg[0]? arg[0][1] : 0;
+  a18=5.0000000000000000e-01;
+  a19=arg[1]? arg[1][2] : 0;
+  a20=arg[1]? arg[1][1] : 0;
+  a19=(a19+a20);
+  a19=(a18*a19);
+  a20=(1./a07);
+  a20=copysign(a20,a07);
+  a19=(a19*a20);
+  a20=(a02*a19);
+  a20=(a13+a20);
+  a10=(a10*a11);
+  a14=(a14*a12);
+  a10=(a10-a14);
+  a09=(a09*a10);
+  a20=(a20+a09);
+  a10=arg[1]? arg[1][3] : 0;
+  a14=casadi_sq(a19);
+  a14=(a10-a14);
+  a10=casadi_fabs(a10);
+  a04=(a04*a10);
+  a04=(a04+a06);
+  a06=casadi_fmax(a14,a04);
+  a06=sqrt(a06);
+  a02=(a02*a06);
+  a02=(a13+a02);
+  a02=(a02+a09);
+  a10=(a20+a02);
+  a19=(a17*a19);
+  a19=(a13+a19);
+  a19=(a19+a09);
+  a10=(a10+a19);
+  a17=(a17*a06);
+  a13=(a13+a17);
+  a13=(a13+a09);
+  a10=(a10+a13);
+  a10=(a00*a10);
+  if (res[0]!=0) res[0][1]=a10;
+  a15=(a15-a16);
+  a09=casadi_sq(a15);
+  a01=(a01-a16);
+  a17=casadi_sq(a01);
+  a08=(a08-a16);
+  a06=casadi_sq(a08);
+  a06=(a09+a06);
+  a17=(a17+a06);
+  a09=(a09+a17);
+  a09=(a00*a09);
+  a17=arg[5]? arg[5][0] : 0;
+  a09=(a09+a17);
+  if (res[1]!=0) res[1][0]=a09;
+  a13=(a13-a10);
+  a17=(a15*a13);
+  a19=(a19-a10);
+  a01=(a01*a19);
+  a02=(a02-a10);
+  a15=(a15*a02);
+  a20=(a20-a10);
+  a08=(a08*a20);
+  a15=(a15+a08);
+  a01=(a01+a15);
+  a17=(a17+a01);
+  a17=(a00*a17);
+  a01=arg[5]? arg[5][2] : 0;
+  a15=arg[5]? arg[5][1] : 0;
+  a01=(a01+a15);
+  a18=(a18*a01);
+  a17=(a17+a18);
+  if (res[1]!=0) res[1][1]=a17;
+  if (res[1]!=0) res[1][2]=a17;
+  a13=casadi_sq(a13);
+  a19=casadi_sq(a19);
+  a02=casadi_sq(a02);
+  a20=casadi_sq(a20);
+  a02=(a02+a20);
+  a19=(a19+a02);
+  a13=(a13+a19);
+  a00=(a00*a13);
+  a13=arg[5]? arg[5][3] : 0;
+  a00=(a00+a13);
+  if (res[1]!=0) res[1][3]=a00;
+  a05=(a05<a03);
+  a04=(a04<a14);
+  a05=(a05*a04);
+  a16=(a16+a10);
+  a16=(a16+a09);
+  a16=(a16+a17);
+  a16=(a16+a00);
+  a16=casadi_fabs(a16);
+  a00=casadi_inf;
+  a16=(a16<a00);
+  a05=(a05*a16);
+  if (res[2]!=0) res[2][0]=a05;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ckf_predict(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f24(arg, res, iw, w, mem);
+  return casadi_f6(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ckf_predict_checkout(void) {
@@ -2068,215 +1731,186 @@ CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ckf_predict_sparsity_out(casadi_int 
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ckf_predict_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 18;
-  if (sz_res) *sz_res = 6;
+  if (sz_arg) *sz_arg = 6;
+  if (sz_res) *sz_res = 3;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 85;
+  if (sz_w) *sz_w = 0;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ckf_predict_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 18*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 6*sizeof(casadi_real*);
+  if (sz_arg) *sz_arg = 6*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 3*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 85*sizeof(casadi_real);
-  return 0;
-}
-
-/* cn2d_ckf_measured_moments:(x[2],L[2x2],p[2])->(z_pred,DZ[1x4],Czz) */
-static int casadi_f30(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
-  casadi_real a12;
-  a00=2.5000000000000000e-01;
-  a01=arg[0]? arg[0][0] : 0;
-  a02=1.4142135623730951e+00;
-  a03=arg[1]? arg[1][0] : 0;
-  a04=(a02*a03);
-  a04=(a01+a04);
-  a05=arg[2]? arg[2][0] : 0;
-  a04=(a04-a05);
-  a04=casadi_sq(a04);
-  a06=arg[0]? arg[0][1] : 0;
-  a07=arg[1]? arg[1][1] : 0;
-  a08=(a02*a07);
-  a08=(a06+a08);
-  a09=arg[2]? arg[2][1] : 0;
-  a08=(a08-a09);
-  a08=casadi_sq(a08);
-  a04=(a04+a08);
-  a04=sqrt(a04);
-  a08=(a01-a05);
-  a08=casadi_sq(a08);
-  a10=arg[1]? arg[1][3] : 0;
-  a02=(a02*a10);
-  a02=(a06+a02);
-  a02=(a02-a09);
-  a02=casadi_sq(a02);
-  a02=(a08+a02);
-  a02=sqrt(a02);
-  a11=(a04+a02);
-  a12=-1.4142135623730951e+00;
-  a03=(a12*a03);
-  a01=(a01+a03);
-  a01=(a01-a05);
-  a01=casadi_sq(a01);
-  a07=(a12*a07);
-  a07=(a06+a07);
-  a07=(a07-a09);
-  a07=casadi_sq(a07);
-  a01=(a01+a07);
-  a01=sqrt(a01);
-  a11=(a11+a01);
-  a12=(a12*a10);
-  a06=(a06+a12);
-  a06=(a06-a09);
-  a06=casadi_sq(a06);
-  a08=(a08+a06);
-  a08=sqrt(a08);
-  a11=(a11+a08);
-  a11=(a00*a11);
-  if (res[0]!=0) res[0][0]=a11;
-  a04=(a04-a11);
-  if (res[1]!=0) res[1][0]=a04;
-  a02=(a02-a11);
-  if (res[1]!=0) res[1][1]=a02;
-  a01=(a01-a11);
-  if (res[1]!=0) res[1][2]=a01;
-  a08=(a08-a11);
-  if (res[1]!=0) res[1][3]=a08;
-  a04=casadi_sq(a04);
-  a02=casadi_sq(a02);
-  a04=(a04+a02);
-  a01=casadi_sq(a01);
-  a04=(a04+a01);
-  a08=casadi_sq(a08);
-  a04=(a04+a08);
-  a00=(a00*a04);
-  if (res[2]!=0) res[2][0]=a00;
-  return 0;
-}
-
-/* cn2d_ckf_moments:(L[2x2],DZ[1x4],Czz,z_pred,z,mask)->(innovation,Pzz,Pxz[2]) */
-static int casadi_f31(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real a0, a1, a2, a3, a4, a5;
-  a0=arg[5]? arg[5][0] : 0;
-  a1=0.;
-  a0=(a0!=a1);
-  a1=arg[4]? arg[4][0] : 0;
-  a2=arg[3]? arg[3][0] : 0;
-  a1=(a1-a2);
-  a1=(a0?a1:0);
-  if (res[0]!=0) res[0][0]=a1;
-  a1=casadi_sq(a0);
-  a2=arg[2]? arg[2][0] : 0;
-  a1=(a1*a2);
-  if (res[1]!=0) res[1][0]=a1;
-  a1=arg[0]? arg[0][0] : 0;
-  a2=3.5355339059327379e-01;
-  a3=arg[1]? arg[1][0] : 0;
-  a3=(a2*a3);
-  a4=-3.5355339059327379e-01;
-  a5=arg[1]? arg[1][2] : 0;
-  a5=(a4*a5);
-  a3=(a3+a5);
-  a1=(a1*a3);
-  a1=(a0*a1);
-  if (res[2]!=0) res[2][0]=a1;
-  a1=arg[0]? arg[0][1] : 0;
-  a1=(a1*a3);
-  a3=arg[0]? arg[0][3] : 0;
-  a5=arg[1]? arg[1][1] : 0;
-  a2=(a2*a5);
-  a5=arg[1]? arg[1][3] : 0;
-  a4=(a4*a5);
-  a2=(a2+a4);
-  a3=(a3*a2);
-  a1=(a1+a3);
-  a0=(a0*a1);
-  if (res[2]!=0) res[2][1]=a0;
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
 
 /* cn2d_ckf_update:(x[2],P[2x2],z,p[2],R,mask)->(x_post[2],P_post[2x2],innovation,S,ok) */
-static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+5, *w00=w+13, *w01=w+15, *w02=w+19, w03, *w04=w+23, w05, *w06=w+25, w07, w08, w09, w10;
-  casadi_real w11, *w12=w+29;
-  const casadi_real **arg1=arg+6;
-  /* #0: @0 = input[0][0] */
-  casadi_copy(arg[0], 2, w00);
-  /* #1: @1 = input[1][0] */
-  casadi_copy(arg[1], 4, w01);
-  /* #2: {@2, @3} = cn2d_cholesky(@1) */
-  arg1[0]=w01;
-  res1[0]=w02;
-  res1[1]=(&w03);
-  if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
-  /* #3: @4 = input[3][0] */
-  casadi_copy(arg[3], 2, w04);
-  /* #4: {@5, @6, @7} = cn2d_ckf_measured_moments(@0, @2, @4) */
-  arg1[0]=w00;
-  arg1[1]=w02;
-  arg1[2]=w04;
-  res1[0]=(&w05);
-  res1[1]=w06;
-  res1[2]=(&w07);
-  if (casadi_f30(arg1, res1, iw, w, 0)) return 1;
-  /* #5: @8 = input[2][0] */
-  w08 = arg[2] ? arg[2][0] : 0;
-  /* #6: @9 = input[5][0] */
-  w09 = arg[5] ? arg[5][0] : 0;
-  /* #7: {@10, @11, @4} = cn2d_ckf_moments(@2, @6, @7, @5, @8, @9) */
-  arg1[0]=w02;
-  arg1[1]=w06;
-  arg1[2]=(&w07);
-  arg1[3]=(&w05);
-  arg1[4]=(&w08);
-  arg1[5]=(&w09);
-  res1[0]=(&w10);
-  res1[1]=(&w11);
-  res1[2]=w04;
-  if (casadi_f31(arg1, res1, iw, w, 0)) return 1;
-  /* #8: @7 = input[4][0] */
-  w07 = arg[4] ? arg[4][0] : 0;
-  /* #9: {@5, @8} = cn2d_noise(@7, @9, @11, @10) */
-  arg1[0]=(&w07);
-  arg1[1]=(&w09);
-  arg1[2]=(&w11);
-  arg1[3]=(&w10);
-  res1[0]=(&w05);
-  res1[1]=(&w08);
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #10: {@12, @2, @7, @9} = cn2d_kalman(@0, @1, @11, @4, @5, @10) */
-  arg1[0]=w00;
-  arg1[1]=w01;
-  arg1[2]=(&w11);
-  arg1[3]=w04;
-  arg1[4]=(&w05);
-  arg1[5]=(&w10);
-  res1[0]=w12;
-  res1[1]=w02;
-  res1[2]=(&w07);
-  res1[3]=(&w09);
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #11: output[0][0] = @12 */
-  casadi_copy(w12, 2, res[0]);
-  /* #12: output[1][0] = @2 */
-  casadi_copy(w02, 4, res[1]);
-  /* #13: output[2][0] = @10 */
-  if (res[2]) res[2][0] = w10;
-  /* #14: output[3][0] = @7 */
-  if (res[3]) res[3][0] = w07;
-  /* #15: @3 = (@3*@8) */
-  w03 *= w08;
-  /* #16: @3 = (@3*@9) */
-  w03 *= w09;
-  /* #17: output[4][0] = @3 */
-  if (res[4]) res[4][0] = w03;
+static int casadi_f7(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
+  casadi_real a24;
+  a00=arg[0]? arg[0][0] : 0;
+  a01=arg[5]? arg[5][0] : 0;
+  a02=0.;
+  a01=(a01!=a02);
+  a02=arg[1]? arg[1][0] : 0;
+  a03=1.0000000000000000e-13;
+  a04=casadi_fabs(a02);
+  a04=(a03*a04);
+  a05=1.0000000000000000e-300;
+  a04=(a04+a05);
+  a06=casadi_fmax(a02,a04);
+  a06=sqrt(a06);
+  a07=3.5355339059327379e-01;
+  a08=1.4142135623730951e+00;
+  a09=(a08*a06);
+  a09=(a00+a09);
+  a10=arg[3]? arg[3][0] : 0;
+  a09=(a09-a10);
+  a09=casadi_sq(a09);
+  a11=arg[0]? arg[0][1] : 0;
+  a12=5.0000000000000000e-01;
+  a13=arg[1]? arg[1][2] : 0;
+  a14=arg[1]? arg[1][1] : 0;
+  a13=(a13+a14);
+  a12=(a12*a13);
+  a13=(1./a06);
+  a13=copysign(a13,a06);
+  a13=(a12*a13);
+  a14=(a08*a13);
+  a14=(a11+a14);
+  a15=arg[3]? arg[3][1] : 0;
+  a14=(a14-a15);
+  a14=casadi_sq(a14);
+  a09=(a09+a14);
+  a09=sqrt(a09);
+  a14=2.5000000000000000e-01;
+  a16=(a00-a10);
+  a16=casadi_sq(a16);
+  a17=arg[1]? arg[1][3] : 0;
+  a18=casadi_sq(a13);
+  a18=(a17-a18);
+  a19=casadi_fabs(a17);
+  a19=(a03*a19);
+  a19=(a19+a05);
+  a20=casadi_fmax(a18,a19);
+  a20=sqrt(a20);
+  a08=(a08*a20);
+  a08=(a11+a08);
+  a08=(a08-a15);
+  a08=casadi_sq(a08);
+  a08=(a16+a08);
+  a08=sqrt(a08);
+  a21=(a09+a08);
+  a22=-1.4142135623730951e+00;
+  a23=(a22*a06);
+  a23=(a00+a23);
+  a23=(a23-a10);
+  a23=casadi_sq(a23);
+  a10=(a22*a13);
+  a10=(a11+a10);
+  a10=(a10-a15);
+  a10=casadi_sq(a10);
+  a23=(a23+a10);
+  a23=sqrt(a23);
+  a21=(a21+a23);
+  a22=(a22*a20);
+  a22=(a11+a22);
+  a22=(a22-a15);
+  a22=casadi_sq(a22);
+  a16=(a16+a22);
+  a16=sqrt(a16);
+  a21=(a21+a16);
+  a21=(a14*a21);
+  a09=(a09-a21);
+  a22=(a07*a09);
+  a15=-3.5355339059327379e-01;
+  a23=(a23-a21);
+  a10=(a15*a23);
+  a22=(a22+a10);
+  a06=(a06*a22);
+  a06=(a01*a06);
+  a10=casadi_sq(a01);
+  a09=casadi_sq(a09);
+  a08=(a08-a21);
+  a24=casadi_sq(a08);
+  a09=(a09+a24);
+  a23=casadi_sq(a23);
+  a09=(a09+a23);
+  a16=(a16-a21);
+  a23=casadi_sq(a16);
+  a09=(a09+a23);
+  a14=(a14*a09);
+  a14=(a10*a14);
+  a09=arg[4]? arg[4][0] : 0;
+  a10=(a10*a09);
+  a09=1.;
+  a09=(a09-a01);
+  a10=(a10+a09);
+  a14=(a14+a10);
+  a10=casadi_fabs(a14);
+  a03=(a03*a10);
+  a03=(a03+a05);
+  a05=casadi_fmax(a14,a03);
+  a05=sqrt(a05);
+  a10=(1./a05);
+  a10=copysign(a10,a05);
+  a06=(a06*a10);
+  a05=arg[2]? arg[2][0] : 0;
+  a05=(a05-a21);
+  a21=(a05*a10);
+  a09=(a06*a21);
+  a09=(a01?a09:0);
+  a00=(a00+a09);
+  if (res[0]!=0) res[0][0]=a00;
+  a13=(a13*a22);
+  a07=(a07*a08);
+  a15=(a15*a16);
+  a07=(a07+a15);
+  a20=(a20*a07);
+  a13=(a13+a20);
+  a13=(a01*a13);
+  a13=(a13*a10);
+  a21=(a13*a21);
+  a21=(a01?a21:0);
+  a11=(a11+a21);
+  if (res[0]!=0) res[0][1]=a11;
+  a21=casadi_sq(a06);
+  a21=(a02-a21);
+  if (res[1]!=0) res[1][0]=a21;
+  a06=(a06*a13);
+  a12=(a12-a06);
+  if (res[1]!=0) res[1][1]=a12;
+  if (res[1]!=0) res[1][2]=a12;
+  a13=casadi_sq(a13);
+  a17=(a17-a13);
+  if (res[1]!=0) res[1][3]=a17;
+  a01=(a01?a05:0);
+  if (res[2]!=0) res[2][0]=a01;
+  if (res[3]!=0) res[3][0]=a14;
+  a04=(a04<a02);
+  a19=(a19<a18);
+  a04=(a04*a19);
+  a03=(a03<a14);
+  a00=(a00+a11);
+  a00=(a00+a21);
+  a00=(a00+a12);
+  a00=(a00+a17);
+  a00=(a00+a01);
+  a00=(a00+a14);
+  a00=casadi_fabs(a00);
+  a14=casadi_inf;
+  a00=(a00<a14);
+  a03=(a03*a00);
+  a04=(a04*a03);
+  if (res[4]!=0) res[4][0]=a04;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ckf_update(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f29(arg, res, iw, w, mem);
+  return casadi_f7(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ckf_update_checkout(void) {
@@ -2349,85 +1983,292 @@ CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ckf_update_sparsity_out(casadi_int i
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ckf_update_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 12;
-  if (sz_res) *sz_res = 9;
+  if (sz_arg) *sz_arg = 6;
+  if (sz_res) *sz_res = 5;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 31;
+  if (sz_w) *sz_w = 0;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ckf_update_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 12*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 9*sizeof(casadi_real*);
+  if (sz_arg) *sz_arg = 6*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 5*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 31*sizeof(casadi_real);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
 
 /* cn2d_ckf_step:(x[2],P[2x2],u[3],p[2],dt,Q[2x2],z,R,mask)->(x_post[2],P_post[2x2],innovation,S,ok) */
-static int casadi_f32(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+5, *w00=w+88, *w01=w+90, *w02=w+94, *w03=w+97, w04, *w05=w+99, *w06=w+103, *w07=w+105, w08, w09, w10;
-  casadi_real w11, w12, w13;
-  const casadi_real **arg1=arg+9;
-  /* #0: @0 = input[0][0] */
-  casadi_copy(arg[0], 2, w00);
-  /* #1: @1 = input[1][0] */
-  casadi_copy(arg[1], 4, w01);
-  /* #2: @2 = input[2][0] */
-  casadi_copy(arg[2], 3, w02);
-  /* #3: @3 = input[3][0] */
-  casadi_copy(arg[3], 2, w03);
-  /* #4: @4 = input[4][0] */
-  w04 = arg[4] ? arg[4][0] : 0;
-  /* #5: @5 = input[5][0] */
-  casadi_copy(arg[5], 4, w05);
-  /* #6: {@6, @7, @8} = cn2d_ckf_predict(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=w01;
-  arg1[2]=w02;
-  arg1[3]=w03;
-  arg1[4]=(&w04);
-  arg1[5]=w05;
-  res1[0]=w06;
-  res1[1]=w07;
-  res1[2]=(&w08);
-  if (casadi_f24(arg1, res1, iw, w, 0)) return 1;
-  /* #7: @4 = input[6][0] */
-  w04 = arg[6] ? arg[6][0] : 0;
-  /* #8: @9 = input[7][0] */
-  w09 = arg[7] ? arg[7][0] : 0;
-  /* #9: @10 = input[8][0] */
-  w10 = arg[8] ? arg[8][0] : 0;
-  /* #10: {@0, @1, @11, @12, @13} = cn2d_ckf_update(@6, @7, @4, @3, @9, @10) */
-  arg1[0]=w06;
-  arg1[1]=w07;
-  arg1[2]=(&w04);
-  arg1[3]=w03;
-  arg1[4]=(&w09);
-  arg1[5]=(&w10);
-  res1[0]=w00;
-  res1[1]=w01;
-  res1[2]=(&w11);
-  res1[3]=(&w12);
-  res1[4]=(&w13);
-  if (casadi_f29(arg1, res1, iw, w, 0)) return 1;
-  /* #11: output[0][0] = @0 */
-  casadi_copy(w00, 2, res[0]);
-  /* #12: output[1][0] = @1 */
-  casadi_copy(w01, 4, res[1]);
-  /* #13: output[2][0] = @11 */
-  if (res[2]) res[2][0] = w11;
-  /* #14: output[3][0] = @12 */
-  if (res[3]) res[3][0] = w12;
-  /* #15: @8 = (@8*@13) */
-  w08 *= w13;
-  /* #16: output[4][0] = @8 */
-  if (res[4]) res[4][0] = w08;
+static int casadi_f8(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
+  casadi_real a24, a25, a26, a27, a28;
+  a00=2.5000000000000000e-01;
+  a01=arg[0]? arg[0][0] : 0;
+  a02=1.4142135623730951e+00;
+  a03=arg[1]? arg[1][0] : 0;
+  a04=1.0000000000000000e-13;
+  a05=casadi_fabs(a03);
+  a05=(a04*a05);
+  a06=1.0000000000000000e-300;
+  a05=(a05+a06);
+  a07=casadi_fmax(a03,a05);
+  a07=sqrt(a07);
+  a08=(a02*a07);
+  a08=(a01+a08);
+  a09=arg[4]? arg[4][0] : 0;
+  a10=arg[2]? arg[2][0] : 0;
+  a11=arg[2]? arg[2][2] : 0;
+  a12=cos(a11);
+  a13=(a10*a12);
+  a14=arg[2]? arg[2][1] : 0;
+  a11=sin(a11);
+  a15=(a14*a11);
+  a13=(a13+a15);
+  a13=(a09*a13);
+  a08=(a08+a13);
+  a15=(a01+a13);
+  a16=(a08+a15);
+  a17=-1.4142135623730951e+00;
+  a18=(a17*a07);
+  a01=(a01+a18);
+  a01=(a01+a13);
+  a16=(a16+a01);
+  a16=(a16+a15);
+  a16=(a00*a16);
+  a13=arg[8]? arg[8][0] : 0;
+  a18=0.;
+  a13=(a13!=a18);
+  a15=(a15-a16);
+  a18=casadi_sq(a15);
+  a01=(a01-a16);
+  a19=casadi_sq(a01);
+  a08=(a08-a16);
+  a20=casadi_sq(a08);
+  a20=(a18+a20);
+  a19=(a19+a20);
+  a18=(a18+a19);
+  a18=(a00*a18);
+  a19=arg[5]? arg[5][0] : 0;
+  a18=(a18+a19);
+  a19=casadi_fabs(a18);
+  a19=(a04*a19);
+  a19=(a19+a06);
+  a20=casadi_fmax(a18,a19);
+  a20=sqrt(a20);
+  a21=3.5355339059327379e-01;
+  a22=(a02*a20);
+  a22=(a16+a22);
+  a23=arg[3]? arg[3][0] : 0;
+  a22=(a22-a23);
+  a22=casadi_sq(a22);
+  a24=arg[0]? arg[0][1] : 0;
+  a25=5.0000000000000000e-01;
+  a26=arg[1]? arg[1][2] : 0;
+  a27=arg[1]? arg[1][1] : 0;
+  a26=(a26+a27);
+  a26=(a25*a26);
+  a27=(1./a07);
+  a27=copysign(a27,a07);
+  a26=(a26*a27);
+  a27=(a02*a26);
+  a27=(a24+a27);
+  a10=(a10*a11);
+  a14=(a14*a12);
+  a10=(a10-a14);
+  a09=(a09*a10);
+  a27=(a27+a09);
+  a10=arg[1]? arg[1][3] : 0;
+  a14=casadi_sq(a26);
+  a14=(a10-a14);
+  a10=casadi_fabs(a10);
+  a10=(a04*a10);
+  a10=(a10+a06);
+  a12=casadi_fmax(a14,a10);
+  a12=sqrt(a12);
+  a11=(a02*a12);
+  a11=(a24+a11);
+  a11=(a11+a09);
+  a07=(a27+a11);
+  a26=(a17*a26);
+  a26=(a24+a26);
+  a26=(a26+a09);
+  a07=(a07+a26);
+  a12=(a17*a12);
+  a24=(a24+a12);
+  a24=(a24+a09);
+  a07=(a07+a24);
+  a07=(a00*a07);
+  a24=(a24-a07);
+  a09=(a15*a24);
+  a26=(a26-a07);
+  a01=(a01*a26);
+  a11=(a11-a07);
+  a15=(a15*a11);
+  a27=(a27-a07);
+  a08=(a08*a27);
+  a15=(a15+a08);
+  a01=(a01+a15);
+  a09=(a09+a01);
+  a09=(a00*a09);
+  a01=arg[5]? arg[5][2] : 0;
+  a15=arg[5]? arg[5][1] : 0;
+  a01=(a01+a15);
+  a25=(a25*a01);
+  a09=(a09+a25);
+  a25=(1./a20);
+  a25=copysign(a25,a20);
+  a25=(a09*a25);
+  a01=(a02*a25);
+  a01=(a07+a01);
+  a15=arg[3]? arg[3][1] : 0;
+  a01=(a01-a15);
+  a01=casadi_sq(a01);
+  a22=(a22+a01);
+  a22=sqrt(a22);
+  a01=(a16-a23);
+  a01=casadi_sq(a01);
+  a24=casadi_sq(a24);
+  a26=casadi_sq(a26);
+  a11=casadi_sq(a11);
+  a27=casadi_sq(a27);
+  a11=(a11+a27);
+  a26=(a26+a11);
+  a24=(a24+a26);
+  a24=(a00*a24);
+  a26=arg[5]? arg[5][3] : 0;
+  a24=(a24+a26);
+  a26=casadi_sq(a25);
+  a26=(a24-a26);
+  a11=casadi_fabs(a24);
+  a11=(a04*a11);
+  a11=(a11+a06);
+  a27=casadi_fmax(a26,a11);
+  a27=sqrt(a27);
+  a02=(a02*a27);
+  a02=(a07+a02);
+  a02=(a02-a15);
+  a02=casadi_sq(a02);
+  a02=(a01+a02);
+  a02=sqrt(a02);
+  a08=(a22+a02);
+  a12=(a17*a20);
+  a12=(a16+a12);
+  a12=(a12-a23);
+  a12=casadi_sq(a12);
+  a23=(a17*a25);
+  a23=(a07+a23);
+  a23=(a23-a15);
+  a23=casadi_sq(a23);
+  a12=(a12+a23);
+  a12=sqrt(a12);
+  a08=(a08+a12);
+  a17=(a17*a27);
+  a17=(a07+a17);
+  a17=(a17-a15);
+  a17=casadi_sq(a17);
+  a01=(a01+a17);
+  a01=sqrt(a01);
+  a08=(a08+a01);
+  a08=(a00*a08);
+  a22=(a22-a08);
+  a17=(a21*a22);
+  a15=-3.5355339059327379e-01;
+  a12=(a12-a08);
+  a23=(a15*a12);
+  a17=(a17+a23);
+  a20=(a20*a17);
+  a20=(a13*a20);
+  a23=casadi_sq(a13);
+  a22=casadi_sq(a22);
+  a02=(a02-a08);
+  a28=casadi_sq(a02);
+  a22=(a22+a28);
+  a12=casadi_sq(a12);
+  a22=(a22+a12);
+  a01=(a01-a08);
+  a12=casadi_sq(a01);
+  a22=(a22+a12);
+  a00=(a00*a22);
+  a00=(a23*a00);
+  a22=arg[7]? arg[7][0] : 0;
+  a23=(a23*a22);
+  a22=1.;
+  a22=(a22-a13);
+  a23=(a23+a22);
+  a00=(a00+a23);
+  a23=casadi_fabs(a00);
+  a04=(a04*a23);
+  a04=(a04+a06);
+  a06=casadi_fmax(a00,a04);
+  a06=sqrt(a06);
+  a23=(1./a06);
+  a23=copysign(a23,a06);
+  a20=(a20*a23);
+  a06=arg[6]? arg[6][0] : 0;
+  a06=(a06-a08);
+  a08=(a06*a23);
+  a22=(a20*a08);
+  a22=(a13?a22:0);
+  a22=(a16+a22);
+  if (res[0]!=0) res[0][0]=a22;
+  a25=(a25*a17);
+  a21=(a21*a02);
+  a15=(a15*a01);
+  a21=(a21+a15);
+  a27=(a27*a21);
+  a25=(a25+a27);
+  a25=(a13*a25);
+  a25=(a25*a23);
+  a08=(a25*a08);
+  a08=(a13?a08:0);
+  a08=(a07+a08);
+  if (res[0]!=0) res[0][1]=a08;
+  a23=casadi_sq(a20);
+  a23=(a18-a23);
+  if (res[1]!=0) res[1][0]=a23;
+  a20=(a20*a25);
+  a20=(a09-a20);
+  if (res[1]!=0) res[1][1]=a20;
+  if (res[1]!=0) res[1][2]=a20;
+  a25=casadi_sq(a25);
+  a25=(a24-a25);
+  if (res[1]!=0) res[1][3]=a25;
+  a13=(a13?a06:0);
+  if (res[2]!=0) res[2][0]=a13;
+  if (res[3]!=0) res[3][0]=a00;
+  a05=(a05<a03);
+  a10=(a10<a14);
+  a05=(a05*a10);
+  a16=(a16+a07);
+  a16=(a16+a18);
+  a16=(a16+a09);
+  a16=(a16+a24);
+  a16=casadi_fabs(a16);
+  a24=casadi_inf;
+  a16=(a16<a24);
+  a05=(a05*a16);
+  a19=(a19<a18);
+  a11=(a11<a26);
+  a19=(a19*a11);
+  a04=(a04<a00);
+  a22=(a22+a08);
+  a22=(a22+a23);
+  a22=(a22+a20);
+  a22=(a22+a25);
+  a22=(a22+a13);
+  a22=(a22+a00);
+  a22=casadi_fabs(a22);
+  a22=(a22<a24);
+  a04=(a04*a22);
+  a19=(a19*a04);
+  a05=(a05*a19);
+  if (res[4]!=0) res[4][0]=a05;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ckf_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f32(arg, res, iw, w, mem);
+  return casadi_f8(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ckf_step_checkout(void) {
@@ -2506,51 +2347,81 @@ CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ckf_step_sparsity_out(casadi_int i) 
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ckf_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 27;
-  if (sz_res) *sz_res = 14;
+  if (sz_arg) *sz_arg = 9;
+  if (sz_res) *sz_res = 5;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 109;
+  if (sz_w) *sz_w = 0;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ckf_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 27*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 14*sizeof(casadi_real*);
+  if (sz_arg) *sz_arg = 9*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 5*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 109*sizeof(casadi_real);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
 
 /* cn2d_ckf_predict_points:(x[2],P[2x2])->(X[4x2],ok) */
-static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i, j;
-  casadi_real **res1=res+2, *rr, *w0=w+8, *w1=w+10, *w2=w+14, w3, *w4=w+18, *w5=w+26;
-  const casadi_real **arg1=arg+2, *cs;
-  /* #0: @0 = input[0][0] */
-  casadi_copy(arg[0], 2, w0);
-  /* #1: @1 = input[1][0] */
-  casadi_copy(arg[1], 4, w1);
-  /* #2: {@2, @3} = cn2d_cholesky(@1) */
-  arg1[0]=w1;
-  res1[0]=w2;
-  res1[1]=(&w3);
-  if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
-  /* #3: @4 = cn2d_ckf_points(@0, @2) */
-  arg1[0]=w0;
-  arg1[1]=w2;
-  res1[0]=w4;
-  if (casadi_f25(arg1, res1, iw, w, 0)) return 1;
-  /* #4: @5 = @4' */
-  for (i=0, rr=w5, cs=w4; i<4; ++i) for (j=0; j<2; ++j) rr[i+j*4] = *cs++;
-  /* #5: output[0][0] = @5 */
-  casadi_copy(w5, 8, res[0]);
-  /* #6: output[1][0] = @3 */
-  if (res[1]) res[1][0] = w3;
+static int casadi_f9(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10;
+  a00=arg[0]? arg[0][0] : 0;
+  a01=1.4142135623730951e+00;
+  a02=arg[1]? arg[1][0] : 0;
+  a03=1.0000000000000000e-13;
+  a04=casadi_fabs(a02);
+  a04=(a03*a04);
+  a05=1.0000000000000000e-300;
+  a04=(a04+a05);
+  a06=casadi_fmax(a02,a04);
+  a06=sqrt(a06);
+  a07=(a01*a06);
+  a07=(a00+a07);
+  if (res[0]!=0) res[0][0]=a07;
+  if (res[0]!=0) res[0][1]=a00;
+  a07=-1.4142135623730951e+00;
+  a08=(a07*a06);
+  a08=(a00+a08);
+  if (res[0]!=0) res[0][2]=a08;
+  if (res[0]!=0) res[0][3]=a00;
+  a00=arg[0]? arg[0][1] : 0;
+  a08=5.0000000000000000e-01;
+  a09=arg[1]? arg[1][2] : 0;
+  a10=arg[1]? arg[1][1] : 0;
+  a09=(a09+a10);
+  a08=(a08*a09);
+  a09=(1./a06);
+  a09=copysign(a09,a06);
+  a08=(a08*a09);
+  a09=(a01*a08);
+  a09=(a00+a09);
+  if (res[0]!=0) res[0][4]=a09;
+  a09=arg[1]? arg[1][3] : 0;
+  a06=casadi_sq(a08);
+  a06=(a09-a06);
+  a09=casadi_fabs(a09);
+  a03=(a03*a09);
+  a03=(a03+a05);
+  a05=casadi_fmax(a06,a03);
+  a05=sqrt(a05);
+  a01=(a01*a05);
+  a01=(a00+a01);
+  if (res[0]!=0) res[0][5]=a01;
+  a08=(a07*a08);
+  a08=(a00+a08);
+  if (res[0]!=0) res[0][6]=a08;
+  a07=(a07*a05);
+  a00=(a00+a07);
+  if (res[0]!=0) res[0][7]=a00;
+  a04=(a04<a02);
+  a03=(a03<a06);
+  a04=(a04*a03);
+  if (res[1]!=0) res[1][0]=a04;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ckf_predict_points(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f33(arg, res, iw, w, mem);
+  return casadi_f9(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ckf_predict_points_checkout(void) {
@@ -2609,35 +2480,38 @@ CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ckf_predict_points_sparsity_out(casa
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ckf_predict_points_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 4;
-  if (sz_res) *sz_res = 4;
+  if (sz_arg) *sz_arg = 2;
+  if (sz_res) *sz_res = 2;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 34;
+  if (sz_w) *sz_w = 0;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ckf_predict_points_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 4*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 4*sizeof(casadi_real*);
+  if (sz_arg) *sz_arg = 2*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 2*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 34*sizeof(casadi_real);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
 
 /* cn2d_ckf_predict_weights:()->(wm[4],wc[4]) */
-static int casadi_f34(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real *w0=w+0;
-  /* #0: @0 = all_0.25(4x1) */
-  casadi_fill(w0, 4, 2.5000000000000000e-01);
-  /* #1: output[0][0] = @0 */
-  casadi_copy(w0, 4, res[0]);
-  /* #2: output[1][0] = @0 */
-  casadi_copy(w0, 4, res[1]);
+static int casadi_f10(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a0;
+  a0=2.5000000000000000e-01;
+  if (res[0]!=0) res[0][0]=a0;
+  if (res[0]!=0) res[0][1]=a0;
+  if (res[0]!=0) res[0][2]=a0;
+  if (res[0]!=0) res[0][3]=a0;
+  if (res[1]!=0) res[1][0]=a0;
+  if (res[1]!=0) res[1][1]=a0;
+  if (res[1]!=0) res[1][2]=a0;
+  if (res[1]!=0) res[1][3]=a0;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ckf_predict_weights(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f34(arg, res, iw, w, mem);
+  return casadi_f10(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ckf_predict_weights_checkout(void) {
@@ -2693,17 +2567,17 @@ CASADI_SYMBOL_EXPORT const casadi_int* cn2d_ckf_predict_weights_sparsity_out(cas
 
 CASADI_SYMBOL_EXPORT int cn2d_ckf_predict_weights_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
   if (sz_arg) *sz_arg = 0;
-  if (sz_res) *sz_res = 3;
+  if (sz_res) *sz_res = 2;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 4;
+  if (sz_w) *sz_w = 0;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_ckf_predict_weights_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
   if (sz_arg) *sz_arg = 0*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 3*sizeof(casadi_real*);
+  if (sz_res) *sz_res = 2*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 4*sizeof(casadi_real);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
 
@@ -2714,13 +2588,13 @@ CASADI_SYMBOL_EXPORT int cn2d_ckf_predict_weights_work_bytes(casadi_int *sz_arg,
  * failing evaluation. */
 CASADI_SYMBOL_EXPORT int cn2d_ukf_predict_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
-  const casadi_real* a[19];
-  casadi_real* r[6];
+  const casadi_real* a[7];
+  casadi_real* r[3];
   casadi_int iw[1];
-  casadi_real w[117];
+  casadi_real w[21];
   casadi_int j, k;
-  for (k = 0; k < 19; ++k) a[k] = 0;
-  for (k = 0; k < 6; ++k) r[k] = 0;
+  for (k = 0; k < 7; ++k) a[k] = 0;
+  for (k = 0; k < 3; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
     for (k = 0; k < 7; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
     for (k = 0; k < 3; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
@@ -2734,13 +2608,13 @@ CASADI_SYMBOL_EXPORT int cn2d_ukf_predict_batch(casadi_int N, const casadi_real*
  * failing evaluation. */
 CASADI_SYMBOL_EXPORT int cn2d_ukf_update_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
-  const casadi_real* a[14];
-  casadi_real* r[9];
+  const casadi_real* a[7];
+  casadi_real* r[5];
   casadi_int iw[1];
-  casadi_real w[45];
+  casadi_real w[29];
   casadi_int j, k;
-  for (k = 0; k < 14; ++k) a[k] = 0;
-  for (k = 0; k < 9; ++k) r[k] = 0;
+  for (k = 0; k < 7; ++k) a[k] = 0;
+  for (k = 0; k < 5; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
     for (k = 0; k < 7; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
     for (k = 0; k < 5; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
@@ -2754,13 +2628,13 @@ CASADI_SYMBOL_EXPORT int cn2d_ukf_update_batch(casadi_int N, const casadi_real**
  * failing evaluation. */
 CASADI_SYMBOL_EXPORT int cn2d_ukf_predict_points_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
-  const casadi_real* a[6];
-  casadi_real* r[4];
+  const casadi_real* a[3];
+  casadi_real* r[2];
   casadi_int iw[1];
-  casadi_real w[42];
+  casadi_real w[10];
   casadi_int j, k;
-  for (k = 0; k < 6; ++k) a[k] = 0;
-  for (k = 0; k < 4; ++k) r[k] = 0;
+  for (k = 0; k < 3; ++k) a[k] = 0;
+  for (k = 0; k < 2; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
     for (k = 0; k < 3; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
     for (k = 0; k < 2; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
@@ -2774,13 +2648,13 @@ CASADI_SYMBOL_EXPORT int cn2d_ukf_predict_points_batch(casadi_int N, const casad
  * failing evaluation. */
 CASADI_SYMBOL_EXPORT int cn2d_ukf_predict_weights_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
-  const casadi_real* a[2];
-  casadi_real* r[4];
+  const casadi_real* a[1];
+  casadi_real* r[2];
   casadi_int iw[1];
-  casadi_real w[17];
+  casadi_real w[4];
   casadi_int j, k;
-  for (k = 0; k < 2; ++k) a[k] = 0;
-  for (k = 0; k < 4; ++k) r[k] = 0;
+  for (k = 0; k < 1; ++k) a[k] = 0;
+  for (k = 0; k < 2; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
     for (k = 0; k < 1; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
     for (k = 0; k < 2; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
@@ -2794,13 +2668,13 @@ CASADI_SYMBOL_EXPORT int cn2d_ukf_predict_weights_batch(casadi_int N, const casa
  * failing evaluation. */
 CASADI_SYMBOL_EXPORT int cn2d_mcukf_update_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
-  const casadi_real* a[15];
-  casadi_real* r[9];
+  const casadi_real* a[8];
+  casadi_real* r[5];
   casadi_int iw[1];
-  casadi_real w[46];
+  casadi_real w[29];
   casadi_int j, k;
-  for (k = 0; k < 15; ++k) a[k] = 0;
-  for (k = 0; k < 9; ++k) r[k] = 0;
+  for (k = 0; k < 8; ++k) a[k] = 0;
+  for (k = 0; k < 5; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
     for (k = 0; k < 8; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
     for (k = 0; k < 5; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
@@ -2814,13 +2688,13 @@ CASADI_SYMBOL_EXPORT int cn2d_mcukf_update_batch(casadi_int N, const casadi_real
  * failing evaluation. */
 CASADI_SYMBOL_EXPORT int cn2d_huber_ukf_update_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
-  const casadi_real* a[15];
-  casadi_real* r[9];
+  const casadi_real* a[8];
+  casadi_real* r[5];
   casadi_int iw[1];
-  casadi_real w[46];
+  casadi_real w[29];
   casadi_int j, k;
-  for (k = 0; k < 15; ++k) a[k] = 0;
-  for (k = 0; k < 9; ++k) r[k] = 0;
+  for (k = 0; k < 8; ++k) a[k] = 0;
+  for (k = 0; k < 5; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
     for (k = 0; k < 8; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
     for (k = 0; k < 5; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
@@ -2834,13 +2708,13 @@ CASADI_SYMBOL_EXPORT int cn2d_huber_ukf_update_batch(casadi_int N, const casadi_
  * failing evaluation. */
 CASADI_SYMBOL_EXPORT int cn2d_ckf_predict_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
-  const casadi_real* a[18];
-  casadi_real* r[6];
+  const casadi_real* a[6];
+  casadi_real* r[3];
   casadi_int iw[1];
-  casadi_real w[88];
+  casadi_real w[21];
   casadi_int j, k;
-  for (k = 0; k < 18; ++k) a[k] = 0;
-  for (k = 0; k < 6; ++k) r[k] = 0;
+  for (k = 0; k < 6; ++k) a[k] = 0;
+  for (k = 0; k < 3; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
     for (k = 0; k < 6; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
     for (k = 0; k < 3; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
@@ -2854,13 +2728,13 @@ CASADI_SYMBOL_EXPORT int cn2d_ckf_predict_batch(casadi_int N, const casadi_real*
  * failing evaluation. */
 CASADI_SYMBOL_EXPORT int cn2d_ckf_update_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
-  const casadi_real* a[12];
-  casadi_real* r[9];
+  const casadi_real* a[6];
+  casadi_real* r[5];
   casadi_int iw[1];
-  casadi_real w[38];
+  casadi_real w[25];
   casadi_int j, k;
-  for (k = 0; k < 12; ++k) a[k] = 0;
-  for (k = 0; k < 9; ++k) r[k] = 0;
+  for (k = 0; k < 6; ++k) a[k] = 0;
+  for (k = 0; k < 5; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
     for (k = 0; k < 6; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
     for (k = 0; k < 5; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
@@ -2874,13 +2748,13 @@ CASADI_SYMBOL_EXPORT int cn2d_ckf_update_batch(casadi_int N, const casadi_real**
  * failing evaluation. */
 CASADI_SYMBOL_EXPORT int cn2d_ckf_step_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
-  const casadi_real* a[27];
-  casadi_real* r[14];
+  const casadi_real* a[9];
+  casadi_real* r[5];
   casadi_int iw[1];
-  casadi_real w[116];
+  casadi_real w[29];
   casadi_int j, k;
-  for (k = 0; k < 27; ++k) a[k] = 0;
-  for (k = 0; k < 14; ++k) r[k] = 0;
+  for (k = 0; k < 9; ++k) a[k] = 0;
+  for (k = 0; k < 5; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
     for (k = 0; k < 9; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
     for (k = 0; k < 5; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
@@ -2894,13 +2768,13 @@ CASADI_SYMBOL_EXPORT int cn2d_ckf_step_batch(casadi_int N, const casadi_real** a
  * failing evaluation. */
 CASADI_SYMBOL_EXPORT int cn2d_ckf_predict_points_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
-  const casadi_real* a[4];
-  casadi_real* r[4];
+  const casadi_real* a[2];
+  casadi_real* r[2];
   casadi_int iw[1];
-  casadi_real w[35];
+  casadi_real w[11];
   casadi_int j, k;
-  for (k = 0; k < 4; ++k) a[k] = 0;
-  for (k = 0; k < 4; ++k) r[k] = 0;
+  for (k = 0; k < 2; ++k) a[k] = 0;
+  for (k = 0; k < 2; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
     for (k = 0; k < 2; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
     for (k = 0; k < 2; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
@@ -2915,12 +2789,12 @@ CASADI_SYMBOL_EXPORT int cn2d_ckf_predict_points_batch(casadi_int N, const casad
 CASADI_SYMBOL_EXPORT int cn2d_ckf_predict_weights_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
   const casadi_real* a[1];
-  casadi_real* r[3];
+  casadi_real* r[2];
   casadi_int iw[1];
-  casadi_real w[4];
+  casadi_real w[1];
   casadi_int j, k;
   for (k = 0; k < 1; ++k) a[k] = 0;
-  for (k = 0; k < 3; ++k) r[k] = 0;
+  for (k = 0; k < 2; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
     for (k = 0; k < 0; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
     for (k = 0; k < 2; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;

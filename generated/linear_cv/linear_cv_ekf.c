@@ -4,10 +4,10 @@
  *
  * Functions (operations per call: CasADi SX instructions after common-subexpression elimination,
  * of the function itself or of the leaves it calls, times the calls):
- *   linear_cv_F                        71 operations
- *   linear_cv_ekf_predict             211 operations
+ *   linear_cv_F                        19 operations
+ *   linear_cv_ekf_predict             172 operations
  *   linear_cv_ekf_update              315 operations
- *   linear_cv_ekf_step                527 operations
+ *   linear_cv_ekf_step                433 operations
  */
 
 /* CasADi's calling convention passes iw, w and mem to every function; not every function uses them. */
@@ -34,15 +34,10 @@
 #endif
 
 /* Add prefix to internal symbols */
-#define casadi_clear CASADI_PREFIX(clear)
-#define casadi_copy CASADI_PREFIX(copy)
-#define casadi_densify CASADI_PREFIX(densify)
 #define casadi_f0 CASADI_PREFIX(f0)
 #define casadi_f1 CASADI_PREFIX(f1)
 #define casadi_f2 CASADI_PREFIX(f2)
 #define casadi_f3 CASADI_PREFIX(f3)
-#define casadi_f4 CASADI_PREFIX(f4)
-#define casadi_f5 CASADI_PREFIX(f5)
 #define casadi_fabs CASADI_PREFIX(fabs)
 #define casadi_fmax CASADI_PREFIX(fmax)
 #define casadi_s0 CASADI_PREFIX(s0)
@@ -50,9 +45,7 @@
 #define casadi_s2 CASADI_PREFIX(s2)
 #define casadi_s3 CASADI_PREFIX(s3)
 #define casadi_s4 CASADI_PREFIX(s4)
-#define casadi_s5 CASADI_PREFIX(s5)
 #define casadi_sq CASADI_PREFIX(sq)
-#define casadi_zeros CASADI_PREFIX(zeros)
 
 /* Symbol visibility in DLLs */
 #ifndef CASADI_SYMBOL_EXPORT
@@ -68,50 +61,6 @@
     #define CASADI_SYMBOL_EXPORT
   #endif
 #endif
-
-void casadi_copy(const casadi_real* x, casadi_int n, casadi_real* y) {
-  casadi_int i;
-  if (y) {
-    if (x) {
-      for (i=0; i<n; ++i) *y++ = *x++;
-    } else {
-      for (i=0; i<n; ++i) *y++ = 0.;
-    }
-  }
-}
-
-void casadi_clear(casadi_real* x, casadi_int n) {
-  casadi_int i;
-  if (x) {
-    for (i=0; i<n; ++i) *x++ = 0;
-  }
-}
-
-#define CASADI_CAST(x,y) ((x) y)
-
-void casadi_densify(const casadi_real* x, const casadi_int* sp_x, casadi_real* y, casadi_int tr) {
-  casadi_int nrow_x, ncol_x, i, el;
-  const casadi_int *colind_x, *row_x;
-  if (!y) return;
-  nrow_x = sp_x[0]; ncol_x = sp_x[1];
-  colind_x = sp_x+2; row_x = sp_x+ncol_x+3;
-  casadi_clear(y, nrow_x*ncol_x);
-  if (!x) return;
-  if (tr) {
-    for (i=0; i<ncol_x; ++i) {
-      for (el=colind_x[i]; el!=colind_x[i+1]; ++el) {
-        y[i + row_x[el]*ncol_x] = CASADI_CAST(casadi_real, *x++);
-      }
-    }
-  } else {
-    for (i=0; i<ncol_x; ++i) {
-      for (el=colind_x[i]; el!=colind_x[i+1]; ++el) {
-        y[row_x[el]] = CASADI_CAST(casadi_real, *x++);
-      }
-      y += nrow_x;
-    }
-  }
-}
 
 casadi_real casadi_fabs(casadi_real x) {
 /* Pre-c99 compatibility */
@@ -146,103 +95,34 @@ CASADI_SYMBOL_EXPORT void linear_cv_ekf_casadi_version(int* major, int* minor, i
 CASADI_SYMBOL_EXPORT int linear_cv_ekf_casadi_int_size(void) { return (int) sizeof(casadi_int); }
 CASADI_SYMBOL_EXPORT int linear_cv_ekf_casadi_real_size(void) { return (int) sizeof(casadi_real); }
 
-static const casadi_int casadi_s0[13] = 
-  {4, 4, 0, 1, 2, 4, 6, 0,
-  1, 0, 2, 1, 3};
-static const casadi_int casadi_s1[3] = {4, 1, 1};
-static const casadi_int casadi_s2[3] = {2, 1, 1};
-static const casadi_int casadi_s3[3] = {1, 1, 1};
-static const casadi_int casadi_s4[3] = {4, 4, 1};
-static const casadi_int casadi_s5[3] = {2, 2, 1};
-
-static const casadi_real casadi_zeros[16] = 
-  {0.};
-
-/* linear_cv_step_and_jacobian:(x[4],u[2],p[2],dt)->(x_next[4],F[4x4,6nz]) */
-static int casadi_f1(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real a0, a1, a2, a3, a4, a5, a6, a7, a8;
-  a0=arg[0]? arg[0][0] : 0;
-  a1=1.6666666666666666e-01;
-  a2=arg[3]? arg[3][0] : 0;
-  a1=(a1*a2);
-  a3=arg[0]? arg[0][2] : 0;
-  a4=5.0000000000000000e-01;
-  a4=(a4*a2);
-  a5=arg[1]? arg[1][0] : 0;
-  a6=(a4*a5);
-  a6=(a3+a6);
-  a6=(2.*a6);
-  a7=(a3+a6);
-  a7=(a7+a6);
-  a6=(a2*a5);
-  a6=(a3+a6);
-  a7=(a7+a6);
-  a7=(a1*a7);
-  a0=(a0+a7);
-  if (res[0]!=0) res[0][0]=a0;
-  a0=arg[0]? arg[0][1] : 0;
-  a7=arg[0]? arg[0][3] : 0;
-  a6=arg[1]? arg[1][1] : 0;
-  a4=(a4*a6);
-  a4=(a7+a4);
-  a4=(2.*a4);
-  a8=(a7+a4);
-  a8=(a8+a4);
-  a4=(a2*a6);
-  a4=(a7+a4);
-  a8=(a8+a4);
-  a8=(a1*a8);
-  a0=(a0+a8);
-  if (res[0]!=0) res[0][1]=a0;
-  a0=3.;
-  a8=(a0*a5);
-  a4=(2.*a5);
-  a8=(a8+a4);
-  a8=(a8+a5);
-  a8=(a1*a8);
-  a3=(a3+a8);
-  if (res[0]!=0) res[0][2]=a3;
-  a0=(a0*a6);
-  a3=(2.*a6);
-  a0=(a0+a3);
-  a0=(a0+a6);
-  a1=(a1*a0);
-  a7=(a7+a1);
-  if (res[0]!=0) res[0][3]=a7;
-  a7=1.;
-  if (res[1]!=0) res[1][0]=a7;
-  if (res[1]!=0) res[1][1]=a7;
-  if (res[1]!=0) res[1][2]=a2;
-  if (res[1]!=0) res[1][3]=a7;
-  if (res[1]!=0) res[1][4]=a2;
-  if (res[1]!=0) res[1][5]=a7;
-  return 0;
-}
+static const casadi_int casadi_s0[3] = {4, 1, 1};
+static const casadi_int casadi_s1[3] = {2, 1, 1};
+static const casadi_int casadi_s2[3] = {1, 1, 1};
+static const casadi_int casadi_s3[3] = {4, 4, 1};
+static const casadi_int casadi_s4[3] = {2, 2, 1};
 
 /* linear_cv_F:(x[4],u[2],p[2],dt)->(dfdx[4x4]) */
 static int casadi_f0(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+1, *w0=w+9, *w1=w+13, *w2=w+15, w3, *w4=w+17, *w5=w+23;
-  const casadi_real **arg1=arg+4;
-  /* #0: @0 = input[0][0] */
-  casadi_copy(arg[0], 4, w0);
-  /* #1: @1 = input[1][0] */
-  casadi_copy(arg[1], 2, w1);
-  /* #2: @2 = input[2][0] */
-  casadi_copy(arg[2], 2, w2);
-  /* #3: @3 = input[3][0] */
-  w3 = arg[3] ? arg[3][0] : 0;
-  /* #4: {NULL, @4} = linear_cv_step_and_jacobian(@0, @1, @2, @3) */
-  arg1[0]=w0;
-  arg1[1]=w1;
-  arg1[2]=w2;
-  arg1[3]=(&w3);
-  res1[0]=0;
-  res1[1]=w4;
-  if (casadi_f1(arg1, res1, iw, w, 0)) return 1;
-  /* #5: @5 = dense(@4) */
-  casadi_densify(w4, casadi_s0, w5, 0);
-  /* #6: output[0][0] = @5 */
-  casadi_copy(w5, 16, res[0]);
+  casadi_real a0, a1, a2;
+  a0=1.;
+  if (res[0]!=0) res[0][0]=a0;
+  a1=0.;
+  if (res[0]!=0) res[0][1]=a1;
+  if (res[0]!=0) res[0][2]=a1;
+  if (res[0]!=0) res[0][3]=a1;
+  if (res[0]!=0) res[0][4]=a1;
+  if (res[0]!=0) res[0][5]=a0;
+  if (res[0]!=0) res[0][6]=a1;
+  if (res[0]!=0) res[0][7]=a1;
+  a2=arg[3]? arg[3][0] : 0;
+  if (res[0]!=0) res[0][8]=a2;
+  if (res[0]!=0) res[0][9]=a1;
+  if (res[0]!=0) res[0][10]=a0;
+  if (res[0]!=0) res[0][11]=a1;
+  if (res[0]!=0) res[0][12]=a1;
+  if (res[0]!=0) res[0][13]=a2;
+  if (res[0]!=0) res[0][14]=a1;
+  if (res[0]!=0) res[0][15]=a0;
   return 0;
 }
 
@@ -292,243 +172,218 @@ CASADI_SYMBOL_EXPORT const char* linear_cv_F_name_out(casadi_int i) {
 
 CASADI_SYMBOL_EXPORT const casadi_int* linear_cv_F_sparsity_in(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s1;
-    case 1: return casadi_s2;
-    case 2: return casadi_s2;
-    case 3: return casadi_s3;
+    case 0: return casadi_s0;
+    case 1: return casadi_s1;
+    case 2: return casadi_s1;
+    case 3: return casadi_s2;
     default: return 0;
   }
 }
 
 CASADI_SYMBOL_EXPORT const casadi_int* linear_cv_F_sparsity_out(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s4;
+    case 0: return casadi_s3;
     default: return 0;
   }
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_F_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 8;
-  if (sz_res) *sz_res = 3;
+  if (sz_arg) *sz_arg = 4;
+  if (sz_res) *sz_res = 1;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 39;
+  if (sz_w) *sz_w = 0;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_F_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 8*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 3*sizeof(casadi_real*);
+  if (sz_arg) *sz_arg = 4*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 1*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 39*sizeof(casadi_real);
-  return 0;
-}
-
-/* linear_cv_ekf_covariance:(x_pred[4],F[4x4,6nz],P[4x4],Q[4x4])->(P_pred[4x4],ok) */
-static int casadi_f3(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
-  casadi_real a12, a13, a14;
-  a00=arg[1]? arg[1][0] : 0;
-  a01=arg[2]? arg[2][0] : 0;
-  a01=(a01*a00);
-  a02=5.0000000000000000e-01;
-  a03=arg[2]? arg[2][8] : 0;
-  a04=arg[2]? arg[2][2] : 0;
-  a03=(a03+a04);
-  a03=(a02*a03);
-  a04=arg[1]? arg[1][2] : 0;
-  a05=(a03*a04);
-  a01=(a01+a05);
-  a01=(a00*a01);
-  a03=(a03*a00);
-  a05=arg[2]? arg[2][10] : 0;
-  a06=(a05*a04);
-  a03=(a03+a06);
-  a06=(a04*a03);
-  a01=(a01+a06);
-  a06=arg[3]? arg[3][0] : 0;
-  a01=(a01+a06);
-  if (res[0]!=0) res[0][0]=a01;
-  a06=arg[2]? arg[2][4] : 0;
-  a07=arg[2]? arg[2][1] : 0;
-  a06=(a06+a07);
-  a06=(a02*a06);
-  a07=arg[1]? arg[1][1] : 0;
-  a06=(a06*a07);
-  a08=arg[2]? arg[2][12] : 0;
-  a09=arg[2]? arg[2][3] : 0;
-  a08=(a08+a09);
-  a08=(a02*a08);
-  a09=arg[1]? arg[1][4] : 0;
-  a10=(a08*a09);
-  a06=(a06+a10);
-  a06=(a00*a06);
-  a10=arg[2]? arg[2][9] : 0;
-  a11=arg[2]? arg[2][6] : 0;
-  a10=(a10+a11);
-  a10=(a02*a10);
-  a10=(a10*a07);
-  a11=arg[2]? arg[2][14] : 0;
-  a12=arg[2]? arg[2][11] : 0;
-  a11=(a11+a12);
-  a11=(a02*a11);
-  a12=(a11*a09);
-  a10=(a10+a12);
-  a12=(a04*a10);
-  a06=(a06+a12);
-  a12=arg[3]? arg[3][4] : 0;
-  a13=arg[3]? arg[3][1] : 0;
-  a12=(a12+a13);
-  a12=(a02*a12);
-  a06=(a06+a12);
-  if (res[0]!=0) res[0][1]=a06;
-  a12=arg[1]? arg[1][3] : 0;
-  a03=(a12*a03);
-  a13=arg[3]? arg[3][8] : 0;
-  a14=arg[3]? arg[3][2] : 0;
-  a13=(a13+a14);
-  a13=(a02*a13);
-  a03=(a03+a13);
-  if (res[0]!=0) res[0][2]=a03;
-  a13=arg[1]? arg[1][5] : 0;
-  a08=(a08*a00);
-  a04=(a11*a04);
-  a08=(a08+a04);
-  a08=(a13*a08);
-  a04=arg[3]? arg[3][12] : 0;
-  a00=arg[3]? arg[3][3] : 0;
-  a04=(a04+a00);
-  a04=(a02*a04);
-  a08=(a08+a04);
-  if (res[0]!=0) res[0][3]=a08;
-  if (res[0]!=0) res[0][4]=a06;
-  a04=arg[2]? arg[2][5] : 0;
-  a04=(a04*a07);
-  a00=arg[2]? arg[2][13] : 0;
-  a14=arg[2]? arg[2][7] : 0;
-  a00=(a00+a14);
-  a00=(a02*a00);
-  a14=(a00*a09);
-  a04=(a04+a14);
-  a04=(a07*a04);
-  a00=(a00*a07);
-  a07=arg[2]? arg[2][15] : 0;
-  a14=(a07*a09);
-  a00=(a00+a14);
-  a09=(a09*a00);
-  a04=(a04+a09);
-  a09=arg[3]? arg[3][5] : 0;
-  a04=(a04+a09);
-  if (res[0]!=0) res[0][5]=a04;
-  a10=(a12*a10);
-  a09=arg[3]? arg[3][9] : 0;
-  a14=arg[3]? arg[3][6] : 0;
-  a09=(a09+a14);
-  a09=(a02*a09);
-  a10=(a10+a09);
-  if (res[0]!=0) res[0][6]=a10;
-  a00=(a13*a00);
-  a09=arg[3]? arg[3][13] : 0;
-  a14=arg[3]? arg[3][7] : 0;
-  a09=(a09+a14);
-  a09=(a02*a09);
-  a00=(a00+a09);
-  if (res[0]!=0) res[0][7]=a00;
-  if (res[0]!=0) res[0][8]=a03;
-  if (res[0]!=0) res[0][9]=a10;
-  a05=(a05*a12);
-  a05=(a12*a05);
-  a09=arg[3]? arg[3][10] : 0;
-  a05=(a05+a09);
-  if (res[0]!=0) res[0][10]=a05;
-  a11=(a11*a13);
-  a12=(a12*a11);
-  a11=arg[3]? arg[3][14] : 0;
-  a09=arg[3]? arg[3][11] : 0;
-  a11=(a11+a09);
-  a02=(a02*a11);
-  a12=(a12+a02);
-  if (res[0]!=0) res[0][11]=a12;
-  if (res[0]!=0) res[0][12]=a08;
-  if (res[0]!=0) res[0][13]=a00;
-  if (res[0]!=0) res[0][14]=a12;
-  a07=(a07*a13);
-  a13=(a13*a07);
-  a07=arg[3]? arg[3][15] : 0;
-  a13=(a13+a07);
-  if (res[0]!=0) res[0][15]=a13;
-  a07=arg[0]? arg[0][0] : 0;
-  a02=arg[0]? arg[0][1] : 0;
-  a07=(a07+a02);
-  a02=arg[0]? arg[0][2] : 0;
-  a07=(a07+a02);
-  a02=arg[0]? arg[0][3] : 0;
-  a07=(a07+a02);
-  a07=(a07+a01);
-  a07=(a07+a06);
-  a07=(a07+a03);
-  a07=(a07+a08);
-  a07=(a07+a06);
-  a07=(a07+a04);
-  a07=(a07+a10);
-  a07=(a07+a00);
-  a07=(a07+a03);
-  a07=(a07+a10);
-  a07=(a07+a05);
-  a07=(a07+a12);
-  a07=(a07+a08);
-  a07=(a07+a00);
-  a07=(a07+a12);
-  a07=(a07+a13);
-  a07=casadi_fabs(a07);
-  a13=casadi_inf;
-  a07=(a07<a13);
-  if (res[1]!=0) res[1][0]=a07;
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
 
 /* linear_cv_ekf_predict:(x[4],P[4x4],u[2],p[2],dt,Q[4x4])->(x_pred[4],P_pred[4x4],ok) */
-static int casadi_f2(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+3, *w0=w+15, *w1=w+19, *w2=w+21, w3, *w4=w+23, *w5=w+27, *w8=w+33;
-  const casadi_real **arg1=arg+6, *wr6, *wr7;
-  /* #0: @0 = input[0][0] */
-  casadi_copy(arg[0], 4, w0);
-  /* #1: @1 = input[2][0] */
-  casadi_copy(arg[2], 2, w1);
-  /* #2: @2 = input[3][0] */
-  casadi_copy(arg[3], 2, w2);
-  /* #3: @3 = input[4][0] */
-  w3 = arg[4] ? arg[4][0] : 0;
-  /* #4: {@4, @5} = linear_cv_step_and_jacobian(@0, @1, @2, @3) */
-  arg1[0]=w0;
-  arg1[1]=w1;
-  arg1[2]=w2;
-  arg1[3]=(&w3);
-  res1[0]=w4;
-  res1[1]=w5;
-  if (casadi_f1(arg1, res1, iw, w, 0)) return 1;
-  /* #5: output[0][0] = @4 */
-  casadi_copy(w4, 4, res[0]);
-  /* #6: @6 = input[1][0] */
-  wr6 = arg[1] ? arg[1] : casadi_zeros;
-  /* #7: @7 = input[5][0] */
-  wr7 = arg[5] ? arg[5] : casadi_zeros;
-  /* #8: {@8, @3} = linear_cv_ekf_covariance(@4, @5, @6, @7) */
-  arg1[0]=w4;
-  arg1[1]=w5;
-  arg1[2]=wr6;
-  arg1[3]=wr7;
-  res1[0]=w8;
-  res1[1]=(&w3);
-  if (casadi_f3(arg1, res1, iw, w, 0)) return 1;
-  /* #9: output[1][0] = @8 */
-  casadi_copy(w8, 16, res[1]);
-  /* #10: output[2][0] = @3 */
-  if (res[2]) res[2][0] = w3;
+static int casadi_f1(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15, a16;
+  a00=arg[0]? arg[0][0] : 0;
+  a01=1.6666666666666666e-01;
+  a02=arg[4]? arg[4][0] : 0;
+  a01=(a01*a02);
+  a03=arg[0]? arg[0][2] : 0;
+  a04=5.0000000000000000e-01;
+  a05=(a04*a02);
+  a06=arg[2]? arg[2][0] : 0;
+  a07=(a05*a06);
+  a07=(a03+a07);
+  a07=(2.*a07);
+  a08=(a03+a07);
+  a08=(a08+a07);
+  a07=(a02*a06);
+  a07=(a03+a07);
+  a08=(a08+a07);
+  a08=(a01*a08);
+  a00=(a00+a08);
+  if (res[0]!=0) res[0][0]=a00;
+  a08=arg[0]? arg[0][1] : 0;
+  a07=arg[0]? arg[0][3] : 0;
+  a09=arg[2]? arg[2][1] : 0;
+  a05=(a05*a09);
+  a05=(a07+a05);
+  a05=(2.*a05);
+  a10=(a07+a05);
+  a10=(a10+a05);
+  a05=(a02*a09);
+  a05=(a07+a05);
+  a10=(a10+a05);
+  a10=(a01*a10);
+  a08=(a08+a10);
+  if (res[0]!=0) res[0][1]=a08;
+  a10=3.;
+  a05=(a10*a06);
+  a11=(2.*a06);
+  a05=(a05+a11);
+  a05=(a05+a06);
+  a05=(a01*a05);
+  a03=(a03+a05);
+  if (res[0]!=0) res[0][2]=a03;
+  a10=(a10*a09);
+  a05=(2.*a09);
+  a10=(a10+a05);
+  a10=(a10+a09);
+  a01=(a01*a10);
+  a07=(a07+a01);
+  if (res[0]!=0) res[0][3]=a07;
+  a01=arg[1]? arg[1][0] : 0;
+  a10=arg[1]? arg[1][8] : 0;
+  a09=arg[1]? arg[1][2] : 0;
+  a10=(a10+a09);
+  a10=(a04*a10);
+  a09=(a10*a02);
+  a01=(a01+a09);
+  a09=arg[1]? arg[1][10] : 0;
+  a05=(a09*a02);
+  a10=(a10+a05);
+  a05=(a02*a10);
+  a01=(a01+a05);
+  a05=arg[5]? arg[5][0] : 0;
+  a01=(a01+a05);
+  if (res[1]!=0) res[1][0]=a01;
+  a05=arg[1]? arg[1][4] : 0;
+  a06=arg[1]? arg[1][1] : 0;
+  a05=(a05+a06);
+  a05=(a04*a05);
+  a06=arg[1]? arg[1][12] : 0;
+  a11=arg[1]? arg[1][3] : 0;
+  a06=(a06+a11);
+  a06=(a04*a06);
+  a11=(a06*a02);
+  a05=(a05+a11);
+  a11=arg[1]? arg[1][9] : 0;
+  a12=arg[1]? arg[1][6] : 0;
+  a11=(a11+a12);
+  a11=(a04*a11);
+  a12=arg[1]? arg[1][14] : 0;
+  a13=arg[1]? arg[1][11] : 0;
+  a12=(a12+a13);
+  a12=(a04*a12);
+  a13=(a12*a02);
+  a11=(a11+a13);
+  a14=(a02*a11);
+  a05=(a05+a14);
+  a14=arg[5]? arg[5][4] : 0;
+  a15=arg[5]? arg[5][1] : 0;
+  a14=(a14+a15);
+  a14=(a04*a14);
+  a05=(a05+a14);
+  if (res[1]!=0) res[1][1]=a05;
+  a14=arg[5]? arg[5][8] : 0;
+  a15=arg[5]? arg[5][2] : 0;
+  a14=(a14+a15);
+  a14=(a04*a14);
+  a10=(a10+a14);
+  if (res[1]!=0) res[1][2]=a10;
+  a06=(a06+a13);
+  a13=arg[5]? arg[5][12] : 0;
+  a14=arg[5]? arg[5][3] : 0;
+  a13=(a13+a14);
+  a13=(a04*a13);
+  a06=(a06+a13);
+  if (res[1]!=0) res[1][3]=a06;
+  if (res[1]!=0) res[1][4]=a05;
+  a13=arg[1]? arg[1][5] : 0;
+  a14=arg[1]? arg[1][13] : 0;
+  a15=arg[1]? arg[1][7] : 0;
+  a14=(a14+a15);
+  a14=(a04*a14);
+  a15=(a14*a02);
+  a13=(a13+a15);
+  a15=arg[1]? arg[1][15] : 0;
+  a16=(a15*a02);
+  a14=(a14+a16);
+  a02=(a02*a14);
+  a13=(a13+a02);
+  a02=arg[5]? arg[5][5] : 0;
+  a13=(a13+a02);
+  if (res[1]!=0) res[1][5]=a13;
+  a02=arg[5]? arg[5][9] : 0;
+  a16=arg[5]? arg[5][6] : 0;
+  a02=(a02+a16);
+  a02=(a04*a02);
+  a11=(a11+a02);
+  if (res[1]!=0) res[1][6]=a11;
+  a02=arg[5]? arg[5][13] : 0;
+  a16=arg[5]? arg[5][7] : 0;
+  a02=(a02+a16);
+  a02=(a04*a02);
+  a14=(a14+a02);
+  if (res[1]!=0) res[1][7]=a14;
+  if (res[1]!=0) res[1][8]=a10;
+  if (res[1]!=0) res[1][9]=a11;
+  a02=arg[5]? arg[5][10] : 0;
+  a09=(a09+a02);
+  if (res[1]!=0) res[1][10]=a09;
+  a02=arg[5]? arg[5][14] : 0;
+  a16=arg[5]? arg[5][11] : 0;
+  a02=(a02+a16);
+  a04=(a04*a02);
+  a12=(a12+a04);
+  if (res[1]!=0) res[1][11]=a12;
+  if (res[1]!=0) res[1][12]=a06;
+  if (res[1]!=0) res[1][13]=a14;
+  if (res[1]!=0) res[1][14]=a12;
+  a04=arg[5]? arg[5][15] : 0;
+  a15=(a15+a04);
+  if (res[1]!=0) res[1][15]=a15;
+  a00=(a00+a08);
+  a00=(a00+a03);
+  a00=(a00+a07);
+  a00=(a00+a01);
+  a00=(a00+a05);
+  a00=(a00+a10);
+  a00=(a00+a06);
+  a00=(a00+a05);
+  a00=(a00+a13);
+  a00=(a00+a11);
+  a00=(a00+a14);
+  a00=(a00+a10);
+  a00=(a00+a11);
+  a00=(a00+a09);
+  a00=(a00+a12);
+  a00=(a00+a06);
+  a00=(a00+a14);
+  a00=(a00+a12);
+  a00=(a00+a15);
+  a00=casadi_fabs(a00);
+  a15=casadi_inf;
+  a00=(a00<a15);
+  if (res[2]!=0) res[2][0]=a00;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_ekf_predict(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f2(arg, res, iw, w, mem);
+  return casadi_f1(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_ekf_predict_checkout(void) {
@@ -577,43 +432,43 @@ CASADI_SYMBOL_EXPORT const char* linear_cv_ekf_predict_name_out(casadi_int i) {
 
 CASADI_SYMBOL_EXPORT const casadi_int* linear_cv_ekf_predict_sparsity_in(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s1;
-    case 1: return casadi_s4;
-    case 2: return casadi_s2;
-    case 3: return casadi_s2;
-    case 4: return casadi_s3;
-    case 5: return casadi_s4;
+    case 0: return casadi_s0;
+    case 1: return casadi_s3;
+    case 2: return casadi_s1;
+    case 3: return casadi_s1;
+    case 4: return casadi_s2;
+    case 5: return casadi_s3;
     default: return 0;
   }
 }
 
 CASADI_SYMBOL_EXPORT const casadi_int* linear_cv_ekf_predict_sparsity_out(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s1;
-    case 1: return casadi_s4;
-    case 2: return casadi_s3;
+    case 0: return casadi_s0;
+    case 1: return casadi_s3;
+    case 2: return casadi_s2;
     default: return 0;
   }
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_ekf_predict_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 10;
-  if (sz_res) *sz_res = 5;
+  if (sz_arg) *sz_arg = 6;
+  if (sz_res) *sz_res = 3;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 49;
+  if (sz_w) *sz_w = 0;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_ekf_predict_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 10*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 5*sizeof(casadi_real*);
+  if (sz_arg) *sz_arg = 6*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 3*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 49*sizeof(casadi_real);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
 
 /* linear_cv_ekf_update:(x[4],P[4x4],z[2],p[2],R[2x2],mask[2])->(x_post[4],P_post[4x4],innovation[2],S[2x2],ok) */
-static int casadi_f4(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f2(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -937,7 +792,7 @@ static int casadi_f4(const casadi_real** arg, casadi_real** res, casadi_int* iw,
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_ekf_update(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f4(arg, res, iw, w, mem);
+  return casadi_f2(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_ekf_update_checkout(void) {
@@ -988,23 +843,23 @@ CASADI_SYMBOL_EXPORT const char* linear_cv_ekf_update_name_out(casadi_int i) {
 
 CASADI_SYMBOL_EXPORT const casadi_int* linear_cv_ekf_update_sparsity_in(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s1;
-    case 1: return casadi_s4;
-    case 2: return casadi_s2;
-    case 3: return casadi_s2;
-    case 4: return casadi_s5;
-    case 5: return casadi_s2;
+    case 0: return casadi_s0;
+    case 1: return casadi_s3;
+    case 2: return casadi_s1;
+    case 3: return casadi_s1;
+    case 4: return casadi_s4;
+    case 5: return casadi_s1;
     default: return 0;
   }
 }
 
 CASADI_SYMBOL_EXPORT const casadi_int* linear_cv_ekf_update_sparsity_out(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s1;
-    case 1: return casadi_s4;
-    case 2: return casadi_s2;
-    case 3: return casadi_s5;
-    case 4: return casadi_s3;
+    case 0: return casadi_s0;
+    case 1: return casadi_s3;
+    case 2: return casadi_s1;
+    case 3: return casadi_s4;
+    case 4: return casadi_s2;
     default: return 0;
   }
 }
@@ -1026,69 +881,450 @@ CASADI_SYMBOL_EXPORT int linear_cv_ekf_update_work_bytes(casadi_int *sz_arg, cas
 }
 
 /* linear_cv_ekf_step:(x[4],P[4x4],u[2],p[2],dt,Q[4x4],z[2],R[2x2],mask[2])->(x_post[4],P_post[4x4],innovation[2],S[2x2],ok) */
-static int casadi_f5(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+5, *w00=w+82, *w01=w+86, *w02=w+102, *w03=w+104, w04, *w06=w+106, *w07=w+110, w08, *w09=w+126, *w10=w+128, *w11=w+132;
-  casadi_real *w12=w+134;
-  const casadi_real **arg1=arg+9, *wr01, *wr05;
-  /* #0: @0 = input[0][0] */
-  casadi_copy(arg[0], 4, w00);
-  /* #1: @1 = input[1][0] */
-  wr01 = arg[1] ? arg[1] : casadi_zeros;
-  /* #2: @2 = input[2][0] */
-  casadi_copy(arg[2], 2, w02);
-  /* #3: @3 = input[3][0] */
-  casadi_copy(arg[3], 2, w03);
-  /* #4: @4 = input[4][0] */
-  w04 = arg[4] ? arg[4][0] : 0;
-  /* #5: @5 = input[5][0] */
-  wr05 = arg[5] ? arg[5] : casadi_zeros;
-  /* #6: {@6, @7, @8} = linear_cv_ekf_predict(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=w02;
-  arg1[3]=w03;
-  arg1[4]=(&w04);
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w07;
-  res1[2]=(&w08);
-  if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
-  /* #7: @2 = input[6][0] */
-  casadi_copy(arg[6], 2, w02);
-  /* #8: @0 = input[7][0] */
-  casadi_copy(arg[7], 4, w00);
-  /* #9: @9 = input[8][0] */
-  casadi_copy(arg[8], 2, w09);
-  /* #10: {@10, @1, @11, @12, @4} = linear_cv_ekf_update(@6, @7, @2, @3, @0, @9) */
-  arg1[0]=w06;
-  arg1[1]=w07;
-  arg1[2]=w02;
-  arg1[3]=w03;
-  arg1[4]=w00;
-  arg1[5]=w09;
-  res1[0]=w10;
-  res1[1]=w01;
-  res1[2]=w11;
-  res1[3]=w12;
-  res1[4]=(&w04);
-  if (casadi_f4(arg1, res1, iw, w, 0)) return 1;
-  /* #11: output[0][0] = @10 */
-  casadi_copy(w10, 4, res[0]);
-  /* #12: output[1][0] = @1 */
-  casadi_copy(w01, 16, res[1]);
-  /* #13: output[2][0] = @11 */
-  casadi_copy(w11, 2, res[2]);
-  /* #14: output[3][0] = @12 */
-  casadi_copy(w12, 4, res[3]);
-  /* #15: @8 = (@8*@4) */
-  w08 *= w04;
-  /* #16: output[4][0] = @8 */
-  if (res[4]) res[4][0] = w08;
+static int casadi_f3(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
+  casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
+  casadi_real a36, a37, a38, a39, a40, a41, a42, a43, a44, a45, a46, a47;
+  casadi_real a48, a49;
+  a00=arg[0]? arg[0][0] : 0;
+  a01=1.6666666666666666e-01;
+  a02=arg[4]? arg[4][0] : 0;
+  a01=(a01*a02);
+  a03=arg[0]? arg[0][2] : 0;
+  a04=5.0000000000000000e-01;
+  a05=(a04*a02);
+  a06=arg[2]? arg[2][0] : 0;
+  a07=(a05*a06);
+  a07=(a03+a07);
+  a07=(2.*a07);
+  a08=(a03+a07);
+  a08=(a08+a07);
+  a07=(a02*a06);
+  a07=(a03+a07);
+  a08=(a08+a07);
+  a08=(a01*a08);
+  a00=(a00+a08);
+  a08=arg[8]? arg[8][0] : 0;
+  a07=0.;
+  a08=(a08!=a07);
+  a09=arg[1]? arg[1][0] : 0;
+  a10=arg[1]? arg[1][8] : 0;
+  a11=arg[1]? arg[1][2] : 0;
+  a10=(a10+a11);
+  a10=(a04*a10);
+  a11=(a10*a02);
+  a09=(a09+a11);
+  a11=arg[1]? arg[1][10] : 0;
+  a12=(a11*a02);
+  a10=(a10+a12);
+  a12=(a02*a10);
+  a09=(a09+a12);
+  a12=arg[5]? arg[5][0] : 0;
+  a09=(a09+a12);
+  a12=(a08*a09);
+  a13=casadi_sq(a08);
+  a14=arg[7]? arg[7][0] : 0;
+  a14=(a09+a14);
+  a13=(a13*a14);
+  a14=1.;
+  a15=(a14-a08);
+  a13=(a13+a15);
+  a15=1.0000000000000000e-13;
+  a16=casadi_fabs(a13);
+  a16=(a15*a16);
+  a17=1.0000000000000000e-300;
+  a16=(a16+a17);
+  a18=casadi_fmax(a13,a16);
+  a18=sqrt(a18);
+  a19=(1./a18);
+  a19=copysign(a19,a18);
+  a18=(a12*a19);
+  a20=arg[8]? arg[8][1] : 0;
+  a20=(a20!=a07);
+  a07=(a08*a20);
+  a21=arg[1]? arg[1][4] : 0;
+  a22=arg[1]? arg[1][1] : 0;
+  a21=(a21+a22);
+  a21=(a04*a21);
+  a22=arg[1]? arg[1][12] : 0;
+  a23=arg[1]? arg[1][3] : 0;
+  a22=(a22+a23);
+  a22=(a04*a22);
+  a23=(a22*a02);
+  a21=(a21+a23);
+  a23=arg[1]? arg[1][9] : 0;
+  a24=arg[1]? arg[1][6] : 0;
+  a23=(a23+a24);
+  a23=(a04*a23);
+  a24=arg[1]? arg[1][14] : 0;
+  a25=arg[1]? arg[1][11] : 0;
+  a24=(a24+a25);
+  a24=(a04*a24);
+  a25=(a24*a02);
+  a23=(a23+a25);
+  a26=(a02*a23);
+  a21=(a21+a26);
+  a26=arg[5]? arg[5][4] : 0;
+  a27=arg[5]? arg[5][1] : 0;
+  a26=(a26+a27);
+  a26=(a04*a26);
+  a21=(a21+a26);
+  a26=arg[7]? arg[7][2] : 0;
+  a27=arg[7]? arg[7][1] : 0;
+  a26=(a26+a27);
+  a26=(a04*a26);
+  a26=(a21+a26);
+  a07=(a07*a26);
+  a26=(a07*a19);
+  a27=(a20*a21);
+  a28=(a26*a18);
+  a28=(a27-a28);
+  a29=casadi_sq(a20);
+  a30=arg[1]? arg[1][5] : 0;
+  a31=arg[1]? arg[1][13] : 0;
+  a32=arg[1]? arg[1][7] : 0;
+  a31=(a31+a32);
+  a31=(a04*a31);
+  a32=(a31*a02);
+  a30=(a30+a32);
+  a32=arg[1]? arg[1][15] : 0;
+  a33=(a32*a02);
+  a31=(a31+a33);
+  a33=(a02*a31);
+  a30=(a30+a33);
+  a33=arg[5]? arg[5][5] : 0;
+  a30=(a30+a33);
+  a33=arg[7]? arg[7][3] : 0;
+  a33=(a30+a33);
+  a29=(a29*a33);
+  a14=(a14-a20);
+  a29=(a29+a14);
+  a14=casadi_sq(a26);
+  a14=(a29-a14);
+  a33=casadi_fabs(a29);
+  a15=(a15*a33);
+  a15=(a15+a17);
+  a17=casadi_fmax(a14,a15);
+  a17=sqrt(a17);
+  a33=(1./a17);
+  a33=copysign(a33,a17);
+  a28=(a28*a33);
+  a28=(a28*a33);
+  a17=(a26*a28);
+  a18=(a18-a17);
+  a18=(a18*a19);
+  a17=arg[6]? arg[6][0] : 0;
+  a34=arg[3]? arg[3][0] : 0;
+  a34=(a00-a34);
+  a17=(a17-a34);
+  a34=(a18*a17);
+  a34=(a08?a34:0);
+  a35=arg[6]? arg[6][1] : 0;
+  a36=arg[0]? arg[0][1] : 0;
+  a37=arg[0]? arg[0][3] : 0;
+  a38=arg[2]? arg[2][1] : 0;
+  a05=(a05*a38);
+  a05=(a37+a05);
+  a05=(2.*a05);
+  a39=(a37+a05);
+  a39=(a39+a05);
+  a02=(a02*a38);
+  a02=(a37+a02);
+  a39=(a39+a02);
+  a39=(a01*a39);
+  a36=(a36+a39);
+  a39=arg[3]? arg[3][1] : 0;
+  a39=(a36-a39);
+  a35=(a35-a39);
+  a39=(a28*a35);
+  a39=(a20?a39:0);
+  a34=(a34+a39);
+  a34=(a00+a34);
+  if (res[0]!=0) res[0][0]=a34;
+  a39=(a08*a21);
+  a02=(a39*a19);
+  a05=(a20*a30);
+  a40=(a26*a02);
+  a40=(a05-a40);
+  a40=(a40*a33);
+  a40=(a40*a33);
+  a41=(a26*a40);
+  a02=(a02-a41);
+  a02=(a02*a19);
+  a41=(a02*a17);
+  a41=(a08?a41:0);
+  a42=(a40*a35);
+  a42=(a20?a42:0);
+  a41=(a41+a42);
+  a41=(a36+a41);
+  if (res[0]!=0) res[0][1]=a41;
+  a42=3.;
+  a43=(a42*a06);
+  a44=(2.*a06);
+  a43=(a43+a44);
+  a43=(a43+a06);
+  a43=(a01*a43);
+  a03=(a03+a43);
+  a43=arg[5]? arg[5][8] : 0;
+  a06=arg[5]? arg[5][2] : 0;
+  a43=(a43+a06);
+  a43=(a04*a43);
+  a10=(a10+a43);
+  a43=(a08*a10);
+  a06=(a43*a19);
+  a44=arg[5]? arg[5][9] : 0;
+  a45=arg[5]? arg[5][6] : 0;
+  a44=(a44+a45);
+  a44=(a04*a44);
+  a23=(a23+a44);
+  a44=(a20*a23);
+  a45=(a26*a06);
+  a45=(a44-a45);
+  a45=(a45*a33);
+  a45=(a45*a33);
+  a46=(a26*a45);
+  a06=(a06-a46);
+  a06=(a06*a19);
+  a46=(a06*a17);
+  a46=(a08?a46:0);
+  a47=(a45*a35);
+  a47=(a20?a47:0);
+  a46=(a46+a47);
+  a46=(a03+a46);
+  if (res[0]!=0) res[0][2]=a46;
+  a42=(a42*a38);
+  a47=(2.*a38);
+  a42=(a42+a47);
+  a42=(a42+a38);
+  a01=(a01*a42);
+  a37=(a37+a01);
+  a22=(a22+a25);
+  a25=arg[5]? arg[5][12] : 0;
+  a01=arg[5]? arg[5][3] : 0;
+  a25=(a25+a01);
+  a25=(a04*a25);
+  a22=(a22+a25);
+  a25=(a08*a22);
+  a01=(a25*a19);
+  a42=arg[5]? arg[5][13] : 0;
+  a38=arg[5]? arg[5][7] : 0;
+  a42=(a42+a38);
+  a42=(a04*a42);
+  a31=(a31+a42);
+  a42=(a20*a31);
+  a38=(a26*a01);
+  a38=(a42-a38);
+  a38=(a38*a33);
+  a38=(a38*a33);
+  a26=(a26*a38);
+  a01=(a01-a26);
+  a01=(a01*a19);
+  a19=(a01*a17);
+  a19=(a08?a19:0);
+  a26=(a38*a35);
+  a26=(a20?a26:0);
+  a19=(a19+a26);
+  a19=(a37+a19);
+  if (res[0]!=0) res[0][3]=a19;
+  a26=(a18*a12);
+  a33=(a28*a27);
+  a26=(a26+a33);
+  a26=(a09-a26);
+  a33=(a18*a13);
+  a47=(a28*a07);
+  a33=(a33+a47);
+  a33=(a33-a12);
+  a12=(a33*a18);
+  a47=(a18*a07);
+  a48=(a28*a29);
+  a47=(a47+a48);
+  a47=(a47-a27);
+  a27=(a47*a28);
+  a12=(a12+a27);
+  a26=(a26+a12);
+  if (res[1]!=0) res[1][0]=a26;
+  a12=(a18*a39);
+  a27=(a28*a05);
+  a12=(a12+a27);
+  a12=(a21-a12);
+  a27=(a33*a02);
+  a48=(a47*a40);
+  a27=(a27+a48);
+  a12=(a12+a27);
+  if (res[1]!=0) res[1][1]=a12;
+  a27=(a18*a43);
+  a48=(a28*a44);
+  a27=(a27+a48);
+  a27=(a10-a27);
+  a48=(a33*a06);
+  a49=(a47*a45);
+  a48=(a48+a49);
+  a27=(a27+a48);
+  if (res[1]!=0) res[1][2]=a27;
+  a18=(a18*a25);
+  a28=(a28*a42);
+  a18=(a18+a28);
+  a18=(a22-a18);
+  a33=(a33*a01);
+  a47=(a47*a38);
+  a33=(a33+a47);
+  a18=(a18+a33);
+  if (res[1]!=0) res[1][3]=a18;
+  if (res[1]!=0) res[1][4]=a12;
+  a33=(a02*a39);
+  a47=(a40*a05);
+  a33=(a33+a47);
+  a33=(a30-a33);
+  a47=(a02*a13);
+  a28=(a40*a07);
+  a47=(a47+a28);
+  a47=(a47-a39);
+  a39=(a47*a02);
+  a28=(a02*a07);
+  a48=(a40*a29);
+  a28=(a28+a48);
+  a28=(a28-a05);
+  a05=(a28*a40);
+  a39=(a39+a05);
+  a33=(a33+a39);
+  if (res[1]!=0) res[1][5]=a33;
+  a39=(a02*a43);
+  a05=(a40*a44);
+  a39=(a39+a05);
+  a39=(a23-a39);
+  a05=(a47*a06);
+  a48=(a28*a45);
+  a05=(a05+a48);
+  a39=(a39+a05);
+  if (res[1]!=0) res[1][6]=a39;
+  a02=(a02*a25);
+  a40=(a40*a42);
+  a02=(a02+a40);
+  a02=(a31-a02);
+  a47=(a47*a01);
+  a28=(a28*a38);
+  a47=(a47+a28);
+  a02=(a02+a47);
+  if (res[1]!=0) res[1][7]=a02;
+  if (res[1]!=0) res[1][8]=a27;
+  if (res[1]!=0) res[1][9]=a39;
+  a47=arg[5]? arg[5][10] : 0;
+  a11=(a11+a47);
+  a47=(a06*a43);
+  a28=(a45*a44);
+  a47=(a47+a28);
+  a47=(a11-a47);
+  a28=(a06*a13);
+  a40=(a45*a07);
+  a28=(a28+a40);
+  a28=(a28-a43);
+  a43=(a28*a06);
+  a40=(a06*a07);
+  a05=(a45*a29);
+  a40=(a40+a05);
+  a40=(a40-a44);
+  a44=(a40*a45);
+  a43=(a43+a44);
+  a47=(a47+a43);
+  if (res[1]!=0) res[1][10]=a47;
+  a43=arg[5]? arg[5][14] : 0;
+  a44=arg[5]? arg[5][11] : 0;
+  a43=(a43+a44);
+  a04=(a04*a43);
+  a24=(a24+a04);
+  a06=(a06*a25);
+  a45=(a45*a42);
+  a06=(a06+a45);
+  a06=(a24-a06);
+  a28=(a28*a01);
+  a40=(a40*a38);
+  a28=(a28+a40);
+  a06=(a06+a28);
+  if (res[1]!=0) res[1][11]=a06;
+  if (res[1]!=0) res[1][12]=a18;
+  if (res[1]!=0) res[1][13]=a02;
+  if (res[1]!=0) res[1][14]=a06;
+  a28=arg[5]? arg[5][15] : 0;
+  a32=(a32+a28);
+  a28=(a01*a25);
+  a40=(a38*a42);
+  a28=(a28+a40);
+  a28=(a32-a28);
+  a40=(a01*a13);
+  a45=(a38*a07);
+  a40=(a40+a45);
+  a40=(a40-a25);
+  a40=(a40*a01);
+  a01=(a01*a07);
+  a25=(a38*a29);
+  a01=(a01+a25);
+  a01=(a01-a42);
+  a01=(a01*a38);
+  a40=(a40+a01);
+  a28=(a28+a40);
+  if (res[1]!=0) res[1][15]=a28;
+  a08=(a08?a17:0);
+  if (res[2]!=0) res[2][0]=a08;
+  a20=(a20?a35:0);
+  if (res[2]!=0) res[2][1]=a20;
+  if (res[3]!=0) res[3][0]=a13;
+  if (res[3]!=0) res[3][1]=a07;
+  if (res[3]!=0) res[3][2]=a07;
+  if (res[3]!=0) res[3][3]=a29;
+  a00=(a00+a36);
+  a00=(a00+a03);
+  a00=(a00+a37);
+  a00=(a00+a09);
+  a00=(a00+a21);
+  a00=(a00+a10);
+  a00=(a00+a22);
+  a00=(a00+a21);
+  a00=(a00+a30);
+  a00=(a00+a23);
+  a00=(a00+a31);
+  a00=(a00+a10);
+  a00=(a00+a23);
+  a00=(a00+a11);
+  a00=(a00+a24);
+  a00=(a00+a22);
+  a00=(a00+a31);
+  a00=(a00+a24);
+  a00=(a00+a32);
+  a00=casadi_fabs(a00);
+  a32=casadi_inf;
+  a00=(a00<a32);
+  a16=(a16<a13);
+  a15=(a15<a14);
+  a16=(a16*a15);
+  a34=(a34+a41);
+  a34=(a34+a46);
+  a34=(a34+a19);
+  a34=(a34+a26);
+  a34=(a34+a12);
+  a34=(a34+a27);
+  a34=(a34+a18);
+  a34=(a34+a33);
+  a34=(a34+a39);
+  a34=(a34+a02);
+  a34=(a34+a47);
+  a34=(a34+a06);
+  a34=(a34+a28);
+  a34=(a34+a08);
+  a34=(a34+a20);
+  a34=(a34+a13);
+  a34=(a34+a07);
+  a34=(a34+a29);
+  a34=casadi_fabs(a34);
+  a34=(a34<a32);
+  a16=(a16*a34);
+  a00=(a00*a16);
+  if (res[4]!=0) res[4][0]=a00;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_ekf_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f5(arg, res, iw, w, mem);
+  return casadi_f3(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_ekf_step_checkout(void) {
@@ -1142,43 +1378,43 @@ CASADI_SYMBOL_EXPORT const char* linear_cv_ekf_step_name_out(casadi_int i) {
 
 CASADI_SYMBOL_EXPORT const casadi_int* linear_cv_ekf_step_sparsity_in(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s1;
-    case 1: return casadi_s4;
-    case 2: return casadi_s2;
-    case 3: return casadi_s2;
-    case 4: return casadi_s3;
-    case 5: return casadi_s4;
-    case 6: return casadi_s2;
-    case 7: return casadi_s5;
-    case 8: return casadi_s2;
+    case 0: return casadi_s0;
+    case 1: return casadi_s3;
+    case 2: return casadi_s1;
+    case 3: return casadi_s1;
+    case 4: return casadi_s2;
+    case 5: return casadi_s3;
+    case 6: return casadi_s1;
+    case 7: return casadi_s4;
+    case 8: return casadi_s1;
     default: return 0;
   }
 }
 
 CASADI_SYMBOL_EXPORT const casadi_int* linear_cv_ekf_step_sparsity_out(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s1;
-    case 1: return casadi_s4;
-    case 2: return casadi_s2;
-    case 3: return casadi_s5;
-    case 4: return casadi_s3;
+    case 0: return casadi_s0;
+    case 1: return casadi_s3;
+    case 2: return casadi_s1;
+    case 3: return casadi_s4;
+    case 4: return casadi_s2;
     default: return 0;
   }
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_ekf_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 19;
-  if (sz_res) *sz_res = 10;
+  if (sz_arg) *sz_arg = 9;
+  if (sz_res) *sz_res = 5;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 138;
+  if (sz_w) *sz_w = 0;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_ekf_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 19*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 10*sizeof(casadi_real*);
+  if (sz_arg) *sz_arg = 9*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 5*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 138*sizeof(casadi_real);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
 
@@ -1189,13 +1425,13 @@ CASADI_SYMBOL_EXPORT int linear_cv_ekf_step_work_bytes(casadi_int *sz_arg, casad
  * failing evaluation. */
 CASADI_SYMBOL_EXPORT int linear_cv_F_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
-  const casadi_real* a[8];
-  casadi_real* r[3];
+  const casadi_real* a[4];
+  casadi_real* r[1];
   casadi_int iw[1];
-  casadi_real w[40];
+  casadi_real w[3];
   casadi_int j, k;
-  for (k = 0; k < 8; ++k) a[k] = 0;
-  for (k = 0; k < 3; ++k) r[k] = 0;
+  for (k = 0; k < 4; ++k) a[k] = 0;
+  for (k = 0; k < 1; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
     for (k = 0; k < 4; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
     for (k = 0; k < 1; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
@@ -1209,13 +1445,13 @@ CASADI_SYMBOL_EXPORT int linear_cv_F_batch(casadi_int N, const casadi_real** arg
  * failing evaluation. */
 CASADI_SYMBOL_EXPORT int linear_cv_ekf_predict_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
-  const casadi_real* a[10];
-  casadi_real* r[5];
+  const casadi_real* a[6];
+  casadi_real* r[3];
   casadi_int iw[1];
-  casadi_real w[82];
+  casadi_real w[17];
   casadi_int j, k;
-  for (k = 0; k < 10; ++k) a[k] = 0;
-  for (k = 0; k < 5; ++k) r[k] = 0;
+  for (k = 0; k < 6; ++k) a[k] = 0;
+  for (k = 0; k < 3; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
     for (k = 0; k < 6; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
     for (k = 0; k < 3; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
@@ -1249,13 +1485,13 @@ CASADI_SYMBOL_EXPORT int linear_cv_ekf_update_batch(casadi_int N, const casadi_r
  * failing evaluation. */
 CASADI_SYMBOL_EXPORT int linear_cv_ekf_step_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
-  const casadi_real* a[19];
-  casadi_real* r[10];
+  const casadi_real* a[9];
+  casadi_real* r[5];
   casadi_int iw[1];
-  casadi_real w[156];
+  casadi_real w[50];
   casadi_int j, k;
-  for (k = 0; k < 19; ++k) a[k] = 0;
-  for (k = 0; k < 10; ++k) r[k] = 0;
+  for (k = 0; k < 9; ++k) a[k] = 0;
+  for (k = 0; k < 5; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
     for (k = 0; k < 9; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
     for (k = 0; k < 5; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;

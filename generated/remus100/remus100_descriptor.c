@@ -46,7 +46,7 @@ const abyssal_model remus100_descriptor = {
   {0, 0, 0, 0, 0},
   {0, 0, 0, 0, 0},
   {remus100_ukf_predict_points, 6, 4, 0, 995},
-  {remus100_ukf_predict_weights, 2, 4, 0, 57},
+  {remus100_ukf_predict_weights, 1, 2, 0, 4},
   {remus100_ukf_update, 14, 11, 0, 4851},
   {0, 0, 0, 0, 0},
   {0, 0, 0, 0, 0}

@@ -7,7 +7,7 @@
  *   remus100_ukf_predict            88969 operations
  *   remus100_ukf_update             16085 operations
  *   remus100_ukf_predict_points      2099 operations
- *   remus100_ukf_predict_weights       66 operations
+ *   remus100_ukf_predict_weights       65 operations
  */
 
 /* CasADi's calling convention passes iw, w and mem to every function; not every function uses them. */
@@ -52,7 +52,6 @@
 #define casadi_f20 CASADI_PREFIX(f20)
 #define casadi_f21 CASADI_PREFIX(f21)
 #define casadi_f22 CASADI_PREFIX(f22)
-#define casadi_f23 CASADI_PREFIX(f23)
 #define casadi_f3 CASADI_PREFIX(f3)
 #define casadi_f4 CASADI_PREFIX(f4)
 #define casadi_f5 CASADI_PREFIX(f5)
@@ -15377,93 +15376,74 @@ CASADI_SYMBOL_EXPORT int remus100_ukf_predict_points_work_bytes(casadi_int *sz_a
   return 0;
 }
 
-/* remus100_ukf_point_weights:(abk[3])->(wm[25],wc[25]) */
-static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real a0, a1, a2, a3;
-  a0=arg[0]? arg[0][0] : 0;
-  a1=casadi_sq(a0);
-  a2=12.;
-  a3=arg[0]? arg[0][2] : 0;
-  a3=(a2+a3);
-  a1=(a1*a3);
-  a2=(a1-a2);
-  a2=(a2/a1);
-  if (res[0]!=0) res[0][0]=a2;
-  a1=(2.*a1);
-  a1=(1./a1);
-  if (res[0]!=0) res[0][1]=a1;
-  if (res[0]!=0) res[0][2]=a1;
-  if (res[0]!=0) res[0][3]=a1;
-  if (res[0]!=0) res[0][4]=a1;
-  if (res[0]!=0) res[0][5]=a1;
-  if (res[0]!=0) res[0][6]=a1;
-  if (res[0]!=0) res[0][7]=a1;
-  if (res[0]!=0) res[0][8]=a1;
-  if (res[0]!=0) res[0][9]=a1;
-  if (res[0]!=0) res[0][10]=a1;
-  if (res[0]!=0) res[0][11]=a1;
-  if (res[0]!=0) res[0][12]=a1;
-  if (res[0]!=0) res[0][13]=a1;
-  if (res[0]!=0) res[0][14]=a1;
-  if (res[0]!=0) res[0][15]=a1;
-  if (res[0]!=0) res[0][16]=a1;
-  if (res[0]!=0) res[0][17]=a1;
-  if (res[0]!=0) res[0][18]=a1;
-  if (res[0]!=0) res[0][19]=a1;
-  if (res[0]!=0) res[0][20]=a1;
-  if (res[0]!=0) res[0][21]=a1;
-  if (res[0]!=0) res[0][22]=a1;
-  if (res[0]!=0) res[0][23]=a1;
-  if (res[0]!=0) res[0][24]=a1;
-  a3=1.;
-  a2=(a2+a3);
-  a0=casadi_sq(a0);
-  a2=(a2-a0);
-  a0=arg[0]? arg[0][1] : 0;
-  a2=(a2+a0);
-  if (res[1]!=0) res[1][0]=a2;
-  if (res[1]!=0) res[1][1]=a1;
-  if (res[1]!=0) res[1][2]=a1;
-  if (res[1]!=0) res[1][3]=a1;
-  if (res[1]!=0) res[1][4]=a1;
-  if (res[1]!=0) res[1][5]=a1;
-  if (res[1]!=0) res[1][6]=a1;
-  if (res[1]!=0) res[1][7]=a1;
-  if (res[1]!=0) res[1][8]=a1;
-  if (res[1]!=0) res[1][9]=a1;
-  if (res[1]!=0) res[1][10]=a1;
-  if (res[1]!=0) res[1][11]=a1;
-  if (res[1]!=0) res[1][12]=a1;
-  if (res[1]!=0) res[1][13]=a1;
-  if (res[1]!=0) res[1][14]=a1;
-  if (res[1]!=0) res[1][15]=a1;
-  if (res[1]!=0) res[1][16]=a1;
-  if (res[1]!=0) res[1][17]=a1;
-  if (res[1]!=0) res[1][18]=a1;
-  if (res[1]!=0) res[1][19]=a1;
-  if (res[1]!=0) res[1][20]=a1;
-  if (res[1]!=0) res[1][21]=a1;
-  if (res[1]!=0) res[1][22]=a1;
-  if (res[1]!=0) res[1][23]=a1;
-  if (res[1]!=0) res[1][24]=a1;
-  return 0;
-}
-
 /* remus100_ukf_predict_weights:(abk[3])->(wm[25],wc[25]) */
 static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w0=w+4, *w1=w+7, *w2=w+32;
-  const casadi_real **arg1=arg+1;
-  /* #0: @0 = input[0][0] */
-  casadi_copy(arg[0], 3, w0);
-  /* #1: {@1, @2} = remus100_ukf_point_weights(@0) */
-  arg1[0]=w0;
-  res1[0]=w1;
-  res1[1]=w2;
-  if (casadi_f23(arg1, res1, iw, w, 0)) return 1;
-  /* #2: output[0][0] = @1 */
-  casadi_copy(w1, 25, res[0]);
-  /* #3: output[1][0] = @2 */
-  casadi_copy(w2, 25, res[1]);
+  casadi_real a0, a1, a2, a3;
+  a0=arg[0]? arg[0][0] : 0;
+  a0=casadi_sq(a0);
+  a1=12.;
+  a2=arg[0]? arg[0][2] : 0;
+  a2=(a1+a2);
+  a2=(a0*a2);
+  a1=(a2-a1);
+  a1=(a1/a2);
+  if (res[0]!=0) res[0][0]=a1;
+  a2=(2.*a2);
+  a2=(1./a2);
+  if (res[0]!=0) res[0][1]=a2;
+  if (res[0]!=0) res[0][2]=a2;
+  if (res[0]!=0) res[0][3]=a2;
+  if (res[0]!=0) res[0][4]=a2;
+  if (res[0]!=0) res[0][5]=a2;
+  if (res[0]!=0) res[0][6]=a2;
+  if (res[0]!=0) res[0][7]=a2;
+  if (res[0]!=0) res[0][8]=a2;
+  if (res[0]!=0) res[0][9]=a2;
+  if (res[0]!=0) res[0][10]=a2;
+  if (res[0]!=0) res[0][11]=a2;
+  if (res[0]!=0) res[0][12]=a2;
+  if (res[0]!=0) res[0][13]=a2;
+  if (res[0]!=0) res[0][14]=a2;
+  if (res[0]!=0) res[0][15]=a2;
+  if (res[0]!=0) res[0][16]=a2;
+  if (res[0]!=0) res[0][17]=a2;
+  if (res[0]!=0) res[0][18]=a2;
+  if (res[0]!=0) res[0][19]=a2;
+  if (res[0]!=0) res[0][20]=a2;
+  if (res[0]!=0) res[0][21]=a2;
+  if (res[0]!=0) res[0][22]=a2;
+  if (res[0]!=0) res[0][23]=a2;
+  if (res[0]!=0) res[0][24]=a2;
+  a3=1.;
+  a1=(a1+a3);
+  a1=(a1-a0);
+  a0=arg[0]? arg[0][1] : 0;
+  a1=(a1+a0);
+  if (res[1]!=0) res[1][0]=a1;
+  if (res[1]!=0) res[1][1]=a2;
+  if (res[1]!=0) res[1][2]=a2;
+  if (res[1]!=0) res[1][3]=a2;
+  if (res[1]!=0) res[1][4]=a2;
+  if (res[1]!=0) res[1][5]=a2;
+  if (res[1]!=0) res[1][6]=a2;
+  if (res[1]!=0) res[1][7]=a2;
+  if (res[1]!=0) res[1][8]=a2;
+  if (res[1]!=0) res[1][9]=a2;
+  if (res[1]!=0) res[1][10]=a2;
+  if (res[1]!=0) res[1][11]=a2;
+  if (res[1]!=0) res[1][12]=a2;
+  if (res[1]!=0) res[1][13]=a2;
+  if (res[1]!=0) res[1][14]=a2;
+  if (res[1]!=0) res[1][15]=a2;
+  if (res[1]!=0) res[1][16]=a2;
+  if (res[1]!=0) res[1][17]=a2;
+  if (res[1]!=0) res[1][18]=a2;
+  if (res[1]!=0) res[1][19]=a2;
+  if (res[1]!=0) res[1][20]=a2;
+  if (res[1]!=0) res[1][21]=a2;
+  if (res[1]!=0) res[1][22]=a2;
+  if (res[1]!=0) res[1][23]=a2;
+  if (res[1]!=0) res[1][24]=a2;
   return 0;
 }
 
@@ -15525,18 +15505,18 @@ CASADI_SYMBOL_EXPORT const casadi_int* remus100_ukf_predict_weights_sparsity_out
 }
 
 CASADI_SYMBOL_EXPORT int remus100_ukf_predict_weights_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 2;
-  if (sz_res) *sz_res = 4;
+  if (sz_arg) *sz_arg = 1;
+  if (sz_res) *sz_res = 2;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 57;
+  if (sz_w) *sz_w = 0;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int remus100_ukf_predict_weights_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 2*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 4*sizeof(casadi_real*);
+  if (sz_arg) *sz_arg = 1*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 2*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 57*sizeof(casadi_real);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
 
@@ -15607,13 +15587,13 @@ CASADI_SYMBOL_EXPORT int remus100_ukf_predict_points_batch(casadi_int N, const c
  * failing evaluation. */
 CASADI_SYMBOL_EXPORT int remus100_ukf_predict_weights_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
-  const casadi_real* a[2];
-  casadi_real* r[4];
+  const casadi_real* a[1];
+  casadi_real* r[2];
   casadi_int iw[1];
-  casadi_real w[57];
+  casadi_real w[4];
   casadi_int j, k;
-  for (k = 0; k < 2; ++k) a[k] = 0;
-  for (k = 0; k < 4; ++k) r[k] = 0;
+  for (k = 0; k < 1; ++k) a[k] = 0;
+  for (k = 0; k < 2; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
     for (k = 0; k < 1; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
     for (k = 0; k < 2; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;

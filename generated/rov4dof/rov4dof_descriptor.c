@@ -59,10 +59,10 @@ const abyssal_model rov4dof_descriptor = {
   {rov4dof_ekf_update, 6, 5, 0, 187},
   {rov4dof_ekf_step, 19, 10, 0, 1243},
   {rov4dof_ckf_predict_points, 4, 4, 0, 968},
-  {rov4dof_ckf_predict_weights, 0, 3, 0, 24},
+  {rov4dof_ckf_predict_weights, 0, 2, 0, 1},
   {rov4dof_ckf_update, 12, 9, 0, 663},
   {rov4dof_ukf_predict_points, 6, 4, 0, 995},
-  {rov4dof_ukf_predict_weights, 2, 4, 0, 57},
+  {rov4dof_ukf_predict_weights, 1, 2, 0, 4},
   {rov4dof_ukf_update, 14, 9, 0, 670},
   {rov4dof_mcukf_update, 15, 9, 0, 670},
   {rov4dof_huber_ukf_update, 15, 9, 0, 670}

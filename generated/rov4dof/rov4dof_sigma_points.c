@@ -7,14 +7,14 @@
  *   rov4dof_ukf_predict             30094 operations
  *   rov4dof_ukf_update               4669 operations
  *   rov4dof_ukf_predict_points       2099 operations
- *   rov4dof_ukf_predict_weights        66 operations
+ *   rov4dof_ukf_predict_weights        65 operations
  *   rov4dof_mcukf_update             4828 operations
  *   rov4dof_huber_ukf_update         5243 operations
  *   rov4dof_ckf_predict             28512 operations
  *   rov4dof_ckf_update               4622 operations
  *   rov4dof_ckf_step                33135 operations
  *   rov4dof_ckf_predict_points       2148 operations
- *   rov4dof_ckf_predict_weights        24 operations
+ *   rov4dof_ckf_predict_weights        49 operations
  */
 
 /* CasADi's calling convention passes iw, w and mem to every function; not every function uses them. */
@@ -71,7 +71,6 @@
 #define casadi_f31 CASADI_PREFIX(f31)
 #define casadi_f32 CASADI_PREFIX(f32)
 #define casadi_f33 CASADI_PREFIX(f33)
-#define casadi_f34 CASADI_PREFIX(f34)
 #define casadi_f4 CASADI_PREFIX(f4)
 #define casadi_f5 CASADI_PREFIX(f5)
 #define casadi_f6 CASADI_PREFIX(f6)
@@ -7960,93 +7959,74 @@ CASADI_SYMBOL_EXPORT int rov4dof_ukf_predict_points_work_bytes(casadi_int *sz_ar
   return 0;
 }
 
-/* rov4dof_ukf_point_weights:(abk[3])->(wm[25],wc[25]) */
-static int casadi_f19(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real a0, a1, a2, a3;
-  a0=arg[0]? arg[0][0] : 0;
-  a1=casadi_sq(a0);
-  a2=12.;
-  a3=arg[0]? arg[0][2] : 0;
-  a3=(a2+a3);
-  a1=(a1*a3);
-  a2=(a1-a2);
-  a2=(a2/a1);
-  if (res[0]!=0) res[0][0]=a2;
-  a1=(2.*a1);
-  a1=(1./a1);
-  if (res[0]!=0) res[0][1]=a1;
-  if (res[0]!=0) res[0][2]=a1;
-  if (res[0]!=0) res[0][3]=a1;
-  if (res[0]!=0) res[0][4]=a1;
-  if (res[0]!=0) res[0][5]=a1;
-  if (res[0]!=0) res[0][6]=a1;
-  if (res[0]!=0) res[0][7]=a1;
-  if (res[0]!=0) res[0][8]=a1;
-  if (res[0]!=0) res[0][9]=a1;
-  if (res[0]!=0) res[0][10]=a1;
-  if (res[0]!=0) res[0][11]=a1;
-  if (res[0]!=0) res[0][12]=a1;
-  if (res[0]!=0) res[0][13]=a1;
-  if (res[0]!=0) res[0][14]=a1;
-  if (res[0]!=0) res[0][15]=a1;
-  if (res[0]!=0) res[0][16]=a1;
-  if (res[0]!=0) res[0][17]=a1;
-  if (res[0]!=0) res[0][18]=a1;
-  if (res[0]!=0) res[0][19]=a1;
-  if (res[0]!=0) res[0][20]=a1;
-  if (res[0]!=0) res[0][21]=a1;
-  if (res[0]!=0) res[0][22]=a1;
-  if (res[0]!=0) res[0][23]=a1;
-  if (res[0]!=0) res[0][24]=a1;
-  a3=1.;
-  a2=(a2+a3);
-  a0=casadi_sq(a0);
-  a2=(a2-a0);
-  a0=arg[0]? arg[0][1] : 0;
-  a2=(a2+a0);
-  if (res[1]!=0) res[1][0]=a2;
-  if (res[1]!=0) res[1][1]=a1;
-  if (res[1]!=0) res[1][2]=a1;
-  if (res[1]!=0) res[1][3]=a1;
-  if (res[1]!=0) res[1][4]=a1;
-  if (res[1]!=0) res[1][5]=a1;
-  if (res[1]!=0) res[1][6]=a1;
-  if (res[1]!=0) res[1][7]=a1;
-  if (res[1]!=0) res[1][8]=a1;
-  if (res[1]!=0) res[1][9]=a1;
-  if (res[1]!=0) res[1][10]=a1;
-  if (res[1]!=0) res[1][11]=a1;
-  if (res[1]!=0) res[1][12]=a1;
-  if (res[1]!=0) res[1][13]=a1;
-  if (res[1]!=0) res[1][14]=a1;
-  if (res[1]!=0) res[1][15]=a1;
-  if (res[1]!=0) res[1][16]=a1;
-  if (res[1]!=0) res[1][17]=a1;
-  if (res[1]!=0) res[1][18]=a1;
-  if (res[1]!=0) res[1][19]=a1;
-  if (res[1]!=0) res[1][20]=a1;
-  if (res[1]!=0) res[1][21]=a1;
-  if (res[1]!=0) res[1][22]=a1;
-  if (res[1]!=0) res[1][23]=a1;
-  if (res[1]!=0) res[1][24]=a1;
-  return 0;
-}
-
 /* rov4dof_ukf_predict_weights:(abk[3])->(wm[25],wc[25]) */
 static int casadi_f18(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w0=w+4, *w1=w+7, *w2=w+32;
-  const casadi_real **arg1=arg+1;
-  /* #0: @0 = input[0][0] */
-  casadi_copy(arg[0], 3, w0);
-  /* #1: {@1, @2} = rov4dof_ukf_point_weights(@0) */
-  arg1[0]=w0;
-  res1[0]=w1;
-  res1[1]=w2;
-  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
-  /* #2: output[0][0] = @1 */
-  casadi_copy(w1, 25, res[0]);
-  /* #3: output[1][0] = @2 */
-  casadi_copy(w2, 25, res[1]);
+  casadi_real a0, a1, a2, a3;
+  a0=arg[0]? arg[0][0] : 0;
+  a0=casadi_sq(a0);
+  a1=12.;
+  a2=arg[0]? arg[0][2] : 0;
+  a2=(a1+a2);
+  a2=(a0*a2);
+  a1=(a2-a1);
+  a1=(a1/a2);
+  if (res[0]!=0) res[0][0]=a1;
+  a2=(2.*a2);
+  a2=(1./a2);
+  if (res[0]!=0) res[0][1]=a2;
+  if (res[0]!=0) res[0][2]=a2;
+  if (res[0]!=0) res[0][3]=a2;
+  if (res[0]!=0) res[0][4]=a2;
+  if (res[0]!=0) res[0][5]=a2;
+  if (res[0]!=0) res[0][6]=a2;
+  if (res[0]!=0) res[0][7]=a2;
+  if (res[0]!=0) res[0][8]=a2;
+  if (res[0]!=0) res[0][9]=a2;
+  if (res[0]!=0) res[0][10]=a2;
+  if (res[0]!=0) res[0][11]=a2;
+  if (res[0]!=0) res[0][12]=a2;
+  if (res[0]!=0) res[0][13]=a2;
+  if (res[0]!=0) res[0][14]=a2;
+  if (res[0]!=0) res[0][15]=a2;
+  if (res[0]!=0) res[0][16]=a2;
+  if (res[0]!=0) res[0][17]=a2;
+  if (res[0]!=0) res[0][18]=a2;
+  if (res[0]!=0) res[0][19]=a2;
+  if (res[0]!=0) res[0][20]=a2;
+  if (res[0]!=0) res[0][21]=a2;
+  if (res[0]!=0) res[0][22]=a2;
+  if (res[0]!=0) res[0][23]=a2;
+  if (res[0]!=0) res[0][24]=a2;
+  a3=1.;
+  a1=(a1+a3);
+  a1=(a1-a0);
+  a0=arg[0]? arg[0][1] : 0;
+  a1=(a1+a0);
+  if (res[1]!=0) res[1][0]=a1;
+  if (res[1]!=0) res[1][1]=a2;
+  if (res[1]!=0) res[1][2]=a2;
+  if (res[1]!=0) res[1][3]=a2;
+  if (res[1]!=0) res[1][4]=a2;
+  if (res[1]!=0) res[1][5]=a2;
+  if (res[1]!=0) res[1][6]=a2;
+  if (res[1]!=0) res[1][7]=a2;
+  if (res[1]!=0) res[1][8]=a2;
+  if (res[1]!=0) res[1][9]=a2;
+  if (res[1]!=0) res[1][10]=a2;
+  if (res[1]!=0) res[1][11]=a2;
+  if (res[1]!=0) res[1][12]=a2;
+  if (res[1]!=0) res[1][13]=a2;
+  if (res[1]!=0) res[1][14]=a2;
+  if (res[1]!=0) res[1][15]=a2;
+  if (res[1]!=0) res[1][16]=a2;
+  if (res[1]!=0) res[1][17]=a2;
+  if (res[1]!=0) res[1][18]=a2;
+  if (res[1]!=0) res[1][19]=a2;
+  if (res[1]!=0) res[1][20]=a2;
+  if (res[1]!=0) res[1][21]=a2;
+  if (res[1]!=0) res[1][22]=a2;
+  if (res[1]!=0) res[1][23]=a2;
+  if (res[1]!=0) res[1][24]=a2;
   return 0;
 }
 
@@ -8108,23 +8088,23 @@ CASADI_SYMBOL_EXPORT const casadi_int* rov4dof_ukf_predict_weights_sparsity_out(
 }
 
 CASADI_SYMBOL_EXPORT int rov4dof_ukf_predict_weights_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 2;
-  if (sz_res) *sz_res = 4;
+  if (sz_arg) *sz_arg = 1;
+  if (sz_res) *sz_res = 2;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 57;
+  if (sz_w) *sz_w = 0;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int rov4dof_ukf_predict_weights_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 2*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 4*sizeof(casadi_real*);
+  if (sz_arg) *sz_arg = 1*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 2*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 57*sizeof(casadi_real);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
 
 /* rov4dof_mcc_noise:(R[4x4],mask[4],Pzz[4x4],innovation[4],sigma)->(R_used[4x4],ok) */
-static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f20(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34;
@@ -8375,7 +8355,7 @@ static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* rov4dof_mcukf_update:(x[12],P[12x12],z[4],p[17],R[4x4],mask[4],abk[3],sigma)->(x_post[12],P_post[12x12],innovation[4],S[4x4],ok) */
-static int casadi_f20(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f19(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real **res1=res+5, *w02=w+123, w03, *w05=w+267, *w06=w+270, *w07=w+274, *w08=w+374, *w09=w+390, *w10=w+394, *w11=w+398, *w12=w+402, *w13=w+418;
   casadi_real w14, *w15=w+466, w16, *w17=w+482;
   const casadi_real **arg1=arg+8, *wr00, *wr01, *wr04, *wr08;
@@ -8429,7 +8409,7 @@ static int casadi_f20(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[4]=(&w14);
   res1[0]=w15;
   res1[1]=(&w16);
-  if (casadi_f21(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f20(arg1, res1, iw, w, 0)) return 1;
   /* #12: {@17, @2, @8, @14} = rov4dof_kalman(@0, @1, @12, @13, @15, @11) */
   arg1[0]=wr00;
   arg1[1]=wr01;
@@ -8460,7 +8440,7 @@ static int casadi_f20(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int rov4dof_mcukf_update(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f20(arg, res, iw, w, mem);
+  return casadi_f19(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int rov4dof_mcukf_update_checkout(void) {
@@ -8553,7 +8533,7 @@ CASADI_SYMBOL_EXPORT int rov4dof_mcukf_update_work_bytes(casadi_int *sz_arg, cas
 }
 
 /* rov4dof_huber_noise:(R[4x4],mask[4],Pzz[4x4],innovation[4],gamma)->(R_used[4x4],ok) */
-static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -9222,7 +9202,7 @@ static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* rov4dof_huber_ukf_update:(x[12],P[12x12],z[4],p[17],R[4x4],mask[4],abk[3],gamma)->(x_post[12],P_post[12x12],innovation[4],S[4x4],ok) */
-static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real **res1=res+5, *w02=w+123, w03, *w05=w+267, *w06=w+270, *w07=w+274, *w08=w+374, *w09=w+390, *w10=w+394, *w11=w+398, *w12=w+402, *w13=w+418;
   casadi_real w14, *w15=w+466, w16, *w17=w+482;
   const casadi_real **arg1=arg+8, *wr00, *wr01, *wr04, *wr08;
@@ -9276,7 +9256,7 @@ static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[4]=(&w14);
   res1[0]=w15;
   res1[1]=(&w16);
-  if (casadi_f23(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f22(arg1, res1, iw, w, 0)) return 1;
   /* #12: {@17, @2, @8, @14} = rov4dof_kalman(@0, @1, @12, @13, @15, @11) */
   arg1[0]=wr00;
   arg1[1]=wr01;
@@ -9307,7 +9287,7 @@ static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int rov4dof_huber_ukf_update(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f22(arg, res, iw, w, mem);
+  return casadi_f21(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int rov4dof_huber_ukf_update_checkout(void) {
@@ -9400,7 +9380,7 @@ CASADI_SYMBOL_EXPORT int rov4dof_huber_ukf_update_work_bytes(casadi_int *sz_arg,
 }
 
 /* rov4dof_ckf_points:(x[12],L[12x12])->(X[12x24]) */
-static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -10105,7 +10085,7 @@ static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* map24_rov4dof_step:(x[12x24],u[4x24],p[17x24],dt[1x24])->(x_next[12x24]) */
-static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f26(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
   casadi_real* *res1;
   const casadi_real* *arg1;
@@ -10125,7 +10105,7 @@ static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* rov4dof_step_columns:(x[12x24],u[4],p[17],dt)->(x_next[12x24]) */
-static int casadi_f26(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
   casadi_real **res1=res+1, *w1=w+80, *w2=w+84, *w4=w+180, w5, *w6=w+588, *w7=w+612;
   const casadi_real **arg1=arg+4, *wr0, *wr3;
@@ -10155,14 +10135,14 @@ static int casadi_f26(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[2]=w4;
   arg1[3]=w6;
   res1[0]=w7;
-  if (casadi_f27(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f26(arg1, res1, iw, w, 0)) return 1;
   /* #8: output[0][0] = @7 */
   casadi_copy(w7, 288, res[0]);
   return 0;
 }
 
 /* rov4dof_outer_0_24:(y[12x24],mean[12])->(ddT[12x12,78nz]) */
-static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i, j;
   casadi_real **res1=res+1, *w2=w+13, *w3=w+301, *w4=w+2173;
   const casadi_real **arg1=arg+2, *wr0, *wr1;
@@ -10192,7 +10172,7 @@ static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* rov4dof_ckf_predict:(x[12],P[12x12],u[4],p[17],dt,Q[12x12])->(x_pred[12],P_pred[12x12],ok) */
-static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
   casadi_real **res1=res+3, *rr, w00, *w01=w+2551, *w03=w+2563, *w04=w+2707, w05, *w06=w+2851, *w07=w+3139, w09, *w10=w+3143, *w11=w+3431;
   casadi_real *w12=w+3455;
@@ -10214,7 +10194,7 @@ static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[0]=wr02;
   arg1[1]=w04;
   res1[0]=w06;
-  if (casadi_f25(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f24(arg1, res1, iw, w, 0)) return 1;
   /* #6: @7 = input[2][0] */
   casadi_copy(arg[2], 4, w07);
   /* #7: @8 = input[3][0] */
@@ -10227,7 +10207,7 @@ static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[2]=wr08;
   arg1[3]=(&w09);
   res1[0]=w10;
-  if (casadi_f26(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f25(arg1, res1, iw, w, 0)) return 1;
   /* #10: @11 = ones(24x1) */
   casadi_fill(w11, 24, 1.);
   /* #11: @1 = mac(@10,@11,@1) */
@@ -10240,7 +10220,7 @@ static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[0]=w10;
   arg1[1]=w01;
   res1[0]=w12;
-  if (casadi_f28(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f27(arg1, res1, iw, w, 0)) return 1;
   /* #15: @12 = (@0*@12) */
   for (i=0, rr=w12, cs=w12; i<78; ++i) (*rr++)  = (w00*(*cs++));
   /* #16: @4 = input[5][0] */
@@ -10262,7 +10242,7 @@ static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int rov4dof_ckf_predict(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f24(arg, res, iw, w, mem);
+  return casadi_f23(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int rov4dof_ckf_predict_checkout(void) {
@@ -10347,7 +10327,7 @@ CASADI_SYMBOL_EXPORT int rov4dof_ckf_predict_work_bytes(casadi_int *sz_arg, casa
 }
 
 /* rov4dof_ckf_measured_moments:(x[12],L[12x12],p[17])->(z_pred[4],DZ[4x24],Czz[4x4]) */
-static int casadi_f30(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32;
@@ -11006,7 +10986,7 @@ static int casadi_f30(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* rov4dof_ckf_moments:(L[12x12],DZ[4x24],Czz[4x4],z_pred[4],z[4],mask[4])->(innovation[4],Pzz[4x4],Pxz[12x4]) */
-static int casadi_f31(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f30(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -12094,7 +12074,7 @@ static int casadi_f31(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* rov4dof_ckf_update:(x[12],P[12x12],z[4],p[17],R[4x4],mask[4])->(x_post[12],P_post[12x12],innovation[4],S[4x4],ok) */
-static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real **res1=res+5, *w02=w+123, w03, *w05=w+267, *w06=w+271, *w07=w+367, *w08=w+383, *w09=w+387, *w10=w+391, *w11=w+395, *w12=w+411, *w13=w+459;
   casadi_real w14, *w15=w+475, w16;
   const casadi_real **arg1=arg+6, *wr00, *wr01, *wr04, *wr07;
@@ -12116,7 +12096,7 @@ static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw
   res1[0]=w05;
   res1[1]=w06;
   res1[2]=w07;
-  if (casadi_f30(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f29(arg1, res1, iw, w, 0)) return 1;
   /* #5: @8 = input[2][0] */
   casadi_copy(arg[2], 4, w08);
   /* #6: @9 = input[5][0] */
@@ -12131,7 +12111,7 @@ static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw
   res1[0]=w10;
   res1[1]=w11;
   res1[2]=w12;
-  if (casadi_f31(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f30(arg1, res1, iw, w, 0)) return 1;
   /* #8: @7 = input[4][0] */
   wr07 = arg[4] ? arg[4] : casadi_zeros;
   /* #9: {@13, @14} = rov4dof_noise(@7, @9, @11, @10) */
@@ -12172,7 +12152,7 @@ static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int rov4dof_ckf_update(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f29(arg, res, iw, w, mem);
+  return casadi_f28(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int rov4dof_ckf_update_checkout(void) {
@@ -12261,7 +12241,7 @@ CASADI_SYMBOL_EXPORT int rov4dof_ckf_update_work_bytes(casadi_int *sz_arg, casad
 }
 
 /* rov4dof_ckf_step:(x[12],P[12x12],u[4],p[17],dt,Q[12x12],z[4],R[4x4],mask[4])->(x_post[12],P_post[12x12],innovation[4],S[4x4],ok) */
-static int casadi_f32(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f31(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real **res1=res+5, *w00=w+3565, *w01=w+3577, *w02=w+3721, w04, *w06=w+3725, *w07=w+3737, w08, *w10=w+3881, *w11=w+3885, *w12=w+3889;
   const casadi_real **arg1=arg+9, *wr00, *wr01, *wr03, *wr05, *wr09;
   /* #0: @0 = input[0][0] */
@@ -12286,7 +12266,7 @@ static int casadi_f32(const casadi_real** arg, casadi_real** res, casadi_int* iw
   res1[0]=w06;
   res1[1]=w07;
   res1[2]=(&w08);
-  if (casadi_f24(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f23(arg1, res1, iw, w, 0)) return 1;
   /* #7: @2 = input[6][0] */
   casadi_copy(arg[6], 4, w02);
   /* #8: @9 = input[7][0] */
@@ -12305,7 +12285,7 @@ static int casadi_f32(const casadi_real** arg, casadi_real** res, casadi_int* iw
   res1[2]=w11;
   res1[3]=w12;
   res1[4]=(&w04);
-  if (casadi_f29(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f28(arg1, res1, iw, w, 0)) return 1;
   /* #11: output[0][0] = @0 */
   casadi_copy(w00, 12, res[0]);
   /* #12: output[1][0] = @1 */
@@ -12322,7 +12302,7 @@ static int casadi_f32(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int rov4dof_ckf_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f32(arg, res, iw, w, mem);
+  return casadi_f31(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int rov4dof_ckf_step_checkout(void) {
@@ -12417,7 +12397,7 @@ CASADI_SYMBOL_EXPORT int rov4dof_ckf_step_work_bytes(casadi_int *sz_arg, casadi_
 }
 
 /* rov4dof_ckf_predict_points:(x[12],P[12x12])->(X[24x12],ok) */
-static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f32(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i, j;
   casadi_real **res1=res+2, *rr, *w2=w+91, w3, *w4=w+235, *w5=w+523;
   const casadi_real **arg1=arg+2, *cs, *wr0, *wr1;
@@ -12434,7 +12414,7 @@ static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[0]=wr0;
   arg1[1]=w2;
   res1[0]=w4;
-  if (casadi_f25(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f24(arg1, res1, iw, w, 0)) return 1;
   /* #4: @5 = @4' */
   for (i=0, rr=w5, cs=w4; i<24; ++i) for (j=0; j<12; ++j) rr[i+j*24] = *cs++;
   /* #5: output[0][0] = @5 */
@@ -12445,7 +12425,7 @@ static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int rov4dof_ckf_predict_points(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f33(arg, res, iw, w, mem);
+  return casadi_f32(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int rov4dof_ckf_predict_points_checkout(void) {
@@ -12520,19 +12500,62 @@ CASADI_SYMBOL_EXPORT int rov4dof_ckf_predict_points_work_bytes(casadi_int *sz_ar
 }
 
 /* rov4dof_ckf_predict_weights:()->(wm[24],wc[24]) */
-static int casadi_f34(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real *w0=w+0;
-  /* #0: @0 = all_0.0416667(24x1) */
-  casadi_fill(w0, 24, 4.1666666666666664e-02);
-  /* #1: output[0][0] = @0 */
-  casadi_copy(w0, 24, res[0]);
-  /* #2: output[1][0] = @0 */
-  casadi_copy(w0, 24, res[1]);
+static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a0;
+  a0=4.1666666666666664e-02;
+  if (res[0]!=0) res[0][0]=a0;
+  if (res[0]!=0) res[0][1]=a0;
+  if (res[0]!=0) res[0][2]=a0;
+  if (res[0]!=0) res[0][3]=a0;
+  if (res[0]!=0) res[0][4]=a0;
+  if (res[0]!=0) res[0][5]=a0;
+  if (res[0]!=0) res[0][6]=a0;
+  if (res[0]!=0) res[0][7]=a0;
+  if (res[0]!=0) res[0][8]=a0;
+  if (res[0]!=0) res[0][9]=a0;
+  if (res[0]!=0) res[0][10]=a0;
+  if (res[0]!=0) res[0][11]=a0;
+  if (res[0]!=0) res[0][12]=a0;
+  if (res[0]!=0) res[0][13]=a0;
+  if (res[0]!=0) res[0][14]=a0;
+  if (res[0]!=0) res[0][15]=a0;
+  if (res[0]!=0) res[0][16]=a0;
+  if (res[0]!=0) res[0][17]=a0;
+  if (res[0]!=0) res[0][18]=a0;
+  if (res[0]!=0) res[0][19]=a0;
+  if (res[0]!=0) res[0][20]=a0;
+  if (res[0]!=0) res[0][21]=a0;
+  if (res[0]!=0) res[0][22]=a0;
+  if (res[0]!=0) res[0][23]=a0;
+  if (res[1]!=0) res[1][0]=a0;
+  if (res[1]!=0) res[1][1]=a0;
+  if (res[1]!=0) res[1][2]=a0;
+  if (res[1]!=0) res[1][3]=a0;
+  if (res[1]!=0) res[1][4]=a0;
+  if (res[1]!=0) res[1][5]=a0;
+  if (res[1]!=0) res[1][6]=a0;
+  if (res[1]!=0) res[1][7]=a0;
+  if (res[1]!=0) res[1][8]=a0;
+  if (res[1]!=0) res[1][9]=a0;
+  if (res[1]!=0) res[1][10]=a0;
+  if (res[1]!=0) res[1][11]=a0;
+  if (res[1]!=0) res[1][12]=a0;
+  if (res[1]!=0) res[1][13]=a0;
+  if (res[1]!=0) res[1][14]=a0;
+  if (res[1]!=0) res[1][15]=a0;
+  if (res[1]!=0) res[1][16]=a0;
+  if (res[1]!=0) res[1][17]=a0;
+  if (res[1]!=0) res[1][18]=a0;
+  if (res[1]!=0) res[1][19]=a0;
+  if (res[1]!=0) res[1][20]=a0;
+  if (res[1]!=0) res[1][21]=a0;
+  if (res[1]!=0) res[1][22]=a0;
+  if (res[1]!=0) res[1][23]=a0;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int rov4dof_ckf_predict_weights(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f34(arg, res, iw, w, mem);
+  return casadi_f33(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int rov4dof_ckf_predict_weights_checkout(void) {
@@ -12588,17 +12611,17 @@ CASADI_SYMBOL_EXPORT const casadi_int* rov4dof_ckf_predict_weights_sparsity_out(
 
 CASADI_SYMBOL_EXPORT int rov4dof_ckf_predict_weights_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
   if (sz_arg) *sz_arg = 0;
-  if (sz_res) *sz_res = 3;
+  if (sz_res) *sz_res = 2;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 24;
+  if (sz_w) *sz_w = 0;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int rov4dof_ckf_predict_weights_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
   if (sz_arg) *sz_arg = 0*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 3*sizeof(casadi_real*);
+  if (sz_res) *sz_res = 2*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 24*sizeof(casadi_real);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
 
@@ -12669,13 +12692,13 @@ CASADI_SYMBOL_EXPORT int rov4dof_ukf_predict_points_batch(casadi_int N, const ca
  * failing evaluation. */
 CASADI_SYMBOL_EXPORT int rov4dof_ukf_predict_weights_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
-  const casadi_real* a[2];
-  casadi_real* r[4];
+  const casadi_real* a[1];
+  casadi_real* r[2];
   casadi_int iw[1];
-  casadi_real w[57];
+  casadi_real w[4];
   casadi_int j, k;
-  for (k = 0; k < 2; ++k) a[k] = 0;
-  for (k = 0; k < 4; ++k) r[k] = 0;
+  for (k = 0; k < 1; ++k) a[k] = 0;
+  for (k = 0; k < 2; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
     for (k = 0; k < 1; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
     for (k = 0; k < 2; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
@@ -12810,12 +12833,12 @@ CASADI_SYMBOL_EXPORT int rov4dof_ckf_predict_points_batch(casadi_int N, const ca
 CASADI_SYMBOL_EXPORT int rov4dof_ckf_predict_weights_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
                                   casadi_real** res, const casadi_int* res_step) {
   const casadi_real* a[1];
-  casadi_real* r[3];
+  casadi_real* r[2];
   casadi_int iw[1];
-  casadi_real w[24];
+  casadi_real w[1];
   casadi_int j, k;
   for (k = 0; k < 1; ++k) a[k] = 0;
-  for (k = 0; k < 3; ++k) r[k] = 0;
+  for (k = 0; k < 2; ++k) r[k] = 0;
   for (j = 0; j < N; ++j) {
     for (k = 0; k < 0; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
     for (k = 0; k < 2; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;

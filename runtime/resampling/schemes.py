@@ -91,10 +91,16 @@ def _draws(weights: np.ndarray, n_draws) -> int:
 
 
 def inverse_cdf(weights: np.ndarray, sorted_uniforms: np.ndarray) -> np.ndarray:
-    """Indices i with cdf[i-1] <= u < cdf[i] for sorted u in [0, 1)."""
+    """Indices i with cdf[i-1] <= u < cdf[i] for sorted u in [0, 1].
+
+    A u of 1.0 (systematic and stratified uniforms (k + U) / m can round up to it) draws the last particle of
+    positive weight, never the index len(weights) nor a particle of zero weight."""
     cdf = np.cumsum(weights)
     cdf /= cdf[-1]  # absorb round-off (within WEIGHT_SUM_TOLERANCE) so every u < 1 finds an index
-    return np.searchsorted(cdf, sorted_uniforms, side="right")
+    indices = np.searchsorted(cdf, sorted_uniforms, side="right")
+    if indices.size and indices[-1] == cdf.size:  # sorted: only the last ones can be beyond the end
+        indices[indices == cdf.size] = np.flatnonzero(weights)[-1]
+    return indices
 
 
 def multinomial_resample(weights: np.ndarray, rng: np.random.Generator, n_draws: int | None = None) -> np.ndarray:

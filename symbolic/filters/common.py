@@ -2,11 +2,16 @@
 
 Generated filter steps are built from *leaves*: plain SX Functions (the model's step f, its
 measurement h, the sigma points of (x, P), the moments of the propagated points, an update's
-algebra) that are emitted once per C file and called, never inlined (``leaf``). A step that
-evaluates f at 2n points holds one copy of f and 2n calls to it, so the generated C grows with
-the model plus the O(n^3) dense algebra, not with (points x model); a fused step calls its
-family's predict and update instead of repeating them. Each leaf has its divisions by a shared
-divisor turned into one reciprocal (reciprocals.share_reciprocals).
+algebra) that are emitted once per C file and called (``leaf``). A step that evaluates f at 2n
+points holds one copy of f and 2n calls to it, so the generated C grows with the model plus the
+O(n^3) dense algebra, not with (points x model); a fused step calls its family's predict and update
+instead of repeating them. Each leaf has its divisions by a shared divisor turned into one
+reciprocal (reciprocals.share_reciprocals).
+
+A small step is the exception (``exported``): when its leaves inlined come to at most
+FLAT_MAX_INSTRUCTIONS operations (a 2-4 state model such as cn2d), it is emitted as one flat SX
+expression, because there the calls (arguments copied per call, u, p and dt copied per point) cost
+more than the arithmetic they wrap (benchmarks/README.md, "Flat steps for small models").
 """
 from __future__ import annotations
 
@@ -19,8 +24,10 @@ from ..discretise import discrete_step, step_and_jacobian
 from ..model import Model
 from .reciprocals import share_reciprocals
 
-#: options of a Function that is called from generated steps: emitted once, called, never inlined
-LEAF_OPTIONS = {**FUNCTION_OPTIONS, "never_inline": True}
+#: a generated step whose leaves, inlined, come to at most this many SX operations (``inlined_size``, before
+#: CasADi's common-subexpression pass) is emitted flat (module docstring): every step of cn2d (at most 473) and
+#: linear_cv's but its fused ckf_step (1551); rov4dof's steps are 4600-32000 and keep their calls
+FLAT_MAX_INSTRUCTIONS = 1500
 
 
 @dataclass(frozen=True)
@@ -55,7 +62,7 @@ def leaf(name: str, inputs, outputs, names_in, names_out, dense: bool = True) ->
     """
     fn = ca.Function(name, list(inputs), [ca.densify(e) if dense else e for e in outputs], list(names_in),
                      list(names_out), FUNCTION_OPTIONS)
-    return share_reciprocals(fn, LEAF_OPTIONS)
+    return share_reciprocals(fn)
 
 
 def step_inputs(model: Model, names, extra: dict[str, tuple[int, int]] | None = None) -> dict[str, ca.MX]:
@@ -68,9 +75,25 @@ def step_inputs(model: Model, names, extra: dict[str, tuple[int, int]] | None = 
 
 
 def exported(name: str, inputs: dict[str, ca.MX], outputs: dict[str, ca.MX]) -> ca.Function:
-    """A generated entry point: an MX graph of calls to leaves, their buffers passed without copies."""
-    return ca.Function(name, list(inputs.values()), [ca.densify(e) for e in outputs.values()], list(inputs),
-                       list(outputs), FUNCTION_OPTIONS)
+    """A generated entry point: an MX graph of calls to leaves, their buffers passed without copies, or, when
+    its leaves inlined come to at most FLAT_MAX_INSTRUCTIONS operations, that one flat SX expression."""
+    fn = ca.Function(name, list(inputs.values()), [ca.densify(e) for e in outputs.values()], list(inputs),
+                     list(outputs), FUNCTION_OPTIONS)
+    if inlined_size(fn) > FLAT_MAX_INSTRUCTIONS:
+        return fn
+    return fn.expand(name, FUNCTION_OPTIONS)
+
+
+def inlined_size(fn: ca.Function) -> int:
+    """The SX operations of fn with every call inlined (a serial map counted once per column), without inlining."""
+    if fn.is_a("SXFunction"):
+        return fn.n_instructions()
+    if fn.is_a("Map"):
+        inner = fn.get_function(fn.get_function()[0])
+        repeats = max(fn.size2_in(i) // inner.size2_in(i) for i in range(fn.n_in()) if inner.size2_in(i))
+        return repeats * inlined_size(inner)
+    return sum(inlined_size(fn.instruction_MX(k).which_function()) if fn.instruction_id(k) == ca.OP_CALL else 1
+               for k in range(fn.n_instructions()))
 
 
 def call_columns(fn: ca.Function, X: ca.MX, *shared: ca.MX) -> ca.MX:

@@ -3,7 +3,8 @@
 A chain of damped pendulums (n = 2k states) is generated in memory; these check the structure the
 size rests on: the model's step is emitted once per C file and called per sigma point, fused steps
 call their predict and update, and a bigger step (more substeps) adds its own size once to a
-filter file instead of once per sigma point.
+filter file instead of once per sigma point. Steps small enough to be emitted flat (common.FLAT_MAX_INSTRUCTIONS)
+are flat by design, so the structure tests turn flattening off; the last tests check the flat form.
 """
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ import numpy as np
 import pytest
 
 from abyssal.generated.regenerate import model_files
+from abyssal.symbolic.filters import common
 from abyssal.symbolic.model import Model, Parameter, Quantity, symbols
 
 
@@ -38,7 +40,9 @@ def leaf_definitions(text: str, name: str) -> int:
 
 @pytest.fixture(scope="module")
 def chain_files():
-    return model_files(pendulum_chain(3), families=("ekf", "ukf", "ckf", "robust"))
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(common, "FLAT_MAX_INSTRUCTIONS", 0)  # every step as calls, however small
+        return model_files(pendulum_chain(3), families=("ekf", "ukf", "ckf", "robust"))
 
 
 def test_the_model_step_is_emitted_once_for_every_sigma_point_family(chain_files):
@@ -71,7 +75,8 @@ def test_robust_updates_share_the_unscented_points(chain_files):
         assert leaf_definitions(text, name) == 1, name
 
 
-def test_a_bigger_step_adds_its_size_once_not_once_per_point():
+def test_a_bigger_step_adds_its_size_once_not_once_per_point(monkeypatch):
+    monkeypatch.setattr(common, "FLAT_MAX_INSTRUCTIONS", 0)
     small, big = (model_files(pendulum_chain(4, substeps), families=("ckf",)) for substeps in (1, 8))
     grown_model = len(big["chain4_model.c"]) - len(small["chain4_model.c"])
     grown_ckf = len(big["chain4_sigma_points.c"]) - len(small["chain4_sigma_points.c"])
@@ -117,3 +122,42 @@ def test_soa_kernels_compute_shared_work_once_before_the_loop(chain_files):
     assert before.count("const casadi_real c") >= 6 and "a2[" in before and "a3[" in before
     loop = loop[: loop.index("return 0;")]
     assert "a2[" not in loop and "a3[" not in loop and "sin(" in loop and "sin(" not in before
+
+
+def _steps(model, families):
+    from abyssal.symbolic.filters import filter_units
+
+    return {fn.name(): fn for unit in filter_units(model, families) for fn in unit.functions}
+
+
+def test_small_steps_are_flat_and_equal_their_calls(monkeypatch):
+    """A 2-state model's steps are one SX expression each (no calls left); evaluated in CasADi they equal the
+    same steps built as calls to leaves, to rounding."""
+    families = ("ekf", "ukf", "ckf", "robust")
+    flat = _steps(pendulum_chain(1), families)
+    monkeypatch.setattr(common, "FLAT_MAX_INSTRUCTIONS", 0)
+    calls = _steps(pendulum_chain(1), families)
+    rng = np.random.default_rng(5)
+    for name, fn in flat.items():
+        assert fn.is_a("SXFunction") and not any(fn.instruction_id(k) == ca.OP_CALL for k in range(fn.n_instructions())), name
+        assert calls[name].is_a("MXFunction") or name.endswith("ekf_update"), name  # (the EKF update is one leaf)
+        args = []
+        for i in range(fn.n_in()):
+            a = rng.normal(size=fn.size_in(i))
+            if fn.name_in(i) in ("P", "Q", "R"):
+                a = a @ a.T + 2.0 * np.eye(a.shape[0])
+            elif fn.name_in(i) == "mask":
+                a = np.ones(fn.size_in(i))
+            elif fn.name_in(i) == "abk":
+                a = np.array([1.0, 0.0, 1.0])
+            elif fn.name_in(i) in ("dt", "sigma", "gamma"):
+                a = np.array([[0.1 if fn.name_in(i) == "dt" else 1.5]])
+            args.append(a)
+        for a, b in zip(fn.call(args), calls[name].call(args)):
+            np.testing.assert_allclose(np.array(a), np.array(b), rtol=1e-12, atol=1e-14, err_msg=name)
+
+
+def test_large_steps_keep_their_calls():
+    steps = _steps(pendulum_chain(6), ("ckf",))  # n = 12: tens of thousands of operations inlined
+    assert common.inlined_size(steps["chain6_ckf_step"]) > common.FLAT_MAX_INSTRUCTIONS
+    assert steps["chain6_ckf_step"].is_a("MXFunction")

@@ -136,3 +136,14 @@ def test_effective_sample_size_and_policy_check_weights():
         ResamplingPolicy(threshold=float("nan"))
     with pytest.raises(TypeError, match="threshold"):
         ResamplingPolicy(threshold=1j)
+
+
+def test_a_uniform_rounded_up_to_one_draws_the_last_particle_with_weight():
+    from abyssal.runtime.resampling.schemes import inverse_cdf
+
+    # systematic uniforms (k + U) / m: the largest U below 1 rounds (m - 1 + U) up to m, so u = 1.0
+    m, U = 3, np.nextafter(1.0, 0.0)
+    assert (m - 1 + U) / m == 1.0
+    weights = np.array([0.25, 0.75, 0.0])  # the last particle has no weight
+    assert list(inverse_cdf(weights, np.array([0.1, 0.5, 1.0]))) == [0, 1, 1]
+    assert list(inverse_cdf(np.array([0.5, 0.5]), np.array([1.0, 1.0]))) == [1, 1]

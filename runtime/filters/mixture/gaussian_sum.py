@@ -23,7 +23,7 @@ from ...compiled.batches import CubaturePredictBatch, CubatureUpdateBatch, Measu
 from ...contract import FilterBase, as_generator, check_count, check_covariance, check_state, register
 from ...noise.mixtures import (LOG_2PI, GaussianMixture, initial_mixture, logsumexp, merge_components, reduce_mixture,
                                weighted_em, weighted_moments)
-from ...numerics import factorable_covariance, grew_beyond, stacked_cholesky
+from ...numerics import factorable_covariance, grew_beyond, stacked_cholesky, stacked_times
 from ...resampling import normalise_log_weights, systematic_resample
 from ..particle.engine import MeasurementNoise, check_model, informative, measurement_residuals
 
@@ -184,7 +184,7 @@ class _SampledMixtureFilter(_MixtureFilterBase):
         """Fill self.particles with draws from the proposal components named by labels; returns xi."""
         L, _ = stacked_cholesky(proposal.covariances, repair=False)
         xi = self.rng.standard_normal((self.model.n_x, self.N))
-        self.particles[...] = proposal.means[labels].T + (L[labels] @ xi.T[:, :, None])[:, :, 0].T
+        self.particles[...] = proposal.means[labels].T + stacked_times(L[labels], xi)
         return xi
 
     def _log_likelihoods_by_component(self, z: np.ndarray, present: np.ndarray) -> np.ndarray | None:

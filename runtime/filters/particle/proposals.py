@@ -49,7 +49,7 @@ from abyssal.symbolic.filters.families import FUNCTIONS
 from ...compiled.batches import (CubaturePredictBatch, CubatureStepBatch, CubatureUpdateBatch, MeasureBatch,
                                  UnscentedPredictBatch, UnscentedUpdateBatch)
 from ...noise.mixtures import LOG_2PI
-from ...numerics import factorable_covariance, stacked_cholesky, wrap_to_pi
+from ...numerics import factorable_covariance, stacked_cholesky, stacked_times, wrap_to_pi
 from .engine import Proposal
 
 __all__ = ["CarriedCubatureProposal", "CarriedGaussianProposal", "OptimalCubatureProposal", "UnscentedProposal"]
@@ -73,7 +73,7 @@ def _gaussian_draw(engine, f: np.ndarray, mean: np.ndarray, C: np.ndarray) -> np
         mean_y = V.T @ (mean - f)
         C_y = V.T @ C @ V
     L, log_det = stacked_cholesky(C_y, repair=True)
-    y = mean_y + np.matmul(L, xi.T[:, :, None])[:, :, 0].T
+    y = mean_y + stacked_times(L, xi)
     np.add(f, tr.embed(y), out=engine.proposed)
     log_q = -0.5 * np.einsum("rn,rn->n", xi, xi) - log_det - 0.5 * r * LOG_2PI
     return tr.log_density(engine.proposed - f) - log_q
@@ -188,8 +188,8 @@ class CarriedGaussianProposal(Proposal):
         if mode == "update":  # the particles did not move: their P^i stay
             if ancestors is not None:
                 cov[:, :, :ancestors.size] = cov[:, :, ancestors]
-        elif ancestors is not None:
-            cov[:, :, :ancestors.size] = self._next_cov[:, :, ancestors]
+        elif ancestors is not None:  # (np.take with out: 2-5x faster than fancy indexing on the last axis)
+            np.take(self._next_cov, ancestors, axis=2, out=cov[:, :, :ancestors.size], mode="clip")
         else:
             cov[:, :, :count] = self._next_cov[:, :, :count]
         self.failed_slices += self._next_failed
@@ -329,7 +329,7 @@ class OptimalCubatureProposal(Proposal):
         C_y = 0.5 * (C_y + np.swapaxes(C_y, 1, 2))
         L, log_det = stacked_cholesky(C_y, repair=True)
         xi = engine.rng.standard_normal((r, N))
-        y = mean_y + np.matmul(L, xi.T[:, :, None])[:, :, 0].T
+        y = mean_y + stacked_times(L, xi)
         tr = engine.transition
         np.add(f, tr.embed(y), out=engine.proposed)
         log_q = -0.5 * np.einsum("rn,rn->n", xi, xi) - log_det - 0.5 * r * LOG_2PI
