@@ -19,7 +19,7 @@ One implementation: the rule is C (generated/c/abyssal_kalman_gate.c: the quanti
 factor of S, the selection's rounds, the streaks); this class holds a gate object in a NumPy buffer and calls
 it, as the Kalman runtime does from C inside every EKF/UKF/CKF step. The NIS is computed exactly (a guarded
 Cholesky factor of S, +inf when S is not positive definite or the value overflows): in C it costs less than
-any bound, so ``S_dominates_R`` is accepted and not needed.
+any bound.
 
 Conventions of the generated updates: nu is (m,) with 0 on unused entries and S (m, m) with
 identity rows there, so a NIS over all rows is the NIS of the present ones.
@@ -45,8 +45,7 @@ class InnovationGate(Stateful):
 
     _state = ("_block",)
 
-    def __init__(self, R: np.ndarray, *, probability: float = 1e-10, patience: int = 5, inflation: float = 4.0,
-                 S_dominates_R: bool = False):
+    def __init__(self, R: np.ndarray, *, probability: float = 1e-10, patience: int = 5, inflation: float = 4.0):
         runtime = kr.KalmanRuntime.standalone()
         m = int(np.shape(R)[0])
         size = runtime.gate_size(m)
@@ -56,14 +55,12 @@ class InnovationGate(Stateful):
             raise ValueError(f"gate_probability must be in [0, 1) (0: no gate), gate_patience >= 1 and 1 <= gate_inflation "
                              f"< inf are required, got gate_probability={probability!r}, gate_patience={patience!r}, "
                              f"gate_inflation={inflation!r}")
-        self.S_dominates_R = S_dominates_R
         self._attach(runtime, memory, 0)
 
     @classmethod
     def over(cls, memory: np.ndarray, offset: int) -> "InnovationGate":
         """The gate object at byte `offset` of `memory` (a Kalman filter's), without copying it."""
         gate = cls.__new__(cls)
-        gate.S_dominates_R = False
         gate._attach(kr.KalmanRuntime.standalone(), memory, offset)
         return gate
 
@@ -94,11 +91,6 @@ class InnovationGate(Stateful):
     def streaking(self) -> bool:
         """Whether some entry has been gated in its last update(s)."""
         return bool(self._counters["streaking"][0])
-
-    def set_R(self, R: np.ndarray) -> None:
-        """Kept for the API: the exact NIS needs nothing of R (its size is fixed at construction)."""
-        if np.shape(R)[0] != self._m:
-            raise ValueError(f"R must be ({self._m}, {self._m}) for this gate, got {np.shape(R)}")
 
     def _vectors(self, nu, S):
         nu = np.ascontiguousarray(nu, dtype=np.float64)

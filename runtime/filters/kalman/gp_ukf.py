@@ -73,9 +73,7 @@ class GPUKF(FilterBase):
         self._P = check_covariance(P0, n, "P0")
         self._R = check_covariance(R, m, "R", definite=True)
         self._abk = np.array([alpha, beta, kappa], dtype=float)
-        lam = alpha**2 * (n + kappa) - n
-        self.gate = InnovationGate(self._R, probability=gate_probability, patience=gate_patience, inflation=gate_inflation,
-                                   S_dominates_R=lam / (n + lam) + 1 - alpha**2 + beta >= 0)
+        self.gate = InnovationGate(self._R, probability=gate_probability, patience=gate_patience, inflation=gate_inflation)
         self.growth_limit = float(growth_limit)
         self.nis, self.nis_dof = math.nan, 0
         self.last_Q = np.zeros((n, n))

@@ -85,8 +85,7 @@ class IVBCKF(FilterBase):
             raise ValueError(f"growth_limit must be > 1, got {growth_limit!r}")
         self.chi, self.phi, self.kappa, self.zeta, self.u, self.t = chi, phi, kappa, zeta, u, t
         self.iterations = int(iterations)
-        self.gate = InnovationGate(self.R, probability=gate_probability, patience=gate_patience, inflation=gate_inflation,
-                                   S_dominates_R=True)
+        self.gate = InnovationGate(self.R, probability=gate_probability, patience=gate_patience, inflation=gate_inflation)
         self.growth_limit = float(growth_limit)
         self._predict_fn = model.function("ckf_predict")
         self._update_fn = model.function("ckf_update")
