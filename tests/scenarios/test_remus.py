@@ -268,6 +268,16 @@ def test_report_names_its_statistics_and_computes_the_paper_checks():
     assert "closest: UKF (oracle); no reading is within a factor 2" in text   # rmse_x is 2.5x the paper's
 
 
+def test_a_diverged_run_stays_in_the_statistics():
+    """A run whose error is inf is counted (mean inf, printed "inf"), never left out of the table."""
+    from abyssal.runtime.experiments.remus import experiment
+
+    rows = _rows({("UKF (oracle)", "true model", run): {"prediction": v} for run, v in enumerate([1.0, math.inf, 2.0])})
+    s = experiment.statistic(rows, "UKF (oracle)", "prediction")
+    assert s.n == 3 and s.mean == math.inf and experiment.cell(s) == "inf"
+    assert experiment.cell(experiment.statistic(rows, "UKF (Euler, 1 step)", "prediction")) == "-"
+
+
 def test_resume_refuses_a_bad_table_before_the_gps_are_trained(tmp_path, monkeypatch):
     import argparse
 

@@ -50,8 +50,7 @@ from pathlib import Path
 import numpy as np
 
 from . import paper, scenario
-from ..tables import OverRuns
-from ..tables import over_runs as _over_runs
+from ..tables import OverRuns, over_runs
 
 STATE_NAMES = scenario.STATE_NAMES
 MEASURED = ("u", "v", "w", "p", "q", "r", "z", "phi", "theta", "psi")
@@ -366,20 +365,18 @@ def draws_of(rows, name: str) -> list[str]:
     return sorted({r["case"] for r in rows if r["filter"] == name}, key=lambda c: int(c.split()[-1]))
 
 
-def over_runs(values) -> OverRuns:
-    """tables.over_runs of the finite values: a run whose metric is inf or NaN is left out of the remus tables."""
-    return _over_runs([v for v in values if math.isfinite(v)])
-
-
 def over_draws(per_draw: dict[str, OverRuns]) -> OverRuns:
     """Between training draws: over_runs of the per-draw means (per_draw: {draw: over_runs of its runs})."""
     return over_runs([s.mean for s in per_draw.values()])
 
 
 def cell(s: OverRuns) -> str:
-    """"mean ± sd" (3 and 2 significant digits), the mean alone for one value, "-" for none."""
-    if not math.isfinite(s.mean):
+    """"mean ± sd" (3 and 2 significant digits), the mean alone for one value or when a run diverged (inf), "-" for
+    none."""
+    if s.n == 0:
         return "-"
+    if not math.isfinite(s.mean):
+        return f"{s.mean}"
     if s.n < 2 or not math.isfinite(s.sd):
         return f"{s.mean:.3g}"
     return f"{s.mean:.3g} ± {s.sd:.2g}"
