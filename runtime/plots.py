@@ -103,6 +103,18 @@ def stamp_settings(fig, text: str) -> None:
     fig.text(0.005, 0.005, text, fontsize=7, color="#444444", ha="left", va="bottom")
 
 
+def save_figure(fig, path, settings: str | None = None, *, rect=None, dpi: int = 110):
+    """Stamp the run's settings (``stamp_settings``), lay the figure out (``tight_layout(rect=rect)``; rect None:
+    the figure keeps its own layout), write it to path and close it; returns path."""
+    if settings:
+        stamp_settings(fig, settings)
+    if rect is not None:
+        fig.tight_layout(rect=rect)
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)
+    return path
+
+
 def plain_log_labels(ax, axis: str = "y") -> None:
     """Tick labels of a log axis as plain numbers (0.3, 1, 20) rather than 3 x 10^-1."""
     from matplotlib.ticker import FuncFormatter
@@ -161,12 +173,7 @@ def error_vs_time(times: np.ndarray, errors: dict[str, np.ndarray], labels, titl
     fig.legend(handles, names, ncol=min(6, len(names)), fontsize=8, loc="lower center", bbox_to_anchor=(0.5, 0.02),
                frameon=False)
     fig.suptitle(title)
-    if settings:
-        stamp_settings(fig, settings)
-    fig.tight_layout(rect=(0, 0.07, 1, 1))
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, settings, rect=(0, 0.07, 1, 1))
 
 
 def rmse_bars(metrics: dict[str, dict], paper: dict[str, dict[str, float]] | None, title: str, path: Path, *,
@@ -220,10 +227,5 @@ def rmse_bars(metrics: dict[str, dict], paper: dict[str, dict[str, float]] | Non
     fig.legend(list(handles.values()), list(handles), ncol=4, fontsize=8, loc="lower center",
                bbox_to_anchor=(0.5, 0.02), frameon=False)
     fig.suptitle(title)
-    if settings:
-        stamp_settings(fig, settings)
     rows_of_legend = -(-len(handles) // 4)
-    fig.tight_layout(rect=(0, 0.035 + 0.045 * rows_of_legend, 1, 1))
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, settings, rect=(0, 0.035 + 0.045 * rows_of_legend, 1, 1))

@@ -570,12 +570,8 @@ def _line(style: dict, every: int | None = None) -> dict:
     return kw
 
 
-def _save(fig, path, stamp: str, plots):
-    plots.stamp_settings(fig, stamp)
-    fig.tight_layout(rect=(0, 0.02, 1, 1))
-    fig.savefig(path, dpi=100)
-    require("matplotlib.pyplot", "the experiment figures").close(fig)
-    return path
+def _save(fig, path, stamp: str, plots, rect=(0, 0.02, 1, 1)):
+    return plots.save_figure(fig, path, stamp, rect=rect, dpi=100)
 
 
 def _ape_figure(rows, config: CnConfig, out, stamp, labels, plots, plt):
@@ -621,12 +617,7 @@ def _ape_figure(rows, config: CnConfig, out, stamp, labels, plots, plt):
         names_ += lab
     fig.legend(handles, names_, ncol=8, fontsize=7, loc="lower center", bbox_to_anchor=(0.5, 0.03), frameon=False)
     fig.suptitle("APE (eq. 46) per filter, range-noise case and leader geometry (tuned rows hollow)")
-    plots.stamp_settings(fig, stamp)
-    fig.tight_layout(rect=(0, 0.1, 1, 1))
-    path = out / "cn_ape.png"
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return _save(fig, out / "cn_ape.png", stamp, plots, rect=(0, 0.1, 1, 1))
 
 
 #: the name `abyssal reproduce` looks up (reproduce.py)

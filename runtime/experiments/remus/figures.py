@@ -71,12 +71,8 @@ def settings_text(rows, config: RemusConfig, seed: int, settings: str | None = N
             f"sizes {', '.join(map(str, config.sizes))}, training draws {', '.join(map(str, config.draws))}")
 
 
-def _save(fig, path: Path, stamp: str, written: list) -> None:
-    plots.stamp_settings(fig, stamp)
-    fig.tight_layout(rect=(0, 0.03, 1, 1))
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    written.append(path)
+def _save(fig, path: Path, stamp: str, written: list, rect=(0, 0.03, 1, 1)) -> None:
+    written.append(plots.save_figure(fig, path, stamp, rect=rect))
 
 
 def training_data(prepared: dict, config: RemusConfig, path: Path, stamp: str, written: list) -> None:
@@ -206,11 +202,7 @@ def state_rmse(rows, ordered, path: Path, stamp: str, written: list) -> None:
     fig.legend(handles, labels, loc="lower center", ncol=4, fontsize=7, frameon=False, bbox_to_anchor=(0.5, 0.02))
     fig.suptitle("RMSE per state (Table 3): UKF readings mean ± sd over runs, GP-UKF mean ± sd between training "
                  "draws", fontsize=10)
-    fig.tight_layout(rect=(0, 0.1, 1, 0.97))
-    plots.stamp_settings(fig, stamp)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    written.append(path)
+    _save(fig, path, stamp, written, rect=(0, 0.1, 1, 0.97))
 
 
 def surge_error(log, traces, ordered, path: Path, stamp: str, written: list, run_label: str) -> None:

@@ -488,13 +488,9 @@ def figures(rows, out: Path, config: TanConfig, seed: int = 0, prepared=None, se
     written = []
 
     def save(fig, name):
-        from ...plots import stamp_settings
+        from ...plots import save_figure
 
-        stamp_settings(fig, settings)
-        path = out / name
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
-        written.append(path)
+        written.append(save_figure(fig, out / name, settings))
 
     terrain = track_terrain(config)
     save(_tracks_figure(plt, config), "tan_tracks.png")
