@@ -41,11 +41,13 @@ __all__ = ["CompiledBootstrap"]
 
 
 def _philox_ancestors(step: sir.CompiledSIR, scheme: int, weights: np.ndarray) -> np.ndarray:
-    """The ancestors the C step draws (systematic or stratified, from its resampling uniforms), in NumPy."""
+    """The ancestors the C step draws (systematic or stratified, from its resampling uniforms), in NumPy. (Where
+    a uniform rounds up to 1.0, ~2^-53 per step, inverse_cdf takes the last particle of positive weight and the C
+    step particle n - 1: the two differ only if that one has zero weight.)"""
     n = weights.shape[0]
     key, counter = int(step.rng[0]), int(step.rng[1])
     u = sir.uniforms(key, counter, sir.TAG_RESAMPLING, 1 if scheme == sir.SYSTEMATIC else n)
-    return np.minimum(inverse_cdf(weights, (np.arange(n) + u) / n), n - 1)
+    return inverse_cdf(weights, (np.arange(n) + u) / n)
 
 
 class CompiledBootstrap:
