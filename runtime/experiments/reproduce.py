@@ -1,6 +1,6 @@
-"""`abyssal reproduce {rov,cn,tan,remus,all}`: rerun the papers' experiments.
+"""`abyssal reproduce {rov,cn,tan,tan-survey,remus,all}`: rerun the papers' experiments.
 
-rov (seed 000), cn (seed 002), tan (seed 003) and remus (seed 004) each live in experiments/<name>/ with the
+rov (seed 000), cn (seed 002), tan (seed 003; tan-survey its track survey) and remus (seed 004) each live in experiments/<name>/ with the
 same shape: ``paper.py`` (the paper's printed numbers, quoted and labelled as the paper's), ``scenario.py``
 (the truth: the simulated world) and ``experiment.py``, which gives this module
 
@@ -61,6 +61,7 @@ EXPERIMENTS: dict[str, Experiment] = {e.name: e for e in (
     Experiment("cn", ".cn.experiment", ("cn2d",), runs=10, quick_runs=2, timings_apart=True,
                case="geometry x noise case"),
     Experiment("tan", ".tan.experiment", ("tan3dof",), runs=8, quick_runs=1, case="map x track x current"),
+    Experiment("tan-survey", ".tan.survey", ("tan3dof",), runs=3, quick_runs=1, case="map x track"),
     Experiment("remus", ".remus.experiment", ("remus100",), runs=20, quick_runs=3,
                needs={"sklearn": "the GP process model"}, particles=False, prepare=True),
 )}
@@ -94,8 +95,9 @@ def quick_help() -> str:
     import textwrap
 
     lines = ["--quick, per experiment (derived from each experiment's Config.quick):"]
-    lines += [textwrap.fill(quick_description(e), width=100, initial_indent=f"  {e.name:<7}", subsequent_indent=" " * 9)
-              for e in EXPERIMENTS.values()]
+    width = max(len(name) for name in EXPERIMENTS) + 1
+    lines += [textwrap.fill(quick_description(e), width=100, initial_indent=f"  {e.name:<{width}}",
+                            subsequent_indent=" " * (width + 2), break_on_hyphens=False) for e in EXPERIMENTS.values()]
     return "\n".join(lines)
 
 

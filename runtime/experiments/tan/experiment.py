@@ -14,6 +14,8 @@ for the terrain of each track). The paper's words (it prints figures, not an err
 * Start (DECISION): the filter's particles are drawn around the true start posture, N(0, initial_std^2 =
   50^2 m^2) in x and y (the paper gives the initial posture, not its uncertainty).
 * Lost track: position error above 1000 m (two map cells) at any time of the run.
+* Draws: a case's truth and each filter's streams are keyed by the case's and the filter's names (``derive``),
+  so a case run alone (``tracks=``, ``maps=``, ``sigmas=``) gives the numbers it has in the full campaign.
 * Dead reckoning: the filter's own model at zero noise from the start posture, with the commanded
   inputs and the compass heading (no map, no current): its error is the current's drift.
 * Baseline (not a method of the paper): "oracle_known_current", SIR with sigma = ``oracle_sigma``
@@ -33,6 +35,7 @@ from __future__ import annotations
 
 import math
 import time
+import zlib
 from collections import defaultdict
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -165,13 +168,16 @@ class FilterRun:
 
 
 def _finish(run: FilterRun, truth: Truth) -> FilterRun:
-    run.error_xy = run.estimates - truth.states[1:, :2]
+    run.error_xy = run.estimates - truth.states[1:1 + run.estimates.shape[0], :2]
     run.errors = np.hypot(run.error_xy[:, 0], run.error_xy[:, 1])
     return run
 
 
 def run_filter(bundle, terrain, config: TanConfig, truth: Truth, sigma, rng: np.random.Generator,
-               fuzzy_units: tuple[float, float] = FUZZY_VARIANTS["fuzzy"], knows_current: bool = False) -> FilterRun:
+               fuzzy_units: tuple[float, float] = FUZZY_VARIANTS["fuzzy"], knows_current: bool = False,
+               stop_beyond_m: float | None = None) -> FilterRun:
+    """One filter over one truth. stop_beyond_m: end the run at the first step whose position error exceeds it (the
+    track survey's early stop: the run is lost then); the FilterRun then holds the steps up to that one."""
     from ...filters.particle.terrain import TerrainParticleFilter
     from ...resampling import ResamplingPolicy
 
@@ -189,6 +195,9 @@ def run_filter(bundle, terrain, config: TanConfig, truth: Truth, sigma, rng: np.
     U, Z = truth.inputs, truth.measurements
     p = np.array(truth.current, dtype=np.float64) if knows_current else None
     clock = time.perf_counter
+    stop = math.inf if stop_beyond_m is None else stop_beyond_m
+    true_xy = truth.states[1:, :2]
+    done = T
     for k in range(T):
         t0 = clock()
         filt.step(U[k], dt, Z[k], p)
@@ -198,6 +207,12 @@ def run_filter(bundle, terrain, config: TanConfig, truth: Truth, sigma, rng: np.
         cov[k] = P[0, 0], P[0, 1], P[1, 1]
         if fuzzy:
             sig[k], grad[k], rate[k] = filt.sigma, filt.gradient, filt.gradient_rate
+        if stop < math.inf and math.hypot(x[0] - true_xy[k, 0], x[1] - true_xy[k, 1]) > stop:
+            done = k + 1
+            break
+    if done < T:
+        est, cov, times = est[:done], cov[:done], times[:done]
+        sig, grad, rate = (None if a is None else a[:done] for a in (sig, grad, rate))
     return _finish(FilterRun(est, cov, times, sig, grad, rate), truth)
 
 
@@ -217,24 +232,28 @@ def dead_reckoning(bundle, config: TanConfig, truth: Truth) -> FilterRun:
     return _finish(FilterRun(X[:, :2], None, np.full(T, elapsed / T)), truth)
 
 
-def run_case(config: TanConfig, case_index: int, seed: np.random.SeedSequence):
-    """(truth, {filter name: FilterRun}) of one case of one run."""
+def run_case(config: TanConfig, case: tuple[str, str, str], seed: np.random.SeedSequence):
+    """(truth, {filter name: FilterRun}) of one case (map, track, current) of one run. The draws are keyed by the
+    case's and the filter's names, so a case's numbers do not depend on which other cases or filters are configured."""
     from abyssal.generated import load
 
-    map_name, track, current = config.cases()[case_index]
+    map_name, track, current = case
+    case_key = zlib.crc32(case_name(*case).encode())
     bundle = load("tan3dof")
     terrain = get_map(map_name, config.map_seed)
     truth = simulate(bundle, terrain, config, TRACKS[map_name][track].start, CURRENTS[current],
-                     np.random.default_rng(derive(seed, case_index, 0)))
+                     np.random.default_rng(derive(seed, case_key, 0)))
+
+    def stream(name: str) -> np.random.Generator:
+        return np.random.default_rng(derive(seed, case_key, 1, zlib.crc32(name.encode())))
+
     runs = {}
     specs = [(sigma_name(s), s, FUZZY_VARIANTS["fuzzy"]) for s in config.sigmas]
     specs += [(name, "fuzzy", FUZZY_VARIANTS[name]) for name in config.fuzzy]
-    for j, (name, sigma, units) in enumerate(specs):
-        runs[name] = run_filter(bundle, terrain, config, truth, sigma,
-                                np.random.default_rng(derive(seed, case_index, 1 + j)), units)
+    for name, sigma, units in specs:
+        runs[name] = run_filter(bundle, terrain, config, truth, sigma, stream(name), units)
     if ORACLE in config.filters(current):
-        runs[ORACLE] = run_filter(bundle, terrain, config, truth, config.oracle_sigma,
-                                  np.random.default_rng(derive(seed, case_index, 1 + len(specs))), knows_current=True)
+        runs[ORACLE] = run_filter(bundle, terrain, config, truth, config.oracle_sigma, stream(ORACLE), knows_current=True)
     runs[DEAD_RECKONING] = dead_reckoning(bundle, config, truth)
     return truth, runs
 
@@ -243,8 +262,8 @@ def run_one(config: TanConfig, seed: np.random.SeedSequence) -> list[dict]:
     """Every case and filter of one Monte-Carlo run, as tidy rows (the campaign harness's shape)."""
     run = run_index(seed)
     rows = []
-    for i, (map_name, track, current) in enumerate(config.cases()):
-        _, runs = run_case(config, i, seed)
+    for map_name, track, current in config.cases():
+        _, runs = run_case(config, (map_name, track, current), seed)
         case = case_name(map_name, track, current)
         for name, result in runs.items():
             for metric, value in result.metrics(config.lost_m, config.dt).items():
@@ -428,7 +447,7 @@ ORDERED = ("fuzzy", "fuzzy (per cell)", "oracle (known current)", "dead reckonin
            *(f"sigma = {s:g} m" for s in SIGMAS))
 #: one colour and marker per track in the figures whose lines are tracks (tracks are not filters)
 TRACK_STYLES = {"paper_20_20": ("#0072B2", "o"), "paper_60_10": ("#999999", "s"), "start_10_40": ("#009E73", "^"),
-                "drift_along": ("#D55E00", "v"), "drift_across": ("#CC79A7", "D")}
+                "drift_along": ("#D55E00", "v"), "drift_across": ("#CC79A7", "D"), "survey_pick": ("#E69F00", "P")}
 MAP_MARKERS = {"arctic": "o", "arctic_cells": "s", "topobathy": "^"}
 
 
@@ -471,7 +490,7 @@ def figure_runs(config: TanConfig, cases, seed: int = 0):
     """{case: (truth, runs)} with run 0's seed (the same numbers as the campaign's run 0)."""
     seed0 = np.random.SeedSequence(seed).spawn(1)[0]
     all_cases = config.cases()
-    return {key: run_case(config, all_cases.index(key), seed0) for key in cases if key in all_cases}
+    return {key: run_case(config, key, seed0) for key in cases if key in all_cases}
 
 
 def figures(rows, out: Path, config: TanConfig, seed: int = 0, prepared=None, settings: str | None = None) -> list[Path]:

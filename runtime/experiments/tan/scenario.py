@@ -30,6 +30,11 @@ points, so each map gets several tracks, ``TRACKS``):
   0.1 m/s). The synthetic map with cell-scale relief shares the smooth map's layout and so its tracks.
 * ``start_10_40``: [10 km, 40 km, 0 deg] on the synthetic maps, a start a review of an earlier campaign
   named (there fixed sigma = 2-3 m tracked in most runs at 0.1 m/s).
+* ``survey_pick``: the pick of the track survey (survey.py, `abyssal reproduce tan-survey`): every admissible track
+  of the map on a 10 km grid (``admissible_starts``) run with fixed sigma = 2 and 3 m at 0.1 m/s, 3 runs each on
+  the survey's own streams; among the tracks where a sigma kept every run within 1000 m, the one whose worst run
+  stayed furthest below it. The tan experiment reruns it on its own, independent streams: the survey selects,
+  the campaign confirms (or not).
 
 The terrain of a track (``characterise``; no filter involved): along the noise-free path (the commanded
 speed plus the current, sampled every 10 s),
@@ -89,13 +94,15 @@ _SYNTHETIC = {**_PAPER,
               "start_10_40": _track(10, 40, 0, "a start a review of an earlier campaign named"),
               "drift_along": _track(35, 20, 270, "pick_along_across on 'arctic': drift most nearly along the contours"),
               "drift_across": _track(45, 25, 180, "pick_along_across on 'arctic': drift most nearly across the contours")}
+_SURVEYED = "the track survey's pick (abyssal reproduce tan-survey, its default: 3 runs, seed 0)"
 #: map -> track name -> Track (the module docstring says how each was chosen)
 TRACKS: dict[str, dict[str, Track]] = {
-    "arctic": _SYNTHETIC,
-    "arctic_cells": _SYNTHETIC,
+    "arctic": {**_SYNTHETIC, "survey_pick": _track(10, 20, 270, _SURVEYED)},
+    "arctic_cells": {**_SYNTHETIC, "survey_pick": _track(10, 30, 270, _SURVEYED)},
     "topobathy": {**_PAPER,
                   "drift_along": _track(15, 30, 270, "pick_along_across on 'topobathy': drift most nearly along the contours"),
-                  "drift_across": _track(115, 40, 180, "pick_along_across on 'topobathy': drift most nearly across the contours")},
+                  "drift_across": _track(115, 40, 180, "pick_along_across on 'topobathy': drift most nearly across the contours"),
+                  "survey_pick": _track(10, 20, 90, _SURVEYED)},
 }
 
 _MAP_CACHE: dict = {}
@@ -165,15 +172,14 @@ def characterise(terrain, start, current, duration_s: float, speed: float, windo
     return TrackTerrain(slope, angle, float(np.median(weakest)), relief, flat, margin)
 
 
-def pick_along_across(terrain, duration_s: float = 30000.0, speed: float = 0.5, currents=(0.1, 0.15),
-                      grid_km: float = 5.0) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
-    """The (drift_along, drift_across) starts (x m, y m, heading rad) of the rule in the module docstring: starts
-    on a ``grid_km`` grid, headings 0/90/180/270 deg, the path at the strongest current >= 2 km inside the map;
-    at most 10 % flat and a slope at least the candidates' median, both at ``currents[0]``; the smallest and the
-    largest drift-contour angle (ties to the larger slope)."""
+def admissible_starts(terrain, duration_s: float = 30000.0, speed: float = 0.5, currents=(0.1, 0.15),
+                      grid_km: float = 5.0) -> list[tuple[tuple[float, float, float], TrackTerrain]]:
+    """The candidate tracks of a map: starts (x m, y m, heading rad) on a ``grid_km`` grid with headings 0/90/180/270
+    deg whose path at the strongest current stays >= 2 km inside the map and which are at most 10 % flat at
+    ``currents[0]``, each with its terrain (``characterise``) at ``currents[0]``."""
     x_min, x_max, y_min, y_max = terrain.extent
     step = grid_km * 1e3
-    candidates = []
+    out = []
     for x0 in np.arange(x_min + step, x_max, step):
         for y0 in np.arange(y_min + step, y_max, step):
             for heading in (0.0, 90.0, 180.0, 270.0):
@@ -183,7 +189,16 @@ def pick_along_across(terrain, duration_s: float = 30000.0, speed: float = 0.5, 
                     continue
                 measured = characterise(terrain, start, (currents[0],) * 2, duration_s, speed)
                 if measured.flat_fraction <= 0.1:
-                    candidates.append((start, measured))
+                    out.append((start, measured))
+    return out
+
+
+def pick_along_across(terrain, duration_s: float = 30000.0, speed: float = 0.5, currents=(0.1, 0.15),
+                      grid_km: float = 5.0) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+    """The (drift_along, drift_across) starts (x m, y m, heading rad) of the rule in the module docstring: among
+    ``admissible_starts``, those with a slope at least the candidates' median; the smallest and the largest
+    drift-contour angle (ties to the larger slope)."""
+    candidates = admissible_starts(terrain, duration_s, speed, currents, grid_km)
     if not candidates:
         raise ValueError(f"no candidate track on map {terrain.name!r}: every path leaves the map or is flat")
     median = float(np.median([m.slope_m_per_km for _, m in candidates]))
