@@ -230,23 +230,33 @@ def figures(rows, out: Path, config: SurveyConfig, seed: int = 0, prepared=None,
     res = outcomes(rows, config)
     runs = max((e["runs"] for entries in res.values() for e in entries), default=0)
     settings = settings or config.settings(runs, seed)
-    fig, axes = plt.subplots(len(res), 1, figsize=(12, 4.1 * len(res)), squeeze=False)
+    Path(out).mkdir(parents=True, exist_ok=True)
+    fig, axes = plt.subplots(1, len(res), figsize=(5.6 * len(res) + 1.0, 6.2), squeeze=False)
     speed = TanConfig().speed
-    for ax, (m, entries) in zip(axes[:, 0], res.items()):
-        image, interval = _depth_image(ax, get_map(m, config.map_seed), alpha=0.6)
-        fig.colorbar(image, ax=ax, label="depth (m)", shrink=0.85)
-        for e in entries:
-            x, y = nominal_path(e["start"], CURRENTS[config.current], config.duration_s, speed)
+    for ax, (m, entries) in zip(axes[0], res.items()):
+        paths = [nominal_path(e["start"], CURRENTS[config.current], config.duration_s, speed) for e in entries]
+        terrain = get_map(m, config.map_seed)
+        x_min, x_max, y_min, y_max = (v / 1e3 for v in terrain.extent)
+        if paths:  # the surveyed part of the map, 3 km around the paths
+            x_min = max(x_min, min(x.min() for x, _ in paths) / 1e3 - 3.0)
+            x_max = min(x_max, max(x.max() for x, _ in paths) / 1e3 + 3.0)
+        image, interval = _depth_image(ax, terrain, window_km=(x_min, x_max, y_min, y_max), alpha=0.6)
+        fig.colorbar(image, ax=ax, label="depth (m)", shrink=0.7, orientation="horizontal", pad=0.1)
+        for e, (x, y) in zip(entries, paths):
             colour = "tab:green" if e["kept"] else "tab:red"
-            ax.plot(x / 1e3, y / 1e3, color=colour, lw=1.0, alpha=0.8)
+            ax.plot(x / 1e3, y / 1e3, color=colour, lw=1.2, alpha=0.85)
             ax.plot(x[0] / 1e3, y[0] / 1e3, "o", color=colour, ms=3)
         p = pick(entries)
         if p:
-            ax.plot(p["start"][0] / 1e3, p["start"][1] / 1e3, "o", ms=12, mfc="none", mec="black", mew=2,
-                    label=f"pick: {p['label']} ({p['filter']})")
-        ax.plot([], [], color="tab:green", label=f"kept by a fixed sigma ({_share(entries, lambda e: bool(e['kept']))})")
-        ax.plot([], [], color="tab:red", label="lost by every fixed sigma")
-        ax.set(xlabel="x (km)", ylabel="y (km)", title=f"{m}: surveyed tracks at {config.current} m/s (dot = start; "
-               f"{', '.join(sigma_name(s) for s in config.sigmas)}; contours every {interval} m)")
-        ax.legend(fontsize=7, loc="upper right")
-    return [save_figure(fig, Path(out) / "tan_survey_tracks.png", settings)]
+            ax.plot(p["start"][0] / 1e3, p["start"][1] / 1e3, "o", ms=12, mfc="none", mec="black", mew=2)
+        picked = f"pick {p['label']} ({p['filter']})" if p else "no pick"
+        ax.set(xlabel="x (km)", ylabel="y (km)", xlim=(x_min, x_max), ylim=(y_min, y_max),
+               title=f"{m}: kept {_share(entries, lambda e: bool(e['kept']))} tracks; {picked}\n"
+                     f"(contours every {interval} m)")
+    handles = [plt.Line2D([], [], color="tab:green", marker="o", ms=3, label="kept: a fixed sigma held every run"),
+               plt.Line2D([], [], color="tab:red", marker="o", ms=3, label="lost by every fixed sigma"),
+               plt.Line2D([], [], ls="none", marker="o", ms=10, mfc="none", mec="black", mew=2, label="the survey's pick")]
+    fig.legend(handles=handles, loc="upper right", fontsize=8, ncol=3)
+    fig.suptitle(f"Track survey at {config.current} m/s (dot = start, line = the path): "
+                 f"{' or '.join(sigma_name(s) for s in config.sigmas)}", fontsize=11, x=0.3)
+    return [save_figure(fig, Path(out) / "tan_survey_tracks.png", settings, rect=(0, 0.03, 1, 1))]
