@@ -61,7 +61,8 @@ def nees(errors: np.ndarray, covariances: np.ndarray, floor: float = NEES_FLOOR)
 
     P_t = V diag(l) V^T (symmetrised), l clipped from below at floor * max(l) (and the smallest
     normal double), so the value is >= 0 for every input and finite for a singular or near-singular
-    P; a non-finite error or covariance gives NaN for that step.
+    P; where P is zero (a particle cloud collapsed to a point) it is e^T e over the smallest normal double,
+    inf (without a warning) once |e| > ~1.3; a non-finite error or covariance gives NaN for that step.
     """
     e = np.asarray(errors, dtype=np.float64)
     P = np.asarray(covariances, dtype=np.float64)
@@ -72,7 +73,8 @@ def nees(errors: np.ndarray, covariances: np.ndarray, floor: float = NEES_FLOOR)
         largest = np.max(np.abs(values), axis=1, keepdims=True)
         values = np.maximum(values, np.maximum(floor * largest, np.finfo(np.float64).tiny))
         projected = np.einsum("tij,ti->tj", vectors, e[ok])
-        out[ok] = np.sum(projected ** 2 / values, axis=1)
+        with np.errstate(over="ignore"):  # e^2 / tiny for a zero P: inf as documented, no warning
+            out[ok] = np.sum(projected ** 2 / values, axis=1)
     return out
 
 

@@ -33,6 +33,16 @@ def test_nees_of_a_collapsed_particle_covariance_is_never_negative_and_counts_th
     assert raw < 0 or raw > 1e6 * values[0]
 
 
+def test_nees_of_a_zero_covariance_is_inf_where_the_error_is_not_zero_and_warns_nothing():
+    import warnings
+
+    P = np.zeros((2, 2, 2))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no RuntimeWarning (overflow) escapes
+        values = nees(np.array([[10.0, 0.0], [0.0, 0.0]]), P)
+    assert values[0] == np.inf and values[1] == 0.0
+
+
 def test_nees_of_a_non_finite_step_is_nan_and_leaves_the_others():
     P = np.stack([np.eye(3), np.full((3, 3), np.nan), np.eye(3)])
     e = np.array([[1.0, 0, 0], [1.0, 0, 0], [np.inf, 0, 0]])
