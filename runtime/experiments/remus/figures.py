@@ -184,8 +184,11 @@ def state_rmse(rows, ordered, path: Path, stamp: str, written: list) -> None:
         for j, name in enumerate(names):
             s = style(name, ordered)
             values = [statistic(rows, name, f"rmse_{st}") for st in states]
-            ax.errorbar(centres - 0.4 + width * (j + 0.5), [v.mean for v in values],
-                        yerr=[0 if not np.isfinite(v.sd) else v.sd for v in values], fmt=s["marker"], color=s["color"],
+            means = np.array([v.mean for v in values])
+            sds = np.array([v.sd if np.isfinite(v.sd) else 0.0 for v in values])
+            # log axis: a lower bar reaching zero or below is drawn down to a tenth of the mean (the title says so)
+            lower = np.where(means - sds > 0, sds, 0.9 * means)
+            ax.errorbar(centres - 0.4 + width * (j + 0.5), means, yerr=[lower, sds], fmt=s["marker"], color=s["color"],
                         mfc=s.get("markerfacecolor", s["color"]), ms=5, capsize=2, lw=0.8, label=name)
         for row, marker in (("UKF", "D"), ("GP-UKF", "s")):
             pts = [(c, paper.TABLE3[row].get(st)) for c, st in zip(centres, states)]
@@ -201,7 +204,7 @@ def state_rmse(rows, ordered, path: Path, stamp: str, written: list) -> None:
     handles, labels = axes[0, 0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="lower center", ncol=4, fontsize=7, frameon=False, bbox_to_anchor=(0.5, 0.02))
     fig.suptitle("RMSE per state (Table 3): UKF readings mean ± sd over runs, GP-UKF mean ± sd between training "
-                 "draws", fontsize=10)
+                 "draws\n(log axis: where mean − sd ≤ 0 the lower bar stops at a tenth of the mean)", fontsize=10)
     _save(fig, path, stamp, written, rect=(0, 0.1, 1, 0.97))
 
 
