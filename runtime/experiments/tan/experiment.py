@@ -367,6 +367,10 @@ def report(rows, config: TanConfig) -> str:
         for m, v in verdict(s, config).items():
             good = "; ".join(f"{t}: {', '.join(_short(f) for f in fs)}" for t, fs in v["tracking"].items()) or "no track"
             lines.append(f"  {m}: {good}. No fixed sigma on: {', '.join(v['none']) or '-'}")
+        if any("survey_pick" in config.tracks_of(m) for m in config.maps):
+            lines.append("  survey_pick: the track survey's pick, chosen on the survey's own streams (`abyssal reproduce "
+                         "tan-survey`, which also counts the tracks of each map where a fixed sigma held); here it is "
+                         "rerun on this campaign's streams.")
         lines.append("")
     # per case
     header = ["filter", "error", "final", "max(med)", "lost", "spread", "out99", "sigma"]
