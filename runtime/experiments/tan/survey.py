@@ -170,13 +170,15 @@ def report(rows, config: SurveyConfig) -> str:
              f"every admissible track on a {config.grid_km:g} km grid (4 headings) at {config.current} m/s, "
              f"{config.duration_s:g} s per run, N = {config.n_particles}, {runs} run(s) per track",
              f"kept = every run's error stayed within {config.lost_m:g} m (a run is stopped once lost); tracks kept / "
-             "tracks surveyed; angle = drift vs depth contours (0 along, 90 across), weakest = the slope in the "
+             "tracks surveyed; runs kept = the single runs (track x run) that stayed within it;",
+             "angle = drift vs depth contours (0 along, 90 across), weakest = the slope in the "
              "least-informative direction (scenario.characterise, no filter)", ""]
-    header = ["map", "tracks"] + [f"kept by {n}" for n in names] + ["by either"]
+    header = ["map", "tracks"] + [f"kept by {n}" for n in names] + ["by either"] + [f"runs kept, {n}" for n in names]
     body = []
     for m, entries in res.items():
+        runs_kept = [f"{sum(e['runs'] - e['lost'][n] for e in entries)}/{sum(e['runs'] for e in entries)}" for n in names]
         body.append([m, str(len(entries))] + [_share(entries, lambda e, n=n: n in e["kept"]) for n in names]
-                    + [_share(entries, lambda e: bool(e["kept"]))])
+                    + [_share(entries, lambda e: bool(e["kept"]))] + runs_kept)
     lines += aligned(header, body, left=1) + [""]
     lines.append("KEPT BY EITHER SIGMA, by the track's terrain")
     header = ["map"] + [f"angle {lo:g}-{hi:g}" for lo, hi in ANGLE_BINS] + ["weakest: low third", "middle", "high third"]
