@@ -453,6 +453,8 @@ ORDERED = ("fuzzy", "fuzzy (per cell)", "oracle (known current)", "dead reckonin
 TRACK_STYLES = {"paper_20_20": ("#0072B2", "o"), "paper_60_10": ("#999999", "s"), "start_10_40": ("#009E73", "^"),
                 "drift_along": ("#D55E00", "v"), "drift_across": ("#CC79A7", "D"), "survey_pick": ("#E69F00", "P")}
 MAP_MARKERS = {"arctic": "o", "arctic_cells": "s", "topobathy": "^"}
+#: where a track's name sits from its start in tan_tracks.png (points), where the default (6, 6) would overlap another
+LABEL_OFFSETS = {"survey_pick": (-20, -16), "drift_along": (8, -4)}
 
 
 def style(name: str) -> dict:
@@ -569,7 +571,8 @@ def _tracks_figure(plt, config: TanConfig):
                 x, y = nominal_path(tr.start, CURRENTS[current], config.duration_s, config.speed)
                 ax.plot(x / 1e3, y / 1e3, color=colour, lw=2.0, ls=ls, label=f"{t}" if current == "0.1" else None)
             ax.plot(tr.x / 1e3, tr.y / 1e3, marker=marker, color=colour, ms=8, mec="white")
-            ax.annotate(t, (tr.x / 1e3, tr.y / 1e3), textcoords="offset points", xytext=(6, 6), fontsize=8, color=colour,
+            ax.annotate(t, (tr.x / 1e3, tr.y / 1e3), textcoords="offset points", xytext=LABEL_OFFSETS.get(t, (6, 6)),
+                        fontsize=8, color=colour,
                         fontweight="bold", path_effects=[patheffects.withStroke(linewidth=2.5, foreground="white")])
         ax.annotate("", xy=(133, 8), xytext=(127, 2), arrowprops={"arrowstyle": "->", "lw": 2, "color": "black"})
         ax.text(126, 9, "current\n(+x +y)", fontsize=8)
