@@ -232,20 +232,26 @@ def dead_reckoning(bundle, config: TanConfig, truth: Truth) -> FilterRun:
     return _finish(FilterRun(X[:, :2], None, np.full(T, elapsed / T)), truth)
 
 
+def named_stream(seed: np.random.SeedSequence, case: str, filter_name: str | None = None) -> np.random.Generator:
+    """The generator of a case's truth (filter_name None) or of one filter on it, keyed by the names alone."""
+    key = zlib.crc32(case.encode())
+    keys = (key, 0) if filter_name is None else (key, 1, zlib.crc32(filter_name.encode()))
+    return np.random.default_rng(derive(seed, *keys))
+
+
 def run_case(config: TanConfig, case: tuple[str, str, str], seed: np.random.SeedSequence):
     """(truth, {filter name: FilterRun}) of one case (map, track, current) of one run. The draws are keyed by the
     case's and the filter's names, so a case's numbers do not depend on which other cases or filters are configured."""
     from abyssal.generated import load
 
     map_name, track, current = case
-    case_key = zlib.crc32(case_name(*case).encode())
     bundle = load("tan3dof")
     terrain = get_map(map_name, config.map_seed)
     truth = simulate(bundle, terrain, config, TRACKS[map_name][track].start, CURRENTS[current],
-                     np.random.default_rng(derive(seed, case_key, 0)))
+                     named_stream(seed, case_name(*case)))
 
     def stream(name: str) -> np.random.Generator:
-        return np.random.default_rng(derive(seed, case_key, 1, zlib.crc32(name.encode())))
+        return named_stream(seed, case_name(*case), name)
 
     runs = {}
     specs = [(sigma_name(s), s, FUZZY_VARIANTS["fuzzy"]) for s in config.sigmas]
@@ -536,7 +542,7 @@ def figures(rows, out: Path, config: TanConfig, seed: int = 0, prepared=None, se
     return written
 
 
-def _depth_image(ax, terrain, window_km=None, alpha: float = 1.0):
+def depth_image(ax, terrain, window_km=None, alpha: float = 1.0):
     """The depth grid (or its part inside window_km = (x0, x1, y0, y1)) as an image with contours at a round
     interval giving about 20 levels; returns (image, contour interval in m)."""
     xg, yg = terrain.node_coordinates()
@@ -562,7 +568,7 @@ def _tracks_figure(plt, config: TanConfig):
     fig, axes = plt.subplots(len(config.maps), 1, figsize=(12, 4.1 * len(config.maps)), squeeze=False)
     for ax, m in zip(axes[:, 0], config.maps):
         terrain = get_map(m, config.map_seed)
-        image, interval = _depth_image(ax, terrain)
+        image, interval = depth_image(ax, terrain)
         fig.colorbar(image, ax=ax, label="depth (m)", shrink=0.85)
         for t in config.tracks_of(m):
             tr = TRACKS[m][t]
@@ -703,7 +709,7 @@ def _track_run_figure(plt, config: TanConfig, m, t, c, truth, runs):
     pad = 2.0
     window = (max(x_min, np.percentile(xs, 1) - pad), min(x_max, np.percentile(xs, 99) + pad),
               max(y_min, np.percentile(ys, 1) - pad), min(y_max, np.percentile(ys, 99) + pad))
-    image, interval = _depth_image(ax_map, terrain, window, alpha=0.6)
+    image, interval = depth_image(ax_map, terrain, window, alpha=0.6)
     fig.colorbar(image, ax=ax_map, label="depth (m)", shrink=0.6)
     ax_map.plot(truth.states[:, 0] / 1e3, truth.states[:, 1] / 1e3, color="black", lw=5.0, alpha=0.3, label="truth",
                 zorder=3, solid_capstyle="round")

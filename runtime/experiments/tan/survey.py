@@ -25,16 +25,15 @@ the tracks on which a fixed sigma kept every run within ``lost_m``.
 from __future__ import annotations
 
 import math
-import zlib
 from collections import defaultdict
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
-from ..campaign import derive, run_index
+from ..campaign import run_index
 from ..tables import over_runs
-from .experiment import TanConfig, aligned, run_filter, sigma_name
+from .experiment import TanConfig, aligned, named_stream, run_filter, sigma_name
 from .scenario import CURRENTS, admissible_starts, get_map, nominal_path, simulate
 
 EXTRA_COLUMNS: tuple[str, ...] = ()
@@ -91,6 +90,10 @@ def track_label(start) -> str:
     return f"x{start[0] / 1e3:g}_y{start[1] / 1e3:g}_h{math.degrees(start[2]):.0f}"
 
 
+def survey_case(map_name: str, label: str) -> str:
+    return f"{map_name}/{label}"
+
+
 def run_one(config: SurveyConfig, seed: np.random.SeedSequence) -> list[dict]:
     """Every admissible track of every map, one truth each and every fixed sigma on it, as tidy rows."""
     from abyssal.generated import load
@@ -102,21 +105,16 @@ def run_one(config: SurveyConfig, seed: np.random.SeedSequence) -> list[dict]:
     for m in config.maps:
         terrain = get_map(m, config.map_seed)
         for label, start, _ in config.tracks(m):
-            case = f"{m}/{label}"
-            key = zlib.crc32(case.encode())
-            truth = simulate(bundle, terrain, tan, start, CURRENTS[config.current],
-                             np.random.default_rng(derive(seed, key, 0)))
+            case = survey_case(m, label)
+            truth = simulate(bundle, terrain, tan, start, CURRENTS[config.current], named_stream(seed, case))
             for sigma in config.sigmas:
                 name = sigma_name(sigma)
-                rng = np.random.default_rng(derive(seed, key, 1, zlib.crc32(name.encode())))
-                result = run_filter(bundle, terrain, tan, truth, sigma, rng, stop_beyond_m=config.lost_m)
-                lost = bool(result.errors.max() > config.lost_m)
-                metrics = {"lost": float(lost), "max_error_m": float(result.errors.max())}
-                if lost:
-                    metrics["lost_at_s"] = float(result.errors.size * tan.dt)
-                else:
-                    metrics["mean_error_m"] = float(result.errors.mean())
-                rows += [{"run": run, "case": case, "filter": name, "metric": k, "value": v} for k, v in metrics.items()]
+                result = run_filter(bundle, terrain, tan, truth, sigma, named_stream(seed, case, name),
+                                    stop_beyond_m=config.lost_m)
+                metrics = result.metrics(config.lost_m, tan.dt)
+                # a lost run was stopped: its mean error is that of a truncated run
+                kept = ("lost", "max_error_m", "lost_at_s") if metrics["lost"] else ("lost", "max_error_m", "mean_error_m")
+                rows += [{"run": run, "case": case, "filter": name, "metric": k, "value": metrics[k]} for k in kept if k in metrics]
     return rows
 
 
@@ -132,7 +130,7 @@ def outcomes(rows, config: SurveyConfig) -> dict:
     for m in config.maps:
         entries = []
         for label, start, terrain in config.tracks(m):
-            case = f"{m}/{label}"
+            case = survey_case(m, label)
             if (case, names[0], "lost") not in values:
                 continue
             lost = {f: int(round(sum(values[(case, f, "lost")]))) for f in names}
@@ -227,7 +225,7 @@ def figures(rows, out: Path, config: SurveyConfig, seed: int = 0, prepared=None,
 
     require("matplotlib", "the experiment figures")
     from ...plots import plt, save_figure
-    from .experiment import _depth_image
+    from .experiment import depth_image
 
     res = outcomes(rows, config)
     runs = max((e["runs"] for entries in res.values() for e in entries), default=0)
@@ -242,7 +240,7 @@ def figures(rows, out: Path, config: SurveyConfig, seed: int = 0, prepared=None,
         if paths:  # the surveyed part of the map, 3 km around the paths
             x_min = max(x_min, min(x.min() for x, _ in paths) / 1e3 - 3.0)
             x_max = min(x_max, max(x.max() for x, _ in paths) / 1e3 + 3.0)
-        image, interval = _depth_image(ax, terrain, window_km=(x_min, x_max, y_min, y_max), alpha=0.6)
+        image, interval = depth_image(ax, terrain, window_km=(x_min, x_max, y_min, y_max), alpha=0.6)
         fig.colorbar(image, ax=ax, label="depth (m)", shrink=0.7, orientation="horizontal", pad=0.1)
         for e, (x, y) in zip(entries, paths):
             colour = "tab:green" if e["kept"] else "tab:red"
