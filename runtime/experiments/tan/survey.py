@@ -231,7 +231,7 @@ def figures(rows, out: Path, config: SurveyConfig, seed: int = 0, prepared=None,
     runs = max((e["runs"] for entries in res.values() for e in entries), default=0)
     settings = settings or config.settings(runs, seed)
     Path(out).mkdir(parents=True, exist_ok=True)
-    fig, axes = plt.subplots(1, len(res), figsize=(5.6 * len(res) + 1.0, 6.2), squeeze=False)
+    fig, axes = plt.subplots(1, len(res), figsize=(max(9.0, 5.6 * len(res) + 1.0), 6.8), squeeze=False)
     speed = TanConfig().speed
     for ax, (m, entries) in zip(axes[0], res.items()):
         paths = [nominal_path(e["start"], CURRENTS[config.current], config.duration_s, speed) for e in entries]
@@ -256,7 +256,7 @@ def figures(rows, out: Path, config: SurveyConfig, seed: int = 0, prepared=None,
     handles = [plt.Line2D([], [], color="tab:green", marker="o", ms=3, label="kept: a fixed sigma held every run"),
                plt.Line2D([], [], color="tab:red", marker="o", ms=3, label="lost by every fixed sigma"),
                plt.Line2D([], [], ls="none", marker="o", ms=10, mfc="none", mec="black", mew=2, label="the survey's pick")]
-    fig.legend(handles=handles, loc="upper right", fontsize=8, ncol=3)
+    fig.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, 0.95), fontsize=8, ncol=3, frameon=False)
     fig.suptitle(f"Track survey at {config.current} m/s (dot = start, line = the path): "
-                 f"{' or '.join(sigma_name(s) for s in config.sigmas)}", fontsize=11, x=0.3)
-    return [save_figure(fig, Path(out) / "tan_survey_tracks.png", settings, rect=(0, 0.03, 1, 1))]
+                 f"{' or '.join(sigma_name(s) for s in config.sigmas)}", fontsize=11)
+    return [save_figure(fig, Path(out) / "tan_survey_tracks.png", settings, rect=(0, 0.03, 1, 0.9))]
