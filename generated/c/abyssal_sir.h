@@ -185,6 +185,9 @@ void abyssal_sir_normals(uint64_t key, uint64_t counter, uint32_t tag, abyssal_i
                          double* out, abyssal_idx ld);
 void abyssal_sir_uniforms(uint64_t key, uint64_t counter, uint32_t tag, abyssal_idx i0, abyssal_idx n, double* out);
 void abyssal_sir_philox(const uint32_t counter[4], const uint32_t key[2], uint32_t out[4]);
+/* The step's wrap of angle residuals, for tests: the entries of r (n) beyond +-pi wrapped to (-pi, pi] in place (as
+ * numpy's pi - remainder(pi - r, 2 pi)); the others left as they are. */
+void abyssal_sir_wrap_residuals(double* r, abyssal_idx n);
 
 /* h for a generated model: ctx points to an abyssal_soa_measure (the model's h kernel, h(x[], p) -> y[]) */
 typedef struct {

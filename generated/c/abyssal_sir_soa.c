@@ -168,16 +168,9 @@ static void normals_block(uint64_t key, uint64_t counter, uint32_t tag, idx i0, 
   uint32_t* restrict b2 = bits + 2 * BLOCK;
   uint32_t* restrict b3 = bits + 3 * BLOCK;
   for (int g = row0 / 4; 4 * g < rows; ++g) {
-    const uint32_t ctr1 = (tag << 16) | (uint32_t)g;
-#pragma omp simd
-    for (idx j = 0; j < n; ++j) {
-      uint64_t c0 = (uint32_t)(i0 + j), c1 = ctr1, c2 = ctr2, c3 = ctr3, k0 = key0, k1 = key1; /* 64-bit lanes */
-      ABYSSAL_PHILOX_10(c0, c1, c2, c3, k0, k1);
-      b0[j] = (uint32_t)c0;
-      b1[j] = (uint32_t)c1;
-      b2[j] = (uint32_t)c2;
-      b3[j] = (uint32_t)c3;
-    }
+    const int words = rows - 4 * g; /* Box-Muller pairs need 2 or 4 words */
+    abyssal_philox_run((uint32_t)i0, (tag << 16) | (uint32_t)g, ctr2, ctr3, key0, key1, n, b0, b1,
+                       words > 2 ? b2 : NULL, words > 2 ? b3 : NULL);
     for (int pair = 0; pair < 2; ++pair) {
       const int row = 4 * g + 2 * pair;
       if (row >= rows) break;
@@ -207,14 +200,11 @@ static void normals_block(uint64_t key, uint64_t counter, uint32_t tag, idx i0, 
 
 /* Uniforms in (0, 1) of particles i0..i0+n-1: word 0 of Philox4x32-10 of (particle, tag << 16, step counter). */
 static void uniforms_block(uint64_t key, uint64_t counter, uint32_t tag, idx i0, idx n, double* restrict out) {
-  const uint32_t key0 = (uint32_t)key, key1 = (uint32_t)(key >> 32);
-  const uint32_t ctr1 = tag << 16, ctr2 = (uint32_t)counter, ctr3 = (uint32_t)(counter >> 32);
+  uint32_t bits[BLOCK];
+  abyssal_philox_run((uint32_t)i0, tag << 16, (uint32_t)counter, (uint32_t)(counter >> 32), (uint32_t)key,
+                     (uint32_t)(key >> 32), n, bits, NULL, NULL, NULL);
 #pragma omp simd
-  for (idx j = 0; j < n; ++j) {
-    uint64_t c0 = (uint32_t)(i0 + j), c1 = ctr1, c2 = ctr2, c3 = ctr3, k0 = key0, k1 = key1;
-    ABYSSAL_PHILOX_10(c0, c1, c2, c3, k0, k1);
-    out[j] = ((double)c0 + 0.5) * 0x1p-32;
-  }
+  for (idx j = 0; j < n; ++j) out[j] = ((double)bits[j] + 0.5) * 0x1p-32;
 }
 
 /* (through aligned scratch, like a step: the same values whatever the alignment of out) */
@@ -375,6 +365,35 @@ static double wrap_pi(double a) {
   return PI - r;
 }
 
+/* wrap_pi of the entries of r beyond pi (big: the largest |r|). With a fused multiply-add in hardware, vectorised
+ * with the same bits: fmod(t, 2 pi) is exact, t - q 2 pi for its quotient q, which one fma then gives exactly;
+ * q = trunc(t / 2 pi), less one in magnitude where the rounded division went up across an integer (the first fma's
+ * sign tells). Exact integers q need |t| < 2^52 (beyond that, the scalar wrap). */
+static void wrap_residuals(double* restrict r, idx nb, double big) {
+#ifdef FP_FAST_FMA
+  if (big < 0x1p50) {
+#pragma omp simd
+    for (idx j = 0; j < nb; ++j) {
+      const double t = PI - r[j], q0 = trunc(t / TWO_PI), m0 = fma(-q0, TWO_PI, t);
+      const double q = t * m0 < 0.0 ? q0 - copysign(1.0, t) : q0; /* (t * m0 neither overflows nor underflows) */
+      double m = fma(-q, TWO_PI, t); /* fmod(t, 2 pi) */
+      m = m < 0.0 ? m + TWO_PI : m;
+      r[j] = fabs(r[j]) > PI ? PI - m : r[j];
+    }
+    return;
+  }
+#endif
+  (void)big;
+  for (idx j = 0; j < nb; ++j)
+    if (fabs(r[j]) > PI) r[j] = wrap_pi(r[j]);
+}
+
+void abyssal_sir_wrap_residuals(double* r, abyssal_idx n) {
+  double big = 0.0;
+  for (idx j = 0; j < n; ++j) big = fabs(r[j]) > big ? fabs(r[j]) : big;
+  if (big > PI) wrap_residuals(r, n, big);
+}
+
 static int is_angle(const abyssal_sir* s, int row) {
   for (int i = 0; i < s->n_angles; ++i)
     if (s->angle_outputs[i] == row) return 1;
@@ -492,27 +511,47 @@ static void block_moments(const double* restrict e, double W, idx nb, const doub
     return;
   }
   double s1[ABYSSAL_SIR_MAX_STATES > ABYSSAL_SIR_MAX_OUTPUTS ? ABYSSAL_SIR_MAX_STATES : ABYSSAL_SIR_MAX_OUTPUTS];
-  for (int r = 0; r < d; ++r) {
-    const double* restrict x = rows + (idx)r * ld;
-    double* restrict dx = dev + (idx)r * BLOCK;
-    const double shift = x[0];
-    double acc = 0.0;
-#pragma omp simd reduction(+ : acc)
+  /* Four sums per loop keep four independent chains of additions in flight (one alone waits for each add); the
+   * last group of rows or columns is the last four (d > 4 here), recomputing some with the same bits: each sum
+   * runs over the block in the same order whichever group it is in. */
+  for (int g = 0; g < d; g += 4) {
+    const int r = g + 4 <= d ? g : d - 4;
+    const double* restrict x0 = rows + (idx)r * ld;
+    const double* restrict x1 = x0 + ld;
+    const double* restrict x2 = x1 + ld;
+    const double* restrict x3 = x2 + ld;
+    double* restrict d0 = dev + (idx)r * BLOCK;
+    double* restrict d1 = d0 + BLOCK;
+    double* restrict d2 = d1 + BLOCK;
+    double* restrict d3 = d2 + BLOCK;
+    const double h0 = x0[0], h1 = x1[0], h2 = x2[0], h3 = x3[0]; /* the shifts */
+    double a0 = 0.0, a1 = 0.0, a2 = 0.0, a3 = 0.0;
+#pragma omp simd reduction(+ : a0, a1, a2, a3)
     for (idx j = 0; j < nb; ++j) {
-      dx[j] = x[j] - shift;
-      acc += e[j] * dx[j];
+      const double ej = e[j];
+      d0[j] = x0[j] - h0;
+      d1[j] = x1[j] - h1;
+      d2[j] = x2[j] - h2;
+      d3[j] = x3[j] - h3;
+      a0 += ej * d0[j];
+      a1 += ej * d1[j];
+      a2 += ej * d2[j];
+      a3 += ej * d3[j];
     }
-    s1[r] = acc;
-    mean[r] = shift + acc / W;
+    const double h[4] = {h0, h1, h2, h3}, a[4] = {a0, a1, a2, a3};
+    for (int i = 0; i < 4; ++i) {
+      s1[r + i] = a[i];
+      mean[r + i] = h[i] + a[i] / W;
+    }
   }
   idx k = 0;
   for (int r = 0; r < d; ++r) {
     const double* restrict xr = dev + (idx)r * BLOCK;
 #pragma omp simd
     for (idx j = 0; j < nb; ++j) ed[j] = e[j] * xr[j];
-    int c = r;
-    for (; c + 4 <= d; c += 4) {
-      const double* restrict x0 = dev + (idx)c * BLOCK;
+    for (int c = r; c < d; c += 4) {
+      const int c0 = c + 4 <= d ? c : d - 4; /* columns c0..c0+3; those below c are recomputed, not stored */
+      const double* restrict x0 = dev + (idx)c0 * BLOCK;
       const double* restrict x1 = x0 + BLOCK;
       const double* restrict x2 = x1 + BLOCK;
       const double* restrict x3 = x2 + BLOCK;
@@ -525,17 +564,8 @@ static void block_moments(const double* restrict e, double W, idx nb, const doub
         a2 += v * x2[j];
         a3 += v * x3[j];
       }
-      m2[k++] = a0 - s1[r] * s1[c] / W;
-      m2[k++] = a1 - s1[r] * s1[c + 1] / W;
-      m2[k++] = a2 - s1[r] * s1[c + 2] / W;
-      m2[k++] = a3 - s1[r] * s1[c + 3] / W;
-    }
-    for (; c < d; ++c) {
-      const double* restrict xc = dev + (idx)c * BLOCK;
-      double acc = 0.0;
-#pragma omp simd reduction(+ : acc)
-      for (idx j = 0; j < nb; ++j) acc += ed[j] * xc[j];
-      m2[k++] = acc - s1[r] * s1[c] / W;
+      const double a[4] = {a0, a1, a2, a3};
+      for (int i = c - c0; i < 4; ++i, ++k) m2[k] = a[i] - s1[r] * s1[c0 + i] / W;
     }
   }
 }
@@ -688,9 +718,7 @@ static void residuals_block(const step_ctx* c, const scratch* sc, idx nb) {
       const double a = fabs(r[j]);
       big = a > big ? a : big;
     }
-    if (big > PI && is_angle(s, row))
-      for (idx j = 0; j < nb; ++j)
-        if (fabs(r[j]) > PI) r[j] = wrap_pi(r[j]);
+    if (big > PI && is_angle(s, row)) wrap_residuals(r, nb, big);
   }
 }
 

@@ -4,6 +4,8 @@
 #include "abyssal_sir_terrain.h"
 
 #include <math.h>
+#include <stdint.h>
+#include <string.h>
 
 #if defined(__x86_64__) && defined(__GLIBC__) && !defined(ABYSSAL_NO_LIBMVEC)
 #pragma omp declare simd notinbranch
@@ -13,6 +15,16 @@ extern double cos(double) __attribute__((const));
 #endif
 
 typedef abyssal_idx idx;
+
+/* v, an integer in [0, 2^52) held in a double, as an integer: v + 2^52 holds it in the low bits of its mantissa.
+ * (A double-to-int64 conversion instruction exists only with AVX-512: without it, (long long)v keeps the loops
+ * scalar.) */
+static inline idx whole(double v) {
+  const double shifted = v + 0x1p52;
+  uint64_t bits;
+  memcpy(&bits, &shifted, sizeof bits);
+  return (idx)(bits - UINT64_C(0x4330000000000000));
+}
 
 /* one point: its depth, gradient and inside flag (the comparisons, not fmin/fmax calls, keep the loops
  * vectorised; (x > 0 ? x : 0) sends a NaN to 0) */
@@ -28,10 +40,10 @@ static inline double bilinear(double px, double py, const double* grid, idx nx, 
   fy = fy > 0.0 ? fy : 0.0;
   fy = fy < fy_max ? fy : fy_max;
   /* cell: truncation is floor for fx >= 0; the last node row/column belongs to the cell before it */
-  double cx = (double)(long long)fx, cy = (double)(long long)fy;
+  double cx = trunc(fx), cy = trunc(fy);
   cx = cx < ix_max ? cx : ix_max;
   cy = cy < iy_max ? cy : iy_max;
-  const idx i = (idx)cy * nx + (idx)cx;
+  const idx i = whole(cy * (double)nx + cx); /* exact: below nx ny, which a grid in memory keeps below 2^52 */
   const double tx = fx - cx, ty = fy - cy;
   const double q11 = grid[i], q21 = grid[i + 1], q12 = grid[i + nx], q22 = grid[i + nx + 1];
   const double lower = q11 + tx * (q21 - q11), upper = q12 + tx * (q22 - q12);

@@ -120,6 +120,8 @@ def library() -> ctypes.CDLL:
     lib.abyssal_sir_uniforms.argtypes = [ctypes.c_uint64, ctypes.c_uint64, ctypes.c_uint32, ctypes.c_longlong,
                                          ctypes.c_longlong, ctypes.c_void_p]
     lib.abyssal_sir_philox.restype = None
+    lib.abyssal_sir_wrap_residuals.restype = None
+    lib.abyssal_sir_wrap_residuals.argtypes = [ctypes.c_void_p, ctypes.c_longlong]
     lib.abyssal_terrain_bilinear.restype = None
     return lib
 
@@ -137,6 +139,13 @@ def philox(counter, key) -> np.ndarray:
     out = (ctypes.c_uint32 * 4)()
     library().abyssal_sir_philox(c, k, out)
     return np.array(out[:], dtype=np.uint32)
+
+
+def wrap_residuals(values) -> np.ndarray:
+    """A copy of values (1-D) with the entries beyond +-pi wrapped to (-pi, pi] as the step wraps angle residuals."""
+    out = np.array(values, dtype=np.float64).ravel()
+    library().abyssal_sir_wrap_residuals(out.ctypes.data, out.size)
+    return out
 
 
 def normals(key: int, counter: int, rows: int, n: int, i0: int = 0) -> np.ndarray:

@@ -54,9 +54,11 @@ def test_philox_matches_the_published_known_answers_and_a_python_reference():
 
 
 def test_the_step_normals_are_the_box_muller_transform_of_philox():
+    # 37 particles: the vectorised Philox (four counters at a time where the CPU has AVX2) and its scalar tail
     key, counter = 0x0123456789ABCDEF, 77
-    z = sir.normals(key, counter, 6, 3, i0=10)
-    for i in range(3):
+    n = 37
+    z = sir.normals(key, counter, 6, n, i0=10)
+    for i in range(n):
         for g in range(2):
             bits = philox_reference([10 + i, g, counter & 0xFFFFFFFF, counter >> 32], [key & 0xFFFFFFFF, key >> 32])
             for pair in range(2):
@@ -67,8 +69,31 @@ def test_the_step_normals_are_the_box_muller_transform_of_philox():
                 angle = bits[2 * pair + 1] * 2.0 ** -32 * 2 * math.pi
                 assert z[row, i] == pytest.approx(r * math.cos(angle), rel=2e-6, abs=2e-6)
                 assert z[row + 1, i] == pytest.approx(r * math.sin(angle), rel=2e-6, abs=2e-6)
-    u = sir.uniforms(key, counter, sir.TAG_RESAMPLING, 2)
-    assert u[1] == (philox_reference([1, 2 << 16, counter, 0], [key & 0xFFFFFFFF, key >> 32])[0] + 0.5) * 2.0 ** -32
+    u = sir.uniforms(key, counter, sir.TAG_RESAMPLING, n)
+    for i in range(n):
+        bits = philox_reference([i, 2 << 16, counter, 0], [key & 0xFFFFFFFF, key >> 32])[0]
+        assert u[i] == (bits + 0.5) * 2.0 ** -32
+
+
+def test_the_wrap_of_angle_residuals_has_the_bits_of_numpys_wrap():
+    # the step wraps residuals beyond +-pi (vectorised with a fused multiply-add where the CPU has one); numpy's
+    # pi - remainder(pi - r, 2 pi) is the reference, bit for bit, at the quotients' edges and far out
+    from abyssal.runtime.numerics import wrap_to_pi
+
+    two_pi = 2 * math.pi
+    k = np.arange(-40.0, 41.0)
+    edges = np.concatenate([k * two_pi + math.pi, k * two_pi - math.pi, k * two_pi])
+    edges = np.concatenate([edges, np.nextafter(edges, np.inf), np.nextafter(edges, -np.inf)])
+    rng = np.random.default_rng(3)
+    values = np.concatenate([edges, rng.uniform(-1e3, 1e3, 5000), rng.uniform(-1e9, 1e9, 500) * rng.random(500),
+                             [2.0 ** 49, np.nextafter(math.pi, 4), -np.nextafter(math.pi, 4)]])
+    far = np.array([2.0 ** 51, -(2.0 ** 51), 1e300, -1e300, 4.0])  # a block reaching beyond 2^50: the scalar path
+    for part in (values, values[:37], far):  # vector body, vector tail, scalar
+        wrapped = sir.wrap_residuals(part)
+        beyond = np.abs(part) > math.pi
+        assert np.array_equal(wrapped[beyond], wrap_to_pi(part[beyond]))
+        assert np.array_equal(wrapped[~beyond], part[~beyond])
+        assert np.all(np.abs(wrapped) <= math.pi)
 
 
 def test_the_step_normals_are_standard_normal_and_independent():
