@@ -20,6 +20,7 @@
 #include <string.h>
 #ifndef ABYSSAL_SIR_NO_THREADS
 #include <pthread.h>
+#include <time.h>
 #endif
 
 #if defined(__x86_64__) && defined(__GLIBC__) && !defined(ABYSSAL_NO_LIBMVEC)
@@ -285,7 +286,7 @@ typedef struct step_ctx {
   double* scratch_base;
   idx scratch_stride;
 #ifndef ABYSSAL_SIR_NO_THREADS
-  pthread_barrier_t barrier;
+  int arrived, sense; /* the barrier's count and phase (atomic) */
   pthread_mutex_t lock;
   pthread_cond_t go_cond;
   int go;
@@ -318,9 +319,36 @@ static scratch scratch_of(const step_ctx* c, int t) {
   return sc;
 }
 
+#ifndef ABYSSAL_SIR_NO_THREADS
+/* The threads of a step meet at a barrier a few times per step, and a step can be as short as ~100 us: a thread
+ * that arrives first spins on the barrier's phase rather than sleeping in the kernel (waking a sleeping thread
+ * takes tens of microseconds in a virtual machine, measured as a third of a 2-thread step at N = 10^4). Past
+ * SPINS checks (another process has the core the others need) it naps 20 us at a time instead. */
+#define SPINS 4000
+static void pause_briefly(void) {
+#if defined(__x86_64__) || defined(__i386__)
+  __builtin_ia32_pause();
+#endif
+}
+#endif
+
 static void sync_threads(step_ctx* c) {
 #ifndef ABYSSAL_SIR_NO_THREADS
-  if (c->T > 1) pthread_barrier_wait(&c->barrier);
+  if (c->T <= 1) return;
+  const int sense = __atomic_load_n(&c->sense, __ATOMIC_ACQUIRE);
+  if (__atomic_add_fetch(&c->arrived, 1, __ATOMIC_ACQ_REL) == c->T) { /* the last: open the barrier */
+    __atomic_store_n(&c->arrived, 0, __ATOMIC_RELAXED);
+    __atomic_store_n(&c->sense, !sense, __ATOMIC_RELEASE);
+    return;
+  }
+  for (long spins = 0; __atomic_load_n(&c->sense, __ATOMIC_ACQUIRE) == sense; ++spins) {
+    if (spins < SPINS) {
+      pause_briefly();
+    } else {
+      const struct timespec nap = {0, 20000};
+      nanosleep(&nap, NULL);
+    }
+  }
 #else
   (void)c;
 #endif
@@ -1164,12 +1192,7 @@ static int next_pass(step_ctx* c) {
  * a thread slowed by a busy core takes fewer; a block's results do not depend on which thread computes it. */
 static idx grab(step_ctx* c, int phase) {
 #ifndef ABYSSAL_SIR_NO_THREADS
-  if (c->T > 1) {
-    pthread_mutex_lock(&c->lock);
-    const idx b = c->next[phase]++;
-    pthread_mutex_unlock(&c->lock);
-    return b;
-  }
+  if (c->T > 1) return __atomic_fetch_add(&c->next[phase], 1, __ATOMIC_RELAXED);
 #endif
   return c->next[phase]++;
 }
@@ -1388,14 +1411,13 @@ static void drive_threads(step_ctx* c) {
     ++started;
   }
   const int all = started == T - 1;
-  if (all) pthread_barrier_init(&c->barrier, NULL, (unsigned)T);
+  c->arrived = c->sense = 0;
   pthread_mutex_lock(&c->lock);
   c->go = all ? 1 : -1;
   pthread_cond_broadcast(&c->go_cond);
   pthread_mutex_unlock(&c->lock);
   if (all) drive(c, 0);
   for (int t = 1; t <= started; ++t) pthread_join(threads[t], NULL);
-  if (all) pthread_barrier_destroy(&c->barrier);
   pthread_cond_destroy(&c->go_cond);
   pthread_mutex_destroy(&c->lock);
   if (!all) {
