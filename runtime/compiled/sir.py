@@ -19,9 +19,9 @@ thread count, the blocking or anything drawn before; the state is those two word
 Box-Muller transform in single precision (each to ~1e-7 relative, the tail to 6.8 sigma).
 
 Threads: a step whose serial time exceeds ``SPLIT_MIN_SECONDS`` (compiled.batches) is timed on one
-thread and on every core (a few steps each, again every ``RETIME_STEPS``) and runs with the faster
-count: on a loaded machine the other core may be busy, and the step's threads (started per step,
-tens of microseconds) wait for each other at its barriers. The results are bit-identical whatever
+thread and on every core (a few steps each, again after ``FIRST_RETIME_STEPS``, then every
+``RETIME_STEPS``) and runs with the faster count: on a loaded machine the other core may be busy, and
+the step's threads (started per step, tens of microseconds) wait for each other at its barriers. The results are bit-identical whatever
 the count (tests/runtime/test_sir_step.py), so the choice never changes them.
 """
 from __future__ import annotations
@@ -44,8 +44,11 @@ BLOCK = 512
 MAX_THREADS = 64
 #: steps timed on one thread, then on every core, to choose the thread count (CompiledSIR._probed_call) ...
 PROBE_STEPS = 3
-#: ... again after this many steps (the machine's load changes)
+#: ... again after this many steps (the machine's load changes); the first time already after FIRST_RETIME_STEPS:
+#: a filter's first steps are not its usual ones (pages touched for the first time, the second core waking up,
+#: resampling at every step), and timed there, 2 threads lost to 1 at N = 10^4 where they take 0.6 of its time
 RETIME_STEPS = 2000
+FIRST_RETIME_STEPS = 50
 
 # in[] scalars (abyssal_sir.h: ABYSSAL_SIR_IN_*) and settings (ABYSSAL_SIR_SET_*, at CompiledSIR.io.settings)
 IN_CUR, IN_SIDE, IN_PRIOR, IN_MOVE, IN_MEASURE, IN_DT, IN_PIECES, IN_PINS, IN_HEAD = range(9)
@@ -327,6 +330,7 @@ class CompiledSIR:
         self._fn = lib.abyssal_sir_step
         # the thread count: chosen by timing (_probed_call) unless set (threads)
         self._probes, self._forced, self._serial, self._split = 0, False, math.inf, math.inf
+        self._retime = FIRST_RETIME_STEPS
 
     # ------------------------------------------------------------------ views of the sides
     def mean(self, side: int) -> np.ndarray:
@@ -375,7 +379,7 @@ class CompiledSIR:
     def threads(self, value: int | None) -> None:
         """Threads for every step from now on (1 .. max_threads), or None: chosen by timing (_probed_call)."""
         if value is None:
-            self._forced, self._probes = False, 0
+            self._forced, self._probes, self._retime = False, 0, FIRST_RETIME_STEPS
             return
         if not 1 <= int(value) <= self.max_threads:
             raise ValueError(f"threads must be between 1 and {self.max_threads}, got {value!r}")
@@ -430,8 +434,8 @@ class CompiledSIR:
         if self._probes < 2 * PROBE_STEPS:
             return self._probed_call()
         self._probes += 1
-        if self._probes >= RETIME_STEPS:
-            self._probes = 0
+        if self._probes >= self._retime:
+            self._probes, self._retime = 0, RETIME_STEPS
         return self._fn(self._arg)
 
     def _probed_call(self) -> int:
