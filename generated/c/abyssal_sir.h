@@ -22,9 +22,9 @@
  *   resample  systematic or stratified, when ESS < the caller's threshold.
  *
  * Work runs in blocks of ABYSSAL_SIR_BLOCK particles (their intermediates stay in cache) and, above one
- * thread, the blocks are split over threads (POSIX threads, created per step). Every sum is formed per block
- * and blocks are combined in block order, and every random draw is a function of (key, step counter,
- * particle, row): the results do not depend on the number of threads.
+ * thread, the blocks are split over threads (POSIX threads, created per step, meeting at spin-then-sleep
+ * barriers). Every sum is formed per block and blocks are combined in block order, and every random draw is a
+ * function of (key, step counter, particle, row): the results do not depend on the number of threads.
  *
  * Transactions: the step reads the committed side and writes only the other side of every buffer it holds
  * twice (particles: three buffers, the committed one, the proposals and the resampled ones), so a caller

@@ -20,7 +20,7 @@
 #include <string.h>
 #ifndef ABYSSAL_SIR_NO_THREADS
 #include <pthread.h>
-#include <time.h>
+#include <sched.h>
 #endif
 
 #if defined(__x86_64__) && defined(__GLIBC__) && !defined(ABYSSAL_NO_LIBMVEC)
@@ -288,7 +288,7 @@ typedef struct step_ctx {
 #ifndef ABYSSAL_SIR_NO_THREADS
   int arrived, sense; /* the barrier's count and phase (atomic) */
   pthread_mutex_t lock;
-  pthread_cond_t go_cond;
+  pthread_cond_t go_cond, barrier_cond;
   int go;
 #endif
 } step_ctx;
@@ -321,10 +321,12 @@ static scratch scratch_of(const step_ctx* c, int t) {
 
 #ifndef ABYSSAL_SIR_NO_THREADS
 /* The threads of a step meet at a barrier a few times per step, and a step can be as short as ~100 us: a thread
- * that arrives first spins on the barrier's phase rather than sleeping in the kernel (waking a sleeping thread
- * takes tens of microseconds in a virtual machine, measured as a third of a 2-thread step at N = 10^4). Past
- * SPINS checks (another process has the core the others need) it naps 20 us at a time instead. */
-#define SPINS 4000
+ * that arrives first spins on the barrier's phase for up to SPINS checks (~0.1-0.2 ms; a pause between checks,
+ * a sched_yield every 64th) before it sleeps on a condition variable (waking a sleeping thread takes tens of
+ * microseconds in a virtual machine: sleeping at once, 2 threads took 0.69 of one thread's time at N = 10^4,
+ * spinning first 0.55-0.60). The phase flips under the lock, so a thread about to sleep cannot miss it. With
+ * the other core busy, 2 threads are slower than one whatever the barrier: the SIR engine's timing then picks 1. */
+#define SPINS 2000
 static void pause_briefly(void) {
 #if defined(__x86_64__) || defined(__i386__)
   __builtin_ia32_pause();
@@ -338,17 +340,19 @@ static void sync_threads(step_ctx* c) {
   const int sense = __atomic_load_n(&c->sense, __ATOMIC_ACQUIRE);
   if (__atomic_add_fetch(&c->arrived, 1, __ATOMIC_ACQ_REL) == c->T) { /* the last: open the barrier */
     __atomic_store_n(&c->arrived, 0, __ATOMIC_RELAXED);
+    pthread_mutex_lock(&c->lock);
     __atomic_store_n(&c->sense, !sense, __ATOMIC_RELEASE);
+    pthread_cond_broadcast(&c->barrier_cond);
+    pthread_mutex_unlock(&c->lock);
     return;
   }
-  for (long spins = 0; __atomic_load_n(&c->sense, __ATOMIC_ACQUIRE) == sense; ++spins) {
-    if (spins < SPINS) {
-      pause_briefly();
-    } else {
-      const struct timespec nap = {0, 20000};
-      nanosleep(&nap, NULL);
-    }
+  for (int spins = 0; spins < SPINS; ++spins) {
+    if (__atomic_load_n(&c->sense, __ATOMIC_ACQUIRE) != sense) return;
+    if (spins % 64 == 63) sched_yield(); else pause_briefly();
   }
+  pthread_mutex_lock(&c->lock);
+  while (__atomic_load_n(&c->sense, __ATOMIC_ACQUIRE) == sense) pthread_cond_wait(&c->barrier_cond, &c->lock);
+  pthread_mutex_unlock(&c->lock);
 #else
   (void)c;
 #endif
@@ -1403,6 +1407,7 @@ static void drive_threads(step_ctx* c) {
   int started = 0;
   pthread_mutex_init(&c->lock, NULL);
   pthread_cond_init(&c->go_cond, NULL);
+  pthread_cond_init(&c->barrier_cond, NULL);
   c->go = 0;
   for (int t = 1; t < T; ++t) {
     args[t].c = c;
@@ -1419,6 +1424,7 @@ static void drive_threads(step_ctx* c) {
   if (all) drive(c, 0);
   for (int t = 1; t <= started; ++t) pthread_join(threads[t], NULL);
   pthread_cond_destroy(&c->go_cond);
+  pthread_cond_destroy(&c->barrier_cond);
   pthread_mutex_destroy(&c->lock);
   if (!all) {
     c->T = 1;
