@@ -6,9 +6,10 @@
  * from the user's numpy Generator and counts steps in the counter: its whole random state is two words.
  * Checked against the published known-answer vectors (Random123's kat_vectors) in the tests.
  *
- * The round is a macro so that a loop over particles calling it vectorises. Its variables may be uint32_t or
- * uint64_t holding 32-bit values: in 64-bit lanes each product is one 32 x 32 -> 64-bit vector multiply
- * (vpmuludq), where 32-bit lanes need their odd and even halves shuffled apart (1.7x slower with AVX-512).
+ * The round is a macro so that a loop over particles calling it vectorises (uint64_t variables holding 32-bit
+ * values; 32-bit lanes need their odd and even halves shuffled apart, 1.7x slower with AVX-512). gcc still
+ * multiplies such lanes as full 64-bit numbers (vpmullq with AVX-512, shifts and adds without), so the runs of
+ * counters a step draws go through abyssal_philox_run, which uses the 32 x 32 -> 64-bit vpmuludq itself on AVX2.
  */
 #ifndef ABYSSAL_RNG_H
 #define ABYSSAL_RNG_H
