@@ -23,7 +23,9 @@ Rows:
   over the measured copy bandwidth of this machine.
 
 Single-threaded rows also report their process CPU time per particle (steadier than wall time on a loaded
-machine: what the row would take on an idle core, up to cache sharing). Targets (wall time; issue "One
+machine: what the row would take on an idle core, up to cache sharing), and the compiled step's 2-thread time
+over its 1-thread time is measured again with the two alternating (``two_threads_over_one``: steady where the
+machine's speed drifts over minutes). Targets (wall time; issue "One
 compiled SIR step for every model"): the compiled step <= 100 ns per particle on one
 core at N = 10^4 and 10^5, <= 60 ns on two; N = 10^6 within 1.3x of N = 10^4 per particle.
 Run alone: ``python benchmarks/bench_sir.py [--quick]``; ``--steps N K`` runs K compiled steps at N particles and
@@ -328,6 +330,23 @@ def floor(bundle, N: int, repeat: int, min_time: float) -> dict:
             "memory floor ns/particle (resampling)": 1e9 * (moved + resample) / bandwidth}
 
 
+def interleaved_ratio(a, b, N: int, repeat: int) -> float:
+    """Median over `repeat` alternations of (seconds of a loop of a's steps) / (the same loop of b's), each loop
+    ~0.3 s: the two in the same seconds, so a machine whose speed drifts over minutes does not bias the ratio."""
+    loop = max(3, int(2e6 / N))
+    ratios, k = [], 0
+    for _ in range(repeat):
+        seconds = []
+        for fn in (a, b):
+            t0 = time.perf_counter()
+            for i in range(loop):
+                fn((k + i) % STEPS)
+            seconds.append(time.perf_counter() - t0)
+        k += loop
+        ratios.append(seconds[0] / seconds[1])
+    return sorted(ratios)[len(ratios) // 2]
+
+
 # ------------------------------------------------------------------------------------------- the section
 def run(quick: bool = False, verbose: bool = True) -> dict:
     bundle, scen, sea, truth = scenario()
@@ -360,11 +379,15 @@ def run(quick: bool = False, verbose: bool = True) -> dict:
     except ImportError:  # pragma: no cover - threadpoolctl comes with scikit-learn ([experiments])
         threadpool_limits = None
     table = results["ns_per_particle"]
+    ratios = results["two_threads_over_one"] = {}
     for N in sizes:
         row = table.setdefault(N, {})
+        steps = {}
         for threads in (1, 2):
             name = f"abyssal compiled step, {threads} thread{'s' if threads > 1 else ''}"
-            row[name] = per_particle(compiled_step(bundle, scen, sea, truth, N, threads), N, name if threads == 1 else None)
+            steps[threads] = compiled_step(bundle, scen, sea, truth, N, threads)
+            row[name] = per_particle(steps[threads], N, name if threads == 1 else None)
+        ratios[N] = interleaved_ratio(steps[2], steps[1], N, repeat)
         if N <= PEER_MAX_N:
             from abyssal.runtime.experiments.rov.scenario import make_filter
 
@@ -407,6 +430,7 @@ def run(quick: bool = False, verbose: bool = True) -> dict:
         for name, value in row.items():
             extra = f"   (CPU {cpu[N][name]:7.1f})" if name in cpu.get(N, {}) else ""
             say(f"  N = {N:>8}  {name:<40} {value:9.1f} ns/particle{extra}")
+        say(f"  N = {N:>8}  {'compiled step, 2 threads / 1, interleaved':<40} {ratios[N]:9.3f}")
     results["floor"] = fl = floor(bundle, 100_000, repeat, min_time)
     results["load_average"] = os.getloadavg() if hasattr(os, "getloadavg") else None
     for name, value in fl.items():
