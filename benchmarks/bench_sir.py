@@ -25,9 +25,9 @@ Rows:
 Single-threaded rows also report their process CPU time per particle (steadier than wall time on a loaded
 machine: what the row would take on an idle core, up to cache sharing), and the compiled step's 2-thread time
 over its 1-thread time is measured again with the two alternating (``two_threads_over_one``: steady where the
-machine's speed drifts over minutes). Targets (wall time; issue "One
-compiled SIR step for every model"): the compiled step <= 100 ns per particle on one
-core at N = 10^4 and 10^5, <= 60 ns on two; N = 10^6 within 1.3x of N = 10^4 per particle.
+machine's speed drifts over minutes). Targets (wall time; issue "One compiled SIR step for every model"): the
+compiled step <= 100 ns per particle on one core at N = 10^4 and 10^5, <= 60 ns on two; N = 10^6 within 1.3x of
+N = 10^4 per particle.
 Run alone: ``python benchmarks/bench_sir.py [--quick]``; ``--steps N K`` runs K compiled steps at N particles and
 nothing else (for an instruction count under callgrind, benchmarks/README.md).
 """

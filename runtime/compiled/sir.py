@@ -21,8 +21,9 @@ Box-Muller transform in single precision (each to ~1e-7 relative, the tail to 6.
 Threads: a step whose serial time exceeds ``SPLIT_MIN_SECONDS`` (compiled.batches) is timed on one
 thread and on every core (a few steps each, again after ``FIRST_RETIME_STEPS``, then every
 ``RETIME_STEPS``) and runs with the faster count: on a loaded machine the other core may be busy, and
-the step's threads (started per step, tens of microseconds) wait for each other at its barriers. The results are bit-identical whatever
-the count (tests/runtime/test_sir_step.py), so the choice never changes them.
+the step's threads (started per step, tens of microseconds) wait for each other at its barriers. The
+results are bit-identical whatever the count (tests/runtime/test_sir_step.py), so the choice never
+changes them.
 """
 from __future__ import annotations
 
