@@ -507,7 +507,8 @@ class FilterBase(Stateful):
         naming the call and its arguments). The transaction runs it after the hook for a filter that snapshots
         its whole state; a filter that narrows ``_touched`` (its commit is the hook's last line) calls it on
         the new x, P (for particle filters the weighted moments, non-finite whenever a weighted particle or a
-        weight is) before that line."""
+        weight is) before that line; the compiled SIR step checks its moments itself and such a filter calls
+        it only when the step reports them not finite (its NONFINITE_MOMENTS status)."""
         if _finite(x) and (_finite(P) if P.ndim == 1 else _finite(P.reshape(-1))):
             return
         call = "update" if u is None else ("predict" if measurement is None else "step")

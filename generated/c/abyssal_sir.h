@@ -61,7 +61,8 @@ enum {
   ABYSSAL_SIR_NONFINITE_MEASUREMENT = 2, /* h gave inf or NaN */
   ABYSSAL_SIR_NONFINITE_WEIGHT = 3,      /* a log-weight is NaN or +inf (e.g. a NaN log importance ratio) */
   ABYSSAL_SIR_MODEL_FAILED = 4,          /* f or h returned non-zero */
-  ABYSSAL_SIR_BAD_ARGUMENT = 5           /* sizes, pointers or inputs out of range */
+  ABYSSAL_SIR_BAD_ARGUMENT = 5,          /* sizes, pointers or inputs out of range */
+  ABYSSAL_SIR_NONFINITE_MOMENTS = 6      /* the weighted mean or covariance is inf or NaN */
 };
 
 /* moves */

@@ -150,6 +150,7 @@ const char* abyssal_sir_message(int code) {
     case ABYSSAL_SIR_NONFINITE_WEIGHT: return "a log-weight is NaN or +inf";
     case ABYSSAL_SIR_MODEL_FAILED: return "the model's generated function failed";
     case ABYSSAL_SIR_BAD_ARGUMENT: return "sizes, buffers or inputs of the step are out of range";
+    case ABYSSAL_SIR_NONFINITE_MOMENTS: return "the weighted mean or covariance of the particles is not finite";
     default: return "unknown return code";
   }
 }
@@ -1315,7 +1316,8 @@ static void gather_blocks(step_ctx* c, int t, int phase) {
   }
 }
 
-/* thread 0: the posterior's sums into the report; 0 when a block failed */
+/* thread 0: the posterior's sums into the report; 0 when a block failed or the moments are not finite (finite in,
+ * finite out: a step whose estimate would not be finite is refused, here rather than by every caller) */
 static int finish_weights(step_ctx* c) {
   const abyssal_sir* s = c->s;
   double* rep = c->rep;
@@ -1326,6 +1328,12 @@ static int finish_weights(step_ctx* c) {
     c->status = ABYSSAL_SIR_NONFINITE_WEIGHT;
     return 0;
   }
+  const double* moments = rep + c->ro.mean; /* the mean, then the covariance */
+  for (idx k = 0; k < s->n_x + (idx)s->n_x * s->n_x; ++k)
+    if (!isfinite(moments[k])) {
+      c->status = ABYSSAL_SIR_NONFINITE_MOMENTS;
+      return 0;
+    }
   c->log_z = c->peak + log(c->W);
   rep[ABYSSAL_SIR_R_ESS] = c->W * c->W / Q;
   rep[ABYSSAL_SIR_R_LOG_MEAN] = c->log_z - log((double)c->n);

@@ -65,7 +65,11 @@ TAG_NORMALS, TAG_COMPONENTS, TAG_RESAMPLING = 0, 1, 2
 
 MESSAGES = {1: "a particle left the finite range", 2: "the measurement function gave a non-finite value",
             3: "a log-weight is NaN or +inf", 4: "the model's generated function failed",
-            5: "sizes, buffers or inputs of the step are out of range"}
+            5: "sizes, buffers or inputs of the step are out of range",
+            6: "the weighted mean or covariance of the particles is not finite"}
+#: the status of a step refused because its weighted mean or covariance is not finite (the contract's "finite in,
+#: finite out", checked by the C step instead of by every caller)
+NONFINITE_MOMENTS = 6
 
 
 class _InOffsets(ctypes.Structure):

@@ -482,3 +482,23 @@ def test_a_non_finite_particle_is_refused_and_the_committed_side_untouched(rov):
         assert a.tobytes() == b.tobytes()
     step.inputs[sir.IN_PIECES] = 0.5  # out of range: refused before anything is written
     assert step() == 5
+
+
+def test_moments_out_of_the_finite_range_are_refused_and_the_committed_side_untouched():
+    """Finite particles whose covariance overflows (spread 1e160: squares of 1e320): the step refuses with
+    NONFINITE_MOMENTS and writes nothing committed; the same particles scaled to 1e150 pass."""
+    N, n_x = 700, 3
+    step = sir.CompiledSIR(N, n_x, 0, 0, np.zeros(1), f=None, measure=None,
+                           process=sir.ProcessNoise(rank=0, factor=np.zeros(1)), measurement=None)
+    X = np.random.default_rng(5).normal(size=(n_x, N))
+    step.inputs[sir.IN_MOVE], step.inputs[sir.IN_MEASURE] = sir.MOVE_GIVEN, 0.0
+    before = [a.copy() for a in (step.particles[0], step.log_w[0], step.w[0], step.report[0])]
+    step.next_particles[...] = 1e160 * X
+    status = step()
+    assert status == sir.NONFINITE_MOMENTS, sir.MESSAGES.get(status)
+    assert "not finite" in step.message(status)
+    for a, b in zip(before, (step.particles[0], step.log_w[0], step.w[0], step.report[0])):
+        assert a.tobytes() == b.tobytes()
+    step.next_particles[...] = 1e150 * X
+    assert step() == 0
+    assert np.isfinite(step.covs[1]).all() and np.isfinite(step.means[1]).all()

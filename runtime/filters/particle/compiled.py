@@ -171,12 +171,13 @@ class CompiledBootstrap:
         may_widen = gating and gate.inflation > 1.0 and (gate.streaking or gate.patience == 1)
         step.settings[sir.SET_SCHEME] = sir.CALLER if may_widen else self.scheme
         status = step()
+        nxt = 1 - step.side
+        x, P = step.means[nxt], step.covs[nxt]
+        if status == sir.NONFINITE_MOMENTS:  # the contract's finite-out check, made by the C step
+            engine._check_finite(x, P, u, dt, measurement)
         if status:
             raise self._refuse(engine, status, dt)
-        nxt = 1 - step.side
         ess, resampled, resample, uninformative = step.head(nxt)[:sir.R_UNINFORMATIVE + 1]
-        x, P = step.means[nxt], step.covs[nxt]
-        engine._check_finite(x, P, u, dt, measurement)
         weights = step.w[nxt][:N]
         proposed = self.proposed(N)
         kept = False
