@@ -173,17 +173,26 @@ def registered_filters() -> dict[type, str]:
 
 
 def _finite(v: np.ndarray) -> bool:
-    """Every entry of a float64 vector finite; for the short vectors of a step, Python's isfinite over
-    tolist() takes ~0.2 us where np.isfinite(v).all() takes ~0.9 us."""
+    """Every entry of a float64 vector finite. For the short vectors of a step, in Python: a finite sum
+    proves it (an inf or NaN entry makes the sum inf or NaN), else each entry is checked (the sum of finite
+    entries may overflow); ~0.3 us, where np.isfinite(v).all() takes ~0.9 us."""
     if v.shape[0] <= 32:
-        return all(map(math.isfinite, v.tolist()))
+        entries = v.tolist()
+        return math.isfinite(sum(entries)) or all(map(math.isfinite, entries))
     return bool(np.isfinite(v).all())
+
+
+#: the dtype of float64 arrays, compared by identity on the hot paths (numpy's built-in dtypes are singletons;
+#: an equal dtype that is another object takes the general path)
+_FLOAT64 = np.dtype(np.float64)
 
 
 @functools.lru_cache(maxsize=None)
 def _all_present(n: int) -> np.ndarray:
-    """An (n,) all-True mask to copy (a copy takes ~0.13 us, np.ones ~0.7 us)."""
-    return np.ones(n, dtype=bool)
+    """An (n,) all-True mask, read-only: shared by every fully present z (np.ones takes ~0.7 us)."""
+    mask = np.ones(n, dtype=bool)
+    mask.flags.writeable = False
+    return mask
 
 
 def _vector(value, n: int, name: str) -> np.ndarray:
@@ -200,7 +209,7 @@ def _nonfinite_message(name: str, v: np.ndarray) -> str:
 
 def check_state(value, n: int, name: str = "x0") -> np.ndarray:
     """A finite (n,) float64 vector (a copy)."""
-    if type(value) is np.ndarray and value.dtype == np.float64 and value.shape == (n,) and _finite(value):
+    if type(value) is np.ndarray and value.dtype is _FLOAT64 and value.shape == (n,) and _finite(value):
         return value.copy()  # the hot path
     v = _vector(value, n, name)
     if not np.all(np.isfinite(v)):
@@ -241,8 +250,8 @@ def check_z(z, n_y: int) -> tuple[np.ndarray, np.ndarray] | None:
     """
     if z is None:
         return None
-    if type(z) is np.ndarray and z.dtype == np.float64 and z.shape == (n_y,) and _finite(z):
-        return z.copy(), _all_present(n_y).copy()  # the hot path
+    if type(z) is np.ndarray and z.dtype is _FLOAT64 and z.shape == (n_y,) and _finite(z):
+        return z.copy(), _all_present(n_y)  # the hot path
     v = _vector(z, n_y, "z")
     present = np.isfinite(v)
     if present.all():
