@@ -29,7 +29,6 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import re
 from dataclasses import dataclass
 
 import casadi as ca
@@ -147,14 +146,6 @@ _HOISTABLE = {ca.OP_ASSIGN, ca.OP_ADD, ca.OP_SUB, ca.OP_MUL, ca.OP_DIV, ca.OP_NE
               ca.OP_FMIN, ca.OP_FMAX, ca.OP_COPYSIGN, ca.OP_SIGN, ca.OP_IF_ELSE_ZERO, ca.OP_FLOOR, ca.OP_CEIL}
 
 
-#: libmvec's vector functions a SoA loop may call (SOA_PREAMBLE declares them)
-_VECTOR_CALLS = {ca.OP_SIN, ca.OP_COS, ca.OP_TAN}
-#: a SoA loop that calls them and has at most this many statements evaluates two particles per iteration
-#: (soa_kernel); above it the loop has independent work enough (benchmarks/README.md: remus100's f, ~3100
-#: statements, 1.00x with two chains; rov4dof's, ~850, 0.89-0.91x)
-TWO_CHAINS_MAX_STATEMENTS = 2000
-
-
 def soa_kernel(fn: ca.Function, batched: tuple[bool, ...]) -> str:
     """C of ``<name>_soa(N, ld, arg, res)``: fn for j < N, structure-of-arrays layout.
 
@@ -163,14 +154,6 @@ def soa_kernel(fn: ca.Function, batched: tuple[bool, ...]) -> str:
     (they must not alias an output). What depends only on shared inputs and constants through the operations
     of _HOISTABLE (parameter-only masses, time constants, dt fractions and their quotients) is computed once,
     before the loop, into ``c<k>``; the results are bit for bit those of evaluating it per particle.
-
-    A loop that calls libmvec's sin/cos/tan waits on each call's result (the next RK stage needs it), so
-    such a loop of at most TWO_CHAINS_MAX_STATEMENTS statements evaluates particles j (in ``w<slot>``) and
-    j + h (in ``v<slot>``) per iteration, their statements interleaved line by line: the other particle's
-    work fills the wait. h = 8 floor(N / 16), so both chains cover whole vectors (4 or 8 lanes), and the
-    last N - 2h < 16 particles go through the one-chain loop. Each particle meets the same operations, in
-    a vector lane or in a loop's scalar remainder just as in a one-chain loop over all N, so the results
-    have the same bits.
     """
     head, body, slots = [], [], set()
     value: dict[int, str] = {}  # work slot -> the C name of its current value: "c<k>" (before the loop) or "w<slot>"
@@ -206,31 +189,16 @@ def soa_kernel(fn: ca.Function, batched: tuple[bool, ...]) -> str:
     pointers = [f"  const casadi_real* a{k} = arg[{k}];" for k in range(fn.n_in()) if k in read]
     pointers += [f"  casadi_real* r{k} = res[{k}];" for k in range(fn.n_out())]
     roles = ", ".join(f"{fn.name_in(k)}{'[]' if batched[k] else ''}" for k in range(fn.n_in()))
-    calls = any(fn.instruction_id(k) in _VECTOR_CALLS for k in range(fn.n_instructions()))
-
-    def one_chain(start: str) -> str:
-        return (f"  ABYSSAL_SIMD_LOOP\n  for (j = {start}; j < N; ++j) {{\n"
-                + (f"    casadi_real {work};\n    " if slots else "    ") + "\n    ".join(body) + "\n  }\n")
-
-    loop = one_chain("0")
-    if calls and len(body) <= TWO_CHAINS_MAX_STATEMENTS:
-        twin = [re.sub(r"\bw(\d+)\b", r"v\1", line).replace("*ld+j]", "*ld+j+h]") for line in body]
-        loop = (
-            "  const casadi_int h = N / 16 * 8;\n"
-            "  ABYSSAL_SIMD_LOOP\n  for (j = 0; j < h; ++j) { /* particles j and j + h side by side */\n"
-            f"    casadi_real {work};\n    casadi_real {work.replace('w', 'v')};\n    "
-            + "\n    ".join(line for pair in zip(body, twin) for line in pair)
-            + "\n  }\n"
-            + one_chain("2 * h")
-        )
     return (
         f"\n/* {fn.name()}_soa({roles}): inputs marked [] vary per particle. */\n"
         f"CASADI_SYMBOL_EXPORT int {fn.name()}_soa(casadi_int N, casadi_int ld, const casadi_real** arg, casadi_real** res) {{\n"
         + "\n".join(pointers)
         + "\n  casadi_int j;\n"
         + "".join(f"  {line}\n" for line in head)
-        + loop
-        + "  return 0;\n}\n"
+        + "  ABYSSAL_SIMD_LOOP\n  for (j = 0; j < N; ++j) {\n"
+        + (f"    casadi_real {work};\n    " if slots else "    ")
+        + "\n    ".join(body)
+        + "\n  }\n  return 0;\n}\n"
     )
 
 

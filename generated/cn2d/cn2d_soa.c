@@ -51,52 +51,8 @@ CASADI_SYMBOL_EXPORT int cn2d_f_soa(casadi_int N, casadi_int ld, const casadi_re
   casadi_real* r0 = res[0];
   casadi_int j;
   const casadi_real c1=a3[0];
-  const casadi_int h = N / 16 * 8;
   ABYSSAL_SIMD_LOOP
-  for (j = 0; j < h; ++j) { /* particles j and j + h side by side */
-    casadi_real w0, w1, w2, w3, w4, w5, w6, w7;
-    casadi_real v0, v1, v2, v3, v4, v5, v6, v7;
-    w0=a0[0*ld+j];
-    v0=a0[0*ld+j+h];
-    w2=a1[0*ld+j];
-    v2=a1[0*ld+j+h];
-    w3=a1[2*ld+j];
-    v3=a1[2*ld+j+h];
-    w4=cos(w3);
-    v4=cos(v3);
-    w5=w2*w4;
-    v5=v2*v4;
-    w6=a1[1*ld+j];
-    v6=a1[1*ld+j+h];
-    w3=sin(w3);
-    v3=sin(v3);
-    w7=w6*w3;
-    v7=v6*v3;
-    w5=w5+w7;
-    v5=v5+v7;
-    w5=c1*w5;
-    v5=c1*v5;
-    w0=w0+w5;
-    v0=v0+v5;
-    r0[0*ld+j]=w0;
-    r0[0*ld+j+h]=v0;
-    w0=a0[1*ld+j];
-    v0=a0[1*ld+j+h];
-    w2=w2*w3;
-    v2=v2*v3;
-    w6=w6*w4;
-    v6=v6*v4;
-    w2=w2-w6;
-    v2=v2-v6;
-    w1=c1*w2;
-    v1=c1*v2;
-    w0=w0+w1;
-    v0=v0+v1;
-    r0[1*ld+j]=w0;
-    r0[1*ld+j+h]=v0;
-  }
-  ABYSSAL_SIMD_LOOP
-  for (j = 2 * h; j < N; ++j) {
+  for (j = 0; j < N; ++j) {
     casadi_real w0, w1, w2, w3, w4, w5, w6, w7;
     w0=a0[0*ld+j];
     w2=a1[0*ld+j];

@@ -145,26 +145,6 @@ def test_batches_equal_single_calls(rov, rng, per_column_u):
     np.testing.assert_allclose(rov.h_batch(X), X[:4], rtol=0, atol=0)
 
 
-@pytest.mark.parametrize("n", [1, 3, 16, 37, 67])
-def test_the_two_chain_soa_kernel_in_place_equals_out_of_place(rov, rng, n):
-    """rov4dof's f kernel evaluates particles j and j + h side by side (h = 8 floor(N / 16)), then the last
-    N - 2h one at a time: each column is its own particle's step, and x_next written over x has the bits of
-    a separate output."""
-    from pathlib import Path
-
-    text = (Path(abyssal.generated.__file__).parent / "rov4dof" / "rov4dof_soa.c").read_text()
-    assert "*ld+j+h]" in text[text.index("int rov4dof_f_soa("):text.index("int rov4dof_h_soa(")]
-    ref = REFERENCES["rov4dof"]
-    X, U = np.ascontiguousarray(ref.sample_state(rng, n)), np.ascontiguousarray(ref.sample_input(rng, n))
-    single = np.column_stack([rov.f(X[:, j], U[:, j], None, 0.1) for j in range(n)])
-    shared = [rov.params(), np.array([0.1])]
-    out = np.zeros((12, n))
-    rov.functions["f"].bind_soa([X, U, *shared], [out])(n)
-    np.testing.assert_allclose(out, single, rtol=0, atol=1e-13)  # each particle in its own column
-    rov.functions["f"].bind_soa([X, U, *shared], [X])(n)
-    assert X.tobytes() == out.tobytes()
-
-
 def test_bind_batch_rejects_bad_layouts_and_sizes(rov, rng):
     n = 8
     X = np.asfortranarray(REFERENCES["rov4dof"].sample_state(rng, n))
