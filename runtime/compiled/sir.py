@@ -63,12 +63,8 @@ SCHEMES = {"systematic": SYSTEMATIC, "stratified": STRATIFIED}
 # tags of the generator's counter
 TAG_NORMALS, TAG_COMPONENTS, TAG_RESAMPLING = 0, 1, 2
 
-MESSAGES = {1: "a particle left the finite range", 2: "the measurement function gave a non-finite value",
-            3: "a log-weight is NaN or +inf", 4: "the model's generated function failed",
-            5: "sizes, buffers or inputs of the step are out of range",
-            6: "the weighted mean or covariance of the particles is not finite"}
 #: the status of a step refused because its weighted mean or covariance is not finite (the contract's "finite in,
-#: finite out", checked by the C step instead of by every caller)
+#: finite out", checked by the C step instead of by every caller); every status's text: message()
 NONFINITE_MOMENTS = 6
 
 
@@ -130,6 +126,8 @@ def library() -> ctypes.CDLL:
     lib.abyssal_sir_philox.restype = None
     lib.abyssal_sir_wrap_residuals.restype = None
     lib.abyssal_sir_wrap_residuals.argtypes = [ctypes.c_void_p, ctypes.c_longlong]
+    lib.abyssal_sir_message.restype = ctypes.c_char_p
+    lib.abyssal_sir_message.argtypes = [ctypes.c_int]
     lib.abyssal_terrain_bilinear.restype = None
     return lib
 
@@ -147,6 +145,11 @@ def philox(counter, key) -> np.ndarray:
     out = (ctypes.c_uint32 * 4)()
     library().abyssal_sir_philox(c, k, out)
     return np.array(out[:], dtype=np.uint32)
+
+
+def message(status: int) -> str:
+    """The C step's own text for a status it returns (abyssal_sir_message)."""
+    return library().abyssal_sir_message(int(status)).decode()
 
 
 def wrap_residuals(values) -> np.ndarray:
@@ -424,7 +427,7 @@ class CompiledSIR:
 
     # ------------------------------------------------------------------ the step
     def __call__(self) -> int:
-        """One step on the uncommitted side with the inputs as they are; returns the C status (0: ok, MESSAGES)."""
+        """One step on the uncommitted side with the inputs as they are; returns the C status (0: ok, message())."""
         self.inputs[IN_CUR:IN_PRIOR + 1] = (self.cur, self.side, self.weights_match)
         return self._go()
 
@@ -486,4 +489,4 @@ class CompiledSIR:
         self._counter.value += 1
 
     def message(self, status: int) -> str:
-        return MESSAGES.get(status, f"unknown status {status}")
+        return message(status)
