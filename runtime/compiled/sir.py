@@ -19,8 +19,8 @@ thread count, the blocking or anything drawn before; the state is those two word
 Box-Muller transform in single precision (each to ~1e-7 relative, the tail to 6.8 sigma).
 
 Threads: a step whose serial time exceeds ``SPLIT_MIN_SECONDS`` (compiled.batches) is timed on one
-thread and on every core (a few steps each, again after ``FIRST_RETIME_STEPS``, then every
-``RETIME_STEPS``) and runs with the faster count: on a loaded machine the other core may be busy, and
+thread and on every core (a few steps each, again after ``FIRST_RETIME_STEPS`` steps, then after gaps
+doubling up to ``RETIME_STEPS``) and runs with the faster count: on a loaded machine the other core may be busy, and
 the step's threads (started per step, tens of microseconds) wait for each other at its barriers. The
 results are bit-identical whatever the count (tests/runtime/test_sir_step.py), so the choice never
 changes them.
@@ -45,9 +45,11 @@ BLOCK = 512
 MAX_THREADS = 64
 #: steps timed on one thread, then on every core, to choose the thread count (CompiledSIR._probed_call) ...
 PROBE_STEPS = 3
-#: ... again after this many steps (the machine's load changes); the first time already after FIRST_RETIME_STEPS:
-#: a filter's first steps are not its usual ones (pages touched for the first time, the second core waking up,
-#: resampling at every step), and timed there, 2 threads lost to 1 at N = 10^4 where they take 0.6 of its time
+#: ... again after FIRST_RETIME_STEPS, then after twice as many steps each time up to every RETIME_STEPS (the
+#: machine's load changes). A filter's first steps are not its usual ones (pages touched for the first time,
+#: resampling at every step), nor are a process's first ~10 split steps (1.5-9x a later one's time on a 2-vCPU
+#: VM, benchmarks/README.md): timed there, 2 threads lost to 1 at N = 10^4 where they take 0.6 of its time.
+#: The doubling gaps time the split again while that start is still recent, at a cost of PROBE_STEPS steps.
 RETIME_STEPS = 2000
 FIRST_RETIME_STEPS = 50
 
@@ -438,17 +440,17 @@ class CompiledSIR:
         return self._go()
 
     def _go(self) -> int:
-        """The C call, on the thread count chosen by timing (re-timed every RETIME_STEPS steps)."""
+        """The C call, on the thread count chosen by timing (re-timed after gaps doubling up to RETIME_STEPS)."""
         if self._probes < 2 * PROBE_STEPS:
             return self._probed_call()
         self._probes += 1
         if self._probes >= self._retime:
-            self._probes, self._retime = 0, RETIME_STEPS
+            self._probes, self._retime = 0, min(2 * self._retime, RETIME_STEPS)
         return self._fn(self._arg)
 
     def _probed_call(self) -> int:
         """A step timed to choose the thread count: PROBE_STEPS on one thread, then (when those took at least
-        SPLIT_MIN_SECONDS) PROBE_STEPS on every core; the faster count stays for RETIME_STEPS steps. The results
+        SPLIT_MIN_SECONDS) PROBE_STEPS on every core; the faster count stays until the next timing (_go). The results
         do not depend on the count, so probing never changes them."""
         probe = self._probes
         if self.max_threads == 1 or self._struct.n <= BLOCK or self._forced:

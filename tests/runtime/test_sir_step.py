@@ -472,6 +472,26 @@ def test_results_do_not_depend_on_the_thread_count(rov, scheme):
             assert a.tobytes() == b.tobytes()
 
 
+def test_the_thread_count_is_timed_again_after_doubling_gaps():
+    """The timing of 1 thread against every core runs at the first step, again FIRST_RETIME_STEPS later, then
+    after gaps doubling up to RETIME_STEPS (a process's first split steps are slow; benchmarks/README.md)."""
+    step = sir.CompiledSIR(sir.BLOCK + 1, 3, 0, 0, np.zeros(1), f=None, measure=None,
+                           process=sir.ProcessNoise(rank=0, factor=np.zeros(1)), measurement=None, max_threads=2)
+    starts, timed = [], step._probed_call
+
+    def probed_call():
+        if step._probes == 0:
+            starts.append(k)
+        return timed()
+
+    step._probed_call, step._fn = probed_call, lambda arg: 0  # a step too short to split: timed on 1 thread only
+    for k in range(9000):
+        step._go()
+    gaps = [b - a + sir.PROBE_STEPS for a, b in zip(starts, starts[1:])]
+    expected = [min(sir.FIRST_RETIME_STEPS * 2 ** i, sir.RETIME_STEPS) for i in range(len(gaps))]
+    assert starts[0] == 0 and gaps == expected and gaps[-1] == sir.RETIME_STEPS
+
+
 def test_a_non_finite_particle_is_refused_and_the_committed_side_untouched(rov):
     step, *_ = make_step(rov, 600)
     set_inputs(step, np.array([1e308, 0.0, 0.0, 0.0]), 0.1, np.array([0.0, 0.0, 0.0, 0.0]))
