@@ -65,13 +65,13 @@ from pathlib import Path
 DEFAULT_CFLAGS = "-O3 -fPIC -fno-semantic-interposition -march=native"
 LINK_FLAGS = ["-shared"]
 LIBS = ["-lm"]
-# Structure-of-arrays kernels (files *_soa.c): let the loop vectorise with libmvec's sin/cos/tan (and
-# the float sinf/cosf/logf of the step's normals) instead of the scalar fused sincos, and sqrt without the errno branch (errno is never read).
+# Structure-of-arrays kernels (files *_soa.c): let the loop vectorise with libmvec's sin/cos/tan instead of the
+# scalar fused sincos, and sqrt without the errno branch (errno is never read).
 # -fno-trapping-math: nothing reads the floating-point exception flags, and without it gcc 12 keeps a loop with a
 # comparison and a call (a sinc select such as tan3dof's f) scalar where there are no AVX-512 masks (AVX2: 8x slower).
 # These flags do not change any IEEE operation.
 SOA_FLAGS = ["-fopenmp-simd", "-DABYSSAL_OPENMP_SIMD", "-fno-builtin-sin", "-fno-builtin-cos", "-fno-builtin-tan",
-             "-fno-builtin-sinf", "-fno-builtin-cosf", "-fno-builtin-logf", "-fno-math-errno", "-fno-trapping-math"]
+             "-fno-math-errno", "-fno-trapping-math"]
 #: the C runtime of the Kalman family (hand-written C99 in generated/c, next to the generated code it calls through
 #: each model's descriptor <m>_descriptor.c): compiled into every model's library, so the cache key covers it, and
 #: copied by `abyssal export`. Its files are compiled strictly (RUNTIME_FLAGS).

@@ -186,6 +186,9 @@ void abyssal_sir_normals(uint64_t key, uint64_t counter, uint32_t tag, abyssal_i
                          double* out, abyssal_idx ld);
 void abyssal_sir_uniforms(uint64_t key, uint64_t counter, uint32_t tag, abyssal_idx i0, abyssal_idx n, double* out);
 void abyssal_sir_philox(const uint32_t counter[4], const uint32_t key[2], uint32_t out[4]);
+/* The step's Box-Muller transform of 32-bit words, for tests: r cos(t), r sin(t) with r = sqrt(-2 ln((a + 1/2) 2^-32)),
+ * t = 2 pi b 2^-32, in single precision */
+void abyssal_sir_box_muller(const uint32_t* a, const uint32_t* b, abyssal_idx n, double* cos_out, double* sin_out);
 /* The step's wrap of angle residuals, for tests: the entries of r (n) beyond +-pi wrapped to (-pi, pi] in place (as
  * numpy's pi - remainder(pi - r, 2 pi)); the others left as they are. */
 void abyssal_sir_wrap_residuals(double* r, abyssal_idx n);

@@ -126,6 +126,9 @@ def library() -> ctypes.CDLL:
     lib.abyssal_sir_uniforms.argtypes = [ctypes.c_uint64, ctypes.c_uint64, ctypes.c_uint32, ctypes.c_longlong,
                                          ctypes.c_longlong, ctypes.c_void_p]
     lib.abyssal_sir_philox.restype = None
+    lib.abyssal_sir_box_muller.restype = None
+    lib.abyssal_sir_box_muller.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_longlong, ctypes.c_void_p,
+                                           ctypes.c_void_p]
     lib.abyssal_sir_wrap_residuals.restype = None
     lib.abyssal_sir_wrap_residuals.argtypes = [ctypes.c_void_p, ctypes.c_longlong]
     lib.abyssal_sir_message.restype = ctypes.c_char_p
@@ -152,6 +155,17 @@ def philox(counter, key) -> np.ndarray:
 def message(status: int) -> str:
     """The C step's own text for a status it returns (abyssal_sir_message)."""
     return library().abyssal_sir_message(int(status)).decode()
+
+
+def box_muller(a, b) -> tuple[np.ndarray, np.ndarray]:
+    """The step's Box-Muller transform of 32-bit words a, b (equal lengths): (r cos t, r sin t), r = sqrt(-2 ln u),
+    u = (a + 1/2) 2^-32, t = 2 pi b 2^-32, in single precision as the step computes its normals."""
+    a, b = np.ascontiguousarray(a, dtype=np.uint32), np.ascontiguousarray(b, dtype=np.uint32)
+    if a.shape != b.shape or a.ndim != 1:
+        raise ValueError(f"a and b must be 1-D of one length, got shapes {a.shape} and {b.shape}")
+    c, s = np.empty(a.size), np.empty(a.size)
+    library().abyssal_sir_box_muller(a.ctypes.data, b.ctypes.data, a.size, c.ctypes.data, s.ctypes.data)
+    return c, s
 
 
 def wrap_residuals(values) -> np.ndarray:

@@ -75,6 +75,27 @@ def test_the_step_normals_are_the_box_muller_transform_of_philox():
         assert u[i] == (bits + 0.5) * 2.0 ** -32
 
 
+def test_the_box_muller_transform_is_the_double_precision_one_to_single_precision():
+    # the step's transform (its own log, sin and cos series in single precision) against numpy's in double of the
+    # same u = (a + 1/2) 2^-32 rounded to single precision, at random words and at the edges: u at 2^-33, at 1 and
+    # around sqrt(1/2) (the split of u into 2^e m), the angle at and beside every eighth of a turn (the quadrants'
+    # and their series' ends)
+    rng = np.random.default_rng(7)
+    edges_a = np.array([0, 1, 2, 3, 1000, 2 ** 16 - 1, 2 ** 16, 2 ** 24, 2 ** 31, 0xB504F333, 0xB504F334, 2 ** 32 - 2 ** 9,
+                        2 ** 32 - 2, 2 ** 32 - 1], dtype=np.uint64)
+    eighths = np.arange(0, 2 ** 32, 2 ** 29, dtype=np.uint64)
+    edges_b = np.concatenate([eighths, (eighths + 1) % 2 ** 32, (eighths - 1) % 2 ** 32])
+    a = np.concatenate([rng.integers(0, 2 ** 32, 200_000, dtype=np.uint64), np.repeat(edges_a, edges_b.size)])
+    b = np.concatenate([rng.integers(0, 2 ** 32, 200_000, dtype=np.uint64), np.tile(edges_b, edges_a.size)])
+    cos_z, sin_z = sir.box_muller(a.astype(np.uint32), b.astype(np.uint32))
+    u = ((a + 0.5) * 2.0 ** -32).astype(np.float32).astype(np.float64)
+    r, t = np.sqrt(-2.0 * np.log(u)), 2.0 * np.pi * b * 2.0 ** -32
+    scale = np.maximum(1.0, r)
+    assert np.all(np.abs(cos_z - r * np.cos(t)) <= 4e-7 * scale)
+    assert np.all(np.abs(sin_z - r * np.sin(t)) <= 4e-7 * scale)
+    assert np.abs(cos_z).max() == np.abs(sin_z).max() == pytest.approx(math.sqrt(-2.0 * math.log(2.0 ** -33)), rel=1e-6)
+
+
 def test_the_wrap_of_angle_residuals_has_the_bits_of_numpys_wrap():
     # the step wraps residuals beyond +-pi (vectorised with a fused multiply-add where the CPU has one); numpy's
     # pi - remainder(pi - r, 2 pi) is the reference, bit for bit, at the quotients' edges and far out
