@@ -151,8 +151,8 @@ const char* abyssal_sir_message(int code) {
 
 /* ------------------------------------------------------------------------------------------ random numbers */
 /* The Box-Muller transform of two 32-bit words a, b in single precision, written out so that the particle loops
- * vectorise on any SIMD target without a vector libm (on AVX2, 0.96 against 1.42 ns per normal through
- * libmvec's logf/sinf/cosf: benchmarks/README.md). Radius sqrt(-2 ln u) for u = (a + 1/2) 2^-32 in (0, 1],
+ * vectorise on any SIMD target without a vector libm, and faster than through libmvec's logf/sinf/cosf on AVX2
+ * (benchmarks/README.md, bench_tan). Radius sqrt(-2 ln u) for u = (a + 1/2) 2^-32 in (0, 1],
  * rounded once: u = 2^e m with m in [sqrt(1/2), sqrt(2)), ln m = 2 atanh(s) with s = (m - 1)/(m + 1),
  * |s| < 0.172, summed to s^9 (the next term is below 2e-9 relative). Angle 2 pi b 2^-32 = k pi/2 + x with k the
  * nearest quadrant and x in [-pi/4, pi/4): sin x to x^9 and cos x to x^8 (below 3e-8), then the quadrant's swap

@@ -47,8 +47,8 @@ MAX_THREADS = 64
 PROBE_STEPS = 3
 #: ... again after FIRST_RETIME_STEPS, then after twice as many steps each time up to every RETIME_STEPS (the
 #: machine's load changes). A filter's first steps are not its usual ones (pages touched for the first time,
-#: resampling at every step), nor are a process's first ~10 split steps (1.5-9x a later one's time on a 2-vCPU
-#: VM, benchmarks/README.md): timed there, 2 threads lost to 1 at N = 10^4 where they take 0.6 of its time.
+#: resampling at every step), nor are a process's first ~10 split steps (slow on a 2-vCPU VM: benchmarks/README.md,
+#: bench_sir): timed there, 2 threads lost to 1 at N = 10^4 where they take 0.6 of its time.
 #: The doubling gaps time the split again while that start is still recent, at a cost of PROBE_STEPS steps.
 RETIME_STEPS = 2000
 FIRST_RETIME_STEPS = 50
