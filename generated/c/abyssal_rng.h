@@ -73,9 +73,11 @@ static inline void abyssal_philox_store4(uint32_t* out, long long j, __m256i x, 
  * out_w[j] (out1..out3 may be NULL: not stored). The same bits as abyssal_philox4x32_10 counter by counter.
  * With AVX2, four counters per vector: gcc vectorises the macro's 32 x 32 -> 64-bit products in 64-bit lanes as
  * a full 64 x 64-bit multiply (emulated with shifts and adds without AVX-512, vpmullq with it), where one
- * vpmuludq suffices; written with the intrinsic, and the round keys computed once, it is 1.9x faster on AVX2.
+ * vpmuludq suffices; written with the intrinsic, with the round keys computed once.
  * Two vectors go through the ten rounds side by side: a round's multiply waits on the one before it, and the
- * other vector's work fills that wait (1.27x faster on AVX2 than one vector at a time). */
+ * other vector's work fills that wait. Only the low half of each 64-bit lane is a Philox word: vpmuludq reads
+ * the low halves, the stores take them, and the xors never carry a high half down, so the high halves are left as
+ * the products made them instead of being masked in every round (the same bits; benchmarks/README.md). */
 static inline void abyssal_philox_run(uint32_t c0, uint32_t c1, uint32_t c2, uint32_t c3, uint32_t k0, uint32_t k1,
                                       long long n, uint32_t* out0, uint32_t* out1, uint32_t* out2, uint32_t* out3) {
   long long j = 0;
@@ -102,12 +104,12 @@ static inline void abyssal_philox_run(uint32_t c0, uint32_t c1, uint32_t c2, uin
       const __m256i q0 = _mm256_mul_epu32(y0, m0), q1 = _mm256_mul_epu32(y2, m1);
       x0 = _mm256_xor_si256(_mm256_xor_si256(_mm256_srli_epi64(p1, 32), x1), key0[r]);
       y0 = _mm256_xor_si256(_mm256_xor_si256(_mm256_srli_epi64(q1, 32), y1), key0[r]);
-      x1 = _mm256_and_si256(p1, low);
-      y1 = _mm256_and_si256(q1, low);
+      x1 = p1;
+      y1 = q1;
       x2 = _mm256_xor_si256(_mm256_xor_si256(_mm256_srli_epi64(p0, 32), x3), key1[r]);
       y2 = _mm256_xor_si256(_mm256_xor_si256(_mm256_srli_epi64(q0, 32), y3), key1[r]);
-      x3 = _mm256_and_si256(p0, low);
-      y3 = _mm256_and_si256(q0, low);
+      x3 = p0;
+      y3 = q0;
     }
     abyssal_philox_store4(out0, j, x0, y0, n);
     abyssal_philox_store4(out1, j, x1, y1, n);
