@@ -25,7 +25,6 @@ max(1, |value|) and the NIS at 1e-9 (the innovation z - h(x) cancels between two
 """
 from __future__ import annotations
 
-import importlib
 import json
 import platform
 import shlex
@@ -35,21 +34,20 @@ from pathlib import Path
 import numpy as np
 
 from abyssal import generated
-from abyssal.generated import kalman_runtime as kr
+from abyssal.runtime.compiled import kalman as kr
+from abyssal.runtime.compiled.sources import EXPORT_TEMPLATES, KALMAN
+from abyssal.runtime.compiled.sources import sources as runtime_sources
 from abyssal.runtime.filters.kalman import CKF, EKF, MCUKF, UKF, HuberUKF
 
 __all__ = ["FILTERS", "export", "record_vectors"]
-
-build_module = importlib.import_module("abyssal.generated.build")  # the module (the package exports a function `build`)
 
 #: --filter -> (Python class, the generated filter family it needs)
 FILTERS = {"ekf": (EKF, "ekf"), "ukf": (UKF, "ukf"), "ckf": (CKF, "ckf"), "mcukf": (MCUKF, "robust"),
            "huber": (HuberUKF, "robust")}
 #: the runtime's files a vehicle needs (abyssal_kalman_binding.c is Python's binding only)
 RUNTIME_SOURCES = ("abyssal_kalman.c", "abyssal_kalman_gate.c", "abyssal_kalman_covariance.c")
-RUNTIME_HEADERS = ("abyssal_model.h", "abyssal_kalman.h", "abyssal_kalman_gate.h", "abyssal_kalman_covariance.h",
+RUNTIME_HEADERS = ("abyssal_kalman.h", "abyssal_kalman_gate.h", "abyssal_kalman_covariance.h",
                    "abyssal_kalman.hpp")
-EXPORT_TEMPLATES = build_module.RUNTIME_DIR / "export"
 MARKER = ".abyssal-export.json"
 #: the long dt of the recorded run, in steps dt: the shortest of these the filter subdivides
 LONG_DT_FACTORS = (50, 100, 200, 400, 800)
@@ -79,15 +77,15 @@ def export(target, filter: str = "ckf", out=None, *, steps: int = 10_000, seed: 
     bundle = generated.load(folder)
     setup, rows, expected, summary = record_vectors(bundle, filter, steps=steps, seed=seed)
 
-    runtime = build_module.runtime_sources()
+    runtime = runtime_sources([*KALMAN, "abyssal_kalman.hpp"])
     for sub in ("include", "src", "examples", "tests/vectors"):
         (out / sub).mkdir(parents=True, exist_ok=True)
-    for name, text in sorted(sources.items()):
-        (out / "src" / name).write_text(text)
+    for name, text in sorted(sources.items()):  # the model's C, and its copy of the descriptor's type (abyssal_model.h)
+        (out / ("include" if name.endswith(".h") else "src") / name).write_text(text)
     for name in RUNTIME_SOURCES:
         (out / "src" / name).write_text(runtime[name])
     for name in RUNTIME_HEADERS:
-        (out / "include" / name).write_text((build_module.RUNTIME_DIR / name).read_text())
+        (out / "include" / name).write_text(runtime[name])
     flt = cls(bundle, np.zeros(bundle.n_x), np.eye(bundle.n_x), np.eye(bundle.n_x), np.eye(bundle.n_y))
     bytes_ = int(flt._memory.nbytes)
     (out / "include" / f"{model}_filter.h").write_text(_model_header(manifest, filter, bytes_, command))

@@ -2,8 +2,8 @@
 and from C, beside peers measured in the same run.
 
 Ours:   the EKF, UKF and CKF classes, ``step(u, dt, z)`` through a simulated trajectory (Python over the C runtime
-        of generated/c: one call per step), and the same runtime called from a C loop (kalman_timing.c, linked with
-        the model's library from abyssal's compile cache: the code Python calls); the innovation gate's judgement
+        of runtime/c: one call per step), and the same runtime called from a C loop (kalman_timing.c, linked with
+        the model's and the runtime's libraries from abyssal's compile cache: the code Python calls); the innovation gate's judgement
         of one update alone (C); the bytes of each filter object.
 Peers:  filterpy's UnscentedKalmanFilter with MerweScaledSigmaPoints(1, 0, 0) (the same CKF) on the independent
         NumPy model of rov4dof (verify/reference_models.py, written from the paper: a model as a user would write
@@ -28,7 +28,10 @@ from pathlib import Path
 import numpy as np
 
 from abyssal import generated
-from abyssal.generated.build import BuildError, RUNTIME_DIR, cflags, compiler
+from abyssal.generated.build import BuildError, cflags, compiler
+from abyssal.runtime.compiled import kalman as kalman_runtime
+from abyssal.runtime.compiled.sources import C_DIR
+from abyssal.symbolic.codegen import MODEL_HEADER
 from abyssal.runtime.filters.kalman import CKF, EKF, UKF
 from abyssal.verify import reference_models
 
@@ -80,10 +83,11 @@ def c_runtime_times(bundle, U, Z, repeats: int) -> dict[str, float]:
             fh.write(f"{len(U)} {bundle.n_u} {bundle.n_y}\n")
             np.savetxt(fh, np.hstack([U, Z]), fmt="%.17g")
         exe = tmp / "kalman_timing"
-        library = Path(bundle.library)
+        library, runtime = Path(bundle.library), Path(kalman_runtime.KalmanRuntime.of(bundle).library)
         cmd = [compiler(), *cflags(), f"-DDESCRIPTOR={bundle.name}_descriptor", f"-DCKF_STEP={bundle.name}_ckf_step",
-               f"-DEKF_STEP={bundle.name}_ekf_step", f"-I{RUNTIME_DIR}",
-               str(HERE / "kalman_timing.c"), str(library), f"-Wl,-rpath,{library.parent}", "-o", str(exe), "-lm"]
+               f"-DEKF_STEP={bundle.name}_ekf_step", f"-I{C_DIR}", f"-I{MODEL_HEADER.parent}",
+               str(HERE / "kalman_timing.c"), str(library), str(runtime), f"-Wl,-rpath,{library.parent}",
+               f"-Wl,-rpath,{runtime.parent}", "-o", str(exe), "-lm"]
         res = subprocess.run(cmd, capture_output=True, text=True, check=False)
         if res.returncode != 0:
             raise BuildError(f"compiling the timing driver failed: {' '.join(cmd)}\n{res.stderr[-4000:]}")

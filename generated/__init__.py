@@ -6,9 +6,11 @@
 
 ``load`` reads ``<folder>/manifest.json``, checks it against its own integrity record (integrity.py:
 a hand-edited manifest is refused, naming the field) and every source against the manifest's sha256
-(a hand-edited, truncated or missing file is refused, naming the file), compiles the sources with the
-C runtime of the Kalman family (generated/c) on first use through the shared per-user cache (see
-build.py) and returns a ModelBundle. The cache entry is named by the manifest's model name (a checked C
+(a hand-edited, truncated or missing file is refused, naming the file), compiles the folder's sources
+(its generated C and its copy of the descriptor's type, abyssal_model.h) on first use through the
+shared per-user cache (see build.py) and returns a ModelBundle. The filters' C runtime is not here: it
+is abyssal.runtime's (runtime/c), compiled once into its own library, and reaches the model through
+the descriptor ``<m>_descriptor`` of this library. The cache entry is named by the manifest's model name (a checked C
 identifier), never by the path given.
 """
 from __future__ import annotations
@@ -21,7 +23,7 @@ import threading
 from pathlib import Path
 
 from . import integrity
-from .build import BuildError, CompilerNotFoundError, build, runtime_sources
+from .build import BuildError, CompilerNotFoundError, build
 from .bundle import BatchBinding, Binding, CompiledFunction, ModelBundle
 
 GENERATED_DIR = Path(__file__).resolve().parent
@@ -111,6 +113,8 @@ def read_folder(folder: Path) -> tuple[dict, dict[str, str]]:
 
 _IDENTIFIER = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
 _REQUIRED_FUNCTIONS = ("f", "F", "h", "H")
+#: the descriptor's type, copied into every folder by the code generator (abyssal.symbolic.codegen.MODEL_HEADER)
+MODEL_HEADER = "abyssal_model.h"
 
 
 def manifest_problem(manifest) -> str | None:
@@ -138,7 +142,7 @@ def manifest_problem(manifest) -> str | None:
     if not isinstance(files, dict) or not files:
         return "'files' must map file names to their sha256"
     for fname, meta in files.items():
-        if not (fname.endswith(".c") and Path(fname).name == fname and not fname.startswith(".")):
+        if not (fname.endswith((".c", ".h")) and Path(fname).name == fname and not fname.startswith(".")):
             return f"{fname!r} is not a plain C file name of this folder"
         if not (isinstance(meta, dict) and isinstance(meta.get("sha256"), str)):
             return f"{fname!r} has no sha256"
@@ -148,6 +152,9 @@ def manifest_problem(manifest) -> str | None:
     missing = [s for s in _REQUIRED_FUNCTIONS if f"{model}_{s}" not in functions]
     if missing:
         return f"the model functions {missing} are not listed"
+    if f"{model}_descriptor.c" in files and MODEL_HEADER not in files:
+        return (f"it has a descriptor but no copy of its type {MODEL_HEADER} (written by an older abyssal): "
+                "regenerate the folder")
     for name, spec in functions.items():
         if not (isinstance(spec, dict) and spec.get("file") in files and isinstance(spec.get("inputs"), list)
                 and isinstance(spec.get("outputs"), list) and name.startswith(model + "_") and _IDENTIFIER.match(name)):
@@ -182,7 +189,7 @@ def load(name_or_path) -> ModelBundle:
         bundle = _BUNDLES.get(key)
         if bundle is None:
             manifest, sources = read_folder(folder)
-            bundle = ModelBundle(manifest, build(manifest["model"], {**sources, **runtime_sources()}))
+            bundle = ModelBundle(manifest, build(manifest["model"], sources))
             bundle.folder = folder
             _BUNDLES[key] = bundle
     return bundle

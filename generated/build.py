@@ -72,17 +72,8 @@ LIBS = ["-lm"]
 # These flags do not change any IEEE operation.
 SOA_FLAGS = ["-fopenmp-simd", "-DABYSSAL_OPENMP_SIMD", "-fno-builtin-sin", "-fno-builtin-cos", "-fno-builtin-tan",
              "-fno-math-errno", "-fno-trapping-math"]
-#: the C runtime of the Kalman family (hand-written C99 in generated/c, next to the generated code it calls through
-#: each model's descriptor <m>_descriptor.c): compiled into every model's library, so the cache key covers it, and
-#: copied by `abyssal export`. Its files are compiled strictly (RUNTIME_FLAGS).
-RUNTIME_DIR = Path(__file__).resolve().parent / "c"
-KALMAN_RUNTIME = ("abyssal_model.h", "abyssal_kalman.h", "abyssal_kalman.c", "abyssal_kalman_gate.h",
-                  "abyssal_kalman_gate.c", "abyssal_kalman_covariance.h", "abyssal_kalman_covariance.c",
-                  "abyssal_kalman_binding.c")
-#: the C runtime of the particle filters (the SIR step, runtime/compiled/sir.py): its own library, compiled strictly
-#: too, its *_soa.c files with the structure-of-arrays flags
-SIR_RUNTIME = ("abyssal_rng.h", "abyssal_sir.h", "abyssal_sir_soa.c", "abyssal_sir_terrain.h", "abyssal_sir_terrain_soa.c")
-RUNTIME_FLAGS = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic"]
+#: hand-written C (the runtime of abyssal.runtime.compiled) compiles strictly: build(..., strict=True)
+STRICT_FLAGS = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic"]
 
 #: seconds one build may take (all compile and link steps; a slow vehicle computer needs minutes for the largest model)
 DEFAULT_TIMEOUT = 600.0
@@ -106,20 +97,12 @@ def _libraries() -> list[str]:
     return LIBS
 
 
-def runtime_sources(*names: str) -> dict[str, str]:
-    """File name -> text of the named files of the C runtime (RUNTIME_DIR), by default the Kalman runtime
-    (KALMAN_RUNTIME), read from the package."""
-    return {name: (RUNTIME_DIR / name).read_text() for name in (names or KALMAN_RUNTIME)}
-
-
-def _file_flags(name: str, flags: list[str]) -> list[str]:
-    if name in KALMAN_RUNTIME:
-        return [*flags, *RUNTIME_FLAGS]
+def _file_flags(name: str, flags: list[str], strict: bool) -> list[str]:
+    extra = STRICT_FLAGS if strict else []
     if not name.endswith("_soa.c"):
-        return flags
-    extra = [] if "-lmvec" in _libraries() else ["-DABYSSAL_NO_LIBMVEC"]
-    strict = RUNTIME_FLAGS if name in SIR_RUNTIME else []
-    return [*flags, *SOA_FLAGS, *extra, *strict]
+        return [*flags, *extra]
+    vector_math = [] if "-lmvec" in _libraries() else ["-DABYSSAL_NO_LIBMVEC"]
+    return [*flags, *SOA_FLAGS, *vector_math, *extra]
 
 
 
@@ -249,14 +232,15 @@ def target_identity(flags: list[str]) -> str:
     return platform.machine()
 
 
-def cache_key(sources: dict[str, str], flags: list[str], requested_compiler: str | None = None) -> str:
+def cache_key(sources: dict[str, str], flags: list[str], requested_compiler: str | None = None, strict: bool = False) -> str:
     """The entry key; computable without a compiler (see the module docstring)."""
     if requested_compiler is None:
         requested_compiler = _requested_compiler()[1]
     h = hashlib.sha256()
     for name in sorted(sources):
         h.update(name.encode() + b"\0" + sources[name].encode() + b"\0")
-    for part in (" ".join(flags + SOA_FLAGS + LINK_FLAGS + _libraries()), requested_compiler, target_identity(flags)):
+    compiled = flags + SOA_FLAGS + (STRICT_FLAGS if strict else []) + LINK_FLAGS + _libraries()
+    for part in (" ".join(compiled), requested_compiler, target_identity(flags)):
         h.update(part.encode() + b"\0")
     return h.hexdigest()
 
@@ -374,7 +358,7 @@ def _run_jobs(jobs: list[_Job], deadline: float, timeout: float, workdir: Path, 
 
 
 def _compile(sources: dict[str, str], workdir: Path, lib_path: Path, flags: list[str], cc: str,
-             deadline: float, timeout: float) -> None:
+             deadline: float, timeout: float, strict: bool) -> None:
     objects, jobs = [], []
     for name, text in sorted(sources.items()):
         (workdir / name).write_text(text)
@@ -383,7 +367,7 @@ def _compile(sources: dict[str, str], workdir: Path, lib_path: Path, flags: list
         src = workdir / name
         obj = workdir / (name + ".o")
         objects.append(obj)
-        jobs.append(_Job([cc, *_file_flags(name, flags), "-c", str(src), "-o", str(obj)], workdir / (name + ".log"), name))
+        jobs.append(_Job([cc, *_file_flags(name, flags, strict), "-c", str(src), "-o", str(obj)], workdir / (name + ".log"), name))
     _run_jobs(jobs, deadline, timeout, workdir, max(1, os.cpu_count() or 1))
     link = _Job([cc, *flags, *LINK_FLAGS, *map(str, objects), "-o", str(lib_path), *_libraries()], workdir / "link.log")
     _run_jobs([link], deadline, timeout, workdir, 1)
@@ -550,11 +534,12 @@ def _near_misses(root: Path, model: str) -> str:
             "settings (ABYSSAL_CFLAGS, ABYSSAL_CC/CC, and the CPU for -march=native flags) or sources")
 
 
-def build(model: str, sources: dict[str, str], *, symbols=()) -> Path:
+def build(model: str, sources: dict[str, str], *, symbols=(), strict: bool = False) -> Path:
     """Path of the compiled library of `sources`, building it if no valid cache entry exists.
 
     `model` names the entry and the library (a C identifier, never a path); `symbols` are extra
-    names the smoke test must find in the library.
+    names the smoke test must find in the library; `strict` compiles every file with STRICT_FLAGS
+    (hand-written C: warnings are errors).
     """
     if not (isinstance(model, str) and _IDENTIFIER.fullmatch(model)):
         raise ValueError(f"build(): model {model!r} must be a C identifier (the model's name, never a path)")
@@ -563,7 +548,7 @@ def build(model: str, sources: dict[str, str], *, symbols=()) -> Path:
             raise ValueError(f"build(): source {name!r} must be a plain file name ending in .c or .h")
     flags = cflags()
     requested_var, requested = _requested_compiler()
-    key = cache_key(sources, flags, requested)
+    key = cache_key(sources, flags, requested, strict)
     root = cache_dir()
     entry = root / f"{model}-{key[:24]}"
     lib_name = f"lib{model}.so"
@@ -585,7 +570,7 @@ def build(model: str, sources: dict[str, str], *, symbols=()) -> Path:
         with lock:
             lib = _valid_entry(entry, lib_name, key)  # another process may have built it while we waited
             if lib is None:
-                _build_entry(model, sources, symbols, flags, (requested_var, requested), key, cc, timeout, entry)
+                _build_entry(model, sources, symbols, flags, (requested_var, requested), key, cc, timeout, entry, strict)
     except PermissionError as exc:
         raise CacheError(f"{_describe_root(root)} is not writable: {exc}") from exc
     lib = _valid_entry(entry, lib_name, key)
@@ -595,7 +580,7 @@ def build(model: str, sources: dict[str, str], *, symbols=()) -> Path:
     return lib
 
 
-def _build_entry(model, sources, symbols, flags, requested, key, cc, timeout, entry) -> None:
+def _build_entry(model, sources, symbols, flags, requested, key, cc, timeout, entry, strict) -> None:
     """Compile into a temporary folder, smoke-test, describe, and rename it to `entry`."""
     (requested_var, requested), root, lib_name = requested, entry.parent, f"lib{model}.so"
     deadline = time.monotonic() + timeout
@@ -604,7 +589,7 @@ def _build_entry(model, sources, symbols, flags, requested, key, cc, timeout, en
         lib = work / lib_name
         try:
             with _Progress(model, sources):
-                _compile(sources, work, lib, flags, cc, deadline, timeout)
+                _compile(sources, work, lib, flags, cc, deadline, timeout, strict)
         except BuildError as exc:
             notes = [f"ABYSSAL_CFLAGS={os.environ['ABYSSAL_CFLAGS']!r}"] if "ABYSSAL_CFLAGS" in os.environ else []
             notes += [f"{requested_var}={requested!r}"] if requested_var else []

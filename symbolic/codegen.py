@@ -30,6 +30,7 @@ import hashlib
 import json
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import casadi as ca
 
@@ -356,12 +357,15 @@ def soa_source(model: Model, functions: list[ca.Function], origin: Origin) -> tu
     return banner + SOA_PREAMBLE + "".join(kernels), entries
 
 
+#: the type of every model's descriptor: the interface this generator writes to and the C runtime
+#: (runtime/c) reads models through; hand-written, copied into every generated folder
+MODEL_HEADER = Path(__file__).resolve().parent / "abyssal_model.h"
 #: the generated functions an ``abyssal_model`` descriptor points to, in the order of its fields
-#: (generated/c/abyssal_model.h); a function the model was generated without is a NULL entry
+#: (abyssal_model.h); a function the model was generated without is a NULL entry
 DESCRIPTOR_FUNCTIONS = ("f", "F", "h", "H", "ekf_predict", "ekf_update", "ekf_step", "ckf_predict_points",
                         "ckf_predict_weights", "ckf_update", "ukf_predict_points", "ukf_predict_weights", "ukf_update",
                         "mcukf_update", "huber_ukf_update")
-DESCRIPTOR_HEADER = "abyssal_model.h"
+DESCRIPTOR_HEADER = MODEL_HEADER.name
 
 
 def _c_string(text: str) -> str:
@@ -432,6 +436,8 @@ def generate_model(model: Model, units: list[Unit], origin: Origin, families: tu
         for name, batched in soa_entries.items():
             functions[name]["soa_batched_inputs"] = batched
     files[f"{model.name}_descriptor.c"] = descriptor_source(model, functions, origin)
+    files[DESCRIPTOR_HEADER] = (f"/* Copied by abyssal's code generator from abyssal/symbolic/{DESCRIPTOR_HEADER}, the type of "
+                                f"{model.name}_descriptor: do not edit. */\n" + MODEL_HEADER.read_text())
     manifest = {
         "model": model.name,
         "source": origin.source,

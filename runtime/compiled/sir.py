@@ -1,4 +1,4 @@
-"""The compiled SIR step (``generated/c/abyssal_sir.h``) bound to one filter's buffers.
+"""The compiled SIR step (``runtime/c/abyssal_sir.h``) bound to one filter's buffers.
 
 One C call does a whole particle-filter step -- the process-noise draws from the step's own
 counter-based generator (Philox4x32-10), the model's structure-of-arrays f, pins, h, the exact
@@ -108,9 +108,11 @@ class SoaMeasure(ctypes.Structure):
 @lru_cache(maxsize=1)
 def library() -> ctypes.CDLL:
     """The compiled C runtime of the particle filters (built once through the cache of abyssal.generated.build)."""
-    from abyssal.generated.build import SIR_RUNTIME, build, runtime_sources
+    from abyssal.generated.build import build
 
-    lib = ctypes.CDLL(str(build("abyssal_sir", runtime_sources(*SIR_RUNTIME),
+    from .sources import SIR, sources
+
+    lib = ctypes.CDLL(str(build("abyssal_sir", sources(SIR), strict=True,
                                 symbols=("abyssal_sir_step", "abyssal_sir_normals", "abyssal_terrain_bilinear"))))
     lib.abyssal_sir_step.restype = ctypes.c_int
     lib.abyssal_sir_work_size.restype = ctypes.c_longlong

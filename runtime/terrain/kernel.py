@@ -1,6 +1,6 @@
 """The compiled bilinear lookup of a bathymetry grid for a whole particle cloud.
 
-The C lives in the particle filters' runtime (``generated/c/abyssal_sir_terrain_soa.c``, built once
+The C lives in the particle filters' runtime (``runtime/c/abyssal_sir_terrain_soa.c``, built once
 through the cache with ``abyssal.runtime.compiled.sir.library``): the lookup of many points
 (``abyssal_terrain_bilinear``, called here with ctypes on preallocated buffers) and the TAN
 measurement the compiled SIR step calls itself (``abyssal_sir_terrain_measure``, bound to a map by

@@ -8,7 +8,7 @@
     <m>_ckf_step(x, P, u, p, dt, Q, z, R, mask) -> (x_post, P_post, innovation, S, ok)
                                                   calls predict then update (one C call)
     <m>_ckf_predict_points(x, P)               -> (X, ok)           the points and weights of a predict, for
-    <m>_ckf_predict_weights()                  -> (wm, wc)          the C runtime (generated/c): it propagates
+    <m>_ckf_predict_weights()                  -> (wm, wc)          the C runtime (runtime/c): it propagates
     <m>_ukf_predict_points(x, P, abk), <m>_ukf_predict_weights(abk)  X through <m>_f_soa and forms the moments
 
 Predict (seed 000 eqs. 22-24, seed 002 eqs. 7-10): points from the symmetrised P by a guarded

@@ -56,7 +56,7 @@ def test_the_model_step_is_emitted_once_for_every_sigma_point_family(chain_files
 
 def test_fused_steps_call_predict_and_update_in_the_same_file(chain_files):
     assert set(chain_files) == {"chain3_model.c", "chain3_ekf.c", "chain3_sigma_points.c", "chain3_soa.c",
-                                "chain3_descriptor.c", "manifest.json"}
+                                "chain3_descriptor.c", "abyssal_model.h", "manifest.json"}
     for family, file in (("ekf", "chain3_ekf.c"), ("ckf", "chain3_sigma_points.c")):
         for part in ("predict", "update", "step"):
             assert leaf_definitions(chain_files[file], f"chain3_{family}_{part}") == 1, (family, part)

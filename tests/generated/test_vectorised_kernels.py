@@ -18,11 +18,13 @@ from pathlib import Path
 
 import pytest
 
+from abyssal.runtime.compiled.sources import C_DIR
+
 build = importlib.import_module("abyssal.generated.build")  # (abyssal.generated.build is also a function's name)
 GENERATED = Path(build.__file__).resolve().parent
-MODEL_KERNELS = sorted(p for p in GENERATED.glob("*/*_soa.c") if p.parent.name != "c")  # (c/: the runtime)
-TERRAIN = GENERATED / "c" / "abyssal_sir_terrain_soa.c"
-SIR_STEP = GENERATED / "c" / "abyssal_sir_soa.c"
+MODEL_KERNELS = sorted(GENERATED.glob("*/*_soa.c"))
+TERRAIN = C_DIR / "abyssal_sir_terrain_soa.c"
+SIR_STEP = C_DIR / "abyssal_sir_soa.c"
 
 
 @pytest.fixture(scope="module")
@@ -41,7 +43,7 @@ def gcc() -> str:
 
 def scalar_loops(cc: str, path: Path, marker: str) -> list[int]:
     """Lines of the loop markers in `path` with no vectorised loop between them and the next marker."""
-    flags = build._file_flags(path.name, build.cflags())
+    flags = build._file_flags(path.name, build.cflags(), strict=path.parent == C_DIR)
     report = subprocess.run([cc, *flags, f"-I{path.parent}", "-fopt-info-vec-optimized", "-c", str(path), "-o",
                              os.devnull], capture_output=True, text=True, timeout=300, check=True).stderr
     vectorised = {int(m.group(1)) for m in re.finditer(rf"{re.escape(path.name)}:(\d+):\d+: optimized: loop vectorized",

@@ -1,4 +1,4 @@
-"""Python's Kalman filters and innovation gate over the C runtime (generated/c): options refused with a message
+"""Python's Kalman filters and innovation gate over the C runtime (runtime/c): options refused with a message
 naming them, no NumPy warnings on extreme inputs, and the gate's rule equal to a NumPy transcription of it."""
 from __future__ import annotations
 

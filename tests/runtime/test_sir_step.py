@@ -1,4 +1,4 @@
-"""The compiled SIR step (generated/c/abyssal_sir*.c, runtime/compiled/sir.py) against an independent NumPy SIR.
+"""The compiled SIR step (runtime/c/abyssal_sir*.c, runtime/compiled/sir.py) against an independent NumPy SIR.
 
 The reference below is written from the textbook SIR and the contract's rules, with NumPy, the NumPy model of
 verify/reference_models.py (not the generated C), the runtime's GaussianMixture densities and the Kalman

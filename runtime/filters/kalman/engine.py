@@ -9,8 +9,8 @@
 
 One implementation. Every rule of these filters -- the input checks, the missing-entry mask, the innovation
 gate with patience and inflation, covariance repair, dt substepping and its refusal, the transaction that
-leaves a refused call without effect, the reports -- is the C runtime of generated/c (abyssal_kalman.h),
-compiled into the model's library beside its generated steps, and shipped by `abyssal export`: a filter here
+leaves a refused call without effect, the reports -- is the C runtime of runtime/c (abyssal_kalman.h),
+compiled once into its own library and reaching the model through its descriptor, and shipped by `abyssal export`: a filter here
 is a filter object in a NumPy buffer (its memory), and each call is one call of the runtime's entry point for it
 (abyssal_kalman_binding.c) through the fast binding (casadi.external + Function.buffer, bound once). Python keeps the contract's
 shapes and types (a wrong shape or a complex array is refused here, naming the argument), the lock, the
@@ -58,7 +58,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from abyssal.generated import kalman_runtime as kr
+from abyssal.runtime.compiled import kalman as kr
 
 from ...contract import (FilterBase, FilterResult, _nonfinite_message, _vector, check_covariance, check_dt, check_state,
                          register)
@@ -81,7 +81,7 @@ def process_noise(model, x, u, dt, Qw, p=None) -> np.ndarray:
 
 class KalmanFilter(FilterBase):
     """A Kalman-family filter over the C runtime; see the module docstring. Subclasses name their filter
-    (``kind``, a key of kalman_runtime.FILTERS) and their rule's options."""
+    (``kind``, a key of compiled.kalman.FILTERS) and their rule's options."""
 
     kind: str = ""
     #: the filter object's committed state (a view of its memory): what checkpoint/restore copy

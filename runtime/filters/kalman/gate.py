@@ -15,7 +15,7 @@ cannot follow): each further update that gates it asks for P to be multiplied by
 until the entry passes (inflation, not a reset: a reset returns to the state the filter could not
 follow). ``gated`` counts the entries left out, ``inflations`` the inflations.
 
-One implementation: the rule is C (generated/c/abyssal_kalman_gate.c: the quantiles, the NIS by a Cholesky
+One implementation: the rule is C (runtime/c/abyssal_kalman_gate.c: the quantiles, the NIS by a Cholesky
 factor of S, the selection's rounds, the streaks); this class holds a gate object in a NumPy buffer and calls
 it, as the Kalman runtime does from C inside every EKF/UKF/CKF step. The NIS is computed exactly (a guarded
 Cholesky factor of S, +inf when S is not positive definite or the value overflows): in C it costs less than
@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from abyssal.generated import kalman_runtime as kr
+from abyssal.runtime.compiled import kalman as kr
 
 from ...contract import Stateful
 

@@ -23,7 +23,7 @@ Decisions (the paper's Fig. 5 fixes the SIR loop, not these):
   environment noise of eq. 3, N(0, sigma^2) in x and y (sigma in m per step). The current is
   unknown to the filter (p = [0, 0] unless given).
 * One compiled call per step: the terrain filter is an instance of the SIR step of every particle
-  filter (``abyssal.runtime.compiled.sir``, C in ``generated/c/abyssal_sir*``): the body noise is its
+  filter (``abyssal.runtime.compiled.sir``, C in ``runtime/c/abyssal_sir*``): the body noise is its
   per-particle input noise, the environment noise its process noise on the (x, y) subspace, the compass
   its pinned heading, the altimeter its measurement (the map lookup, ``abyssal_sir_terrain_measure``)
   with the out-of-map particles its invalid ones; draws, move, lookup, weights, moments and resampling

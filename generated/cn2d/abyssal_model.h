@@ -1,3 +1,4 @@
+/* Copied by abyssal's code generator from abyssal/symbolic/abyssal_model.h, the type of cn2d_descriptor: do not edit. */
 /* abyssal_model.h: what the C runtime of abyssal knows about one model.
  *
  * `abyssal regenerate` writes one descriptor per model, <m>_descriptor.c, defining
@@ -5,8 +6,10 @@
  *     const abyssal_model <m>_descriptor;
  *
  * with the model's sizes, default parameters, names and units, and pointers to its generated functions
- * (NULL for a filter family the model was generated without). The runtime (abyssal_kalman.h) reaches
- * the model only through this descriptor, so one runtime serves every model. Hand-written C99.
+ * (NULL for a filter family the model was generated without). The runtime (runtime/c/abyssal_kalman.h)
+ * reaches the model only through this descriptor, so one runtime serves every model. Hand-written C99; it
+ * lives beside the code generator that writes descriptors (symbolic/codegen.py), which copies it into
+ * every generated folder.
  */
 #ifndef ABYSSAL_MODEL_H
 #define ABYSSAL_MODEL_H

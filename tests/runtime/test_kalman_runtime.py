@@ -1,4 +1,4 @@
-"""The C runtime of the Kalman family (generated/c) against references not produced by it: scipy's chi-square
+"""The C runtime of the Kalman family (runtime/c) against references not produced by it: scipy's chi-square
 quantiles, the contract's covariance checks and NumPy's eigen-decomposition repair, NumPy's NIS; and the properties
 of its filter object (a refused call changes no byte of the state, the object is a relocatable checkpoint)."""
 from __future__ import annotations
@@ -11,7 +11,7 @@ import pytest
 from scipy.stats import chi2
 
 import abyssal.generated
-from abyssal.generated import kalman_runtime as kr
+from abyssal.runtime.compiled import kalman as kr
 from abyssal.runtime import CKF, EKF, UKF, contract
 from abyssal.runtime.numerics import factorable_covariance, repair_covariance
 

@@ -1,17 +1,18 @@
-"""The C runtime of the Kalman family (generated/c, hand-written C99) as Python sees it: ctypes declarations, once.
+"""The C runtime of the Kalman family (runtime/c, hand-written C99) as Python sees it: ctypes declarations, once.
 
-    runtime = KalmanRuntime.of(bundle)     # the runtime compiled into a model's library, with its descriptor
+    runtime = KalmanRuntime.of(bundle)     # the runtime with a model's descriptor
     runtime = KalmanRuntime.standalone()   # the runtime alone (the innovation gate needs no model)
 
-Every model's library holds a copy of the runtime (build.KALMAN_RUNTIME, compiled from the same files with the
-same flags) and the model's descriptor ``<m>_descriptor`` (abyssal_model.h), so a filter calls the runtime of
-its own library; the standalone library serves InnovationGate objects of filters that run their own updates.
+The runtime is one library, compiled once through the cache (sources.KALMAN, strictly); a model's own library
+holds its generated C and its descriptor ``<m>_descriptor`` (abyssal_model.h), whose address the runtime's calls
+are given, so one runtime serves every model. InnovationGate objects of filters that run their own updates use the
+same library without a descriptor.
 The hot path of a Kalman filter does not go through ctypes: ``call_function(name)`` is one of the runtime's
 CasADi-convention entry points (abyssal_kalman_binding.c: step, predict, update, check_p) loaded by
 ``casadi.external`` and bound once with ``Function.buffer()`` (the fast binding of every generated function,
 bundle.py).
 
-The option struct and the return codes below mirror abyssal_kalman.h (tests/generated/test_kalman_runtime.py
+The option struct and the return codes below mirror abyssal_kalman.h (tests/runtime/test_kalman_runtime.py
 checks the mirror against the C).
 """
 from __future__ import annotations
@@ -21,7 +22,9 @@ from functools import lru_cache
 
 import casadi as ca
 
-from .build import build, runtime_sources
+from abyssal.generated.build import build
+
+from .sources import KALMAN, sources
 
 #: abyssal_filter of abyssal_kalman.h
 FILTERS = {"ekf": 1, "ukf": 2, "ckf": 3, "mcukf": 4, "huber": 5}
@@ -98,7 +101,7 @@ class KalmanRuntime:
 
     @classmethod
     def of(cls, bundle) -> "KalmanRuntime":
-        """The runtime in a model bundle's library (abyssal.generated.load), with the model's descriptor."""
+        """The runtime with the descriptor of a model bundle (abyssal.generated.load): None when its folder has none."""
         return _of(str(bundle.library), bundle.name)
 
     @staticmethod
@@ -125,18 +128,25 @@ class KalmanRuntime:
 
 
 @lru_cache(maxsize=None)
-def _of(library: str, model: str) -> KalmanRuntime:
-    cdll = ctypes.CDLL(library)
+def _of(model_library: str, model: str) -> KalmanRuntime:
+    cdll = ctypes.CDLL(model_library)
     try:
         address = ctypes.addressof(ctypes.c_char.in_dll(cdll, f"{model}_descriptor"))
     except ValueError:
         address = None
-    return KalmanRuntime(library, address)
+    runtime = KalmanRuntime(_library(), address)
+    runtime.model_library = cdll  # the descriptor's library stays loaded while the runtime points into it
+    return runtime
+
+
+@lru_cache(maxsize=1)
+def _library() -> str:
+    return str(build("abyssal_kalman", sources(KALMAN), strict=True))
 
 
 @lru_cache(maxsize=1)
 def _standalone() -> KalmanRuntime:
-    return KalmanRuntime(str(build("abyssal_kalman", runtime_sources())), None)
+    return KalmanRuntime(_library(), None)
 
 
 __all__ = ["FILTERS", "GateHeader", "KalmanRuntime", "Options"]
