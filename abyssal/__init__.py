@@ -24,7 +24,7 @@ from abyssal.generated.regenerate import generate
 from abyssal.runtime import CKF, EKF, MCUKF, UKF, FilterResult, HuberUKF
 from abyssal.runtime.filters.particle import CubatureParticleFilter, ParticleFilter
 from abyssal.runtime.noise import GaussianMixture
-from abyssal.symbolic import Envelope, Model, Parameter, Quantity, discretise, fossen, symbols
+from abyssal.symbolic import Envelope, Model, Parameter, Quantity, Sensor, discretise, fossen, symbols
 
 # The package abyssal.verify is loaded before the function of the same name is defined below, so the
 # function stays the attribute `abyssal.verify` (loading a submodule later would overwrite it).
@@ -54,6 +54,6 @@ def verify(target, *, strict: bool = False):
 
 __all__ = [
     "CKF", "CubatureParticleFilter", "EKF", "Envelope", "FilterResult", "GaussianMixture", "HuberUKF", "MCUKF", "Model",
-    "Parameter", "ParticleFilter", "Quantity", "UKF", "check_generated", "discretise", "export", "fossen", "generate", "load",
+    "Parameter", "ParticleFilter", "Quantity", "Sensor", "UKF", "check_generated", "discretise", "export", "fossen", "generate", "load",
     "symbols", "verify",
 ]

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import json
 import platform
+import warnings
 import shlex
 import shutil
 from pathlib import Path
@@ -45,8 +46,10 @@ __all__ = ["FILTERS", "export", "record_vectors"]
 FILTERS = {"ekf": (EKF, "ekf"), "ukf": (UKF, "ukf"), "ckf": (CKF, "ckf"), "mcukf": (MCUKF, "robust"),
            "huber": (HuberUKF, "robust")}
 #: the runtime's files a vehicle needs (abyssal_kalman_binding.c is Python's binding only)
-RUNTIME_SOURCES = ("abyssal_kalman.c", "abyssal_kalman_gate.c", "abyssal_kalman_covariance.c")
-RUNTIME_HEADERS = ("abyssal_kalman.h", "abyssal_kalman_gate.h", "abyssal_kalman_covariance.h",
+RUNTIME_SOURCES = ("abyssal_kalman.c", "abyssal_kalman_steps.c", "abyssal_linalg.c", "abyssal_kalman_gate.c",
+                   "abyssal_kalman_covariance.c")
+RUNTIME_HEADERS = ("abyssal_kalman.h", "abyssal_kalman_steps.h", "abyssal_linalg.h", "abyssal_kalman_gate.h",
+                   "abyssal_kalman_covariance.h",
                    "abyssal_kalman.hpp")
 MARKER = ".abyssal-export.json"
 #: the long dt of the recorded run, in steps dt: the shortest of these the filter subdivides
@@ -95,7 +98,9 @@ def export(target, filter: str = "ckf", out=None, *, steps: int = 10_000, seed: 
         shutil.copyfile(EXPORT_TEMPLATES / name, out / "tests" / name)
     model_sources = " ".join(f"src/{name}" for name in sorted(sources) if name.endswith(".c"))
     cmake = (EXPORT_TEMPLATES / "CMakeLists.txt.in").read_text()
+    runtime_list = " ".join(f"src/{name}" for name in RUNTIME_SOURCES)
     (out / "CMakeLists.txt").write_text(cmake.replace("@MODEL@", model).replace("@SOURCES@", model_sources)
+                                        .replace("@RUNTIME_SOURCES@", runtime_list)
                                         .replace("@COMMAND@", command))
     (out / "tests" / "vectors" / "setup.txt").write_text(setup)
     (out / "tests" / "vectors" / "input.csv").write_text(rows)
@@ -138,6 +143,12 @@ def record_vectors(bundle, filter: str, *, steps: int = 10_000, seed: int = 0):
     deviations, steps T/4, T/2, 3T/4 are refused (NaN u, negative dt, infinite z), and step 0.6 T has the
     shortest of LONG_DT_FACTORS x dt that the filter subdivides there (tried on a checkpoint; the first factor
     when none is). expected.csv holds every 10th step, every step near an event and the last one."""
+    with warnings.catch_warnings():  # the recording runs a long dt on purpose (beyond a declared max_dt)
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return _record(bundle, filter, steps, seed)
+
+
+def _record(bundle, filter: str, steps: int, seed: int) -> tuple[str, str, str, dict]:
     cls, _ = FILTERS[filter]
     rng = np.random.default_rng(seed)
     n, m, n_u = bundle.n_x, bundle.n_y, bundle.n_u
@@ -211,7 +222,7 @@ def record_vectors(bundle, filter: str, *, steps: int = 10_000, seed: int = 0):
     setup = [f"# abyssal export: {bundle.name}, {filter}; x0, P0, Q and R (column-major), then the filter's options"]
     setup += [f"{name} {' '.join(map(repr, A.ravel(order='F').tolist()))}" for name, A in
               (("x0", x0), ("P0", P0), ("Q", Q), ("R", R))]
-    setup += [f"{name} {float(value)!r}" for name, value in flt.options.items()]
+    setup += [f"{name} {float(kr.NOISE[value] if name == 'noise' else value)!r}" for name, value in flt.options.items()]
     summary = {"steps": steps, "dt": dt, "long_dt_step": long_step, "long_dt": float(long_dt),
                "refused_steps": {str(j): what for j, what in refused.items()},
                "codes": {str(c): v for c, v in sorted(codes.items())}, "missing_entries": missing,
@@ -292,8 +303,9 @@ def _model_header(manifest: dict, filter: str, bytes_: int, command: str) -> str
               f" *     abyssal_kalman_options options = abyssal_kalman_default_options({kind});",
               " *     abyssal_kalman* filter;",
               f" *     int code = abyssal_kalman_init(memory, sizeof memory, &{m}_descriptor, &options, x0, P0, Q, R, "
-              "&filter);",
-              " *     code = abyssal_kalman_step(filter, u, dt, z, NULL, NULL);   (1: updated, 0: predicted, < 0: refused)",
+              "t0, &filter);",
+              f" *     code = abyssal_kalman_step(filter, &{m}_descriptor, u, dt, z, NULL, NULL);   (1: updated, 0: "
+              "predicted, < 0: refused)",
               " *     const double* x = abyssal_kalman_x(filter);",
               " */",
               f"#ifndef {M}_FILTER_H", f"#define {M}_FILTER_H", "", '#include "abyssal_kalman.h"', "",

@@ -103,11 +103,11 @@ int main(int argc, char** argv) {
     if (!memory) return 2;
     for (rep = 0; rep < repeats; ++rep) {
       double t0;
-      if (abyssal_kalman_init(memory, bytes, model, &options, x0, P0, Q, R, &filter) != ABYSSAL_OK) return 3;
-      abyssal_kalman_step(filter, U, 0.1, Z, 0, 0); /* the first step checks dt's stability: not timed */
+      if (abyssal_kalman_init(memory, bytes, model, &options, x0, P0, Q, R, 0.0, &filter) != ABYSSAL_OK) return 3;
+      abyssal_kalman_step(filter, model, U, 0.1, Z, 0, 0); /* the first step checks dt's stability: not timed */
       t0 = now_ns();
       for (k = 1; k < T; ++k)
-        if (abyssal_kalman_step(filter, U + k * n_u, 0.1, Z + k * n_y, 0, 0) < 0) return 4;
+        if (abyssal_kalman_step(filter, model, U + k * n_u, 0.1, Z + k * n_y, 0, 0) < 0) return 4;
       t0 = (now_ns() - t0) / (T - 1);
       if (t0 < best) best = t0;
       sink = abyssal_kalman_x(filter)[0];

@@ -73,7 +73,7 @@ from .numerics import SYMMETRY_TOLERANCE, angle_indices, nees, wrap_angles
 
 __all__ = [
     "Filter", "FilterBase", "NUMERICAL_FAILURES", "Stateful", "FilterResult", "as_generator", "check_count", "check_covariance",
-    "check_dt", "check_p", "check_state", "check_u", "check_z", "real_array", "register", "registered_filters",
+    "check_dt", "check_p", "check_state", "check_time", "check_u", "check_z", "real_array", "register", "registered_filters",
     "run_filter",
 ]
 
@@ -234,6 +234,20 @@ def check_dt(dt) -> float:
     if not 0.0 < dt < math.inf:
         raise ValueError(f"dt must be a positive finite number of seconds, got {dt!r}")
     return dt
+
+
+def check_time(t, name: str = "t") -> float:
+    """A time stamp: a finite real number of seconds."""
+    if type(t) is float and math.isfinite(t):
+        return t
+    if isinstance(t, np.ndarray) and t.shape == ():
+        t = t.item()
+    if isinstance(t, (bool, np.bool_)) or not isinstance(t, numbers.Real):
+        raise TypeError(f"{name} must be a real number of seconds, got {type(t).__name__}")
+    t = float(t)
+    if not math.isfinite(t):
+        raise ValueError(f"{name} must be a finite number of seconds, got {t!r}")
+    return t
 
 
 def check_p(p, model) -> np.ndarray | None:

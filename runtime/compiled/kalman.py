@@ -29,17 +29,27 @@ from .sources import KALMAN, sources
 #: abyssal_filter of abyssal_kalman.h
 FILTERS = {"ekf": 1, "ukf": 2, "ckf": 3, "mcukf": 4, "huber": 5}
 
+#: abyssal_noise of abyssal_kalman.h: how Q accrues
+NOISE = {"step": 0, "rate": 1, "inputs": 2}
+
 # return codes of abyssal_kalman.h
 UPDATED, OK = 1, 0
 (E_MEMORY, E_MODEL, E_FILTER, E_SIGMA_POINTS, E_ROBUST, E_GATE, E_SUBSTEPS, E_X0, E_P0, E_Q, E_R, E_U, E_DT, E_Z, E_P,
- E_DIVERGED, E_UNSTABLE, E_STATE, E_UNSTABLE_INPUT) = range(-1, -20, -1)
+ E_DIVERGED, E_UNSTABLE, E_STATE, E_UNSTABLE_INPUT, E_SENSOR, E_TIME, E_TOO_LATE, E_LIVE, E_UNSTABLE_STATE,
+ E_OPTIONS) = range(-1, -26, -1)
 
 #: the calls of abyssal_kalman_binding.c (abyssal_kalman_<name>_call)
-CALLS = ("step", "predict", "update", "check_p")
+CALLS = ("step", "predict", "update", "check_p", "predict_to", "update_sensor")
+#: the call block's leading slots (abyssal_kalman_binding.c): [model, dt or t, sensor, has_R, has_q], then u, z, p, R, q
+BLOCK_MODEL, BLOCK_TIME, BLOCK_SENSOR, BLOCK_HAS_R, BLOCK_HAS_Q, BLOCK_HEAD = range(6)
 
-# items of abyssal_kalman_offset
+# items of abyssal_kalman_offset (four buffer sets of x and P, two report buffers)
+SETS = 4
 (AT_X, AT_P, AT_INNOVATION, AT_S, AT_Q, AT_R, AT_GATE, AT_CURRENT, AT_REPORTED, AT_NIS, AT_NIS_DOF, AT_REPAIRS,
- AT_SUBSTEPS, AT_STATE_BYTES) = (0, 3, 6, 8, 10, 11, 12, 13, 14, 15, 16, 17, 18, 19)
+ AT_SUBSTEPS, AT_STATE_BYTES, AT_TIME, AT_SENSORS, AT_REPORTED_ROWS, AT_REPORTED_SENSOR, AT_INFLATIONS, AT_LATE,
+ AT_HISTORY) = (0, 4, 8, 10, 12, 13, 14, 15, 16, 17, 18, 19, 20, 21, 22, 23, 24, 25, 26, 27, 28)
+#: the per-sensor block at AT_SENSORS: its fields, in order (ABYSSAL_SENSOR_*)
+SENSOR_FIELDS = ("used", "gated", "inflations", "rejected", "streak_inflations", "nis", "nis_dof", "last_t", "late")
 
 
 class Options(ctypes.Structure):
@@ -47,9 +57,11 @@ class Options(ctypes.Structure):
 
     _fields_ = [("filter", ctypes.c_int), ("alpha", ctypes.c_double), ("beta", ctypes.c_double),
                 ("kappa", ctypes.c_double), ("sigma", ctypes.c_double), ("gamma", ctypes.c_double),
-                ("gate_probability", ctypes.c_double), ("gate_patience", ctypes.c_int),
-                ("gate_inflation", ctypes.c_double), ("growth_limit", ctypes.c_double), ("max_substeps", ctypes.c_int),
-                ("repair_floor", ctypes.c_double)]
+                ("huber_iterations", ctypes.c_int), ("gate_probability", ctypes.c_double), ("gate_patience", ctypes.c_int),
+                ("gate_inflation", ctypes.c_double), ("gate_max_inflations", ctypes.c_int),
+                ("growth_limit", ctypes.c_double), ("max_substeps", ctypes.c_int), ("repair_floor", ctypes.c_double),
+                ("noise", ctypes.c_int), ("history_entries", ctypes.c_int), ("history_seconds", ctypes.c_double),
+                ("smoothing", ctypes.c_int)]
 
 
 class GateHeader(ctypes.Structure):
@@ -66,10 +78,16 @@ _SIGNATURES = {
     "abyssal_kalman_default_options": (Options, [_I]),
     "abyssal_kalman_check_options": (_I, [_P, ctypes.POINTER(Options)]),
     "abyssal_kalman_work_size": (_SZ, [_P, ctypes.POINTER(Options)]),
-    "abyssal_kalman_init": (_I, [_P, _SZ, _P, ctypes.POINTER(Options), _P, _P, _P, _P, _P]),
+    "abyssal_kalman_init": (_I, [_P, _SZ, _P, ctypes.POINTER(Options), _P, _P, _P, _P, _D, _P]),
+    "abyssal_kalman_release": (None, [_P]),
     "abyssal_kalman_reset": (_I, [_P, _P, _P]),
     "abyssal_kalman_set_Q": (_I, [_P, _P]),
     "abyssal_kalman_set_R": (_I, [_P, _P]),
+    "abyssal_kalman_set_sensor_R": (_I, [_P, _P, _I, _P]),
+    "abyssal_kalman_smooth": (_I, [_P, _P, _P, _P, _I, ctypes.POINTER(_I)]),
+    "abyssal_rts_step": (_I, [_I, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P, _P]),
+    "abyssal_kalman_model_id": (ctypes.c_ulonglong, [_P]),
+    "abyssal_kalman_sensor_index": (_I, [_P, ctypes.c_char_p]),
     "abyssal_kalman_offset": (_LL, [_P, _I]),
     "abyssal_kalman_message": (ctypes.c_char_p, [_I]),
     "abyssal_gate_size": (_SZ, [_I]),
@@ -121,7 +139,8 @@ class KalmanRuntime:
 
     def call_function(self, name: str) -> ca.Function:
         """``abyssal_kalman_<name>_call`` (abyssal_kalman_binding.c; name in CALLS) as a CasADi Function: arguments
-        (filter memory, call block [dt, u, z, p]), result (the return code); bind it with ``.buffer()``."""
+        (filter memory, call block [model, dt or t, sensor, has_R, has_q, u, z, p, R, q]), result (the return code);
+        bind it with ``.buffer()``."""
         if name not in self._calls:
             self._calls[name] = ca.external(f"abyssal_kalman_{name}_call", self.library)
         return self._calls[name]

@@ -221,14 +221,20 @@ def test_repair_covariance_clips_eigenvalues():
     np.testing.assert_allclose(np.linalg.eigvalsh(B), [4e-6, 1.0, 4.0])
 
 
-def test_a_diverging_filter_raises_and_keeps_its_state(rov):
+def test_an_absurd_state_is_refused_naming_the_state_and_kept(rov):
+    # the state itself blows the predict up: the message names x or P, never u (issue 33)
     n = rov.n_x
     flt = CKF(rov, np.full(n, 1e150), 1e290 * np.eye(n), np.eye(n), np.eye(4))
     x, P = flt.x, flt.P
-    with pytest.raises(ValueError, match="diverged"):
+    with pytest.raises(ValueError, match="state given to the filter.*x or P is outside"):
         flt.predict(TAU, 0.1)
     np.testing.assert_array_equal(flt.x, x)
     np.testing.assert_array_equal(flt.P, P)
+    flt.reset(np.zeros(n), np.eye(n))
+    flt.predict(TAU, 0.1)  # a sane state predicts again
+    flt.reset(np.full(n, 1e150), 1e290 * np.eye(n))
+    with pytest.raises(ValueError, match="state given to the filter"):
+        flt.predict(TAU, 0.1)
 
 
 @pytest.mark.parametrize("cls, option", [(MCUKF, {"sigma": 2.0}), (HuberUKF, {"gamma": 1.345})])

@@ -63,6 +63,12 @@ static int set_option(abyssal_kalman_options* o, const char* name, double value)
   else if (!strcmp(name, "growth_limit")) o->growth_limit = value;
   else if (!strcmp(name, "max_substeps")) o->max_substeps = (int)value;
   else if (!strcmp(name, "repair_floor")) o->repair_floor = value;
+  else if (!strcmp(name, "huber_iterations")) o->huber_iterations = (int)value;
+  else if (!strcmp(name, "gate_max_inflations")) o->gate_max_inflations = (int)value;
+  else if (!strcmp(name, "noise")) o->noise = (int)value;
+  else if (!strcmp(name, "history_entries")) o->history_entries = (int)value;
+  else if (!strcmp(name, "history_seconds")) o->history_seconds = value;
+  else if (!strcmp(name, "smoothing")) o->smoothing = (int)value;
   else return -1;
   return 0;
 }
@@ -98,7 +104,7 @@ int main(int argc, char** argv) {
   fclose(setup);
   if (found != 15) return fail("the setup needs the lines x0, P0, Q and R with all their values", argv[1]);
   if (abyssal_kalman_work_size(model, &options) > sizeof memory) return fail("the filter needs more memory", 0);
-  code = abyssal_kalman_init(memory, sizeof memory, model, &options, x0, P0, Q, R, &filter);
+  code = abyssal_kalman_init(memory, sizeof memory, model, &options, x0, P0, Q, R, 0.0, &filter);
   if (code != ABYSSAL_OK) return fail("abyssal_kalman_init", abyssal_kalman_message(code));
   in = fopen(argv[2], "r");
   if (!in) return fail("cannot open", argv[2]);
@@ -122,7 +128,7 @@ int main(int argc, char** argv) {
       break;
     }
     for (i = 0; i < m; ++i) any |= !isnan(row[1 + n_u + i]);
-    code = abyssal_kalman_step(filter, row + 1, row[0], any ? row + 1 + n_u : 0, 0, 0);
+    code = abyssal_kalman_step(filter, model, row + 1, row[0], any ? row + 1 + n_u : 0, 0, 0);
     abyssal_kalman_get_report(filter, &report);
     x = abyssal_kalman_x(filter);
     P = abyssal_kalman_P(filter);
