@@ -42,9 +42,8 @@ from abyssal.runtime.filters.kalman import CKF, EKF, MCUKF, UKF, HuberUKF
 
 __all__ = ["FILTERS", "export", "record_vectors"]
 
-#: --filter -> (Python class, the generated filter family it needs)
-FILTERS = {"ekf": (EKF, "ekf"), "ukf": (UKF, "ukf"), "ckf": (CKF, "ckf"), "mcukf": (MCUKF, "robust"),
-           "huber": (HuberUKF, "robust")}
+#: --filter -> its Python class (every filter runs on any model: the algebra is the C runtime's)
+FILTERS = {"ekf": EKF, "ukf": UKF, "ckf": CKF, "mcukf": MCUKF, "huber": HuberUKF}
 #: the runtime's files a vehicle needs (abyssal_kalman_binding.c is Python's binding only)
 RUNTIME_SOURCES = ("abyssal_kalman.c", "abyssal_kalman_steps.c", "abyssal_linalg.c", "abyssal_kalman_gate.c",
                    "abyssal_kalman_covariance.c")
@@ -67,14 +66,10 @@ def export(target, filter: str = "ckf", out=None, *, steps: int = 10_000, seed: 
         raise ValueError(f"steps must be an integer >= 100, got {steps!r}")
     folder = generated.model_folder(target)
     manifest, sources = generated.read_folder(folder)
-    model, (cls, family) = manifest["model"], FILTERS[filter]
-    families = manifest.get("filter_families")
+    model, cls = manifest["model"], FILTERS[filter]
     if f"{model}_descriptor.c" not in sources:
         raise ValueError(f"{folder} was generated before the C runtime of the Kalman family (no {model}_descriptor.c): "
                          "regenerate it, then export")
-    if families is not None and family not in families:
-        raise ValueError(f"--filter {filter}: model {model!r} was generated without the {family!r} filter family (its "
-                         f"families: {families}); regenerate it with that family")
     out = _prepare(Path(out).expanduser())
     command = command or f"abyssal export {shlex.quote(str(target))} --filter {filter} --out {shlex.quote(str(out))}"
     bundle = generated.load(folder)
@@ -149,7 +144,7 @@ def record_vectors(bundle, filter: str, *, steps: int = 10_000, seed: int = 0):
 
 
 def _record(bundle, filter: str, steps: int, seed: int) -> tuple[str, str, str, dict]:
-    cls, _ = FILTERS[filter]
+    cls = FILTERS[filter]
     rng = np.random.default_rng(seed)
     n, m, n_u = bundle.n_x, bundle.n_y, bundle.n_u
     xr, ur = _ranges(bundle, "states", bundle.state_names), _ranges(bundle, "inputs", bundle.input_names)

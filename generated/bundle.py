@@ -337,8 +337,6 @@ class ModelBundle:
         self.angle_states = tuple(manifest.get("angle_states", ()))
         #: "rk4" / "euler" (a discretised continuous model) or "discrete" (x_next given directly)
         self.discretisation = manifest["discretisation"]
-        #: the filter families generated for this model (None: recorded before families were a choice)
-        self.filter_families = manifest.get("filter_families")
         #: the operating envelope the manifest records: {"declared": bool, "states"/"inputs": name -> [low, high],
         #: "max_dt", "min_dt", "default_range"} (None: a manifest written before models declared envelopes)
         self.envelope = manifest.get("envelope")

@@ -40,9 +40,8 @@ def _regenerate_user(args, regenerate) -> int:
         raise ValueError("--model needs --out DIR (the folder of your project that receives <DIR>/<model name>/)")
     model, where = _user_model(args.model, regenerate)
     origin = regenerate.cli_origin(args.model, args.out, model.name, where)
-    filters = tuple(args.filters.split(",")) if args.filters else regenerate.DEFAULT_FILTERS
     if args.check:
-        problems = regenerate.check_folder(model, args.out, filters, origin=origin)
+        problems = regenerate.check_folder(model, args.out, origin=origin)
         if problems:
             print(f"{args.out}/{model.name} differs from the equations (run `{origin.command}`):", file=sys.stderr)
             for problem in problems:
@@ -50,7 +49,7 @@ def _regenerate_user(args, regenerate) -> int:
             return 1
         print(f"{args.out}/{model.name} matches the equations")
         return 0
-    folder = regenerate.generate(model, args.out, filters, origin=origin)
+    folder = regenerate.generate(model, args.out, origin=origin)
     print(f"wrote {folder} (load it with abyssal.load({str(folder)!r}); check it with `abyssal verify {folder}`)")
     return 0
 
@@ -202,7 +201,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--check", action="store_true", help="regenerate in memory; exit 1 naming files that differ")
     p.add_argument("--model", metavar="FILE.py:FUNCTION", help="your model: a file path or MODULE:FUNCTION returning a Model")
     p.add_argument("--out", metavar="DIR", help="with --model: the folder receiving DIR/<model name>/")
-    p.add_argument("--filters", metavar="F1,F2", help="with --model: filter families (default: ekf,ukf,ckf,robust)")
     p.add_argument("models", nargs="*", help="built-in models to regenerate (default: all registered)")
     p.set_defaults(run=_regenerate)
 

@@ -72,7 +72,8 @@ from abyssal.arrays import real_array
 from .numerics import SYMMETRY_TOLERANCE, angle_indices, nees, wrap_angles
 
 __all__ = [
-    "Filter", "FilterBase", "NUMERICAL_FAILURES", "Stateful", "FilterResult", "as_generator", "check_count", "check_covariance",
+    "Filter", "FilterBase", "NUMERICAL_FAILURES", "RunArguments", "Stateful", "FilterResult", "as_generator", "check_count",
+    "check_covariance", "check_run_arguments",
     "check_dt", "check_p", "check_state", "check_time", "check_u", "check_z", "real_array", "register", "registered_filters",
     "run_filter",
 ]
@@ -582,13 +583,21 @@ def _rows(value, T: int, n: int, name: str, *, allow_nan: bool = False) -> np.nd
     return A
 
 
-def run_filter(filt, U, Z, dt, params=None, truth=None) -> FilterResult:
-    """For k < T: filt.step(U[k], dt[k], Z[k], params[k]); all-or-nothing.
+@dataclass
+class RunArguments:
+    """run()'s arguments, checked: U (T, n_u), Z (T, n_y) or None, dts (T,) floats, rows_p (T entries: None or
+    (n_p,)), truth (T, n_x) or None, has_data (T,) bools (a row of Z with a finite entry)."""
 
-    Every argument is checked before the first step. If a step is refused at row k, the filter
-    is restored to its state before the call and the error (same type) names row k.
-    """
-    model = filt.model
+    U: np.ndarray
+    Z: np.ndarray | None
+    dts: list
+    rows_p: list
+    truth: np.ndarray | None
+    has_data: np.ndarray
+
+
+def check_run_arguments(model, U, Z, dt, params=None, truth=None) -> RunArguments:
+    """Every argument of run() checked before the first step (each refusal names the argument, row and column)."""
     U = real_array(U, "U")
     if U.ndim != 2 or U.shape[1] != model.n_u:
         raise ValueError(f"U must have shape (T, {model.n_u}), got {U.shape}")
@@ -612,6 +621,19 @@ def run_filter(filt, U, Z, dt, params=None, truth=None) -> FilterResult:
     if truth is not None:
         truth = _rows(truth, T, model.n_x, "truth")
     has_data = np.zeros(T, dtype=bool) if Z is None else np.isfinite(Z).any(axis=1)
+    return RunArguments(U, Z, dts, rows_p, truth, has_data)
+
+
+def run_filter(filt, U, Z, dt, params=None, truth=None) -> FilterResult:
+    """For k < T: filt.step(U[k], dt[k], Z[k], params[k]); all-or-nothing.
+
+    Every argument is checked before the first step. If a step is refused at row k, the filter
+    is restored to its state before the call and the error (same type) names row k.
+    """
+    model = filt.model
+    a = check_run_arguments(model, U, Z, dt, params, truth)
+    U, Z, dts, rows_p, truth, has_data = a.U, a.Z, a.dts, a.rows_p, a.truth, a.has_data
+    T = U.shape[0]
     n = model.n_x
     xs, Ps = np.empty((T, n)), np.empty((T, n, n))
     nis, dof = np.full(T, np.nan), np.zeros(T, dtype=int)
@@ -631,8 +653,13 @@ def run_filter(filt, U, Z, dt, params=None, truth=None) -> FilterResult:
     except (ValueError, TypeError, FloatingPointError, np.linalg.LinAlgError) as error:
         filt.restore(saved)
         raise type(error)(f"run: row {k} refused ({error}); the filter was restored to its state before run") from error
-    nees = None if truth is None else _nees(truth, xs, Ps, angle_indices(model, "states"))
-    return FilterResult(x=xs, P=Ps, nis=nis, nis_dof=dof, nees=nees, ess=ess, particles=particles, step_time=times)
+    return FilterResult(x=xs, P=Ps, nis=nis, nis_dof=dof, nees=result_nees(model, truth, xs, Ps), ess=ess,
+                        particles=particles, step_time=times)
+
+
+def result_nees(model, truth, xs: np.ndarray, Ps: np.ndarray) -> np.ndarray | None:
+    """The NEES of a run's estimates against the truth (None without one)."""
+    return None if truth is None else _nees(truth, xs, Ps, angle_indices(model, "states"))
 
 
 def _nees(truth: np.ndarray, xs: np.ndarray, Ps: np.ndarray, angle_states) -> np.ndarray:

@@ -6,23 +6,24 @@ column-major, as CasADi stores them):
     <m>_f(x, u, p, dt) -> x_next        one discrete step, noise input at zero
     <m>_F(x, u, p, dt) -> dfdx          its Jacobian in x (n_x, n_x)
     <m>_G(x, u, p, dt) -> dfdw          its Jacobian in the noise input (n_x, n_w), held over dt
-    <m>_h(x, p) -> y                    measurement
+    <m>_h(x, p) -> y                    the measurement: every sensor stacked
     <m>_H(x, p) -> dhdx                 its Jacobian (n_y, n_x)
+    <m>_<s>_h, <m>_<s>_H                each sensor's own (a model with several sensors)
     <m>_xdot(x, u, p, w) -> xdot        continuous dynamics (continuous models)
     <m>_x_next(x, u, p, w, dt) -> x_next  the given step with its noise input (discrete models)
 
-Filter families (abyssal.symbolic.filters) add their whole steps as further units: MX graphs of
-calls to SX leaves (the model's step and measurement, the points, the moments, the gain), each
-leaf emitted once per file, so a file grows with the model plus the dense algebra, not with
-(sigma points x model). The manifest's ``instructions`` of a function count the operations one
-call executes (operation_count). Each unit becomes one C file; next to CasADi's code every
-function gets a ``<name>_batch``
-entry point that evaluates it over N column-major slices (see BATCH_TEMPLATE), so N is
-chosen at run time instead of being fixed by ``Function.map``.
+That is all the generated code of a model: every filter's algebra (EKF, UKF, CKF, robust updates,
+per-particle proposals, smoothing) is written once in the C runtime (runtime/c), which reaches the
+model through the descriptor ``<m>_descriptor.c`` written here (its type: abyssal_model.h, copied
+into the folder). So the generated C grows with the model, not with the filters. The manifest's
+``instructions`` of a function count the operations one call executes (operation_count). Each
+unit becomes one C file; next to CasADi's code every function gets a ``<name>_batch`` entry point
+that evaluates it over N column-major slices (see BATCH_TEMPLATE), so N is chosen at run time
+instead of being fixed by ``Function.map``.
 
-For particle work, ``<m>_f`` and ``<m>_h`` also get a structure-of-arrays kernel
-``<name>_soa`` in ``<m>_soa.c`` (see soa_kernel): the SX algorithm written out as one loop
-over particles that the C compiler vectorises, with glibc's vector sin/cos (libmvec).
+For particle and sigma-point work, ``<m>_f`` and each sensor's h also get a structure-of-arrays
+kernel ``<name>_soa`` in ``<m>_soa.c`` (see soa_kernel): the SX algorithm written out as one loop
+over points that the C compiler vectorises, with glibc's vector sin/cos (libmvec).
 """
 from __future__ import annotations
 
@@ -482,12 +483,9 @@ def sensors_record(model: Model) -> list[dict]:
     return out
 
 
-def generate_model(model: Model, units: list[Unit], origin: Origin, families: tuple[str, ...] | None = None) -> dict[str, str]:
-    """File name -> text for one model folder: one C file per unit, the SoA kernels and manifest.json.
-
-    `families` (the filter families the units hold) is recorded in the manifest, so `abyssal verify`
-    can say which families a folder was generated without.
-    """
+def generate_model(model: Model, units: list[Unit], origin: Origin) -> dict[str, str]:
+    """File name -> text for one model folder: one C file per unit, the SoA kernels, the descriptor, its type
+    (abyssal_model.h) and manifest.json."""
     files: dict[str, str] = {}
     functions: dict[str, dict] = {}
     for unit in units:
@@ -522,7 +520,6 @@ def generate_model(model: Model, units: list[Unit], origin: Origin, families: tu
         "angle_outputs": list(model.angle_outputs),
         "angle_states": list(model.angle_states),
         "envelope": model.envelope_record(),
-        "filter_families": list(families) if families is not None else None,
         "sensors": sensors_record(model),
         "model_id": f"{model_id(model):016x}",
         "notes": list(model.notes),

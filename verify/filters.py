@@ -1,5 +1,5 @@
-"""`abyssal verify` section: the generated filter steps (through the runtime classes) against
-reference numerics they were not produced by.
+"""`abyssal verify` section: the filters (the C runtime's algebra on the model's generated f, F, h, H,
+through the runtime classes) against reference numerics they were not produced by.
 
 Checks per model (errors are max |difference| / max(1, max |reference|) over a short
 simulated run of STEPS predict+update steps):
@@ -16,17 +16,16 @@ simulated run of STEPS predict+update steps):
   the model linearised at each estimate (F, H from the bundle, already checked against central
   differences), an oracle that needs no filterpy;
 * a user's model (no NumPy twin): a linearised copy of the Model (affine at the scenario's start)
-  is generated with the same filter families and compiled (cached); on it every generated step
-  (EKF, UKF, CKF, fused steps, MCUKF and Huber at their UKF limits) == the exact Kalman filter;
+  is generated and compiled (cached; only the model's f, F, G, h, H: no filter code); on it every
+  filter (EKF, UKF, CKF, step(), MCUKF and Huber at their UKF limits) == the exact Kalman filter;
 * MCUKF with sigma = inf and HuberUKF with gamma = inf == UKF (the robust updates' limits);
-* the fused steps <m>_ckf_step, <m>_ekf_step (what step() calls) == predict then update.
+* step() (one transaction of the runtime) == predict then update.
 
 Our sigma-point updates redraw the points from the predicted mean and covariance, while
 filterpy reuses the propagated points; the oracle is configured the same way by setting
 ``sigmas_f`` from the predicted (x, P) before each filterpy update. Angle outputs use the
 same residual (wrapped to (-pi, pi]) on both sides. filterpy is a test-only dependency,
-imported here lazily; if it is missing, the checks that need it are reported as skipped. A model
-generated without some filter family gets a skipped check naming each missing family.
+imported here lazily; if it is missing, the checks that need it are reported as skipped.
 """
 from __future__ import annotations
 
@@ -38,7 +37,6 @@ import numpy as np
 
 from abyssal.runtime.filters.kalman import CKF, EKF, MCUKF, UKF, HuberUKF
 from abyssal.runtime.numerics import relative_error, wrap_to_pi as wrap
-from abyssal.symbolic.filters.families import FUNCTIONS
 
 from .report import Check
 
@@ -128,7 +126,7 @@ def run_ours(flt, sc: Scenario, mask_entries=None):
 
 
 def run_ours_fused(flt, sc: Scenario):
-    """(x, P) after every step(), which uses the generated fused predict + update when there is one."""
+    """(x, P) after every step() (predict and update in one call of the runtime)."""
     out = []
     for k in range(len(sc.U)):
         flt.step(sc.U[k], sc.dt, sc.Z[k], sc.p)
@@ -198,10 +196,6 @@ def compare(model: str, name: str, reference: str, ours, theirs, tolerance: floa
     return Check(model, name, reference, error, tolerance, detail=f"max relative error of x and P over {len(ours)} steps")
 
 
-#: family -> the generated functions it must provide (the predicts and updates; the fused steps are optional)
-FAMILY_FUNCTIONS = {family: tuple(name for role, name in roles.items() if role != "step") for family, roles in FUNCTIONS.items()}
-
-
 def _is_linear(bundle, sc: Scenario) -> bool:
     """F and H the same at two distant points: the model is linear (affine), so the Kalman filter is exact."""
     rng = np.random.default_rng(11)
@@ -216,7 +210,7 @@ def linearised_copy(model, x_star, u_star, p_star, dt: float):
 
     Continuous: xdot = xdot(x*) + A (x - x*) + B (u - u*) + E w, which RK4/Euler step affinely in x;
     discrete: x_next = f_d(x*) + A (x - x*) + B (u - u*) + E w at the step length dt. y = h(x*) + C (x - x*).
-    Every Gaussian filter is exact on it, so each generated step must equal the Kalman filter.
+    Every Gaussian filter is exact on it, so each filter's step must equal the Kalman filter.
     """
     import casadi as ca
 
@@ -239,65 +233,50 @@ def linearised_copy(model, x_star, u_star, p_star, dt: float):
 
 
 def linearised_checks(bundle, model) -> list[Check]:
-    """Every generated filter family on the linearised copy of `model` vs the exact Kalman filter."""
+    """Every filter on the linearised copy of `model` vs the exact Kalman filter."""
     import tempfile
 
     from abyssal import generated
     from abyssal.generated import regenerate
     from abyssal.symbolic.codegen import Origin
 
-    families = tuple(bundle.filter_families or ())
-    if not families:
-        return []
     sc0 = scenario(bundle)
     copy = linearised_copy(model, sc0.x0, np.zeros(bundle.n_u), sc0.p, sc0.dt)
     origin = Origin(command="abyssal verify", check="abyssal verify",
                     source=f"{model.name} linearised at the verify scenario's initial state")
     with tempfile.TemporaryDirectory(prefix="abyssal-linearised-") as out:
-        lin = generated.load(regenerate.generate(copy, out, families, origin=origin))
+        lin = generated.load(regenerate.generate(copy, out, origin=origin))
     sc = scenario(lin)
     exact = exact_kalman_run(lin, sc)
     args = (lin, sc.x0, sc.P0, sc.Q, sc.R)
     runs = {"ekf": lambda: run_ours(EKF(*args), sc), "ukf": lambda: run_ours(UKF(*args), sc),
-            "ckf": lambda: run_ours(CKF(*args), sc), "ekf fused": lambda: run_ours_fused(EKF(*args), sc),
-            "ckf fused": lambda: run_ours_fused(CKF(*args), sc),
+            "ckf": lambda: run_ours(CKF(*args), sc), "ekf step()": lambda: run_ours_fused(EKF(*args), sc),
+            "ckf step()": lambda: run_ours_fused(CKF(*args), sc),
             "mcukf (sigma = inf)": lambda: run_ours(MCUKF(*args, sigma=math.inf), sc),
             "huber ukf (gamma = inf)": lambda: run_ours(HuberUKF(*args, gamma=math.inf), sc)}
-    needs = {"ekf": "ekf", "ukf": "ukf", "ckf": "ckf", "ekf fused": "ekf", "ckf fused": "ckf",
-             "mcukf (sigma = inf)": "robust", "huber ukf (gamma = inf)": "robust"}
-    return [compare(bundle.name, f"{name} step on the linearised copy", "exact Kalman filter (NumPy)", run(), exact)
-            for name, run in runs.items() if needs[name] in families]
+    return [compare(bundle.name, f"{name} on the linearised copy", "exact Kalman filter (NumPy)", run(), exact)
+            for name, run in runs.items()]
 
 
 def checks(bundle, target=None) -> list[Check]:
-    """The filter checks of every generated family; a family the model lacks is reported as skipped."""
+    """The filter checks (every filter runs on every model: the algebra is the C runtime's)."""
     model = bundle.name
-    present = {family: all(f in bundle.functions for f in functions) for family, functions in FAMILY_FUNCTIONS.items()}
-    result = [Check.skip(model, f"{family} filter steps", "filterpy / exact Kalman filter",
-                         f"the model was generated without the {family!r} filter family "
-                         f"(its families: {bundle.filter_families})")
-              for family, there in present.items() if not there]
+    result = []
     sc = scenario(bundle)
     args = (bundle, sc.x0, sc.P0, sc.Q, sc.R)
-    ekf = run_ours(EKF(*args), sc) if present["ekf"] else None
-    ukf = run_ours(UKF(*args), sc) if present["ukf"] else None
-    ckf = run_ours(CKF(*args), sc) if present["ckf"] else None
+    ekf, ukf, ckf = run_ours(EKF(*args), sc), run_ours(UKF(*args), sc), run_ours(CKF(*args), sc)
     if importlib.util.find_spec("filterpy") is None:
         result.append(Check.skip(model, "filters vs filterpy", "filterpy",
                                  "filterpy is not installed: pip install 'abyssal[test]' (a test-only dependency)"))
     else:
-        if ckf is not None:
-            result.append(compare(model, "ckf step", "filterpy UKF, Merwe(1, 0, 0)", ckf,
-                                  filterpy_sigma_point_run(bundle, sc, 1.0, 0.0, 0.0)))
-        if ukf is not None:
-            for a, b, k in UKF_PARAMETERS:
-                result.append(compare(model, f"ukf step ({a:g}, {b:g}, {k:g})", f"filterpy UKF, Merwe({a:g}, {b:g}, {k:g})",
-                                      run_ours(UKF(*args, alpha=a, beta=b, kappa=k), sc),
-                                      filterpy_sigma_point_run(bundle, sc, a, b, k)))
-        if ekf is not None:
-            result.append(compare(model, "ekf step (Joseph)", "filterpy ExtendedKalmanFilter", ekf,
-                                  filterpy_ekf_run(bundle, sc)))
-        if ckf is not None and bundle.n_y > 1:
+        result.append(compare(model, "ckf step", "filterpy UKF, Merwe(1, 0, 0)", ckf,
+                              filterpy_sigma_point_run(bundle, sc, 1.0, 0.0, 0.0)))
+        for a, b, k in UKF_PARAMETERS:
+            result.append(compare(model, f"ukf step ({a:g}, {b:g}, {k:g})", f"filterpy UKF, Merwe({a:g}, {b:g}, {k:g})",
+                                  run_ours(UKF(*args, alpha=a, beta=b, kappa=k), sc),
+                                  filterpy_sigma_point_run(bundle, sc, a, b, k)))
+        result.append(compare(model, "ekf step (Joseph)", "filterpy ExtendedKalmanFilter", ekf, filterpy_ekf_run(bundle, sc)))
+        if bundle.n_y > 1:
             masked = [bundle.n_y - 1]
             kept = [i for i in range(bundle.n_y) if i not in masked]
             result.append(compare(model, "ckf masked update", "filterpy UKF on the kept entries",
@@ -306,24 +285,18 @@ def checks(bundle, target=None) -> list[Check]:
     exact = exact_kalman_run(bundle, sc)
     if _is_linear(bundle, sc):
         for family, ours in (("ekf", ekf), ("ukf", ukf), ("ckf", ckf)):
-            if ours is not None:
-                result.append(compare(model, f"{family} on a linear model", "exact Kalman filter", ours, exact))
+            result.append(compare(model, f"{family} on a linear model", "exact Kalman filter", ours, exact))
     else:
-        if ekf is not None:
-            result.append(compare(model, "ekf step vs Kalman filter of the linearised model", "exact Kalman filter "
-                                  "(NumPy) on F, H at each estimate", ekf, exact))
+        result.append(compare(model, "ekf step vs Kalman filter of the linearised model", "exact Kalman filter "
+                              "(NumPy) on F, H at each estimate", ekf, exact))
         if target is not None and target.reference is None:  # a user's model: filterpy-free oracle for every family
             if target.model is None:
                 result.append(Check.skip(model, "filter steps on the linearised copy", "exact Kalman filter",
                                          f"there is no Model to linearise: {target.model_missing}"))
             else:
                 result += linearised_checks(bundle, target.model)
-    if ckf is not None:
-        result.append(compare(model, "ckf fused step", "ckf predict then update", run_ours_fused(CKF(*args), sc), ckf))
-    if ekf is not None:
-        result.append(compare(model, "ekf fused step", "ekf predict then update", run_ours_fused(EKF(*args), sc), ekf))
-    if present["robust"] and ukf is not None:
-        result.append(compare(model, "mcukf, sigma = inf", "ukf step", run_ours(MCUKF(*args, sigma=math.inf), sc), ukf))
-        result.append(compare(model, "huber ukf, gamma = inf", "ukf step", run_ours(HuberUKF(*args, gamma=math.inf), sc),
-                              ukf))
+    result.append(compare(model, "ckf step()", "ckf predict then update", run_ours_fused(CKF(*args), sc), ckf))
+    result.append(compare(model, "ekf step()", "ekf predict then update", run_ours_fused(EKF(*args), sc), ekf))
+    result.append(compare(model, "mcukf, sigma = inf", "ukf step", run_ours(MCUKF(*args, sigma=math.inf), sc), ukf))
+    result.append(compare(model, "huber ukf, gamma = inf", "ukf step", run_ours(HuberUKF(*args, gamma=math.inf), sc), ukf))
     return result

@@ -40,6 +40,6 @@ const abyssal_model rov4dof_descriptor = {
   2, "rov4dof", 0x0c91ed00b698defbULL,
   12, 4, 17, 8, 4, 1, p_default,
   state_names, state_units, input_names, input_units, parameter_names, parameter_units, angle_states,
-  {rov4dof_f, 4, 1, 0, 78}, {rov4dof_F, 8, 3, 0, 424}, {rov4dof_G, 4, 1, 0, 149},
+  {rov4dof_f, 4, 1, 0, 78}, {rov4dof_F, 4, 1, 0, 170}, {rov4dof_G, 4, 1, 0, 149},
   rov4dof_f_soa, sensors
 };

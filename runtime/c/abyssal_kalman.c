@@ -886,6 +886,34 @@ int abyssal_kalman_update(abyssal_kalman* f, const abyssal_model* model, const d
   return w.updated ? ABYSSAL_UPDATED : ABYSSAL_OK;
 }
 
+int abyssal_kalman_run(abyssal_kalman* f, const abyssal_model* model, long long T, const double* U, const double* dt,
+                       int dt_step, const double* Z, const double* P_rows, int p_step, double* X, double* P_out,
+                       double* nis, int* dof, long long* row) {
+  long long k;
+  int rc = check_model(f, model);
+  if (row) *row = -1;
+  if (rc != ABYSSAL_OK) return rc;
+  for (k = 0; k < T; ++k) {
+    const double* z = Z ? Z + k * f->n_y : 0;
+    const double* p = P_rows ? P_rows + k * p_step * f->n_p : 0;
+    int i, any = 0;
+    if (z) {
+      for (i = 0; i < f->n_y; ++i) any |= !isnan(z[i]);
+      if (!any) z = 0;
+    }
+    rc = abyssal_kalman_step(f, model, U + k * f->n_u, dt[k * dt_step], z, 0, p);
+    if (rc < 0) {
+      if (row) *row = k;
+      return rc;
+    }
+    if (X) memcpy(X + k * f->n, XS(f, f->current), sizeof(double) * f->n);
+    if (P_out) memcpy(P_out + k * f->n * f->n, PS(f, f->current), sizeof(double) * f->n * f->n);
+    if (nis) nis[k] = rc == ABYSSAL_UPDATED ? f->nis : NAN;
+    if (dof) dof[k] = rc == ABYSSAL_UPDATED ? f->nis_dof : 0;
+  }
+  return ABYSSAL_OK;
+}
+
 /* ------------------------------------------------------------------ the stamped calls */
 
 int abyssal_kalman_predict_to(abyssal_kalman* f, const abyssal_model* model, double t, const double* u,

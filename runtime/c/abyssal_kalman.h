@@ -186,6 +186,16 @@ int abyssal_kalman_predict(abyssal_kalman* filter, const abyssal_model* model, c
 int abyssal_kalman_update(abyssal_kalman* filter, const abyssal_model* model, const double* z, const unsigned char* mask,
                           const double* p);
 
+/* Step over a whole sequence in one call, as T calls of abyssal_kalman_step would: row k is u = U + k n_u, dt =
+ * dt[k dt_step] (dt_step 0: one dt for every row), z = Z + k n_y (NULL, or a row of NaN only: predict only), p =
+ * P_rows + k p_step n_p (NULL: the defaults; p_step 0: one p for every row). After each row the state goes to
+ * X + k n_x and P_out + k n_x^2 (NULL: not kept), the NIS of its update to nis[k] (NaN when none) and its entries
+ * to dof[k] (NULL: not kept). A refused row stops the run: *row (may be NULL) receives its index and the code is
+ * returned; the rows before it are committed (the caller restores a copy of the object for all-or-nothing). */
+int abyssal_kalman_run(abyssal_kalman* filter, const abyssal_model* model, long long T, const double* U, const double* dt,
+                       int dt_step, const double* Z, const double* P_rows, int p_step, double* X, double* P_out,
+                       double* nis, int* dof, long long* row);
+
 /* Integrate from the filter's time to t with u held (t equal to the filter's time: only u and p are held). p NULL:
  * the model's defaults. */
 int abyssal_kalman_predict_to(abyssal_kalman* filter, const abyssal_model* model, double t, const double* u,

@@ -513,3 +513,80 @@ int abyssal_update_gaussian(const abyssal_model* model, const abyssal_algebra* a
   }
   return ok && all_finite(n, x_post) && all_finite(n * n, P_post) && all_finite(m, nu) && all_finite(m * m, Sp);
 }
+
+/* ------------------------------------------------------------------ batched steps */
+
+size_t abyssal_steps_batch_scratch_bytes(const abyssal_model* model, abyssal_filter filter) {
+  abyssal_algebra a;
+  int n = model->n_x, N = abyssal_sigma_points(filter, n);
+  memset(&a, 0, sizeof a);
+  a.filter = filter;
+  /* the steps' scratch, the weights, a predicted (x, P) for a fused step, the present flags */
+  return abyssal_steps_scratch_bytes(model, &a, model->n_y) + sizeof(double) * (size_t)(2 * N + n + n * n + 2) +
+         ROUND8((size_t)model->n_y + 1);
+}
+
+int abyssal_steps_batch(const abyssal_model* model, int filter, int op, void* scratch, long long N, const double** arg,
+                        const long long* arg_step, double** res, const long long* res_step) {
+  const int n = model->n_x, m = model->n_y, points = abyssal_sigma_points((abyssal_filter)filter, n);
+  abyssal_algebra a;
+  char* at = (char*)scratch;
+  double *wm, *wc, *x_mid, *P_mid;
+  unsigned char* present;
+  void* steps;
+  const int unscented = abyssal_is_sigma_point((abyssal_filter)filter) && filter != ABYSSAL_CKF;
+  const int robust = op == ABYSSAL_BATCH_UPDATE && (filter == ABYSSAL_MCUKF || filter == ABYSSAL_HUBER_UKF);
+  const int rule = op == ABYSSAL_BATCH_STEP ? 9 : 6, n_args = rule + unscented + robust;
+  int i;
+  long long j;
+  if (filter < ABYSSAL_EKF || filter > ABYSSAL_HUBER_UKF || op < 0 || op > 2) return -1;
+  memset(&a, 0, sizeof a);
+  a.filter = (abyssal_filter)filter;
+  a.alpha = 1.0;
+  a.beta = 2.0;
+  a.sigma = INFINITY;
+  a.gamma = INFINITY;
+  a.huber_iterations = 3;
+  steps = at;
+  at += abyssal_steps_scratch_bytes(model, &a, m);
+  wm = (double*)(void*)at;
+  wc = wm + points;
+  x_mid = wc + points;
+  P_mid = x_mid + n;
+  present = (unsigned char*)(void*)(P_mid + n * n + 2);
+  for (j = 0; j < N; ++j) {
+    const double* s[11];
+    double* r[5];
+    int ok = 1, k;
+    for (k = 0; k < n_args; ++k) s[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
+    for (k = 0; k < (op == ABYSSAL_BATCH_PREDICT ? 3 : 5); ++k) r[k] = res[k] + j * res_step[k];
+    if (unscented) { /* the rule's settings */
+      const double* abk = s[rule];
+      a.alpha = abk[0];
+      a.beta = abk[1];
+      a.kappa = abk[2];
+      if (robust) {
+        a.sigma = s[rule + 1][0];
+        a.gamma = s[rule + 1][0];
+      }
+    }
+    if (points && !abyssal_sigma_weights(&a, n, wm, wc)) ok = 0;
+    if (op == ABYSSAL_BATCH_PREDICT) {
+      ok = ok && abyssal_predict_gaussian(model, &a, wm, wc, s[0], s[1], s[2], s[3], s[4][0], s[5], r[0], r[1], 0, steps);
+      r[2][0] = ok ? 1.0 : 0.0;
+      continue;
+    }
+    if (op == ABYSSAL_BATCH_STEP) {
+      ok = ok && abyssal_predict_gaussian(model, &a, wm, wc, s[0], s[1], s[2], s[3], s[4][0], s[5], x_mid, P_mid, 0, steps);
+      for (i = 0; i < m; ++i) present[i] = s[8][i] != 0.0;
+      ok = abyssal_update_gaussian(model, &a, wm, wc, 0, model->n_sensors, x_mid, P_mid, s[6], present, s[3], s[7], r[0],
+                                   r[1], r[2], r[3], 0, 0, steps) && ok;
+    } else {
+      for (i = 0; i < m; ++i) present[i] = s[5][i] != 0.0;
+      ok = abyssal_update_gaussian(model, &a, wm, wc, 0, model->n_sensors, s[0], s[1], s[2], present, s[3], s[4], r[0],
+                                   r[1], r[2], r[3], 0, 0, steps) && ok;
+    }
+    r[4][0] = ok ? 1.0 : 0.0;
+  }
+  return 0;
+}

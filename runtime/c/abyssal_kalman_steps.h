@@ -86,6 +86,23 @@ int abyssal_update_gaussian(const abyssal_model* model, const abyssal_algebra* a
                             double* x_post, double* P_post, double* innovation, double* S, double* Pxz, double* Pzz,
                             void* scratch);
 
+/* The batched steps (particle proposals, Gaussian-sum components): N slices of every argument at arg[k] + j
+ * arg_step[k] (a step of 0 shares the argument), every result at res[k] + j res_step[k]: the calling convention of
+ * the models' generated `_batch` entry points. The measurement is every sensor stacked; mask (1 / 0 per entry)
+ * leaves entries out; the rule's settings are arguments after the model's (as the generated steps had them).
+ *
+ *   ABYSSAL_BATCH_PREDICT  (x, P, u, p, dt, Q [, abk])                      -> (x_pred, P_pred, ok)
+ *   ABYSSAL_BATCH_UPDATE   (x, P, z, p, R, mask [, abk [, sigma | gamma]])  -> (x_post, P_post, innovation, S, ok)
+ *   ABYSSAL_BATCH_STEP     (x, P, u, p, dt, Q, z, R, mask [, abk])          -> (x_post, P_post, innovation, S, ok)
+ *
+ * abk = (alpha, beta, kappa) for the unscented rules; ok is 1.0 when every guard passed and the slice is finite.
+ * huber_iterations is the default (3). scratch: abyssal_steps_batch_scratch_bytes(). Returns 0 (-1: an unknown op
+ * or filter). */
+enum { ABYSSAL_BATCH_PREDICT = 0, ABYSSAL_BATCH_UPDATE = 1, ABYSSAL_BATCH_STEP = 2 };
+size_t abyssal_steps_batch_scratch_bytes(const abyssal_model* model, abyssal_filter filter);
+int abyssal_steps_batch(const abyssal_model* model, int filter, int op, void* scratch, long long N, const double** arg,
+                        const long long* arg_step, double** res, const long long* res_step);
+
 /* The stacked rows of a selection (the sum of its sensors' outputs); -1 when it is not within the model's sensors. */
 int abyssal_selection_rows(const abyssal_model* model, int first, int count);
 

@@ -265,19 +265,3 @@ def test_get_report_accepts_null(rov):
     fn.restype, fn.argtypes = None, [ctypes.c_void_p, ctypes.c_void_p]
     fn(ptr(flt._memory), None)  # no crash: nothing is written
     fn(None, None)
-
-
-@pytest.mark.parametrize("cls, generated_predict, rule", [(CKF, "ckf_predict", {}), (UKF, "ukf_predict", {"alpha": 0.5})])
-def test_the_runtimes_sigma_point_predict_equals_the_generated_one(rov, cls, generated_predict, rule):
-    """The runtime propagates the generated points through the SIMD kernel and forms their moments itself; the
-    generated whole predict (f per point, SX moments) is an independent computation of the same step."""
-    rng = np.random.default_rng(8)
-    A = rng.normal(size=(12, 12))
-    x, P = 0.3 * rng.normal(size=12), 0.01 * A @ A.T + 0.1 * np.eye(12)
-    u, Q = np.array([20.0, 5.0, 10.0, 0.5]), 1e-3 * np.eye(12)
-    flt = cls(rov, x, P, Q, np.eye(4), **rule)
-    flt.predict(u, 0.1)
-    extra = [np.array([rule["alpha"], 2.0, 0.0])] if rule else []
-    x_pred, P_pred = rov.functions[generated_predict](x, P, u, rov.params(), 0.1, Q, *extra)[:2]
-    assert np.abs(flt.x - x_pred).max() <= 1e-13 * np.abs(x_pred).max()
-    assert np.abs(flt.P - P_pred).max() <= 1e-13 * np.abs(P_pred).max()

@@ -58,14 +58,15 @@ from __future__ import annotations
 
 import ctypes
 import math
+import time
 import warnings
 
 import numpy as np
 
 from abyssal.runtime.compiled import kalman as kr
 
-from ...contract import (FilterBase, FilterResult, _nonfinite_message, _vector, check_covariance, check_dt, check_state,
-                         check_time, register)
+from ...contract import (FilterBase, FilterResult, _nonfinite_message, _vector, check_covariance, check_dt,
+                         check_run_arguments, check_state, check_time, register, result_nees)
 from ...numerics import REPAIR_FLOOR, repair_covariance
 
 __all__ = [
@@ -461,6 +462,52 @@ class KalmanFilter(FilterBase):
         if code != kr.OK:
             raise ValueError(f"{type(self).__name__}.smooth: {self._runtime.message(code)}")
         return t[: count.value], x[: count.value], np.ascontiguousarray(np.transpose(P[: count.value], (0, 2, 1)))
+
+    # -------------------------------------------------------------- a whole sequence in one call
+    def run(self, U, Z, dt, params=None, truth=None) -> FilterResult:
+        """Filter a whole sequence in one call of the C runtime (abyssal_kalman_run): the same steps, results and
+        reports as T calls of step(); all-or-nothing (a refused row k restores the filter and the error names
+        row k). step_time is the run's time per row (the C loop is not timed row by row)."""
+        model = self.model
+        a = check_run_arguments(model, U, Z, dt, params, truth)
+        T, n = a.U.shape[0], model.n_x
+        U = np.ascontiguousarray(a.U)
+        Z = None if a.Z is None else np.ascontiguousarray(np.where(a.has_data[:, None], a.Z, np.nan))
+        dts = np.ascontiguousarray(a.dts, dtype=np.float64)
+        given = [p for p in a.rows_p if p is not None]
+        P_rows = None if not given else np.ascontiguousarray([model.p_default if p is None else p for p in a.rows_p])
+        if dts.size and dts.max() > 0:
+            self._warn_beyond_max_dt(float(dts.max()))
+        xs, Ps = np.empty((T, n)), np.empty((T, n, n))
+        nis, dof, row = np.full(T, np.nan), np.zeros(T, dtype=np.int32), ctypes.c_longlong(-1)
+        if not self._lock.acquire(False):
+            raise self._busy()
+        try:
+            saved = self._committed.copy()
+            start = time.perf_counter()
+            code = self._runtime.kalman_run(self._memory.ctypes.data, self._runtime.descriptor, T, U.ctypes.data,
+                                            dts.ctypes.data, 1, None if Z is None else Z.ctypes.data,
+                                            None if P_rows is None else P_rows.ctypes.data, 1, xs.ctypes.data,
+                                            Ps.ctypes.data, nis.ctypes.data, dof.ctypes.data, ctypes.byref(row))
+            elapsed = time.perf_counter() - start
+            if code < 0:
+                k = int(row.value)
+                self._committed[...] = saved
+                self._u[:], self._io_view[kr.BLOCK_TIME] = U[k], dts[k]
+                if Z is not None:
+                    self._z[:] = Z[k]
+                p_saved = (self._p.copy(), self._p_is_default)
+                self._p[:] = model.p_default if P_rows is None else P_rows[k]
+                error = self._refusal(code, p_saved, "step")
+                raise type(error)(f"run: row {k} refused ({error}); the filter was restored to its state before run") \
+                    from error
+        finally:
+            self._lock.release()
+        if T:  # the parameter buffer as T calls of step() leave it
+            FilterBase._set_p(self, a.rows_p[-1])
+        return FilterResult(x=xs, P=Ps, nis=nis, nis_dof=dof.astype(int), nees=result_nees(model, a.truth, xs, Ps),
+                            ess=np.full(T, np.nan), particles=np.full(T, np.nan),
+                            step_time=np.full(T, elapsed / max(T, 1)))
 
     # -------------------------------------------------------------- the contract's calls (FilterBase holds the lock)
     def _step_call(self, u, dt, z, p) -> bool:
