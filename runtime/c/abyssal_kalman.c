@@ -490,6 +490,15 @@ static int inflate_along(abyssal_kalman* f, double* P, const unsigned char* g, i
   return 1;
 }
 
+/* P *= factor; 0 (P unchanged) when that is not finite. */
+static int inflate_whole(abyssal_kalman* f, double* P, double factor) {
+  int k, n2 = f->n * f->n;
+  for (k = 0; k < n2; ++k)
+    if (!isfinite(P[k] * factor)) return 0;
+  for (k = 0; k < n2; ++k) P[k] *= factor;
+  return 1;
+}
+
 /* Update the working state with a selection's measurement (z and R in the selection's layout, already checked;
  * present flags in f->present). The report goes to buffer rb unless replaying. */
 static int update_event(abyssal_kalman* f, const abyssal_model* model, work_t* w, int sensor, const double* p) {
@@ -589,22 +598,36 @@ static int update_event(abyssal_kalman* f, const abyssal_model* model, work_t* w
   } else {
     w->set = prior;
   }
-  /* per sensor: used / gated counts, and the bounded inflation along the entries gated beyond patience */
+  /* per sensor: used / gated counts, and the bounded inflation after gate_patience gates of an entry. Which P
+   * it inflates depends on who is wrong: when other entries (of any sensor) were accepted while this sensor's
+   * streak ran, the filter follows them and this sensor is stuck or lost: P is inflated along its gated entries'
+   * directions only (the others keep the state); when nothing was accepted during the streak, the filter itself is
+   * probably wrong (a jump it cannot follow): the whole P is inflated. */
   {
     unsigned char* inflate = BYTES(f, f->full_present); /* reused: the selection rows to inflate along */
-    int any = 0, o = 0;
-    for (i = 0; i < rows; ++i) inflate[i] = 0;
+    double accepted_before = 0.0, accepted_now;
+    int any = 0, whole = 0, o = 0, accepted_entries = 0;
+    for (k = 0; k < f->n_sensors; ++k) accepted_before += sensors[(size_t)k * ABYSSAL_SENSOR_FIELDS + ABYSSAL_SENSOR_ACCEPTED];
+    for (i = 0; i < rows; ++i) {
+      inflate[i] = 0;
+      accepted_entries += present[i] && !gated[i] && verdict == ABYSSAL_GATE_ACCEPT;
+    }
+    accepted_now = accepted_before + accepted_entries;
     for (k = first_sensor; k < first_sensor + count; ++k) {
       const abyssal_sensor* sk = &model->sensors[k];
       double* rec = sensors + (size_t)k * ABYSSAL_SENSOR_FIELDS;
-      int used = 0, n_gated = 0, beyond = 0, present_k = 0;
+      int used = 0, n_gated = 0, beyond = 0, present_k = 0, longest = 0;
       for (s = 0; s < sk->n_y; ++s) {
         int r = o + s;
+        long long streak = abyssal_gate_streak(gate, sk->offset + s);
         present_k += present0[r];
         used += present[r] && !gated[r] && verdict == ABYSSAL_GATE_ACCEPT;
         n_gated += gated[r];
-        if (gated[r] && abyssal_gate_streak(gate, sk->offset + s) >= f->options.gate_patience) beyond = 1;
+        if (gated[r] && streak > longest) longest = (int)streak;
+        if (gated[r] && streak >= f->options.gate_patience) beyond = 1;
       }
+      rec[ABYSSAL_SENSOR_ACCEPTED] += used;
+      if (longest == 1) rec[ABYSSAL_SENSOR_ACCEPTED_AT_STREAK] = accepted_before; /* its streak begins */
       if (used) {
         rec[ABYSSAL_SENSOR_USED] += 1;
         if (verdict == ABYSSAL_GATE_ACCEPT) {
@@ -624,6 +647,7 @@ static int update_event(abyssal_kalman* f, const abyssal_model* model, work_t* w
           rec[ABYSSAL_SENSOR_STREAK_INFLATIONS] += 1;
           rec[ABYSSAL_SENSOR_INFLATIONS] += 1;
           any = 1;
+          whole |= !(accepted_now > rec[ABYSSAL_SENSOR_ACCEPTED_AT_STREAK]);
         } else {
           rec[ABYSSAL_SENSOR_REJECTED] = 1;
         }
@@ -639,7 +663,8 @@ static int update_event(abyssal_kalman* f, const abyssal_model* model, work_t* w
         memcpy(PS(f, free_set), PS(f, target), sizeof(double) * n * n);
         target = free_set;
       }
-      if (inflate_along(f, PS(f, target), inflate, rows, Pxz0, Pzz0, f->options.gate_inflation)) {
+      if (whole ? inflate_whole(f, PS(f, target), f->options.gate_inflation)
+                : inflate_along(f, PS(f, target), inflate, rows, Pxz0, Pzz0, f->options.gate_inflation)) {
         w->set = target;
         w->inflations += 1;
       } else {

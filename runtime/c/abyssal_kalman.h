@@ -22,10 +22,12 @@
  *     calls (abyssal_kalman_step/predict/update: every sensor stacked, time advanced by dt) remain;
  *   - missing data: NaN entries of z, or entries a mask leaves out, are left out entry by entry;
  *   - the innovation gate, per entry, with patience and a bounded inflation: an entry gated gate_patience times in
- *     a row inflates P along the directions its sensor measures (the gain's subspace: P += (f - 1) Pxz Pzz^-1
- *     Pxz^T on the gated entries), at most gate_max_inflations times per streak; beyond that its sensor is held
- *     as rejected (stuck or lost: its measurements gated and counted, P left alone) until one passes, while the
- *     other sensors carry the filter;
+ *     a row inflates P, at most gate_max_inflations times per streak; beyond that its sensor is held as rejected
+ *     (stuck or lost: its measurements gated and counted, P left alone) until one passes. While other entries are
+ *     accepted during the streak the filter follows them and the sensor is taken to be stuck: P is inflated only
+ *     along the directions it measures (P += (f - 1) Pxz Pzz^-1 Pxz^T on the gated entries), so a stuck depth
+ *     gauge leaves x, y and heading to the other sensors; when nothing was accepted during the streak the filter
+ *     itself is taken to be wrong (a jump it cannot follow) and the whole P is inflated;
  *   - covariance repair: a step whose Cholesky guard trips on a covariance that is not numerically positive
  *     definite is retried once on the repaired covariance (eigenvalues clipped, counted in `repairs`); an update
  *     whose posterior P is not positive definite (a tiny R) is repaired the same way;
@@ -265,8 +267,8 @@ long long abyssal_kalman_offset(const abyssal_kalman* filter, int item);
  * and LATE follow the calls (the stream's last stamp, and how many of its measurements came late). */
 enum {
   ABYSSAL_SENSOR_USED = 0, ABYSSAL_SENSOR_GATED, ABYSSAL_SENSOR_INFLATIONS, ABYSSAL_SENSOR_REJECTED,
-  ABYSSAL_SENSOR_STREAK_INFLATIONS, ABYSSAL_SENSOR_NIS, ABYSSAL_SENSOR_NIS_DOF, ABYSSAL_SENSOR_LAST_T,
-  ABYSSAL_SENSOR_LATE, ABYSSAL_SENSOR_FIELDS
+  ABYSSAL_SENSOR_STREAK_INFLATIONS, ABYSSAL_SENSOR_NIS, ABYSSAL_SENSOR_NIS_DOF, ABYSSAL_SENSOR_ACCEPTED,
+  ABYSSAL_SENSOR_ACCEPTED_AT_STREAK, ABYSSAL_SENSOR_LAST_T, ABYSSAL_SENSOR_LATE, ABYSSAL_SENSOR_FIELDS
 };
 
 #ifdef __cplusplus

@@ -52,7 +52,8 @@ SETS = 4
  AT_SUBSTEPS, AT_STATE_BYTES, AT_TIME, AT_SENSORS, AT_REPORTED_ROWS, AT_REPORTED_SENSOR, AT_INFLATIONS, AT_LATE,
  AT_HISTORY) = (0, 4, 8, 10, 12, 13, 14, 15, 16, 17, 18, 19, 20, 21, 22, 23, 24, 25, 26, 27, 28)
 #: the per-sensor block at AT_SENSORS: its fields, in order (ABYSSAL_SENSOR_*)
-SENSOR_FIELDS = ("used", "gated", "inflations", "rejected", "streak_inflations", "nis", "nis_dof", "last_t", "late")
+SENSOR_FIELDS = ("used", "gated", "inflations", "rejected", "streak_inflations", "nis", "nis_dof", "accepted",
+                 "accepted_at_streak", "last_t", "late")
 
 
 class Options(ctypes.Structure):

@@ -262,3 +262,34 @@ def test_a_stuck_sensor_is_dropped_and_the_others_carry_the_filter(vehicle):
     assert np.all(np.isfinite(stuck.P))
     assert np.sqrt(np.mean(np.square(err_stuck))) <= 3 * np.sqrt(np.mean(np.square(err_good)))
     assert stuck.sensor_report("gnss")["gated"] == 0 and stuck.sensor_report("gnss")["used"] == fixes
+
+
+@pytest.mark.parametrize("cls, stuck", [(EKF, 1e6), (EKF, 1e300), (CKF, 1e6), (CKF, 1e100), (UKF, 1e100)])
+def test_a_stuck_depth_gauge_leaves_x_y_and_heading_to_the_other_entries(cls, stuck):
+    """The audit's case (issue 35): rov4dof, the depth entry reading +1e6 m (or 1e100, 1e300) from step 27 on while
+    x, y and heading are fine. It used to inflate the whole P until every predict was refused (EKF 673 of 700
+    steps; at 1e300 P = inf was committed). Now no step is refused, P stays finite, the inflations stop at their cap
+    and x, y, heading stay within 3x the error of an untouched twin."""
+    import abyssal.generated
+
+    rov = abyssal.generated.load("rov4dof")
+    rng = np.random.default_rng(5)
+    dt, T = 0.1, 700
+    Q, R = np.diag([1e-4] * 8 + [1e-2] * 4), np.diag([0.05, 0.05, 0.02, 0.01])
+    U = np.tile([20.0, 5.0, 10.0, 0.5], (T, 1)) + rng.normal(size=(T, 4))
+    X = [np.zeros(12)]
+    for u in U:
+        X.append(rov.f(X[-1], u, None, dt) + rng.multivariate_normal(np.zeros(12), Q))
+    X = np.array(X[1:])
+    Z = np.array([rov.h(x) for x in X]) + rng.multivariate_normal(np.zeros(4), R, size=T)
+    bad_z = Z.copy()
+    bad_z[27:, 2] = stuck
+    twin, bad = cls(rov, np.zeros(12), 0.3 * np.eye(12), Q, R), cls(rov, np.zeros(12), 0.3 * np.eye(12), Q, R)
+    result, reference = bad.run(U, bad_z, dt), twin.run(U, Z, dt)  # a refused step would raise
+
+    def errors(r):
+        return np.column_stack([r.x[:, :2] - X[:, :2], np.angle(np.exp(1j * (r.x[:, 3] - X[:, 3])))])
+    ratio = np.sqrt(np.mean(errors(result) ** 2, axis=0)) / np.sqrt(np.mean(errors(reference) ** 2, axis=0))
+    assert np.all(ratio <= 3.0), ratio
+    assert np.all(np.isfinite(result.P)) and bad.gated >= T - 27 - 5
+    assert bad.inflations == bad.options["gate_max_inflations"] and bad.sensor_report("measurement")["rejected"]

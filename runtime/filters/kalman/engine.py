@@ -344,12 +344,13 @@ class KalmanFilter(FilterBase):
         return int(self._history[0])
 
     def sensor_report(self, sensor: str) -> dict:
-        """What one sensor did so far: used (its updates that used an entry), gated (its entries left out), late
-        (its measurements fused from the history), inflations, rejected (held as stuck or lost), nis and nis_dof of
-        its last accepted update, last_t (its last stamp)."""
+        """What one sensor did so far: used (its updates that used an entry), accepted (its entries used), gated (its
+        entries left out), late (its measurements fused from the history), inflations, rejected (held as stuck or
+        lost), nis and nis_dof of its last accepted update, last_t (its last stamp)."""
         row = self._sensor_block[self._sensor(sensor)]
         out = dict(zip(kr.SENSOR_FIELDS, row.tolist()))
-        for name in ("used", "gated", "inflations", "late", "nis_dof", "streak_inflations"):
+        del out["accepted_at_streak"]  # (the runtime's bookkeeping of the inflation rule)
+        for name in ("used", "gated", "inflations", "late", "nis_dof", "streak_inflations", "accepted"):
             out[name] = int(out[name])
         out["rejected"] = bool(out["rejected"])
         if out["last_t"] == -math.inf:
