@@ -167,6 +167,8 @@ class KalmanFilter(FilterBase):
         self._gate = None
         self._sensor_index = {name: k for k, name in enumerate(model.sensor_names)}
         self._warned_max_dt = False
+        envelope = model.envelope  # the declared max_dt (its envelope), inf when none is declared
+        self._max_dt = float(envelope["max_dt"]) if envelope and envelope.get("declared") else math.inf
 
     def _view(self, runtime, n: int, m: int, q_rows: int, n_sensors: int) -> None:
         """NumPy views of the filter object's parts (abyssal_kalman_offset)."""
@@ -478,7 +480,7 @@ class KalmanFilter(FilterBase):
         given = [p for p in a.rows_p if p is not None]
         P_rows = None if not given else np.ascontiguousarray([model.p_default if p is None else p for p in a.rows_p])
         if dts.size and dts.max() > 0:
-            self._warn_beyond_max_dt(float(dts.max()))
+            self._warn_beyond_max_dt(float(dts.max()), stacklevel=3)
         xs, Ps = np.empty((T, n)), np.empty((T, n, n))
         nis, dof, row = np.full(T, np.nan), np.zeros(T, dtype=np.int32), ctypes.c_longlong(-1)
         if not self._lock.acquire(False):
@@ -511,6 +513,16 @@ class KalmanFilter(FilterBase):
                             step_time=np.full(T, elapsed / max(T, 1)))
 
     # -------------------------------------------------------------- the contract's calls (FilterBase holds the lock)
+    def step(self, u, dt, z=None, p=None) -> bool:
+        """predict(u, dt, p) then update(z, p) as one transaction; returns whether an update happened. (The
+        contract's step, with its layers folded into one call: the C step is itself the transaction.)"""
+        if not self._lock.acquire(False):
+            raise self._busy()
+        try:
+            return self._step_call(u, dt, z, p)
+        finally:
+            self._lock.release()
+
     def _step_call(self, u, dt, z, p) -> bool:
         try:  # exact float64 vectors of the right length only (see __init__), else the checked path
             self._u_view[:] = u
@@ -520,8 +532,11 @@ class KalmanFilter(FilterBase):
             self._u[:] = _vector(u, self.model.n_u, "u")
             if z is not None:
                 self._z[:] = _vector(z, self.model.n_y, "z")
-        self._io_view[kr.BLOCK_TIME] = dt if type(dt) in _PLAIN_NUMBERS else check_dt(dt)
-        self._warn_beyond_max_dt(self._io_view[kr.BLOCK_TIME])
+        if type(dt) not in _PLAIN_NUMBERS:
+            dt = check_dt(dt)
+        self._io_view[kr.BLOCK_TIME] = dt
+        if dt > self._max_dt:
+            self._warn_beyond_max_dt(dt)
         saved = None if p is None and self._p_is_default else self._use_p(p)
         if z is None:
             self._call_predict()
@@ -537,8 +552,11 @@ class KalmanFilter(FilterBase):
             self._u_view[:] = u
         except (TypeError, ValueError):
             self._u[:] = _vector(u, self.model.n_u, "u")
-        self._io_view[kr.BLOCK_TIME] = dt if type(dt) in _PLAIN_NUMBERS else check_dt(dt)
-        self._warn_beyond_max_dt(self._io_view[kr.BLOCK_TIME])
+        if type(dt) not in _PLAIN_NUMBERS:
+            dt = check_dt(dt)
+        self._io_view[kr.BLOCK_TIME] = dt
+        if dt > self._max_dt:
+            self._warn_beyond_max_dt(dt)
         saved = None if p is None and self._p_is_default else self._use_p(p)
         self._call_predict()
         if self._code_view[0] < 0.0:
@@ -562,17 +580,15 @@ class KalmanFilter(FilterBase):
             self._p[:], self._p_is_default = saved
         return code == 1.0
 
-    def _warn_beyond_max_dt(self, dt: float) -> None:
+    def _warn_beyond_max_dt(self, dt: float, stacklevel: int = 4) -> None:
         """Once per filter: a step longer than the model's declared max_dt (its envelope) is outside what the model
         was verified for (the runtime still subdivides a step that blows up)."""
-        if self._warned_max_dt:
+        if self._warned_max_dt or not dt > self._max_dt:
             return
-        envelope = self.model.envelope
-        if envelope and envelope.get("declared") and dt > envelope["max_dt"]:
-            self._warned_max_dt = True
-            warnings.warn(f"{type(self).__name__}: dt = {dt!r} s is beyond model {self.model.name!r}'s declared max_dt = "
-                          f"{envelope['max_dt']!r} s (its envelope); the filter runs it, outside what the model was "
-                          "verified for", RuntimeWarning, stacklevel=4)
+        self._warned_max_dt = True
+        warnings.warn(f"{type(self).__name__}: dt = {dt!r} s is beyond model {self.model.name!r}'s declared max_dt = "
+                      f"{self._max_dt!r} s (its envelope); the filter runs it, outside what the model was verified "
+                      "for", RuntimeWarning, stacklevel=stacklevel)
 
     def _use_p(self, p):
         """p into the call block (None: the model's defaults); returns what to put back if the call is refused.
