@@ -104,7 +104,7 @@ abyssal_kalman_options abyssal_kalman_default_options(abyssal_filter filter) {
   o.gate_probability = 1e-10;
   o.gate_patience = 5;
   o.gate_inflation = 4.0;
-  o.gate_max_inflations = 20;
+  o.gate_max_inflations = 10;
   o.growth_limit = 1e3;
   o.max_substeps = 64;
   o.repair_floor = 1e-10;

@@ -31,9 +31,12 @@ Contract
   |eigenvalue| (default 1e-10); P0 = 0 becomes ``repair_floor`` x max(max |Q|, 1) x I, the Dirac's nearest
   Gaussian. Counted in ``repairs``; a failed retry is refused ("the filter diverged").
 * Innovation gate (on by default; gate.py describes the rule): options ``gate_probability`` (default 1e-10;
-  0 turns it off), ``gate_patience`` (5) and ``gate_inflation`` (4); an update with every entry gated returns
-  False (the predict stands). Counted in ``gated`` and ``inflations``. (rov4dof, CKF, a permanent 25 m jump
-  of the x fix: re-acquired within 5 + 5 updates; tests/runtime/test_kalman.py.)
+  0 turns it off), ``gate_patience`` (5), ``gate_inflation`` (4) and ``gate_max_inflations`` (10 per streak, so P
+  grows at most 4^10 along a sensor: a real jump of up to ~1000 gate widths is re-acquired, a sensor stuck
+  further out is held as rejected); an update with every entry gated returns False (the predict stands). Counted
+  in ``gated`` and ``inflations``. (rov4dof, CKF, a permanent 25 m jump of the x fix: re-acquired within 5 + 5
+  updates; tests/runtime/test_kalman.py. A depth gauge stuck at +1e6 m from the first step: rejected after 10
+  inflations, the filter carried on by the others; tests/runtime/test_unit_slip.py.)
 * dt beyond the model's stable range: every predict is checked for a covariance that grows more than
   ``growth_limit`` (default 1e3) times (max diag P + max diag Q) in one step, or an integration that stops
   being finite (sigma points at high speed make explicit RK4 unstable: rov4dof at dt = 1 s). Such a step is
@@ -68,6 +71,7 @@ from abyssal.runtime.compiled import kalman as kr
 from ...contract import (FilterBase, FilterResult, _nonfinite_message, _vector, check_covariance, check_dt,
                          check_run_arguments, check_state, check_time, register, result_nees)
 from ...numerics import REPAIR_FLOOR, repair_covariance
+from .units import UnitWatch
 
 __all__ = [
     "CKF", "EKF", "FilterResult", "HuberUKF", "KalmanFilter", "MCUKF", "UKF", "process_noise", "repair_covariance",
@@ -97,7 +101,7 @@ class KalmanFilter(FilterBase):
     def __init__(self, model, x0, P0, Q, R=None, *, t0: float = 0.0, noise: str = "step", history_seconds: float = 0.0,
                  history_entries: int | None = None, smoothing: bool = False, repair_floor: float = REPAIR_FLOOR,
                  gate_probability: float = 1e-10, gate_patience: int = 5, gate_inflation: float = 4.0,
-                 gate_max_inflations: int = 20, growth_limit: float = 1e3, max_substeps: int = 64, **rule):
+                 gate_max_inflations: int = 10, growth_limit: float = 1e3, max_substeps: int = 64, **rule):
         if not (hasattr(model, "functions") and hasattr(model, "library")):
             raise TypeError(f"{type(self).__name__} needs a model bundle from abyssal.generated.load(); got {model!r}")
         runtime = kr.KalmanRuntime.of(model)
@@ -169,6 +173,7 @@ class KalmanFilter(FilterBase):
         self._warned_max_dt = False
         envelope = model.envelope  # the declared max_dt (its envelope), inf when none is declared
         self._max_dt = float(envelope["max_dt"]) if envelope and envelope.get("declared") else math.inf
+        self._unit_watch = UnitWatch(model, type(self).__name__)  # the first updates, for values in another unit
 
     def _view(self, runtime, n: int, m: int, q_rows: int, n_sensors: int) -> None:
         """NumPy views of the filter object's parts (abyssal_kalman_offset)."""
@@ -437,6 +442,11 @@ class KalmanFilter(FilterBase):
             else:
                 self._q_call[:n_q] = check_state(p, n_q, "p")
                 self._io_view[kr.BLOCK_HAS_Q] = 1.0
+            if self._unit_watch is not None:
+                offset = spec["offset"]
+                R_k = self._R[offset:offset + rows, offset:offset + rows] if R is None else self._R_call[:rows * rows]
+                self._watch_units(offset, z, np.reshape(R_k, (rows, rows)),
+                                  None if p is None else (spec["p_offset"], self._q_call[:n_q]))
             self._call_update_sensor()
             code = self._code_view[0]
             if code < 0.0:
@@ -538,6 +548,8 @@ class KalmanFilter(FilterBase):
         if dt > self._max_dt:
             self._warn_beyond_max_dt(dt)
         saved = None if p is None and self._p_is_default else self._use_p(p)
+        if z is not None and self._unit_watch is not None:
+            self._watch_units(0, self._z, self._R, None)
         if z is None:
             self._call_predict()
         else:
@@ -569,6 +581,8 @@ class KalmanFilter(FilterBase):
             except (TypeError, ValueError):
                 self._z[:] = _vector(z, self.model.n_y, "z")
         saved = None if p is None and self._p_is_default else self._use_p(p)
+        if z is not None and self._unit_watch is not None:
+            self._watch_units(0, self._z, self._R, None)
         if z is None:
             self._call_check_p()
         else:
@@ -579,6 +593,19 @@ class KalmanFilter(FilterBase):
         if z is None and saved is not None:  # nothing to update: p is left as it was
             self._p[:], self._p_is_default = saved
         return code == 1.0
+
+    def _watch_units(self, first_row: int, z, R, sensor_p) -> None:
+        """Hand the unit watch (units.py) values of rows first_row.. with the prediction h(x) from the filter's
+        estimate (sensor_p: (its offset in p, the sensor's own parameters of this call) or None)."""
+        p = self._p.copy()
+        if sensor_p is not None:
+            p[sensor_p[0]:sensor_p[0] + len(sensor_p[1])] = sensor_p[1]
+        rows = len(z)
+        with np.errstate(all="ignore"):
+            y = self.model.h(self.x, p)[first_row:first_row + rows]
+        self._unit_watch.observe(first_row, np.asarray(z, dtype=float), y, R)
+        if self._unit_watch.done:
+            self._unit_watch = None
 
     def _warn_beyond_max_dt(self, dt: float, stacklevel: int = 4) -> None:
         """Once per filter: a step longer than the model's declared max_dt (its envelope) is outside what the model
