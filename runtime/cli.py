@@ -146,7 +146,8 @@ def _export(args) -> int:
     import importlib
 
     export = importlib.import_module("abyssal.export")  # the module (the package exports a function `export`)
-    folder = export.export(args.target, filter=args.filter, out=args.out, steps=args.steps, seed=args.seed)
+    folder = export.export(args.target, filter=args.filter, out=args.out, steps=args.steps, seed=args.seed,
+                           history_seconds=args.history, force=args.force)
     print(f"wrote {folder}: cmake -S {folder} -B {folder}/build && cmake --build {folder}/build && "
           f"(cd {folder}/build && ctest)")
     return 0
@@ -229,7 +230,11 @@ def build_parser() -> argparse.ArgumentParser:
                                    "and test vectors recorded from the Python filter (ctest runs them).")
     p.add_argument("target", metavar="NAME|DIR", help="a built-in model name or a model folder written by abyssal.generate")
     p.add_argument("--filter", required=True, choices=["ekf", "ukf", "ckf", "mcukf", "huber"])
-    p.add_argument("--out", required=True, metavar="DIR", help="a new or empty folder (or an earlier export)")
+    p.add_argument("--out", required=True, metavar="DIR", help="a new or empty folder")
+    p.add_argument("--force", action="store_true", help="replace an earlier export in --out")
+    p.add_argument("--history", type=float, default=None, metavar="SECONDS",
+                   help="the filter's history for late measurements (default: twice the longest latency a sensor "
+                        "declares, at least 2 s)")
     p.add_argument("--steps", type=int, default=10_000, help="steps of the recorded test vectors (default: %(default)s)")
     p.add_argument("--seed", type=int, default=0, help="seed of the recorded run (default: %(default)s)")
     p.set_defaults(run=_export)
