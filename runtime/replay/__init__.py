@@ -19,7 +19,7 @@ One concern per module:
     bag_log.py      a rosbag2 / MCAP bag (rosbags), messages.py the common ROS message types in abyssal's frames
     run.py          the Kalman replay (and smoothing), particle.py the particle filter's
     report.py       per-sensor counts and NIS against its chi-square bounds; output.py the tables and the Odometry
-                    bag; figures.py the figures
+                    bag; figures.py the figures; progress.py the progress bar of long logs
 """
 from __future__ import annotations
 
@@ -43,7 +43,7 @@ def _model(model):
     return load(model)
 
 
-def read_log(path, sensor_map: SensorMap, progress=None) -> Log:
+def read_log(path, sensor_map: SensorMap, progress: bool = True) -> Log:
     """The mapped streams of the log at path: a rosbag2 folder or .mcap/.db3 file (a bag), else a folder of CSV
     tables."""
     from .bag_log import is_bag, read_bag_log
@@ -74,7 +74,7 @@ def replay(log, model, filter: str = "ekf", sensors=None, out=None, smooth: bool
         from .particle import check_particle_replay, run_particle
 
         check_particle_replay(sensor_map, smooth)
-    data = read_log(log, sensor_map)
+    data = read_log(log, sensor_map, progress)
     if filter == "pf":
         result = run_particle(bundle, data, sensor_map, progress=progress)
     else:

@@ -17,6 +17,7 @@ from ..extras import require
 from ..frames import geodetic_to_ned
 from . import messages
 from .log import Log, LogError, check_covariances, checked_samples
+from .progress import progress_bar
 from .sensor_map import SensorMap, Stream
 
 
@@ -46,8 +47,8 @@ class _Collected:
         self.latlon: list[tuple[float, float, float]] = []   # a NavSatFix's latitude, longitude, altitude per sample
 
 
-def read_bag_log(path: Path, sensor_map: SensorMap, progress=None) -> Log:
-    """The mapped streams of a bag (module docstring). progress: a callable(count) told of messages read, or None."""
+def read_bag_log(path: Path, sensor_map: SensorMap, progress: bool = True) -> Log:
+    """The mapped streams of a bag (module docstring), with a progress bar over a long one."""
     highlevel = require("rosbags.highlevel", "reading bags", extra="replay")
     path = Path(path)
     by_topic: dict[str, list[_Collected]] = {}
@@ -71,6 +72,7 @@ def read_bag_log(path: Path, sensor_map: SensorMap, progress=None) -> Log:
                                f"{ {t: m for t, m in sorted(topics.items())} }")
         connections = [c for c in reader.connections if c.topic in by_topic]
         counts = {topic: 0 for topic in by_topic}
+        bar = progress_bar(sum(c.msgcount for c in connections), progress, f"read {path.name}", unit="message")
         try:
             for connection, record_ns, raw in reader.messages(connections=connections):
                 topic = connection.topic
@@ -82,13 +84,16 @@ def read_bag_log(path: Path, sensor_map: SensorMap, progress=None) -> Log:
                 except Exception as exc:  # noqa: BLE001 -- a damaged message
                     raise LogError(f"{where}: cannot be decoded ({type(exc).__name__}: {exc})") from None
                 _collect(by_topic[topic], connection.msgtype, msg, int(record_ns), index, settings, where)
-                if progress is not None:
-                    progress(1)
+                if bar is not None:
+                    bar.update(1)
         except LogError:
             raise
         except Exception as exc:  # noqa: BLE001 -- a damaged chunk or index inside the file
             raise LogError(f"{path}: the bag is damaged: reading its messages failed ({type(exc).__name__}: {exc})") \
                 from None
+        finally:
+            if bar is not None:
+                bar.close()
     finally:
         reader.close()
     return _finish(path, by_topic, sensor_map)

@@ -46,7 +46,7 @@ def _ellipse(ax, centre, C, color, **style) -> None:
 
 
 def _fix_group(status: str) -> str:
-    return "used" if status in ("used", "partly gated") else ("gated" if status == "gated" else "other")
+    return "used" if status in ("used", "partly gated", "tick partly gated") else ("gated" if status == "gated" else "other")
 
 
 def track_figure(replay: Replay, path: Path) -> Path | None:

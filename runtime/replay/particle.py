@@ -20,7 +20,8 @@ import numpy as np
 from ..filters.particle import ParticleFilter
 from ..noise import GaussianMixture
 from .log import Log
-from .run import Measurement, Replay, Track, next_input, progress_bar, stacked_R, start_time
+from .progress import progress_bar
+from .run import Measurement, Replay, Track, next_input, stacked_R, start_time
 from .sensor_map import MapError, SensorMap
 
 
@@ -66,7 +67,7 @@ def run_particle(model, log: Log, sensor_map: SensorMap, progress: bool = True) 
     u_held = None if model.n_u else np.zeros(0)
     rows_t, rows_event, rows_x, rows_P = [0.0], ["start"], [pf.x], [pf.P]
     started = time.perf_counter()
-    at = 0
+    at = unattributed = 0
     bar = progress_bar(ticks, progress, "replay PF")
     try:
         while at < len(samples) and samples[at][0] <= 0.0:  # inputs at or before t0 set the held input
@@ -110,19 +111,19 @@ def run_particle(model, log: Log, sensor_map: SensorMap, progress: bool = True) 
                 before = pf.gated
                 used = pf.update(z, p)
                 gated = pf.gated - before
+                status = "used" if used and not gated else ("gated" if not used else "partly gated")
+                if gated and len(chosen) > 1:  # the gate counts the stacked measurement's entries, not per sensor
+                    status = "tick partly gated" if used else "gated"
+                    unattributed += gated
                 for role, (t, k) in chosen.items():
                     s = log.samples[role]
                     rows = slice(offsets[role], offsets[role] + s.values.shape[1])
                     record = Measurement(role, t, log.samples[role].arrival[k] - t0, int(s.rows[k]), s.values[k].copy(),
-                                         "used" if used and not gated else ("gated" if not used else "partly gated"))
+                                         status)
                     record.innovation = z[rows] - h[rows]
                     counts[role]["used"] += bool(used)
+                    counts[role]["gated"] += gated if len(chosen) == 1 else 0
                     measurements.append(record)
-                if gated:
-                    share = {role: 0 for role in chosen}
-                    share[next(iter(chosen))] = gated  # the tick's gated entries (not told apart per sensor)
-                    for role, count in share.items():
-                        counts[role]["gated"] += count
             for t, role, k in in_tick:  # an input takes effect at the next tick
                 if role == "input":
                     u_held = next_input(log, k, u_held)[0]
@@ -140,6 +141,9 @@ def run_particle(model, log: Log, sensor_map: SensorMap, progress: bool = True) 
              f"dt = {dt:g} s: each tick fuses the stacked measurement of the sensors stamped in it, NaN for the "
              "sensors without a sample there; a measurement is used at the end of its tick (up to dt after its "
              "stamp); one R per sensor; the innovations are z - h(x) at the predicted mean; NIS is not defined"]
+    if unattributed:
+        notes.append(f"{unattributed} measurement entries were gated in ticks with several sensors: the gate counts the "
+                     "stacked measurement's entries, so they are not counted per sensor (status \"tick partly gated\")")
     track = Track(np.array(rows_t), rows_event, np.array(rows_x).reshape(-1, n), np.array(rows_P).reshape(-1, n, n))
     return Replay(model, "PF", log, sensor_map, t0, track, None, measurements, counts, notes,
                   time.perf_counter() - started, pf)

@@ -32,11 +32,10 @@ from scipy.linalg import block_diag
 from ..compiled import kalman as kr
 from ..filters.kalman import CKF, EKF, UKF
 from .log import Log, LogError
+from .progress import progress_bar
 from .sensor_map import MapError, SensorMap
 
 KALMAN = {"ekf": EKF, "ukf": UKF, "ckf": CKF}
-#: below this many events no progress bar is drawn
-PROGRESS_EVENTS = 2000
 
 
 @dataclass
@@ -118,16 +117,6 @@ def merged_events(log: Log, sensor_map: SensorMap) -> list[tuple[float, float, i
                           [role] * len(samples.t), range(len(samples.t))))
     events.sort()
     return events
-
-
-def progress_bar(total: int, enabled: bool, description: str):
-    """A tqdm bar over total events (None when disabled or short)."""
-    if not enabled or total < PROGRESS_EVENTS:
-        return None
-    from ..extras import require
-
-    return require("tqdm", "the replay's progress bar", extra="replay").tqdm(total=total, desc=description,
-                                                                             unit="event", leave=False)
 
 
 def next_input(log: Log, k: int, u_held) -> tuple[np.ndarray, int]:
