@@ -158,6 +158,7 @@ def innovations_figure(replay: Replay, sensor: str, path: Path) -> Path:
     else:
         ax.text(0.5, 0.5, "no NIS (not defined for a particle filter)" if replay.filter_name == "PF" else
                 "no used update", transform=ax.transAxes, ha="center", va="center", fontsize=9)
+        ax.set_yticks([])
     ax.set_ylabel("NIS", fontsize=8)
     ax.grid(alpha=0.3, which="both")
     ax.set_xlabel("t (s since t0)")

@@ -75,7 +75,8 @@ def run_particle(model, log: Log, sensor_map: SensorMap, progress: bool = True) 
             if role == "input":
                 u_held = next_input(log, k, u_held)[0]
             else:
-                measurements.append(_skipped(log, role, k, t, t0, "before t0", counts[role]))
+                reason = "before t0" if t < 0.0 else "at t0 (before the first tick)"
+                measurements.append(_skipped(log, role, k, t, t0, reason, counts[role]))
             at += 1
         for tick in range(ticks):
             end = (tick + 1) * dt
