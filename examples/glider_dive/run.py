@@ -16,10 +16,11 @@ the file where dbdreader installed it and copies nothing of it into the reposito
 3. Generates glider.py's model (OUT/gen/slocum_glider) and replays the log with --smooth (OUT/replay: track,
    report, figures): `abyssal replay OUT/log --model OUT/gen/slocum_glider --filter ekf --sensors OUT/log/map.toml
    --out OUT/replay --smooth` does the same from the command line.
-4. Prints the position at surfacing: the filter's prediction at the first fix after the dive (before it is used)
-   against that fix, beside the glider's own dead-reckoning error at the same fix (its m_dr_x_ini_err and
-   m_dr_y_ini_err, and its m_lat/m_lon converted about the same origin), and the depth-averaged current the smoother
-   finds against the one the glider computed (m_water_vx, m_water_vy).
+4. Prints the position at surfacing against the first fix after the dive (before the filter uses it): the filter's
+   state when the glider surfaced (as the glider's own dead reckoning is taken) and its prediction at the fix (after
+   ~95 s floating at the surface, which the model does not describe), beside the glider's own dead-reckoning error at
+   that fix (its m_dr_x_ini_err and m_dr_y_ini_err, and its m_lat/m_lon converted about the same origin), and the
+   depth-averaged current the smoother finds against the one the glider computed (m_water_vx, m_water_vy).
 """
 from __future__ import annotations
 
@@ -158,15 +159,20 @@ def glider_dead_reckoning_error(data: dict, times: dict, origin) -> dict:
 
 
 def surfacing(result, times: dict) -> dict:
-    """The filter at the first fix after the dive, before using it: its prediction against the fix."""
+    """The filter against the first fix after the dive, before using it: its state when the glider surfaced (the last
+    row at or before the dive's end, as the glider's own dead reckoning is taken) and its prediction at the fix."""
     t_fix = times["fix_after"] - result.log.epoch - result.t0
+    t_end = times["end"] - result.log.epoch - result.t0
     fix = next(m for m in result.measurements if m.sensor == "gps" and abs(m.t - t_fix) < 1e-6)
     track = result.track
-    k = int(np.flatnonzero((np.abs(track.t - t_fix) < 1e-6) & (np.array(track.event) == "predict"))[0])
-    error = track.x[k, :2] - fix.z
-    sigma = np.sqrt(np.diag(track.P[k])[:2])
-    return {"t": t_fix, "predicted_minus_fix_ne": error.tolist(), "error_m": float(np.hypot(*error)),
-            "sigma_ne": sigma.tolist(), "fix_status": fix.status}
+    rows = {"at_surface": int(np.flatnonzero(track.t <= t_end)[-1]),
+            "at_fix": int(np.flatnonzero((np.abs(track.t - t_fix) < 1e-6) & (np.array(track.event) == "predict"))[0])}
+    out = {"fix_status": fix.status, "t_fix": t_fix, "t_surface": float(track.t[rows["at_surface"]])}
+    for name, k in rows.items():
+        error = track.x[k, :2] - fix.z
+        out[name] = {"predicted_minus_fix_ne": error.tolist(), "error_m": float(np.hypot(*error)),
+                     "sigma_ne": np.sqrt(np.diag(track.P[k])[:2]).tolist()}
+    return out
 
 
 def smoothed_current(result, times: dict) -> dict:
@@ -205,9 +211,15 @@ def main(argv=None) -> dict:
     dive = times["end"] - times["start"]
     print(f"dive {DIVE_FILE}: {dive:.0f} s below {DIVE_DEPTH:g} m; from the fix at {times['fix_before']:.1f} s to the "
           f"fix at {times['fix_after']:.1f} s (Unix time), {result.filter_name}, angle of attack {args.aoa:g} deg")
-    print(f"  filter at surfacing: {at['error_m']:.1f} m from the GPS fix (north {at['predicted_minus_fix_ne'][0]:+.1f}, "
-          f"east {at['predicted_minus_fix_ne'][1]:+.1f} m); its own 1 sigma north {at['sigma_ne'][0]:.0f} m, east "
-          f"{at['sigma_ne'][1]:.0f} m")
+    for name, when in (("at_surface", f"when it surfaced ({at['t_fix'] - at['t_surface']:.0f} s before the fix)"),
+                       ("at_fix", "predicted to the fix")):
+        a = at[name]
+        print(f"  filter {when}: {a['error_m']:.1f} m from the GPS fix (north {a['predicted_minus_fix_ne'][0]:+.1f}, "
+              f"east {a['predicted_minus_fix_ne'][1]:+.1f} m); its own 1 sigma north {a['sigma_ne'][0]:.0f} m, east "
+              f"{a['sigma_ne'][1]:.0f} m")
+    depth = result.counts["depth"]
+    print(f"  depth: {depth['used']} used, {depth['gated']} gated, P inflated {depth['inflations']} times after its "
+          "gated streak")
     print(f"  glider's dead reckoning: {own['own_error_m']:.1f} m (its m_dr_x/y_ini_err); its last DR position "
           f"(m_lat/m_lon at {own['dr_time']:.1f} s) {own['dr_error_m']:.1f} m from the fix")
     print(f"  depth-averaged current: smoothed north {current['current_ne'][0]:+.3f} +- {current['sigma_ne'][0]:.3f}, "

@@ -61,7 +61,7 @@ def run_particle(model, log: Log, sensor_map: SensorMap, progress: bool = True) 
     samples = sorted((s.t[k] - t0, role, k) for role, s in log.samples.items() for k in range(len(s.t)))
     last = max((t for t, _, _ in samples), default=0.0)
     ticks = max(int(math.ceil(last / dt - 1e-9)), 0)
-    counts = {name: {"received": len(log.samples[name].t), "used": 0, "gated": 0, "late": 0, "too late": 0,
+    counts = {name: {"received": len(log.samples[name].t), "used": 0, "gated": 0, "inflations": 0, "late": 0, "too late": 0,
                      "skipped": dict(log.samples[name].skipped)} for name in sensor_map.sensors}
     measurements = []
     u_held = None if model.n_u else np.zeros(0)

@@ -83,16 +83,16 @@ def markdown(data: dict) -> str:
     if "input" in data:
         lines.append(f"Input: {data['input']['source']}, {data['input']['samples']} samples (held between stamps).")
     lines += ["", "## Sensors", "",
-              "| sensor | source | received | used | gated entries | late (fused at stamp) | too late | skipped | R | "
-              "NIS mean | 95 % bounds of the mean | outside own 95 % | verdict |",
-              "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+              "| sensor | source | received | used | gated entries | P inflated | late (fused at stamp) | too late | skipped | "
+              "R | NIS mean | 95 % bounds of the mean | outside own 95 % | verdict |",
+              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for name, s in data["sensors"].items():
         skipped = ", ".join(f"{count} {reason}" for reason, count in s["skipped"].items()) or "0"
         nis = s["nis"]
         bounds = "-" if not np.isfinite(nis["bounds"][0]) else f"[{nis['bounds'][0]:.3g}, {nis['bounds'][1]:.3g}]"
         outside = "-" if not np.isfinite(nis["outside"]) else f"{100 * nis['outside']:.1f} %"
-        lines.append(f"| {name} | {s['source']} | {s['received']} | {s['used']} | {s['gated']} | {s['late']} | "
-                     f"{s['too late']} | {skipped} | {s['covariance']} | {_number(nis['mean'])} | {bounds} | {outside} | "
+        lines.append(f"| {name} | {s['source']} | {s['received']} | {s['used']} | {s['gated']} | {s['inflations']} | "
+                     f"{s['late']} | {s['too late']} | {skipped} | {s['covariance']} | {_number(nis['mean'])} | {bounds} | {outside} | "
                      f"{nis['verdict']} |")
     lines += ["", "## Final state", "", "| state | filtered | 1 sigma |" + (" smoothed at t0 | 1 sigma |"
                                                                           if data["smoothed"] else ""),

@@ -167,8 +167,8 @@ def run_kalman(model, log: Log, sensor_map: SensorMap, kind: str, smooth: bool =
         rows_x.append(flt.x)
         rows_P.append(flt.P)
 
-    counts = {name: {"received": len(log.samples[name].t), "used": 0, "gated": 0, "late": 0, "too late": 0,
-                     "skipped": {}} for name in sensor_map.sensors}
+    counts = {name: {"received": len(log.samples[name].t), "used": 0, "gated": 0, "inflations": 0, "late": 0,
+                     "too late": 0, "skipped": {}} for name in sensor_map.sensors}
     for name, samples in log.samples.items():
         if name != "input":
             for reason, count in samples.skipped.items():
@@ -199,6 +199,8 @@ def run_kalman(model, log: Log, sensor_map: SensorMap, kind: str, smooth: bool =
     finally:
         if bar is not None:
             bar.close()
+    for name in counts:  # P inflated after this sensor's streaks of gated entries (the runtime's gate)
+        counts[name]["inflations"] = flt.sensor_report(name)["inflations"]
     smoothed = None
     if smooth:
         t_s, x_s, P_s = flt.smooth()
