@@ -1,4 +1,4 @@
-"""The `abyssal` command: regenerate, verify, export, reproduce, bench, cache."""
+"""The `abyssal` command: regenerate, verify, export, reproduce, replay, bench, cache."""
 from __future__ import annotations
 
 import argparse
@@ -159,6 +159,20 @@ def _reproduce(args) -> int:
     return reproduce.main(args)
 
 
+def _replay(args) -> int:
+    """`abyssal replay LOG --model NAME|DIR --filter F --sensors MAP.toml --out DIR [--smooth]` (runtime/replay)."""
+    from abyssal.runtime.replay import replay
+
+    result = replay(args.log, args.model, filter=args.filter, sensors=args.sensors, out=args.out, smooth=args.smooth,
+                    progress=not args.no_progress)
+    counts = ", ".join(f"{name} {c['used']}/{c['received']} used" for name, c in result.counts.items())
+    smoothed = " and smoothed.csv" if result.smoothed is not None else ""
+    print(f"replayed {args.log} through {result.filter_name} ({len(result.track.t)} events; {counts}): wrote "
+          f"{args.out}/track.csv{smoothed}, measurements.csv, report.md, figures/"
+          + (", odometry/ (nav_msgs/Odometry, ENU)" if result.log.kind == "bag" else ""))
+    return 0
+
+
 def _size_text(n: int) -> str:
     for unit, scale in (("GiB", 1 << 30), ("MiB", 1 << 20), ("KiB", 1 << 10)):
         if n >= scale:
@@ -238,6 +252,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--steps", type=int, default=10_000, help="steps of the recorded test vectors (default: %(default)s)")
     p.add_argument("--seed", type=int, default=0, help="seed of the recorded run (default: %(default)s)")
     p.set_defaults(run=_export)
+
+    p = sub.add_parser("replay", help="a recorded log (CSV tables, rosbag2/MCAP) through a filter: track, report, figures",
+                       description="Reads LOG (a folder of CSV tables or a rosbag2/MCAP bag) as MAP.toml maps its "
+                                   "streams to the model's input and sensors, runs the filter over it in the order the "
+                                   "measurements arrived, and writes track.csv, measurements.csv, report.md/json, "
+                                   "figures/ (and for a bag an Odometry bag in ENU) into DIR, all or nothing.")
+    p.add_argument("log", metavar="LOG", help="a folder of CSV tables, a rosbag2 folder or an .mcap file")
+    p.add_argument("--model", required=True, metavar="NAME|DIR", help="a built-in model or a generated model folder")
+    p.add_argument("--filter", required=True, choices=["ekf", "ukf", "ckf", "pf"])
+    p.add_argument("--sensors", required=True, metavar="MAP.toml", help="the sensor map (streams, filter settings)")
+    p.add_argument("--out", required=True, metavar="DIR", help="a new or empty folder (or an earlier replay's)")
+    p.add_argument("--smooth", action="store_true", help="also write the Rauch-Tung-Striebel smoothed track")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(run=_replay)
 
     from .experiments.reproduce import EXPERIMENTS, quick_help  # the registry (light: the experiments load when run)
 
