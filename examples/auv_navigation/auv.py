@@ -14,7 +14,8 @@ the centre of buoyancy, NED position, ZYX Euler angles), nu_1 = [u v w], omega =
 
 The DVL is aligned with the body axes; a bottom-lock loss is a gap in its measurements (the filter is simply not
 given any). The USBL's transceiver is on a ship; its fix is the vehicle's NED position with a noise that grows with
-the slant range (simulate.py). Frames: NED and body FRD as Fossen's.
+the slant range (simulate.py). Frames: NED and body FRD as Fossen's. ``truth_step`` is generated with the model for
+the simulator only (the same RK4 with the force noise w held over the step); no filter calls it.
 
     abyssal regenerate --model auv.py:auv_navigation --out gen       # or run.py, which generates it
 """
@@ -40,8 +41,8 @@ DEPTH_SIGMA = (0.05,)                                  # m
 AHRS_SIGMA = tuple(math.radians(d) for d in (0.2, 0.2, 0.5))  # rad
 USBL_SIGMA = (1.0, 1.0, 1.0)                           # m (a fix brings its own, see simulate.usbl_sigma)
 GNSS_SIGMA = (1.5, 1.5)                                # m
-#: the mission's depths and extent (the remus100 envelope covers the paper's helix to 10 m)
-ENVELOPE = Envelope(states={**ENVELOPE_STATES, "x": (-80.0, 80.0), "y": (-80.0, 80.0), "z": (-1.0, 16.0)},
+#: the mission's extent (the 60 m helix, 10 m deep, from the surface): remus100's envelope with x, y, z widened
+ENVELOPE = Envelope(states={**ENVELOPE_STATES, "x": (-70.0, 70.0), "y": (-70.0, 70.0), "z": (-1.0, 12.0)},
                     inputs={name: ENVELOPE_INPUTS[name] for name in ("n_rpm", "tau_M", "tau_N")})
 
 
