@@ -97,7 +97,9 @@ def usbl_sigma(position, ship) -> float:
 
 
 def mission_setup(mission: Mission) -> HelixSetup:
-    """The remus helix set-up for this mission: its duration, starting at the surface on the helix's start."""
+    """The remus helix set-up for this mission: its duration, starting at the surface on the helix's start, and a
+    depth lookahead Delta_z of 10 m instead of the helix's 50 m (seed 1 with 50 m: 0.82 m deep when the path reaches
+    the surface at 540 s, 0.32 m at 570 s, 97 GNSS fixes instead of 128)."""
     x0 = (0.5, 0, 0, 0, 0, 0, 60, 3, 0, 0, 0, 3 * math.pi / 4)
     return HelixSetup(duration=mission.duration, x0=x0, delta_z=10.0)
 
