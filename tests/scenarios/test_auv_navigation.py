@@ -52,6 +52,8 @@ def quick(project):
 def example(project):
     """The example's modules imported from the copied project (removed from sys.modules afterwards)."""
     sys.path.insert(0, str(project))
+    for name in MODULES:  # another example's module of the same name (examples/replay_log/auv.py) may be cached
+        sys.modules.pop(name, None)
     try:
         import importlib
 
