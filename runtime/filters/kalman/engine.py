@@ -79,6 +79,7 @@ __all__ = [
 
 #: dt types the hot path hands to the C runtime as they are (anything else, a bool included, is checked first)
 _PLAIN_NUMBERS = frozenset({float, int, np.float64})
+_BLOCK_TIME = kr.BLOCK_TIME
 #: the history's events when a filter keeps one (history_seconds > 0 or smoothing) and history_entries is not given
 DEFAULT_HISTORY_ENTRIES = 256
 
@@ -169,6 +170,7 @@ class KalmanFilter(FilterBase):
         self._u_view, self._z_view = memoryview(self._u), memoryview(self._z)
         self._io_view, self._code_view = memoryview(self._io), memoryview(self._code)
         self._gate = None
+        self._acquire, self._release = self._lock.acquire, self._lock.release  # (bound once: the hot path's lock)
         self._sensor_index = {name: k for k, name in enumerate(model.sensor_names)}
         # each sensor's outputs, own parameters, and a view of its outputs' place in the call block
         self._sensor_views = [(len(s["outputs"]), len(s["parameters"]), memoryview(self._z[:len(s["outputs"])]))
@@ -532,39 +534,36 @@ class KalmanFilter(FilterBase):
     # -------------------------------------------------------------- the contract's calls (FilterBase holds the lock)
     def step(self, u, dt, z=None, p=None) -> bool:
         """predict(u, dt, p) then update(z, p) as one transaction; returns whether an update happened. (The
-        contract's step, with its layers folded into one call: the C step is itself the transaction.)"""
-        if not self._lock.acquire(False):
+        contract's step in one frame: the C step is itself the transaction, and this is the hot path.)"""
+        if not self._acquire(False):
             raise self._busy()
         try:
-            return self._step_call(u, dt, z, p)
+            try:  # exact float64 vectors of the right length only (see __init__), else the checked path
+                self._u_view[:] = u
+                if z is not None:
+                    self._z_view[:] = z
+            except (TypeError, ValueError):
+                self._u[:] = _vector(u, self.model.n_u, "u")
+                if z is not None:
+                    self._z[:] = _vector(z, self.model.n_y, "z")
+            if type(dt) not in _PLAIN_NUMBERS:
+                dt = check_dt(dt)
+            self._io_view[_BLOCK_TIME] = dt
+            if dt > self._max_dt:
+                self._warn_beyond_max_dt(dt)
+            saved = None if p is None and self._p_is_default else self._use_p(p)
+            if z is None:
+                self._call_predict()
+            else:
+                if self._unit_watch is not None:
+                    self._watch_units(None, self._z, self._R, None)
+                self._call_step()
+            code = self._code_view[0]
+            if code >= 0.0:
+                return code == 1.0
+            raise self._refusal(code, saved, "step")
         finally:
-            self._lock.release()
-
-    def _step_call(self, u, dt, z, p) -> bool:
-        try:  # exact float64 vectors of the right length only (see __init__), else the checked path
-            self._u_view[:] = u
-            if z is not None:
-                self._z_view[:] = z
-        except (TypeError, ValueError):
-            self._u[:] = _vector(u, self.model.n_u, "u")
-            if z is not None:
-                self._z[:] = _vector(z, self.model.n_y, "z")
-        if type(dt) not in _PLAIN_NUMBERS:
-            dt = check_dt(dt)
-        self._io_view[kr.BLOCK_TIME] = dt
-        if dt > self._max_dt:
-            self._warn_beyond_max_dt(dt)
-        saved = None if p is None and self._p_is_default else self._use_p(p)
-        if z is not None and self._unit_watch is not None:
-            self._watch_units(None, self._z, self._R, None)
-        if z is None:
-            self._call_predict()
-        else:
-            self._call_step()
-        code = self._code_view[0]
-        if code >= 0.0:
-            return code == 1.0
-        raise self._refusal(code, saved, "step")
+            self._release()
 
     def _predict_call(self, u, dt, p) -> None:
         try:
