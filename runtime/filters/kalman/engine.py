@@ -450,16 +450,18 @@ class KalmanFilter(FilterBase):
             else:
                 self._q_call[:n_q] = check_state(p, n_q, "p")
                 self._io_view[kr.BLOCK_HAS_Q] = 1.0
+            predicted = None
             if self._unit_watch is not None:
                 spec = self.model.sensors[k]
-                offset = spec["offset"]
-                R_k = self._R[offset:offset + rows, offset:offset + rows] if R is None else self._R_call[:rows * rows]
-                self._watch_units(k, self._z[:rows], np.reshape(R_k, (rows, rows)),
-                                  None if p is None else (spec["p_offset"], self._q_call[:n_q]))
+                predicted = self._unit_prediction(k, None if p is None else (spec["p_offset"], self._q_call[:n_q]))
             self._call_update_sensor()
             code = self._code_view[0]
             if code < 0.0:
                 raise self._sensor_refusal(int(code), sensor, t, z)
+            if predicted is not None:  # (the watch sees accepted calls only)
+                offset = self.model.sensors[k]["offset"]
+                R_k = self._R[offset:offset + rows, offset:offset + rows] if R is None else self._R_call[:rows * rows]
+                self._observe_units(k, self._z[:rows], np.reshape(R_k, (rows, rows)), predicted)
             return code == 1.0
         finally:
             self._lock.release()
@@ -555,9 +557,10 @@ class KalmanFilter(FilterBase):
             if z is None:
                 self._call_predict()
             else:
-                if self._unit_watch is not None:
-                    self._watch_units(None, self._z, self._R, None)
+                predicted = None if self._unit_watch is None else self._unit_prediction(None, None)
                 self._call_step()
+                if predicted is not None and self._code_view[0] >= 0.0:  # (the watch sees accepted calls only)
+                    self._observe_units(None, self._z, self._R, predicted)
             code = self._code_view[0]
             if code >= 0.0:
                 return code == 1.0
@@ -587,30 +590,40 @@ class KalmanFilter(FilterBase):
             except (TypeError, ValueError):
                 self._z[:] = _vector(z, self.model.n_y, "z")
         saved = None if p is None and self._p_is_default else self._use_p(p)
-        if z is not None and self._unit_watch is not None:
-            self._watch_units(None, self._z, self._R, None)
+        predicted = None if z is None or self._unit_watch is None else self._unit_prediction(None, None)
         if z is None:
             self._call_check_p()
         else:
             self._call_update()
         code = self._code_view[0]
+        if predicted is not None and code >= 0.0:  # (the watch sees accepted calls only)
+            self._observe_units(None, self._z, self._R, predicted)
         if code < 0.0:
             raise self._refusal(code, saved, "update")
         if z is None and saved is not None:  # nothing to update: p is left as it was
             self._p[:], self._p_is_default = saved
         return code == 1.0
 
-    def _watch_units(self, sensor, z, R, sensor_p) -> None:
-        """Hand the unit watch (units.py) sensor k's values z (None: every sensor, z stacked) with the prediction h(x)
-        from the filter's estimate (sensor_p: (its offset in p, the sensor's own parameters of this call) or None)."""
+    def _unit_prediction(self, sensor, sensor_p) -> np.ndarray | None:
+        """The prediction h(x) from the filter's estimate that the unit watch (units.py) compares sensor k's values
+        with (sensor None: every sensor; sensor_p: (its offset in p, the sensor's own parameters of this call) or
+        None); None when the watch is done with it, or when h is not finite at the estimate (nothing to compare)."""
         watch = self._unit_watch
         if not (any(watch.watching) if sensor is None else watch.watching[sensor]):
-            return
+            return None
         p = self._p.copy()
         if sensor_p is not None:
             p[sensor_p[0]:sensor_p[0] + len(sensor_p[1])] = sensor_p[1]
-        with np.errstate(all="ignore"):
-            y = self.model.h(self.x, p)
+        try:
+            with np.errstate(all="ignore"):
+                return self.model.h(self.x, p)
+        except FloatingPointError:
+            return None
+
+    def _observe_units(self, sensor, z, R, y) -> None:
+        """Hand the unit watch an accepted update's values z of sensor k (None: every sensor, z stacked), their noise R
+        and the prediction y from _unit_prediction."""
+        watch = self._unit_watch
         z = np.asarray(z, dtype=float)
         for k in range(len(watch.sensors)) if sensor is None else (sensor,):
             first, end = watch.sensors[k]
