@@ -673,9 +673,9 @@ class KalmanFilter(FilterBase):
             return ValueError(f"{name}: z has infinite entries at {bad.tolist()[:8]} (values {z[bad[:8]].tolist()}); use "
                               "NaN for a missing entry")
         if code == kr.E_DT:
-            return ValueError(f"{name}: dt must be a positive finite number of seconds, got {dt!r}")
+            return ValueError(f"{name}: dt must be a positive finite number of seconds, got {float(dt)!r}")
         if code == kr.E_TIME:
-            return ValueError(f"{name}: t = {dt!r} s is before the filter's time {self.t!r} s (a predict cannot go back)")
+            return ValueError(f"{name}: t = {float(dt)!r} s is before the filter's time {self.t!r} s (a predict cannot go back)")
         if code == kr.E_UNSTABLE:
             k, limit = self.options["max_substeps"], self.options["growth_limit"]
             return ValueError(
@@ -705,6 +705,7 @@ class KalmanFilter(FilterBase):
     def _sensor_refusal(self, code: int, sensor: str, t: float, z: np.ndarray) -> Exception:
         name = f"{type(self).__name__}.update({sensor!r})"
         report = self.sensor_report(sensor)
+        t = float(t)  # (a NumPy scalar is named as a number)
         if code == kr.E_TIME:
             if not math.isfinite(t):
                 return ValueError(f"{name}: t must be a finite time stamp in seconds, got {t!r}")
