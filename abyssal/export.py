@@ -476,6 +476,8 @@ def _model_header(manifest: dict, filter: str, bytes_: int, command: str, option
               " *",
               f" *     static double memory[{M}_{filter.upper()}_BYTES / sizeof(double)];",
               f" *     abyssal_kalman_options options = abyssal_kalman_default_options({kind});",
+              f" *     options.history_seconds = {M}_HISTORY_SECONDS;   (late measurements: both, or none is kept)",
+              f" *     options.history_entries = {M}_HISTORY_ENTRIES;   ({M}_{filter.upper()}_BYTES counts this history)",
               " *     abyssal_kalman* filter;",
               f" *     int code = abyssal_kalman_init(memory, sizeof memory, &{m}_descriptor, &options, x0, P0, Q, R, "
               "t0, &filter);",
@@ -492,7 +494,9 @@ def _model_header(manifest: dict, filter: str, bytes_: int, command: str, option
               f"#define {M}_N_Y {len(manifest['outputs'])}", f"#define {M}_N_P {len(manifest['parameters'])}",
               "/* bytes of the exported filter object on a 64-bit target (an upper bound on 32-bit ones) */",
               f"#define {M}_{filter.upper()}_BYTES {bytes_}", f"#define {M}_FILTER {kind}",
+              "/* the history for late measurements that the byte count above includes (abyssal_kalman_options) */",
               f"#define {M}_HISTORY_SECONDS {options['history_seconds']!r}",
+              f"#define {M}_HISTORY_ENTRIES {options['history_entries']}",
               f"#define {M}_N_SENSORS {len(manifest['sensors'])}",
               "/* each sensor's index (abyssal_kalman_update_sensor), its outputs, and its first entry in z and p */",
               *[line for k, sensor in enumerate(manifest["sensors"]) for line in (

@@ -72,6 +72,11 @@ LIBS = ["-lm"]
 # These flags do not change any IEEE operation.
 SOA_FLAGS = ["-fopenmp-simd", "-DABYSSAL_OPENMP_SIMD", "-fno-builtin-sin", "-fno-builtin-cos", "-fno-builtin-tan",
              "-fno-math-errno", "-fno-trapping-math"]
+# CasADi's straight-line model code (files *_model.c): gcc's partial-redundancy elimination and code hoisting take
+# 20-30 % of its compile time on the larger models and gain no step time (benchmarks/README.md, "Compile flags per
+# file kind"). They compute the same values, but where gcc contracts a*b+c into one fma depends on the expressions
+# they leave: results can move at rounding level (chain24: 7e-17; rov4dof and BlueROV2 bit-identical). gcc only.
+STRAIGHT_LINE_GCC_FLAGS = ["-fno-tree-pre", "-fno-code-hoisting"]
 #: hand-written C (the runtime of abyssal.runtime.compiled) compiles strictly: build(..., strict=True)
 STRICT_FLAGS = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic"]
 
@@ -97,8 +102,10 @@ def _libraries() -> list[str]:
     return LIBS
 
 
-def _file_flags(name: str, flags: list[str], strict: bool) -> list[str]:
+def _file_flags(name: str, flags: list[str], strict: bool, gcc: bool = False) -> list[str]:
     extra = STRICT_FLAGS if strict else []
+    if name.endswith("_model.c") and gcc:
+        return [*flags, *STRAIGHT_LINE_GCC_FLAGS, *extra]
     if not name.endswith("_soa.c"):
         return [*flags, *extra]
     vector_math = [] if "-lmvec" in _libraries() else ["-DABYSSAL_NO_LIBMVEC"]
@@ -239,7 +246,7 @@ def cache_key(sources: dict[str, str], flags: list[str], requested_compiler: str
     h = hashlib.sha256()
     for name in sorted(sources):
         h.update(name.encode() + b"\0" + sources[name].encode() + b"\0")
-    compiled = flags + SOA_FLAGS + (STRICT_FLAGS if strict else []) + LINK_FLAGS + _libraries()
+    compiled = flags + SOA_FLAGS + STRAIGHT_LINE_GCC_FLAGS + (STRICT_FLAGS if strict else []) + LINK_FLAGS + _libraries()
     for part in (" ".join(compiled), requested_compiler, target_identity(flags)):
         h.update(part.encode() + b"\0")
     return h.hexdigest()
@@ -253,6 +260,12 @@ def _kill_group(proc: subprocess.Popen) -> None:
     except (ProcessLookupError, PermissionError):
         pass
     proc.wait()
+
+
+def _is_gcc(cc: str) -> bool:
+    """Is cc GNU's C compiler ("gcc (Debian 12.2.0-14) 12.2.0", "cc (...) ..."; not clang, which cc may be)?"""
+    identity = _compiler_identity(cc).lower()
+    return "clang" not in identity and re.match(r"\S*cc(-\d+)? \(", identity) is not None
 
 
 @lru_cache(maxsize=8)
@@ -362,12 +375,13 @@ def _compile(sources: dict[str, str], workdir: Path, lib_path: Path, flags: list
     objects, jobs = [], []
     for name, text in sorted(sources.items()):
         (workdir / name).write_text(text)
+    gcc = _is_gcc(cc)
     # largest first: the longest compile starts at once and the others fill the remaining cores
     for name in sorted((n for n in sources if n.endswith(".c")), key=lambda n: (-len(sources[n]), n)):
         src = workdir / name
         obj = workdir / (name + ".o")
         objects.append(obj)
-        jobs.append(_Job([cc, *_file_flags(name, flags, strict), "-c", str(src), "-o", str(obj)], workdir / (name + ".log"), name))
+        jobs.append(_Job([cc, *_file_flags(name, flags, strict, gcc), "-c", str(src), "-o", str(obj)], workdir / (name + ".log"), name))
     _run_jobs(jobs, deadline, timeout, workdir, max(1, os.cpu_count() or 1))
     link = _Job([cc, *flags, *LINK_FLAGS, *map(str, objects), "-o", str(lib_path), *_libraries()], workdir / "link.log")
     _run_jobs([link], deadline, timeout, workdir, 1)

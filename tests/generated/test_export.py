@@ -149,7 +149,7 @@ def test_with_abyssals_own_flags_the_results_are_bit_identical(exported, tmp_pat
     objects = []
     for source in sources(exported):
         obj = tmp_path / (source.name + ".o")
-        file_flags = build._file_flags(source.name, flags, strict=source.name.startswith("abyssal_"))
+        file_flags = build._file_flags(source.name, flags, strict=source.name.startswith("abyssal_"), gcc=build._is_gcc(cc))
         run([cc, *file_flags, f"-I{exported / 'include'}", "-c", source, "-o", obj])
         objects.append(obj)
     exe = tmp_path / "run_csv_same_flags"

@@ -20,11 +20,11 @@ def rov():
     return abyssal.generated.load("rov4dof")
 
 
-def rov_run(rov, steps=30, seed=0):
+def rov_run(rov, steps=30, seed=0, psi=2.5):
     rng = np.random.default_rng(seed)
     x, dt = np.zeros(rov.n_x), 0.1
     x[2] = 5.0  # at 5 m depth
-    x[rov.state_names.index("psi")] = 2.5  # a heading of 143 degrees
+    x[rov.state_names.index("psi")] = psi  # (default: a heading of 143 degrees)
     U, Z = [], []
     for k in range(steps):
         u = np.array([20.0, 5.0, 10.0, 0.5 * np.sin(0.2 * k * dt)])
@@ -34,9 +34,9 @@ def rov_run(rov, steps=30, seed=0):
     return np.array(U), np.array(Z), dt
 
 
-def filter_on(rov, kind=EKF):
+def filter_on(rov, kind=EKF, psi=2.5):
     x0 = np.zeros(rov.n_x)
-    x0[rov.state_names.index("psi")], x0[2] = 2.5, 5.0
+    x0[rov.state_names.index("psi")], x0[2] = psi, 5.0
     return kind(rov, x0, 0.1 * np.eye(rov.n_x), np.diag([1e-4] * 8 + [1e-2] * 4),
                 np.diag([0.05, 0.05, 0.02, 0.01]) ** 2)
 
@@ -58,6 +58,17 @@ def test_a_heading_in_degrees_is_named_once(rov, kind):
     message = str(caught[0].message)
     assert "'psi' (rad)" in message and "degrees" in message
     assert caught[0].filename == __file__  # it points at the user's call
+
+
+@pytest.mark.parametrize("kind", [EKF, CKF])
+def test_a_small_heading_in_degrees_is_named(rov, kind):
+    """A vehicle heading near north (0.02-0.1 rad: under 2 pi when given in degrees) with its heading in degrees:
+    the raw values lie beyond the gate, the same values taken as degrees fit the prediction."""
+    U, Z, dt = rov_run(rov, psi=0.05)
+    Z[:, 3] = np.degrees(Z[:, 3])
+    assert np.abs(Z[:, 3]).max() < 2 * np.pi
+    caught = steps_warnings(filter_on(rov, kind, psi=0.05), U, Z, dt)
+    assert len(caught) == 1 and "'psi' (rad)" in str(caught[0].message) and "degrees" in str(caught[0].message)
 
 
 def test_a_depth_in_millimetres_is_named(rov):

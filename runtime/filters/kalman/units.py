@@ -4,7 +4,8 @@ A heading given in degrees where the model says rad, a depth in millimetres or f
 gates every such value as an outlier, and the estimate runs on the other sensors (or on nothing) without a word.
 So the first `SAMPLES` values of each output are compared with the filter's prediction of them, h(x) before the
 update: when nearly all of them lie beyond `SIGMAS` standard deviations of the output's noise and their ratio to
-the prediction is steadily one of the usual unit factors (or, for an angle output, they lie beyond 2 pi), a
+the prediction is steadily one of the usual unit factors (or, for an angle output, they lie beyond 2 pi or, taken as
+degrees, fit the prediction: a small heading in degrees), a
 UnitSlipWarning names the sensor, the output, its declared unit and the likely slip, once. After its samples an
 output is no longer watched, so a filter pays for the watch during its first updates only.
 """
@@ -98,16 +99,24 @@ class UnitWatch:
         if beyond.sum() < SAMPLES - 1:  # (one may fall inside by chance)
             return None
         unit = self.names[row][2]
-        if self.angle[row]:  # wrapped angles: no ratio to y, but radians never exceed 2 pi
-            return f"degrees (|values| up to {np.abs(z).max():.4g}, beyond 2 pi)" if (np.abs(z) > 2 * np.pi).sum() \
-                >= SAMPLES - 1 else None
+        if self.angle[row] and (np.abs(z) > 2 * np.pi).sum() >= SAMPLES - 1:  # (radians never exceed 2 pi)
+            return f"degrees (|values| up to {np.abs(z).max():.4g}, beyond 2 pi)"
         usable = np.abs(y) > 10 * np.maximum(sigma, 1e-12)
-        if usable.sum() < SAMPLES // 2:
-            return None
         ratios = z[usable] / y[usable]
         for name, model_unit, factor in FACTORS:
-            if (unit == model_unit or unit in ("", "-", None)) and np.all(np.abs(ratios / factor - 1.0) < AGREEMENT):
+            if not (unit == model_unit or unit in ("", "-", None)):
+                continue
+            if usable.sum() >= SAMPLES // 2 and np.all(np.abs(ratios / factor - 1.0) < AGREEMENT):
                 return f"{name} (about {factor:.4g}x the prediction)"
+            # values too small for a ratio (a heading near north in degrees): converted, they fit the prediction
+            # (half of them at least: once the gate's patience runs out, the filter may take them as they are and
+            # its prediction follows them)
+            converted = z / factor - y
+            if self.angle[row]:
+                converted = np.angle(np.exp(1j * converted))
+            fit = int((np.abs(converted) <= SIGMAS * np.maximum(sigma, 1e-300)).sum())
+            if fit >= SAMPLES // 2:
+                return f"{name} (converted from {name}, {fit} of them fit the prediction)"
         return None
 
     def _warn(self, row: int, slip: str) -> None:
