@@ -1,0 +1,71 @@
+"""The documentation's code runs: every ```python block of every page in docs/ (mkdocs.yml's site), in order.
+
+A page's blocks run one after another in one namespace, in a working folder of the page's own under one
+session-wide temporary folder (what a reader who types the page into a fresh folder would get), so a page whose
+code no longer works fails here, naming the page, the block's number and first line. A block whose first line is a
+comment naming a Python file (``# myrov.py: ...``) is a file the reader saves: it is written into the working
+folder (importable from the next blocks), not run. Blocks that must not run
+(shell commands, C, C++, output) use other fences (```bash, ```c, ```cpp, ```text). The blocks are found with
+mktestdocs (the `docs` and `test` extras); the compile cache is the user's, so a page's model compiles once.
+"""
+from __future__ import annotations
+
+import re
+import sys
+from pathlib import Path
+
+import pytest
+
+mktestdocs = pytest.importorskip("mktestdocs", reason="mktestdocs is not installed (pip install -e '.[test]')")
+
+DOCS = Path(__file__).resolve().parents[2] / "docs"
+PAGES = sorted(p.relative_to(DOCS).as_posix() for p in DOCS.rglob("*.md"))
+
+
+#: the first line of a block that is a file to save: "# name.py" (and anything after a colon)
+FILE_BLOCK = re.compile(r"#\s*(?P<name>[A-Za-z_][A-Za-z0-9_]*\.py)\s*(:.*)?$")
+
+
+def python_blocks(page: str) -> list[str]:
+    return mktestdocs.grab_code_blocks((DOCS / page).read_text(encoding="utf-8"), lang="python")
+
+
+RUNNABLE = [page for page in PAGES if python_blocks(page)]
+
+
+def test_the_pages_have_code_to_run():
+    assert "getting-started.md" in RUNNABLE and "own-vehicle.md" in RUNNABLE
+
+
+def test_no_page_hides_python_in_an_unrun_fence():
+    """A block a reader would take for Python is run: ```py, ```python3, ```pycon fences and ```python with more
+    words on the fence line (which the runner would pass over) are refused."""
+    fence = re.compile(r"^[ \t]*```[ \t]*(py|python3|pycon|ipython|python[ \t]+\S.*)[ \t]*$", re.M)
+    hidden = [(page, m.group(0).strip()) for page in PAGES for m in fence.finditer((DOCS / page).read_text("utf-8"))]
+    assert not hidden, f"use a plain ```python fence (run by this test) or ```text: {hidden}"
+
+
+@pytest.mark.parametrize("page", RUNNABLE)
+def test_page_code_runs(page, tmp_path_factory, monkeypatch):
+    folder = tmp_path_factory.mktemp(re.sub(r"\W", "_", page.removesuffix(".md")))
+    monkeypatch.chdir(folder)
+    monkeypatch.setenv("MPLBACKEND", "Agg")
+    monkeypatch.syspath_prepend(str(folder))
+    modules = set(sys.modules)
+    namespace = {"__name__": "__main__"}
+    try:
+        for k, block in enumerate(python_blocks(page), 1):
+            first = block.strip().splitlines()[0]
+            saved = FILE_BLOCK.match(first)
+            if saved:
+                (folder / saved["name"]).write_text(block, encoding="utf-8")
+                continue
+            try:
+                exec(compile(block, f"docs/{page} block {k}", "exec"), namespace)
+            except Exception as exc:
+                raise AssertionError(f"docs/{page}, Python block {k} ({first!r}) failed: {type(exc).__name__}: "
+                                     f"{exc}") from exc
+    finally:
+        for name in set(sys.modules) - modules:  # the page's own files (myrov.py): another page may reuse the name
+            if str(getattr(sys.modules[name], "__file__", "") or "").startswith(str(folder)):
+                del sys.modules[name]
