@@ -79,6 +79,7 @@ __all__ = [
 
 #: dt types the hot path hands to the C runtime as they are (anything else, a bool included, is checked first)
 _PLAIN_NUMBERS = frozenset({float, int, np.float64})
+_BLOCK_TIME = kr.BLOCK_TIME
 #: the history's events when a filter keeps one (history_seconds > 0 or smoothing) and history_entries is not given
 DEFAULT_HISTORY_ENTRIES = 256
 
@@ -169,7 +170,11 @@ class KalmanFilter(FilterBase):
         self._u_view, self._z_view = memoryview(self._u), memoryview(self._z)
         self._io_view, self._code_view = memoryview(self._io), memoryview(self._code)
         self._gate = None
+        self._acquire, self._release = self._lock.acquire, self._lock.release  # (bound once: the hot path's lock)
         self._sensor_index = {name: k for k, name in enumerate(model.sensor_names)}
+        # each sensor's outputs, own parameters, and a view of its outputs' place in the call block
+        self._sensor_views = [(len(s["outputs"]), len(s["parameters"]), memoryview(self._z[:len(s["outputs"])]))
+                              for s in model.sensors]
         self._warned_max_dt = False
         envelope = model.envelope  # the declared max_dt (its envelope), inf when none is declared
         self._max_dt = float(envelope["max_dt"]) if envelope and envelope.get("declared") else math.inf
@@ -425,11 +430,14 @@ class KalmanFilter(FilterBase):
             raise self._busy()
         try:
             k = self._sensor(sensor)
-            spec = self.model.sensors[k]
-            rows, n_q = len(spec["outputs"]), len(spec["parameters"])
-            t = check_time(t, "t")
-            z = _vector(z, rows, "z")
-            self._z[:rows] = z
+            rows, n_q, z_view = self._sensor_views[k]
+            if type(t) not in _PLAIN_NUMBERS:  # (a plain number's finiteness is the C runtime's check)
+                t = check_time(t, "t")
+            try:  # an exact float64 vector of the sensor's outputs goes straight in, as in step()
+                z_view[:] = z
+            except (TypeError, ValueError):
+                z = _vector(z, rows, "z")
+                self._z[:rows] = z
             self._io_view[kr.BLOCK_TIME] = t
             self._io_view[kr.BLOCK_SENSOR] = k
             if R is None:
@@ -443,9 +451,10 @@ class KalmanFilter(FilterBase):
                 self._q_call[:n_q] = check_state(p, n_q, "p")
                 self._io_view[kr.BLOCK_HAS_Q] = 1.0
             if self._unit_watch is not None:
+                spec = self.model.sensors[k]
                 offset = spec["offset"]
                 R_k = self._R[offset:offset + rows, offset:offset + rows] if R is None else self._R_call[:rows * rows]
-                self._watch_units(offset, z, np.reshape(R_k, (rows, rows)),
+                self._watch_units(k, self._z[:rows], np.reshape(R_k, (rows, rows)),
                                   None if p is None else (spec["p_offset"], self._q_call[:n_q]))
             self._call_update_sensor()
             code = self._code_view[0]
@@ -525,39 +534,36 @@ class KalmanFilter(FilterBase):
     # -------------------------------------------------------------- the contract's calls (FilterBase holds the lock)
     def step(self, u, dt, z=None, p=None) -> bool:
         """predict(u, dt, p) then update(z, p) as one transaction; returns whether an update happened. (The
-        contract's step, with its layers folded into one call: the C step is itself the transaction.)"""
-        if not self._lock.acquire(False):
+        contract's step in one frame: the C step is itself the transaction, and this is the hot path.)"""
+        if not self._acquire(False):
             raise self._busy()
         try:
-            return self._step_call(u, dt, z, p)
+            try:  # exact float64 vectors of the right length only (see __init__), else the checked path
+                self._u_view[:] = u
+                if z is not None:
+                    self._z_view[:] = z
+            except (TypeError, ValueError):
+                self._u[:] = _vector(u, self.model.n_u, "u")
+                if z is not None:
+                    self._z[:] = _vector(z, self.model.n_y, "z")
+            if type(dt) not in _PLAIN_NUMBERS:
+                dt = check_dt(dt)
+            self._io_view[_BLOCK_TIME] = dt
+            if dt > self._max_dt:
+                self._warn_beyond_max_dt(dt)
+            saved = None if p is None and self._p_is_default else self._use_p(p)
+            if z is None:
+                self._call_predict()
+            else:
+                if self._unit_watch is not None:
+                    self._watch_units(None, self._z, self._R, None)
+                self._call_step()
+            code = self._code_view[0]
+            if code >= 0.0:
+                return code == 1.0
+            raise self._refusal(code, saved, "step")
         finally:
-            self._lock.release()
-
-    def _step_call(self, u, dt, z, p) -> bool:
-        try:  # exact float64 vectors of the right length only (see __init__), else the checked path
-            self._u_view[:] = u
-            if z is not None:
-                self._z_view[:] = z
-        except (TypeError, ValueError):
-            self._u[:] = _vector(u, self.model.n_u, "u")
-            if z is not None:
-                self._z[:] = _vector(z, self.model.n_y, "z")
-        if type(dt) not in _PLAIN_NUMBERS:
-            dt = check_dt(dt)
-        self._io_view[kr.BLOCK_TIME] = dt
-        if dt > self._max_dt:
-            self._warn_beyond_max_dt(dt)
-        saved = None if p is None and self._p_is_default else self._use_p(p)
-        if z is not None and self._unit_watch is not None:
-            self._watch_units(0, self._z, self._R, None)
-        if z is None:
-            self._call_predict()
-        else:
-            self._call_step()
-        code = self._code_view[0]
-        if code >= 0.0:
-            return code == 1.0
-        raise self._refusal(code, saved, "step")
+            self._release()
 
     def _predict_call(self, u, dt, p) -> None:
         try:
@@ -582,7 +588,7 @@ class KalmanFilter(FilterBase):
                 self._z[:] = _vector(z, self.model.n_y, "z")
         saved = None if p is None and self._p_is_default else self._use_p(p)
         if z is not None and self._unit_watch is not None:
-            self._watch_units(0, self._z, self._R, None)
+            self._watch_units(None, self._z, self._R, None)
         if z is None:
             self._call_check_p()
         else:
@@ -594,17 +600,25 @@ class KalmanFilter(FilterBase):
             self._p[:], self._p_is_default = saved
         return code == 1.0
 
-    def _watch_units(self, first_row: int, z, R, sensor_p) -> None:
-        """Hand the unit watch (units.py) values of rows first_row.. with the prediction h(x) from the filter's
-        estimate (sensor_p: (its offset in p, the sensor's own parameters of this call) or None)."""
+    def _watch_units(self, sensor, z, R, sensor_p) -> None:
+        """Hand the unit watch (units.py) sensor k's values z (None: every sensor, z stacked) with the prediction h(x)
+        from the filter's estimate (sensor_p: (its offset in p, the sensor's own parameters of this call) or None)."""
+        watch = self._unit_watch
+        if not (any(watch.watching) if sensor is None else watch.watching[sensor]):
+            return
         p = self._p.copy()
         if sensor_p is not None:
             p[sensor_p[0]:sensor_p[0] + len(sensor_p[1])] = sensor_p[1]
-        rows = len(z)
         with np.errstate(all="ignore"):
-            y = self.model.h(self.x, p)[first_row:first_row + rows]
-        self._unit_watch.observe(first_row, np.asarray(z, dtype=float), y, R)
-        if self._unit_watch.done:
+            y = self.model.h(self.x, p)
+        z = np.asarray(z, dtype=float)
+        for k in range(len(watch.sensors)) if sensor is None else (sensor,):
+            first, end = watch.sensors[k]
+            values = z[first:end] if sensor is None else z
+            if watch.watching[k] and not np.isnan(values).all():
+                block = R[first:end, first:end] if sensor is None else R
+                watch.observe_sensor(k, values, y[first:end], block)
+        if watch.done:
             self._unit_watch = None
 
     def _warn_beyond_max_dt(self, dt: float, stacklevel: int = 4) -> None:
@@ -679,6 +693,8 @@ class KalmanFilter(FilterBase):
         name = f"{type(self).__name__}.update({sensor!r})"
         report = self.sensor_report(sensor)
         if code == kr.E_TIME:
+            if not math.isfinite(t):
+                return ValueError(f"{name}: t must be a finite time stamp in seconds, got {t!r}")
             return ValueError(f"{name}: t = {t!r} s is not after this sensor's previous stamp {report['last_t']!r} s (each "
                               "sensor's stamps must increase)")
         if code == kr.E_TOO_LATE:
@@ -717,7 +733,8 @@ class UKF(KalmanFilter):
 
     kind = "ukf"
 
-    def __init__(self, model, x0, P0, Q, R, *, alpha: float = 1.0, beta: float = 2.0, kappa: float = 0.0, **options):
+    def __init__(self, model, x0, P0, Q, R=None, *, alpha: float = 1.0, beta: float = 2.0, kappa: float = 0.0,
+                 **options):
         super().__init__(model, x0, P0, Q, R, alpha=alpha, beta=beta, kappa=kappa, **options)
 
 
@@ -727,7 +744,7 @@ class MCUKF(UKF):
 
     kind = "mcukf"
 
-    def __init__(self, model, x0, P0, Q, R, *, sigma: float = 15.0, **options):
+    def __init__(self, model, x0, P0, Q, R=None, *, sigma: float = 15.0, **options):
         super().__init__(model, x0, P0, Q, R, sigma=sigma, **options)
 
 
@@ -737,5 +754,5 @@ class HuberUKF(UKF):
 
     kind = "huber"
 
-    def __init__(self, model, x0, P0, Q, R, *, gamma: float = 1.345, **options):
+    def __init__(self, model, x0, P0, Q, R=None, *, gamma: float = 1.345, **options):
         super().__init__(model, x0, P0, Q, R, gamma=gamma, **options)

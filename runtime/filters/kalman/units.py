@@ -55,6 +55,9 @@ class UnitWatch:
         self.open = np.ones(rows, dtype=bool)
         self.angle = np.zeros(rows, dtype=bool)
         self.names: list[tuple[str, str, str]] = []
+        self.sensors = [(s["offset"], s["offset"] + len(s["outputs"])) for s in model.sensors]  # each one's rows
+        self.watching = [True] * len(self.sensors)
+        self.updates = [0] * len(self.sensors)
         for sensor in model.sensors:
             for k in sensor["angle_outputs"]:  # (indices of the sensor's angle outputs)
                 self.angle[sensor["offset"] + k] = True
@@ -63,7 +66,16 @@ class UnitWatch:
 
     @property
     def done(self) -> bool:
-        return not self.open.any()
+        return not any(self.watching)
+
+    def observe_sensor(self, k: int, z: np.ndarray, y: np.ndarray, R: np.ndarray) -> None:
+        """One update of sensor k: its values z (NaN: missing), the prediction y of them and their noise R."""
+        first, end = self.sensors[k]
+        self.observe(first, z, y, R)
+        self.updates[k] += 1
+        if self.updates[k] >= 2 * SAMPLES or not self.open[first:end].any():
+            self.watching[k] = False
+            self.open[first:end] = False
 
     def observe(self, first_row: int, z: np.ndarray, y: np.ndarray, R: np.ndarray) -> None:
         """The values z of rows first_row.. (NaN: missing), the prediction y of them and their noise R (square)."""
