@@ -7,10 +7,13 @@ comment naming a Python file (``# myrov.py: ...``) is a file the reader saves: i
 folder (importable from the next blocks), not run. Blocks that must not run
 (shell commands, C, C++, output) use other fences (```bash, ```c, ```cpp, ```text). The blocks are found with
 mktestdocs (the `docs` and `test` extras); the compile cache is the user's, so a page's model compiles once.
+A page whose Python reads what a shell command of the page made (replay.md reads the log that
+examples/replay_log/make_logs.py writes) names that command in SETUP: it runs first, in the page's folder.
 """
 from __future__ import annotations
 
 import re
+import subprocess
 import sys
 from pathlib import Path
 
@@ -18,7 +21,10 @@ import pytest
 
 mktestdocs = pytest.importorskip("mktestdocs", reason="mktestdocs is not installed (pip install -e '.[test]')")
 
-DOCS = Path(__file__).resolve().parents[2] / "docs"
+REPO = Path(__file__).resolve().parents[2]
+DOCS = REPO / "docs"
+#: the shell commands a page's Python depends on, as the page shows them (run from the page's folder)
+SETUP = {"replay.md": [[sys.executable, str(REPO / "examples" / "replay_log" / "make_logs.py"), "--out", "demo"]]}
 PAGES = sorted(p.relative_to(DOCS).as_posix() for p in DOCS.rglob("*.md"))
 
 
@@ -35,6 +41,11 @@ RUNNABLE = [page for page in PAGES if python_blocks(page)]
 
 def test_the_pages_have_code_to_run():
     assert "getting-started.md" in RUNNABLE and "own-vehicle.md" in RUNNABLE
+    assert set(SETUP) <= set(RUNNABLE)
+    for page, commands in SETUP.items():  # the page shows each setup command to its reader
+        text = (DOCS / page).read_text("utf-8")
+        assert all(f"{Path(c[1]).parent.parent.name}/{Path(c[1]).parent.name}/{Path(c[1]).name}" in text
+                   for c in commands), page
 
 
 def test_no_page_hides_python_in_an_unrun_fence():
@@ -53,6 +64,9 @@ def test_page_code_runs(page, tmp_path_factory, monkeypatch):
     monkeypatch.syspath_prepend(str(folder))
     modules = set(sys.modules)
     namespace = {"__name__": "__main__"}
+    for command in SETUP.get(page, []):
+        done = subprocess.run(command, cwd=folder, capture_output=True, text=True, timeout=600)
+        assert done.returncode == 0, f"docs/{page}: the setup {command} failed:\n{done.stdout}\n{done.stderr}"
     try:
         for k, block in enumerate(python_blocks(page), 1):
             first = block.strip().splitlines()[0]
