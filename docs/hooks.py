@@ -1,7 +1,6 @@
 """MkDocs hooks: the package laid out for the API reference, and the figures the pages show from examples/.
 
-The package. 
-abyssal's subpackages install from other folders (pyproject's package-dir: abyssal.symbolic is symbolic/,
+The package. abyssal's subpackages install from other folders (pyproject's package-dir: abyssal.symbolic is symbolic/,
 abyssal.generated generated/, abyssal.runtime runtime/, abyssal.verify verify/), so abyssal/ on disk holds
 neither of them and griffe, which finds submodules by walking the package's folder, cannot reach
 `abyssal.symbolic.fossen`. This hook builds build/docs-packages/abyssal/: symbolic links to abyssal/'s own files
