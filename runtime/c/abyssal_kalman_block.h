@@ -44,6 +44,10 @@ void abyssal_block_update(const abyssal_model* model, const abyssal_algebra* alg
                           const unsigned char* present, const double* p, const double* R, double* x_post,
                           double* P_post, double* innovation, double* S, double* ok, void* scratch);
 
+/* L L^T = A (r x r lanes, lower; the upper triangle zeroed) as LAPACK's Cholesky factorisation: ok[lane] = 0 (and
+ * that lane's L unspecified) where a pivot is not positive or not finite; the others are left as they are. */
+void abyssal_block_factor(int r, const double* A, double* L, double* ok);
+
 #ifdef __cplusplus
 }
 #endif

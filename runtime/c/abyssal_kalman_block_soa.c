@@ -100,6 +100,35 @@ static void block_cholesky(int n, const double* A, double* L, double* ok) {
   }
 }
 
+void abyssal_block_factor(int r, const double* A, double* L, double* ok) {
+  for (int c = 1; c < r; ++c)
+    for (int i = 0; i < c; ++i) EACH_LANE LANES(L, i + c * r)[j] = 0.0;
+  for (int c = 0; c < r; ++c) {
+    for (int i = c; i < r; ++i) {
+      double acc[B];
+      const double* a = LANES(A, i + c * r);
+      EACH_LANE acc[j] = a[j];
+      for (int k = 0; k < c; ++k) {
+        const double* lik = LANES(L, i + k * r);
+        const double* lck = LANES(L, c + k * r);
+        EACH_LANE acc[j] -= lik[j] * lck[j];
+      }
+      double* l = LANES(L, i + c * r);
+      EACH_LANE l[j] = acc[j];
+    }
+    double* d = LANES(L, c + c * r);
+    EACH_LANE {
+      const int good = d[j] > 0.0 && d[j] < INFINITY;
+      ok[j] = good ? ok[j] : 0.0;
+      d[j] = sqrt(good ? d[j] : 1.0);
+    }
+    for (int i = c + 1; i < r; ++i) { /* divided, as LAPACK's unblocked factor and plain_cholesky round */
+      double* l = LANES(L, i + c * r);
+      EACH_LANE l[j] /= d[j];
+    }
+  }
+}
+
 /* abyssal_solve_lower on one vector per lane: b <- L^-1 b (L lanes, or one shared L when shared != 0) */
 static void block_solve_lower(int n, const double* L, int shared, double* b) {
   for (int i = 0; i < n; ++i) {

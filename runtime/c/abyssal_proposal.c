@@ -497,6 +497,67 @@ static void draw_particle(ctx_t* c, idx j, const double* mean, const double* C) 
   s->log_ratio[j] = (-0.5 * q2 + s->log_norm) - (-0.5 * xi2 - log_det - 0.5 * r * LOG_2PI);
 }
 
+/* Every particle's draw and log ratio from (x_post, P_out) of its slot (the prediction already copied there when its
+ * update failed), ABYSSAL_BLOCK at a time on the support of the process noise, draw_particle's operations in its
+ * order; a particle whose V^T P V does not factor is drawn alone (draw_particle, which repairs it). A dense basis of
+ * the subspace: every particle alone. */
+static void draw_all(ctx_t* c) {
+  const abyssal_proposal* s = c->s;
+  const int n = c->n, r = c->r, B = ABYSSAL_BLOCK;
+  double* mean_y = c->bx;  /* the block buffers of the Kalman steps are free now */
+  double* C_y = c->bP;
+  double* L = c->bP_out;
+  double* xb = c->bx_out;
+  double* ok = c->bok;
+  idx j0;
+  int a, b, i, lane;
+  if (!s->support) {
+    for (j0 = 0; j0 < c->count; ++j0) draw_particle(c, j0, c->x_post + j0 * n, c->P_out + j0 * n * n);
+    return;
+  }
+  for (j0 = 0; j0 < c->count; j0 += B) {
+    const idx nb = c->count - j0 < B ? c->count - j0 : B;
+    double log_det[ABYSSAL_BLOCK], xi2[ABYSSAL_BLOCK], q2[ABYSSAL_BLOCK], y[ABYSSAL_BLOCK];
+    for (lane = 0; lane < B; ++lane) {
+      const idx j = j0 + (lane < nb ? lane : 0);
+      const double* mean = c->x_post + j * n;
+      const double* P = c->P_out + j * n * n;
+      for (a = 0; a < r; ++a) {
+        const int row = s->support[a];
+        mean_y[a * B + lane] = mean[row] - c->F[(idx)row * c->ld + j];
+        xb[a * B + lane] = s->normals[(idx)a * c->count + j];
+        for (b = 0; b < r; ++b) C_y[(a + b * r) * B + lane] = AT(P, n, row, s->support[b]);
+      }
+      ok[lane] = 1.0;
+      log_det[lane] = xi2[lane] = q2[lane] = 0.0;
+    }
+    abyssal_block_factor(r, C_y, L, ok);
+    for (i = 0; i < n; ++i) /* rows off the support: x = f */
+      for (lane = 0; lane < nb; ++lane) c->x_out[(idx)i * c->ld + j0 + lane] = c->F[(idx)i * c->ld + j0 + lane] + 0.0;
+    for (a = 0; a < r; ++a) {
+      const int row = s->support[a];
+      const double variance = s->variances[a];
+      for (lane = 0; lane < B; ++lane) y[lane] = 0.0;
+      for (b = 0; b <= a; ++b)
+        for (lane = 0; lane < B; ++lane) y[lane] += L[(a + b * r) * B + lane] * xb[b * B + lane];
+      for (lane = 0; lane < B; ++lane) {
+        const double f = c->F[(idx)row * c->ld + j0 + (lane < nb ? lane : 0)];
+        const double x = f + (mean_y[a * B + lane] + y[lane]);
+        const double w = x - f;
+        log_det[lane] += log(L[(a + a * r) * B + lane]);
+        xi2[lane] += xb[a * B + lane] * xb[a * B + lane];
+        q2[lane] += w * (w / variance);
+        if (lane < nb) c->x_out[(idx)row * c->ld + j0 + lane] = x;
+      }
+    }
+    for (lane = 0; lane < nb; ++lane) {
+      const idx j = j0 + lane;
+      s->log_ratio[j] = (-0.5 * q2[lane] + s->log_norm) - (-0.5 * xi2[lane] - log_det[lane] - 0.5 * r * LOG_2PI);
+      if (ok[lane] == 0.0) draw_particle(c, j, c->x_post + j * n, c->P_out + j * n * n);
+    }
+  }
+}
+
 /* Every particle moves by the transition: x = f + V sqrt(Lambda) xi. */
 static void transition_draws(ctx_t* c) {
   const abyssal_proposal* s = c->s;
@@ -578,16 +639,12 @@ int abyssal_proposal_step(const abyssal_proposal* s) {
         int changed = 0;
         for (i = 0; i < c.m; ++i) changed = changed || c.kept[i] != c.present[i];
         if (changed) update_all(&c, c.kept); /* the update alone, again, from the kept predictions */
-        for (j = 0; j < c.count; ++j) {
-          double* P = c.P_out + j * c.n * c.n;
-          const double* mean = c.x_post + j * c.n;
+        for (j = 0; j < c.count; ++j)
           if (c.ok[j] == 0.0) { /* proposes from its prediction */
-            prediction_of(&c, j, c.xj, P);
-            mean = c.xj;
+            prediction_of(&c, j, c.x_post + j * c.n, c.P_out + j * c.n * c.n);
             ++failed;
           }
-          draw_particle(&c, j, mean, P);
-        }
+        draw_all(&c);
       }
     }
   }
