@@ -19,6 +19,10 @@ once without (the fault-free twin). Scenarios (``--quick`` in brackets):
   noise) and heading; the terrain SIR at N = 1000, 5000 steps [1000]. Faults: depth outliers of
   1e4, 1e6, 1e100, 1e300 m at 10-40 %, a heading of 1e300 rad at 45 %, two bursts of 30 depth
   faults (+100 m: a false bottom) at 50 and 65 %, NaN entries and rows.
+* ``vehicle``, stamped (the entries "<filter> stamped", every filter with sensors and time): the same run through
+  predict_to(t_k, u_k) and the sensor's update stamped t_{k-3}: every measurement arrives 0.3 s late and is fused
+  at its stamp from a 1 s history (the three stamped before the 5 s step are older than the history holds when
+  they arrive: refused, counted, nothing changed).
 * ``linear``: linear_cv (position relative to a sensor) at dt = 0.5 s for any other filter with its
   own constructor (``contract_example``: the GP-UKF's learned predict), 5000 steps [1000];
   outliers of 1e4-1e300, NaN entries and rows, an outage.
@@ -251,15 +255,21 @@ class Entry:
     build: object               # (scenario, quick) -> filter
     owner: str                  # the module that implements it (where a failure is fixed)
     scenario_options: tuple = ()
+    latency: int = -1           # >= 0: stamped calls, each measurement arriving this many steps after its stamp
 
 
-def _vehicle_builder(cls, kind):
+STAMPED_LATENCY = 3        # steps (0.3 s) of the stamped entries' measurements
+STAMPED_HISTORY_S = 1.0
+
+
+def _vehicle_builder(cls, kind, stamped: bool = False):
     def build(s: Scenario, quick: bool):
         from abyssal.runtime.noise.mixtures import GaussianMixture
 
         x0, P0, Q, R = (s.noise[k] for k in ("x0", "P0", "Q", "R"))
         if kind == "kalman":
-            return cls(s.bundle, x0, P0, Q, R)
+            return cls(s.bundle, x0, P0, Q, R, history_seconds=STAMPED_HISTORY_S) if stamped else cls(
+                s.bundle, x0, P0, Q, R)
         process = GaussianMixture.gaussian(np.zeros(12), Q)
         # a two-component measurement noise (heavy tail) exercises the mixture code paths
         measurement = GaussianMixture(np.array([0.9, 0.1]), np.zeros((2, 4)), np.array([R, 100 * R]))
@@ -318,6 +328,9 @@ def entries() -> list[Entry]:
         else:
             steps = STEPS["vehicle"] if kind == "kalman" else PARTICLE_STEPS
             out.append(Entry(label, "vehicle", steps, _vehicle_builder(cls, kind), owner))
+            if hasattr(cls, "update_sensor"):
+                out.append(Entry(f"{label} stamped", "vehicle", STEPS["vehicle"], _vehicle_builder(cls, kind, True),
+                                 owner, latency=STAMPED_LATENCY))
     return out
 
 
@@ -325,10 +338,25 @@ def entries() -> list[Entry]:
 # one run, its twin, the report
 
 
-def _run(filt, s: Scenario, Z: np.ndarray) -> dict:
-    """Step filt through the scenario with measurements Z; errors per step and what happened."""
+def _stamped_steps(filt, s: Scenario, Z: np.ndarray, latency: int):
+    """step(u_k, dt_k, z_k, p_k) through the stamped calls: predict_to(t_k, u_k, p_k), then the one sensor's
+    measurement stamped t_{k - latency} (arriving late, fused at its stamp from the history)."""
+    (sensor,) = s.bundle.sensor_names
+    stamps = np.cumsum(s.dt)
+    k = iter(range(s.steps))
+
+    def step(u, dt, z, p):
+        i = next(k)
+        filt.predict_to(stamps[i], u, p)
+        return i >= latency and bool(filt.update(sensor, Z[i - latency], stamps[i - latency]))
+    return step
+
+
+def _run(filt, s: Scenario, Z: np.ndarray, latency: int = -1) -> dict:
+    """Step filt through the scenario with measurements Z (latency >= 0: the stamped calls, each measurement that
+    many steps late); errors per step and what happened."""
     steps = s.steps
-    step = filt.step
+    step = filt.step if latency < 0 else _stamped_steps(filt, s, Z, latency)
     warm_up = max(1, steps // 50)
     tail = steps - steps // 10
     errors = np.full(steps, np.inf)
@@ -384,7 +412,7 @@ def soak(entry: Entry, quick: bool = False, seed: int = 0, steps: int | None = N
         filt, twin = entry.build(s, quick), entry.build(s, quick)
     except ERRORS as error:
         return {"error": f"construction refused: {type(error).__name__}: {error}", "owner": entry.owner}
-    faulty, clean = _run(filt, s, s.Z), _run(twin, s, s.Z_clean)
+    faulty, clean = _run(filt, s, s.Z, entry.latency), _run(twin, s, s.Z_clean, entry.latency)
     warm_up, tail = max(1, steps // 50), steps - steps // 10
     reference = _rms(clean["errors"][warm_up:][np.isfinite(clean["errors"][warm_up:])])
     band = RECOVERY_BAND * reference

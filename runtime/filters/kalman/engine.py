@@ -31,9 +31,12 @@ Contract
   |eigenvalue| (default 1e-10); P0 = 0 becomes ``repair_floor`` x max(max |Q|, 1) x I, the Dirac's nearest
   Gaussian. Counted in ``repairs``; a failed retry is refused ("the filter diverged").
 * Innovation gate (on by default; gate.py describes the rule): options ``gate_probability`` (default 1e-10;
-  0 turns it off), ``gate_patience`` (5) and ``gate_inflation`` (4); an update with every entry gated returns
-  False (the predict stands). Counted in ``gated`` and ``inflations``. (rov4dof, CKF, a permanent 25 m jump
-  of the x fix: re-acquired within 5 + 5 updates; tests/runtime/test_kalman.py.)
+  0 turns it off), ``gate_patience`` (5), ``gate_inflation`` (4) and ``gate_max_inflations`` (10 per streak, so P
+  grows at most 4^10 along a sensor: a real jump of up to ~1000 gate widths is re-acquired, a sensor stuck
+  further out is held as rejected); an update with every entry gated returns False (the predict stands). Counted
+  in ``gated`` and ``inflations``. (rov4dof, CKF, a permanent 25 m jump of the x fix: re-acquired within 5 + 5
+  updates; tests/runtime/test_kalman.py. A depth gauge stuck at +1e6 m from the first step: rejected after 10
+  inflations, the filter carried on by the others; tests/runtime/test_unit_slip.py.)
 * dt beyond the model's stable range: every predict is checked for a covariance that grows more than
   ``growth_limit`` (default 1e3) times (max diag P + max diag Q) in one step, or an integration that stops
   being finite (sigma points at high speed make explicit RK4 unstable: rov4dof at dt = 1 s). Such a step is
@@ -68,6 +71,7 @@ from abyssal.runtime.compiled import kalman as kr
 from ...contract import (FilterBase, FilterResult, _nonfinite_message, _vector, check_covariance, check_dt,
                          check_run_arguments, check_state, check_time, register, result_nees)
 from ...numerics import REPAIR_FLOOR, repair_covariance
+from .units import UnitWatch
 
 __all__ = [
     "CKF", "EKF", "FilterResult", "HuberUKF", "KalmanFilter", "MCUKF", "UKF", "process_noise", "repair_covariance",
@@ -75,6 +79,8 @@ __all__ = [
 
 #: dt types the hot path hands to the C runtime as they are (anything else, a bool included, is checked first)
 _PLAIN_NUMBERS = frozenset({float, int, np.float64})
+_BLOCK_TIME, _BLOCK_SENSOR, _BLOCK_HAS_R, _BLOCK_HAS_Q = kr.BLOCK_TIME, kr.BLOCK_SENSOR, kr.BLOCK_HAS_R, kr.BLOCK_HAS_Q
+assert (_BLOCK_HAS_R, _BLOCK_HAS_Q) == (_BLOCK_SENSOR + 1, _BLOCK_SENSOR + 2)  # (one slice write: update_sensor)
 #: the history's events when a filter keeps one (history_seconds > 0 or smoothing) and history_entries is not given
 DEFAULT_HISTORY_ENTRIES = 256
 
@@ -97,7 +103,7 @@ class KalmanFilter(FilterBase):
     def __init__(self, model, x0, P0, Q, R=None, *, t0: float = 0.0, noise: str = "step", history_seconds: float = 0.0,
                  history_entries: int | None = None, smoothing: bool = False, repair_floor: float = REPAIR_FLOOR,
                  gate_probability: float = 1e-10, gate_patience: int = 5, gate_inflation: float = 4.0,
-                 gate_max_inflations: int = 20, growth_limit: float = 1e3, max_substeps: int = 64, **rule):
+                 gate_max_inflations: int = 10, growth_limit: float = 1e3, max_substeps: int = 64, **rule):
         if not (hasattr(model, "functions") and hasattr(model, "library")):
             raise TypeError(f"{type(self).__name__} needs a model bundle from abyssal.generated.load(); got {model!r}")
         runtime = kr.KalmanRuntime.of(model)
@@ -165,10 +171,16 @@ class KalmanFilter(FilterBase):
         self._u_view, self._z_view = memoryview(self._u), memoryview(self._z)
         self._io_view, self._code_view = memoryview(self._io), memoryview(self._code)
         self._gate = None
+        self._acquire, self._release = self._lock.acquire, self._lock.release  # (bound once: the hot path's lock)
         self._sensor_index = {name: k for k, name in enumerate(model.sensor_names)}
+        # each sensor's outputs, own parameters, and a view of its outputs' place in the call block
+        self._sensor_views = [(len(s["outputs"]), len(s["parameters"]), memoryview(self._z[:len(s["outputs"])]))
+                              for s in model.sensors]
+        self._sensor_heads = [memoryview(np.array([k, 0.0, 0.0])) for k in range(len(model.sensors))]
         self._warned_max_dt = False
         envelope = model.envelope  # the declared max_dt (its envelope), inf when none is declared
         self._max_dt = float(envelope["max_dt"]) if envelope and envelope.get("declared") else math.inf
+        self._unit_watch = UnitWatch(model, type(self).__name__)  # the first updates, for values in another unit
 
     def _view(self, runtime, n: int, m: int, q_rows: int, n_sensors: int) -> None:
         """NumPy views of the filter object's parts (abyssal_kalman_offset)."""
@@ -403,12 +415,18 @@ class KalmanFilter(FilterBase):
         finally:
             self._lock.release()
 
-    def update(self, z, *args, **kwargs) -> bool:
+    def update(self, z, z_or_p=None, t=None, R=None, p=None) -> bool:
         """update(z, p=None): every sensor stacked, at the filter's time (the fixed-rate call); or
-        update(sensor, z, t, R=None, p=None): one sensor's measurement stamped t (update_sensor)."""
-        if isinstance(z, str) and (z in self._sensor_index or len(args) + len(kwargs) > 1 or "t" in kwargs):
-            return self.update_sensor(z, *args, **kwargs)  # (an unknown name is refused there, naming the sensors)
-        return super().update(z, *args, **kwargs)
+        update(sensor, z, t, R=None, p=None): one sensor's measurement stamped t (update_sensor). (One signature for
+        both forms, its second argument z or p by form: a *args signature costs the stamped call ~0.3 µs.)"""
+        if type(z) is str and z in self._sensor_index or isinstance(z, str) and (t is not None or R is not None):
+            return self.update_sensor(z, z_or_p, t, R, p)  # (an unknown name is refused there, naming the sensors)
+        if t is not None or R is not None:
+            raise TypeError(f"{type(self).__name__}.update: t and R belong to one sensor's update, "
+                            f"update(sensor, z, t, R=None, p=None) with sensor one of {list(self.model.sensor_names)}")
+        if z_or_p is not None and p is not None:
+            raise TypeError(f"{type(self).__name__}.update(z, p): p given twice")
+        return super().update(z, p if z_or_p is None else z_or_p)
 
     def update_sensor(self, sensor: str, z, t, R=None, p=None) -> bool:
         """One sensor's measurement z (its outputs; NaN entries missing) stamped t (s), with R (its own covariance,
@@ -416,34 +434,45 @@ class KalmanFilter(FilterBase):
         position; None: those held). Ahead of the filter's time it is predicted to t with the held input first; behind
         it (a late fix) it is fused at t from the history (history_seconds), or refused when older. Returns whether
         a measurement entry was used; a refusal (ValueError) leaves the filter unchanged."""
-        if not self._lock.acquire(False):
+        if not self._acquire(False):
             raise self._busy()
-        try:
-            k = self._sensor(sensor)
-            spec = self.model.sensors[k]
-            rows, n_q = len(spec["outputs"]), len(spec["parameters"])
-            t = check_time(t, "t")
-            z = _vector(z, rows, "z")
-            self._z[:rows] = z
-            self._io_view[kr.BLOCK_TIME] = t
-            self._io_view[kr.BLOCK_SENSOR] = k
-            if R is None:
-                self._io_view[kr.BLOCK_HAS_R] = 0.0
-            else:
+        try:  # (the hot path of a sensor's stream, in one frame like step())
+            try:
+                k = self._sensor_index[sensor]
+            except (KeyError, TypeError):
+                k = self._sensor(sensor)  # (refuses, naming the model's sensors)
+            rows, n_q, z_view = self._sensor_views[k]
+            if type(t) not in _PLAIN_NUMBERS:  # (a plain number's finiteness is the C runtime's check)
+                t = check_time(t, "t")
+            try:  # an exact float64 vector of the sensor's outputs goes straight in, as in step()
+                z_view[:] = z
+            except (TypeError, ValueError):
+                z = _vector(z, rows, "z")
+                self._z[:rows] = z
+            io = self._io_view
+            io[_BLOCK_TIME] = t
+            io[_BLOCK_SENSOR:_BLOCK_HAS_Q + 1] = self._sensor_heads[k]  # (k, no R of its own, no p of its own)
+            if R is not None:
                 self._R_call[: rows * rows] = check_covariance(R, rows, "R", definite=True).reshape(-1, order="F")
-                self._io_view[kr.BLOCK_HAS_R] = 1.0
-            if p is None:
-                self._io_view[kr.BLOCK_HAS_Q] = 0.0
-            else:
+                io[_BLOCK_HAS_R] = 1.0
+            if p is not None:
                 self._q_call[:n_q] = check_state(p, n_q, "p")
-                self._io_view[kr.BLOCK_HAS_Q] = 1.0
+                io[_BLOCK_HAS_Q] = 1.0
+            predicted = None
+            if self._unit_watch is not None and self._unit_watch.watching[k]:
+                spec = self.model.sensors[k]
+                predicted = self._unit_prediction(k, None if p is None else (spec["p_offset"], self._q_call[:n_q]))
             self._call_update_sensor()
             code = self._code_view[0]
             if code < 0.0:
                 raise self._sensor_refusal(int(code), sensor, t, z)
+            if predicted is not None:  # (the watch sees accepted calls only)
+                offset = self.model.sensors[k]["offset"]
+                R_k = self._R[offset:offset + rows, offset:offset + rows] if R is None else self._R_call[:rows * rows]
+                self._observe_units(k, self._z[:rows], np.reshape(R_k, (rows, rows)), predicted)
             return code == 1.0
         finally:
-            self._lock.release()
+            self._release()
 
     def smooth(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Rauch-Tung-Striebel smoothing over the history (smoothing=True): (t (K,), x (K, n_x), P (K, n_x, n_x)),
@@ -515,37 +544,37 @@ class KalmanFilter(FilterBase):
     # -------------------------------------------------------------- the contract's calls (FilterBase holds the lock)
     def step(self, u, dt, z=None, p=None) -> bool:
         """predict(u, dt, p) then update(z, p) as one transaction; returns whether an update happened. (The
-        contract's step, with its layers folded into one call: the C step is itself the transaction.)"""
-        if not self._lock.acquire(False):
+        contract's step in one frame: the C step is itself the transaction, and this is the hot path.)"""
+        if not self._acquire(False):
             raise self._busy()
         try:
-            return self._step_call(u, dt, z, p)
+            try:  # exact float64 vectors of the right length only (see __init__), else the checked path
+                self._u_view[:] = u
+                if z is not None:
+                    self._z_view[:] = z
+            except (TypeError, ValueError):
+                self._u[:] = _vector(u, self.model.n_u, "u")
+                if z is not None:
+                    self._z[:] = _vector(z, self.model.n_y, "z")
+            if type(dt) not in _PLAIN_NUMBERS:
+                dt = check_dt(dt)
+            self._io_view[_BLOCK_TIME] = dt
+            if dt > self._max_dt:
+                self._warn_beyond_max_dt(dt)
+            saved = None if p is None and self._p_is_default else self._use_p(p)
+            if z is None:
+                self._call_predict()
+            else:
+                predicted = None if self._unit_watch is None else self._unit_prediction(None, None)
+                self._call_step()
+                if predicted is not None and self._code_view[0] >= 0.0:  # (the watch sees accepted calls only)
+                    self._observe_units(None, self._z, self._R, predicted)
+            code = self._code_view[0]
+            if code >= 0.0:
+                return code == 1.0
+            raise self._refusal(code, saved, "step")
         finally:
-            self._lock.release()
-
-    def _step_call(self, u, dt, z, p) -> bool:
-        try:  # exact float64 vectors of the right length only (see __init__), else the checked path
-            self._u_view[:] = u
-            if z is not None:
-                self._z_view[:] = z
-        except (TypeError, ValueError):
-            self._u[:] = _vector(u, self.model.n_u, "u")
-            if z is not None:
-                self._z[:] = _vector(z, self.model.n_y, "z")
-        if type(dt) not in _PLAIN_NUMBERS:
-            dt = check_dt(dt)
-        self._io_view[kr.BLOCK_TIME] = dt
-        if dt > self._max_dt:
-            self._warn_beyond_max_dt(dt)
-        saved = None if p is None and self._p_is_default else self._use_p(p)
-        if z is None:
-            self._call_predict()
-        else:
-            self._call_step()
-        code = self._code_view[0]
-        if code >= 0.0:
-            return code == 1.0
-        raise self._refusal(code, saved, "step")
+            self._release()
 
     def _predict_call(self, u, dt, p) -> None:
         try:
@@ -569,16 +598,49 @@ class KalmanFilter(FilterBase):
             except (TypeError, ValueError):
                 self._z[:] = _vector(z, self.model.n_y, "z")
         saved = None if p is None and self._p_is_default else self._use_p(p)
+        predicted = None if z is None or self._unit_watch is None else self._unit_prediction(None, None)
         if z is None:
             self._call_check_p()
         else:
             self._call_update()
         code = self._code_view[0]
+        if predicted is not None and code >= 0.0:  # (the watch sees accepted calls only)
+            self._observe_units(None, self._z, self._R, predicted)
         if code < 0.0:
             raise self._refusal(code, saved, "update")
         if z is None and saved is not None:  # nothing to update: p is left as it was
             self._p[:], self._p_is_default = saved
         return code == 1.0
+
+    def _unit_prediction(self, sensor, sensor_p) -> np.ndarray | None:
+        """The prediction h(x) from the filter's estimate that the unit watch (units.py) compares sensor k's values
+        with (sensor None: every sensor; sensor_p: (its offset in p, the sensor's own parameters of this call) or
+        None); None when the watch is done with it, or when h is not finite at the estimate (nothing to compare)."""
+        watch = self._unit_watch
+        if not (any(watch.watching) if sensor is None else watch.watching[sensor]):
+            return None
+        p = self._p.copy()
+        if sensor_p is not None:
+            p[sensor_p[0]:sensor_p[0] + len(sensor_p[1])] = sensor_p[1]
+        try:
+            with np.errstate(all="ignore"):
+                return self.model.h(self.x, p)
+        except FloatingPointError:
+            return None
+
+    def _observe_units(self, sensor, z, R, y) -> None:
+        """Hand the unit watch an accepted update's values z of sensor k (None: every sensor, z stacked), their noise R
+        and the prediction y from _unit_prediction."""
+        watch = self._unit_watch
+        z = np.asarray(z, dtype=float)
+        for k in range(len(watch.sensors)) if sensor is None else (sensor,):
+            first, end = watch.sensors[k]
+            values = z[first:end] if sensor is None else z
+            if watch.watching[k] and not np.isnan(values).all():
+                block = R[first:end, first:end] if sensor is None else R
+                watch.observe_sensor(k, values, y[first:end], block)
+        if watch.done:
+            self._unit_watch = None
 
     def _warn_beyond_max_dt(self, dt: float, stacklevel: int = 4) -> None:
         """Once per filter: a step longer than the model's declared max_dt (its envelope) is outside what the model
@@ -619,9 +681,9 @@ class KalmanFilter(FilterBase):
             return ValueError(f"{name}: z has infinite entries at {bad.tolist()[:8]} (values {z[bad[:8]].tolist()}); use "
                               "NaN for a missing entry")
         if code == kr.E_DT:
-            return ValueError(f"{name}: dt must be a positive finite number of seconds, got {dt!r}")
+            return ValueError(f"{name}: dt must be a positive finite number of seconds, got {float(dt)!r}")
         if code == kr.E_TIME:
-            return ValueError(f"{name}: t = {dt!r} s is before the filter's time {self.t!r} s (a predict cannot go back)")
+            return ValueError(f"{name}: t = {float(dt)!r} s is before the filter's time {self.t!r} s (a predict cannot go back)")
         if code == kr.E_UNSTABLE:
             k, limit = self.options["max_substeps"], self.options["growth_limit"]
             return ValueError(
@@ -651,7 +713,10 @@ class KalmanFilter(FilterBase):
     def _sensor_refusal(self, code: int, sensor: str, t: float, z: np.ndarray) -> Exception:
         name = f"{type(self).__name__}.update({sensor!r})"
         report = self.sensor_report(sensor)
+        t = float(t)  # (a NumPy scalar is named as a number)
         if code == kr.E_TIME:
+            if not math.isfinite(t):
+                return ValueError(f"{name}: t must be a finite time stamp in seconds, got {t!r}")
             return ValueError(f"{name}: t = {t!r} s is not after this sensor's previous stamp {report['last_t']!r} s (each "
                               "sensor's stamps must increase)")
         if code == kr.E_TOO_LATE:
@@ -690,7 +755,8 @@ class UKF(KalmanFilter):
 
     kind = "ukf"
 
-    def __init__(self, model, x0, P0, Q, R, *, alpha: float = 1.0, beta: float = 2.0, kappa: float = 0.0, **options):
+    def __init__(self, model, x0, P0, Q, R=None, *, alpha: float = 1.0, beta: float = 2.0, kappa: float = 0.0,
+                 **options):
         super().__init__(model, x0, P0, Q, R, alpha=alpha, beta=beta, kappa=kappa, **options)
 
 
@@ -700,7 +766,7 @@ class MCUKF(UKF):
 
     kind = "mcukf"
 
-    def __init__(self, model, x0, P0, Q, R, *, sigma: float = 15.0, **options):
+    def __init__(self, model, x0, P0, Q, R=None, *, sigma: float = 15.0, **options):
         super().__init__(model, x0, P0, Q, R, sigma=sigma, **options)
 
 
@@ -710,5 +776,5 @@ class HuberUKF(UKF):
 
     kind = "huber"
 
-    def __init__(self, model, x0, P0, Q, R, *, gamma: float = 1.345, **options):
+    def __init__(self, model, x0, P0, Q, R=None, *, gamma: float = 1.345, **options):
         super().__init__(model, x0, P0, Q, R, gamma=gamma, **options)
