@@ -11,9 +11,9 @@
    of the same script). Target: <= 1.
 3. Context: per step of PF, CPF, MOGCPF, EM-MOGCPF, the Gaussian-sum CKF and the CKF on the seed-000 scenario (sea
    state 3) at N = 300 and 3000 (wall time, this process).
-4. The floors, with ABYSSAL_BENCH_CALLGRIND=1 (valgrind installed; minutes): instructions per step under callgrind
-   (instructions.py: an x86-64-v3 build), and of them the model's kernels (f and h over the sigma points and the
-   particles) and libmvec.
+4. The floors, with ABYSSAL_BENCH_CALLGRIND=1 (valgrind installed; minutes): instructions per step of the CKF and of
+   the CPF (N = 100) from Python under callgrind (instructions.py: an x86-64-v3 build), and of them the model's
+   kernels (f and h over the sigma points and the particles) and libmvec.
 
 The load average is recorded beside every round (``os.getloadavg``): on a machine shared with other work, compare the
 ratios, not the times.
@@ -121,7 +121,7 @@ def floors(say) -> dict | None:
     if os.environ.get("ABYSSAL_BENCH_CALLGRIND") != "1" or not instructions.available():
         return None
     out = {}
-    for row, steps in (("CKF", 40), ("CPF N=100", 4), ("UPF N=100", 4), ("UPF cn N=5000", 2), ("MCUPF cn", 10)):
+    for row, steps in (("CKF", 40), ("CPF N=100", 4)):  # (the cn rows: minutes each under callgrind)
         out[row] = instructions.per_step([sys.executable, str(HERE / "step_times.py"), "--steps", row], steps)
         say(f"  instructions per step, {row}: " + ", ".join(f"{k} {v:,.0f}" for k, v in out[row].items()))
     return out
