@@ -12,7 +12,9 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
+import os
 import platform
+import subprocess
 import time
 from pathlib import Path
 
@@ -49,9 +51,46 @@ def target(name: str, value: float, limit: float, unit: str, higher_is_better: b
             "direction": ">=" if higher_is_better else "<=", "met": bool(met)}
 
 
+def _load_average() -> list[float] | None:
+    return list(os.getloadavg()) if hasattr(os, "getloadavg") else None
+
+
+def _now() -> str:
+    return time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+
+
+def _cpu_model() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def _commit() -> str:
+    """The checkout's commit (short), with "+changes" when its tracked files differ from it."""
+    root = Path(__file__).resolve().parent.parent
+    try:
+        head = subprocess.run(["git", "-C", str(root), "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                              check=True).stdout.strip()
+        dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
+                               capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+    return head + ("+changes" if dirty else "")
+
+
+def machine(quick: bool = False) -> dict:
+    """Where and when the run happened: the README's block prints it beside the targets."""
+    return {"python": platform.python_version(), "cpu": platform.processor() or platform.machine(),
+            "cpu_model": _cpu_model(), "cores": os.cpu_count(), "load_start": _load_average(), "date_start": _now(),
+            "commit": _commit(), "command": "abyssal bench --quick" if quick else "abyssal bench"}
+
+
 def main(json_output: bool = False, out: str | None = "benchmarks/results", quick: bool = False) -> int:
-    report = {"machine": {"python": platform.python_version(), "cpu": platform.processor() or platform.machine()},
-              "sections": {}}
+    report = {"machine": machine(quick), "sections": {}}
     for section in SECTIONS:
         module = importlib.import_module(section)  # a missing or renamed section is an error, never skipped
         key = section.removeprefix("bench_")
@@ -59,6 +98,8 @@ def main(json_output: bool = False, out: str | None = "benchmarks/results", quic
             print(f"== {key}", flush=True)
         result = module.run(quick=quick, verbose=not json_output)
         report["sections"][key] = result
+    report["machine"]["load_end"] = _load_average()
+    report["machine"]["date_end"] = _now()
     targets = [t for s in report["sections"].values() for t in s.get("targets", [])]
     if out:
         Path(out).mkdir(parents=True, exist_ok=True)

@@ -41,28 +41,11 @@ from abyssal.runtime.filters.kalman import CKF, EKF, UKF
 from abyssal.verify import reference_models
 
 from bench import json_main, target
+from trajectory import trajectory
 
 MODEL = "rov4dof"
 DT = 0.1
 HERE = Path(__file__).resolve().parent
-
-
-def trajectory(bundle, steps: int, seed: int = 0):
-    """Inputs, measurements and noise matrices of a simulated run."""
-    rng = np.random.default_rng(seed)
-    n = bundle.n_x
-    Q = np.diag([1e-4] * 8 + [1e-2] * 4)
-    R = np.diag([0.05, 0.05, 0.02, 0.01])
-    t = DT * np.arange(steps)
-    # surge, sway and heave thrust with a yaw moment swinging the heading back and forth
-    U = np.column_stack([np.full(steps, 20.0), np.full(steps, 5.0), np.full(steps, 10.0), 0.5 * np.sin(0.2 * t)])
-    U += 0.5 * rng.normal(size=U.shape)
-    x = np.zeros(n)
-    Z = np.empty((steps, bundle.n_y))
-    for k in range(steps):
-        x = bundle.f(x, U[k], None, DT) + rng.multivariate_normal(np.zeros(n), Q)
-        Z[k] = bundle.h(x) + rng.multivariate_normal(np.zeros(bundle.n_y), R)
-    return np.zeros(n), 0.3 * np.eye(n), Q, R, U, Z
 
 
 def best_per_step(make, step, steps: int, repeats: int) -> float:

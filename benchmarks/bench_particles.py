@@ -1,26 +1,91 @@
-"""Bench section: per-step time of the particle filters on rov4dof at N = 300 and 3000.
+"""Bench section: the particle filters' steps against commit 1dd3f6b's and against the CKF's, measured in one run.
 
-Each filter runs on the seed-000 scenario (sea state 3, the hardest noise: two-component
-measurement mixture); a step is predict + update + (re)sampling, measured as the median of
-repeated loops (``bench.median_time``). Targets at N = 300 (the paper's particle count):
-EM-MOGCPF <= 2 ms, CPF <= 1.5 ms, PF <= 0.1 ms. The CKF and the Gaussian-sum CKF are timed
-as peers.
+1. Against 1dd3f6b (issue 34: the per-particle proposals ran generated steps there): ``step_times.py --cpu --serial``
+   (public API only: the same file runs in both checkouts) in 1dd3f6b's own checkout and venv (baseline.py, built
+   once outside the repository) and in this checkout, alternately, ``ROUNDS`` times each: µs of CPU per step on one
+   thread (no batch split over the cores, BLAS on one thread), the best of the script's repetitions per run. Rows: the
+   CPF (N = 100) and UPF (N = 100) on rov4dof, the UPF at N = 5000 and the MCUPF (KLD-resampling) on cn2d's ranges.
+   The ratios (this checkout / 1dd3f6b) are of the minima over the rounds, and of the medians beside them.
+   Targets: each <= 0.7.
+2. The CPF at N = 100 against 100 steps of the CKF on the same model, both from this checkout's rounds (the CKF.step
+   of the same script). Target: <= 1.
+3. Context: per step of PF, CPF, MOGCPF, EM-MOGCPF, the Gaussian-sum CKF and the CKF on the seed-000 scenario (sea
+   state 3) at N = 300 and 3000 (wall time, this process).
+4. The floors, with ABYSSAL_BENCH_CALLGRIND=1 (valgrind installed; minutes): instructions per step of the CKF and of
+   the CPF (N = 100) from Python under callgrind (instructions.py: an x86-64-v3 build), and of them the model's
+   kernels (f and h over the sigma points and the particles) and libmvec.
+
+The load average is recorded beside every round (``os.getloadavg``): on a machine shared with other work, compare the
+ratios, not the times.
 """
 from __future__ import annotations
 
 import itertools
 import json
+import os
+import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 
 from bench import median_time, target
 
-TARGETS_MS = {"EM-MOGCPF": 2.0, "CPF": 1.5, "PF": 0.1}
+HERE = Path(__file__).resolve().parent
+BASELINE = "1dd3f6b"
+#: rows of step_times.py compared with the baseline, and the CKF (the CPF's unit)
+ROWS = ("CKF", "CPF N=100", "UPF N=100", "UPF cn N=5000", "MCUPF cn")
+TARGET_ROWS = ("CPF N=100", "UPF N=100", "UPF cn N=5000", "MCUPF cn")
+RATIO_LIMIT = 0.7
+ROUNDS, QUICK_ROUNDS = 5, 2
 FILTERS = ("PF", "CPF", "MOGCPF", "EM-MOGCPF", "GS-CKF", "CKF")
 
 
-def run(quick: bool = False, verbose: bool = True) -> dict:
+def _step_times(python: str, cache: str | None, repetitions: int) -> dict:
+    env = dict(os.environ)
+    if cache is not None:
+        env["ABYSSAL_CACHE_DIR"] = cache
+    out = subprocess.run([python, str(HERE / "step_times.py"), "--cpu", "--serial", "--repetitions", str(repetitions),
+                          "--only", ",".join(ROWS)], env=env, capture_output=True, text=True, check=True, cwd=HERE)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def _load() -> float | None:
+    return os.getloadavg()[0] if hasattr(os, "getloadavg") else None
+
+
+def against_baseline(rounds: int, repetitions: int, say) -> dict:
+    """The alternating rounds (module docstring, 1 and 2)."""
+    from baseline import baseline
+
+    python, cache, reason = baseline(BASELINE)
+    runs: dict[str, list] = {"new": [], BASELINE: [], "load": []}
+    for r in range(rounds):
+        if python is not None:
+            runs[BASELINE].append(_step_times(str(python), str(cache), repetitions))
+        runs["new"].append(_step_times(sys.executable, None, repetitions))
+        runs["load"].append(_load())
+        say(f"  round {r + 1}/{rounds}: load {runs['load'][-1]}: "
+            + ", ".join(f"{k} {v:.1f}" for k, v in runs["new"][-1].items())
+            + ("" if python is None else " | " + BASELINE + ": " + ", ".join(f"{k} {v:.1f}"
+                                                                          for k, v in runs[BASELINE][-1].items())))
+
+    def stats(side):
+        return {row: {"min": min(run[row] for run in runs[side]),
+                      "median": float(np.median([run[row] for run in runs[side]]))} for row in ROWS} if runs[side] else {}
+
+    new, old = stats("new"), stats(BASELINE)
+    ratios = {row: {"min": new[row]["min"] / old[row]["min"], "median": new[row]["median"] / old[row]["median"]}
+              for row in TARGET_ROWS} if old else {}
+    ckf_units = {"min": new["CPF N=100"]["min"] / (100 * new["CKF"]["min"]),
+                 "median": new["CPF N=100"]["median"] / (100 * new["CKF"]["median"])}
+    return {"us_cpu_per_step": {"this checkout": new, BASELINE: old}, "ratio_to_baseline": ratios,
+            "CPF N=100 over 100 CKF steps": ckf_units, "rounds": runs, "baseline_missing": reason or None,
+            "command": f"benchmarks/step_times.py --cpu --serial --repetitions {repetitions} --only {','.join(ROWS)}"}
+
+
+def seed_000_table(quick: bool, say) -> dict:
+    """Per step (ms, wall) of the seed-000 particle filters at N = 300 and 3000 (module docstring, 3)."""
     from abyssal.generated import load
 
     from abyssal.runtime.experiments.rov.scenario import SEA_STATES, RovScenario, make_filter, simulate
@@ -44,12 +109,43 @@ def run(quick: bool = False, verbose: bool = True) -> dict:
             for _ in range(20):  # leave the initial transient
                 step()
             row[name] = 1e3 * median_time(step, repeat=repeat, min_time=min_time)
-            if verbose:
-                print(f"  N = {n_particles:5d}  {name:<10} {row[name]:8.3f} ms/step", flush=True)
+            say(f"  N = {n_particles:5d}  {name:<10} {row[name]:8.3f} ms/step")
         results[f"N={n_particles}"] = row
-    targets = [target(f"{name} step at N = 300", results["N=300"][name], limit, "ms")
-               for name, limit in TARGETS_MS.items()]
-    return {"results": {"ms_per_step": results, "scenario": "rov4dof, seed 000 sea state 3"}, "targets": targets}
+    return results
+
+
+def floors(say) -> dict | None:
+    """Instructions per step under callgrind (module docstring, 4), or None."""
+    import instructions
+
+    if os.environ.get("ABYSSAL_BENCH_CALLGRIND") != "1" or not instructions.available():
+        return None
+    out = {}
+    for row, steps in (("CKF", 40), ("CPF N=100", 4)):  # (the cn rows: minutes each under callgrind)
+        out[row] = instructions.per_step([sys.executable, str(HERE / "step_times.py"), "--steps", row], steps)
+        say(f"  instructions per step, {row}: " + ", ".join(f"{k} {v:,.0f}" for k, v in out[row].items()))
+    return out
+
+
+def run(quick: bool = False, verbose: bool = True) -> dict:
+    def say(text):
+        if verbose:
+            print(text, flush=True)
+
+    ab = against_baseline(QUICK_ROUNDS if quick else ROUNDS, 3 if quick else 7, say)
+    results = {"against_1dd3f6b": ab, "seed_000_ms_per_step": seed_000_table(quick, say),
+               "scenario": "rov4dof (bench trajectory and seed 000 sea state 3), cn2d simulated lake trial",
+               "instructions_per_step": floors(say), "load_average_end": _load()}
+    targets = []
+    for row in TARGET_ROWS:
+        ratio = ab["ratio_to_baseline"].get(row, {}).get("min", float("nan"))
+        t = target(f"{row} step, CPU on one thread, over {BASELINE}'s (min of rounds)", ratio, RATIO_LIMIT, "x")
+        if ab["baseline_missing"]:
+            t["note"] = ab["baseline_missing"]
+        targets.append(t)
+    targets.append(target("CPF N=100 step over 100 CKF steps (min of rounds)", ab["CPF N=100 over 100 CKF steps"]["min"],
+                          1.0, "x"))
+    return {"results": results, "targets": targets}
 
 
 if __name__ == "__main__":  # python benchmarks/bench_particles.py [--quick] [--json]

@@ -28,6 +28,8 @@ over its 1-thread time is measured again with the two alternating (``two_threads
 machine's speed drifts over minutes). Targets (wall time; issue "One compiled SIR step for every model"): the
 compiled step <= 100 ns per particle on one core at N = 10^4 and 10^5, <= 60 ns on two; N = 10^6 within 1.3x of
 N = 10^4 per particle.
+Without --quick, and with valgrind installed, the floor also counts instructions per particle of the compiled step
+(N = 10^4, one thread) under callgrind, and of them the model's kernels' (benchmarks/instructions.py).
 Run alone: ``python benchmarks/bench_sir.py [--quick]``; ``--steps N K`` runs K compiled steps at N particles and
 nothing else (for an instruction count under callgrind, benchmarks/README.md).
 """
@@ -432,6 +434,10 @@ def run(quick: bool = False, verbose: bool = True) -> dict:
             say(f"  N = {N:>8}  {name:<40} {value:9.1f} ns/particle{extra}")
         say(f"  N = {N:>8}  {'compiled step, 2 threads / 1, interleaved':<40} {ratios[N]:9.3f}")
     results["floor"] = fl = floor(bundle, 100_000, repeat, min_time)
+    if not quick:
+        results["instructions_per_particle"] = counted = instructions_per_particle(10_000, 4)
+        for name, value in (counted or {}).items():
+            say(f"  floor: instructions per particle, {name:<22} {value:9.1f}")
     results["load_average"] = os.getloadavg() if hasattr(os, "getloadavg") else None
     for name, value in fl.items():
         say(f"  floor: {name:<44} {value:9.2f}")
@@ -448,6 +454,22 @@ def run(quick: bool = False, verbose: bool = True) -> dict:
         targets.append(target("compiled SIR step ns/particle, N = 10^6 / N = 10^4 (1 core)",
                               one_core[sizes.index(1_000_000)] / one_core[sizes.index(10_000)], 1.3, "x"))
     return {"results": results, "targets": targets}
+
+
+def instructions_per_particle(N: int, steps: int) -> dict | None:
+    """Instructions per particle of a compiled step on one thread under callgrind (benchmarks/instructions.py: the
+    difference of `steps` and 2 `steps` steps at N particles), and of them the f kernel's and libmvec's; None without
+    valgrind."""
+    import sys
+    from pathlib import Path
+
+    import instructions
+
+    counts = instructions.per_step([sys.executable, str(Path(__file__).resolve()), "--steps", str(N)], steps)
+    if counts is None:
+        return None
+    names = {"total": "step", "model kernels": "f kernel (and h)", "libmvec": "libmvec"}
+    return {names[k]: v / N for k, v in counts.items()}
 
 
 def steps_only(N: int, steps: int) -> None:

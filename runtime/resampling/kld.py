@@ -24,11 +24,9 @@ floor N_min then decides. (ROS amcl returns its maximum for k <= 1 -- ros-planni
 ``kld_resample`` draws ancestors from the categorical distribution of the weights (multinomial,
 as Li et al.'s KLD-resampling does) and after each draw counts the occupied bins k of a regular
 grid over chosen state coordinates (seed 002: x, y with 10 m x 10 m bins); it stops at the first
-draw count n with n >= clamp(N(k), N_min, N_max). Draws come in chunks (the first of N_min
+draw count n with n >= clamp(N(k), N_min, N_max). The uniforms come in chunks (the first of N_min
 draws, then ``chunk``; the kept draws do not depend on the chunk size, but the generator advances
-by whole chunks, so the draws after a resampling do): a chunk's bin keys are
-compared with the bins already seen, k after each draw is a cumulative sum, and the stopping
-draw is found with one vectorised comparison, so there is no Python iteration per particle. The
+by whole chunks, so the draws after a resampling do), one C call per chunk. The
 result never has more than N_max entries (PCL overran its maximum: pcl #1391/#1392) and never
 fewer than N_min. Each draw is an independent categorical draw from the weights; only the stopping
 time depends on them (through the bins they occupy). tests/runtime/test_kld.py checks that the
@@ -37,9 +35,14 @@ mean is preserved.
 
 Bins: the regular grid floor(x / width) along each binned coordinate, indexed relative to the cloud's
 lowest occupied bin (never from the origin, so a cloud far from the origin with small bins is binned like
-one near it). The indices of a cloud spanning fewer than 2^21 bins per coordinate are packed into one
-int64 key; a wider cloud is binned row-wise (``numpy.unique`` over the index rows). Beyond 2^53 bin
-widths from the origin doubles no longer resolve neighbouring bins: such particles share bins.
+one near it); two particles share a bin when every index is equal. Beyond 2^53 bin widths from the origin
+doubles no longer resolve neighbouring bins: such particles share bins.
+
+The draws are C (runtime/c/abyssal_resample.h, ``compiled.resample.KLDSampler``): the uniforms are the
+Generator's, chunk by chunk as above, and each draw is binned when it is drawn, into a hash set of the
+occupied bins; nothing renumbers the bins of all N particles (the cloud's lowest bin is one minimum per
+binned row). tests/runtime/test_kld.py checks the ancestors against the former NumPy form (every particle's
+bin numbered by ``numpy.unique``, the chunk's new bins by a second ``numpy.unique``) on random clouds.
 
 As a resampling policy of the SIR engine (``ResamplingPolicy``'s interface): KLD-resampling resamples
 every step (``due``), its ``ancestors`` are ``kld_resample``'s (their number is the next step's
@@ -150,62 +153,18 @@ def _limit_table(epsilon, delta, n_min, n_max) -> np.ndarray:
     return np.concatenate([[n_min], table])
 
 
-def _bin_of(states: np.ndarray, params: KLDResampling) -> np.ndarray:
-    """A dense bin number (0, 1, ...) per column of states (n, N): equal for particles in the same bin of the
-    grid along the binned coordinates (module docstring: indices relative to the cloud)."""
-    if not np.isfinite(states[list(params.coordinates)]).all():
-        raise ValueError("kld_resample: states must be finite along the binned coordinates")
-    index = np.empty((len(params.coordinates), states.shape[1]))
-    for i, (row, width) in enumerate(zip(params.coordinates, params.bin_size)):
-        with np.errstate(over="ignore"):
-            np.divide(states[row], width, out=index[i])
-        np.clip(index[i], -1e300, 1e300, out=index[i])  # a huge state over a tiny width: one far bin, never inf
-        np.floor(index[i], out=index[i])
-        index[i] -= index[i].min()  # relative to the cloud's lowest bin (exact for |index| < 2^53)
-    if 21 * index.shape[0] <= 63 and index.max(initial=0.0) < 2**21:
-        key = np.zeros(states.shape[1], dtype=np.int64)
-        for row in index:
-            key = key * (2**21) + row.astype(np.int64)
-        return np.unique(key, return_inverse=True)[1]
-    return np.unique(index, axis=1, return_inverse=True)[1].reshape(-1)
-
-
 def kld_resample(weights, states: np.ndarray, rng: np.random.Generator,
                  params: KLDResampling = KLDResampling()) -> np.ndarray:
     """Ancestor indices (int64, n_min <= len <= n_max) drawn until n >= clamp(N(k)) (module docstring).
 
     weights (N,) normalised; states (n, N) the particles (their binned rows set the bins).
     """
+    from ..compiled.resample import KLDSampler
+
     w = check_weights(weights)
     if not isinstance(rng, np.random.Generator):
         raise TypeError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
     states = np.asarray(states, dtype=np.float64)
     if states.ndim != 2 or states.shape[1] != w.shape[0]:
         raise ValueError(f"states must have shape (n, {w.shape[0]}), got {states.shape}")
-    bin_of = _bin_of(states, params)
-    occupied = np.zeros(int(bin_of.max()) + 1, dtype=bool)
-    limit = params.limit_table()
-    cumulative = np.cumsum(w)
-    cumulative /= cumulative[-1]
-    drawn: list[np.ndarray] = []
-    n_done, k = 0, 0
-    while n_done < params.n_max:
-        # the first chunk is n_min draws (never fewer are kept), later ones params.chunk
-        size = min(int(params.chunk) if n_done else max(int(params.n_min), 1), params.n_max - n_done)
-        idx = np.searchsorted(cumulative, rng.random(size), side="right")
-        np.minimum(idx, w.shape[0] - 1, out=idx)
-        bins = bin_of[idx]
-        _, first = np.unique(bins, return_index=True)  # first draw of each bin inside the chunk ...
-        new = np.zeros(size, dtype=bool)
-        new[first] = ~occupied[bins[first]]  # ... counts if the bin was empty before the chunk
-        occupied[bins] = True
-        k_after = k + np.cumsum(new)
-        count = n_done + np.arange(1, size + 1)
-        stop = np.flatnonzero(count >= limit[k_after])
-        if stop.size:
-            drawn.append(idx[:int(stop[0]) + 1])
-            return np.concatenate(drawn).astype(np.int64)
-        drawn.append(idx)
-        k = int(k_after[-1])
-        n_done += size
-    return np.concatenate(drawn).astype(np.int64)  # exactly n_max draws
+    return KLDSampler(w.shape[0], int(params.n_max), len(params.coordinates)).ancestors(w, states, rng, params)

@@ -1,10 +1,13 @@
 """The bench sections' own arithmetic and models (benchmarks/, imported by file name as `abyssal bench` does): the
-growth fit of bench_scaling, the stochastic-cloning model of bench_sensors against the in-order run, and
-`abyssal bench DIR` on a folder with several sensors. No timing is asserted here."""
+growth fit of bench_scaling, the stochastic-cloning model of bench_sensors against the in-order run,
+`abyssal bench DIR` on a folder with several sensors, and the README's block written from a recorded report
+(write_readme.py). No timing is asserted here."""
 from __future__ import annotations
 
+import copy
 import json
 import math
+import re
 
 import numpy as np
 import pytest
@@ -85,3 +88,72 @@ def test_bench_folder_times_every_kalman_filter_and_each_sensor(linear, capsys, 
     assert set(result["per_step"]) == {"EKF", "UKF", "CKF", "MCUKF", "HuberUKF"}
     assert set(result["per_sensor"]) == {"dvl", "usbl"} and {"dvl_h", "usbl_h"} <= set(result["per_call"])
     assert all(math.isfinite(row["step_us"]) and row["step_us"] > 0 for row in result["per_step"].values())
+
+
+# ------------------------------------------------------------------------------------------- the README's block
+RECORDED = {
+    "machine": {"python": "3.11.2", "cpu": "x86_64", "cpu_model": "AMD EPYC 9R14", "cores": 2,
+                "load_start": [1.5, 2.0, 2.5], "load_end": [3.0, 2.5, 2.25], "date_start": "2026-12-04 06:40 UTC",
+                "date_end": "2026-12-04 07:20 UTC", "commit": "abc1234", "command": "abyssal bench"},
+    "sections": {
+        "particles": {"results": {"instructions_per_step": {"CPF N=100": {"total": 4928306.75, "libmvec": 395447.0}}},
+                      "targets": [{"name": "CPF N=100 step over 1dd3f6b's", "value": 0.61, "limit": 0.7, "unit": "x",
+                                   "direction": "<=", "met": True},
+                                  {"name": "MCUPF cn step over 1dd3f6b's", "value": 0.85, "limit": 0.7, "unit": "x",
+                                   "direction": "<=", "met": False, "note": "load 9"}]},
+        "filters": {"results": {"instructions_per_step_callgrind": {"all filters": 12345.0},
+                                "filter_object_bytes": {"CKF": 4096}},
+                    "targets": [{"name": "CKF speed-up over filterpy", "value": 512.0, "limit": 300.0, "unit": "x",
+                                 "direction": ">=", "met": True}]},
+        "sir": {"results": {"floor": {"bytes/particle (no resampling)": 248},
+                            "instructions_per_particle": {"step": 812.5, "f kernel (and h)": 402.25}},
+                "targets": []},
+    },
+}
+
+
+def test_the_readme_block_is_written_from_a_recorded_report(tmp_path):
+    import write_readme
+
+    recorded = copy.deepcopy(RECORDED)
+    report = tmp_path / "bench.json"
+    report.write_text(json.dumps(recorded))
+    readme = tmp_path / "README.md"
+    readme.write_text("# benchmarks\n\nThe intro.\n\n## An older run\n\nits numbers\n")
+    assert write_readme.main([str(report), "--readme", str(readme)]) == 0
+    text = readme.read_text()
+    assert text.startswith("# benchmarks\n\nThe intro.\n\n" + write_readme.BEGIN)
+    assert text.rstrip().endswith("## An older run\n\nits numbers")  # the history stays below the block
+    inside = text.split(write_readme.BEGIN)[1].split(write_readme.END)[0]
+    # the command that wrote it, the run's command and commit, the machine
+    assert f"python benchmarks/write_readme.py {report}" in inside
+    assert "`abyssal bench`" in inside and "commit abc1234" in inside
+    assert "AMD EPYC 9R14, 2 cores" in inside and "1.50 / 2.00 / 2.50" in inside and "2026-12-04 07:20 UTC" in inside
+    # every target with its value, limit and verdict
+    assert "| particles | CPF N=100 step over 1dd3f6b's | 0.61 x | <= 0.7 x | met |" in inside
+    assert "| particles | MCUPF cn step over 1dd3f6b's (load 9) | 0.85 x | <= 0.7 x | **missed** |" in inside
+    assert "| filters | CKF speed-up over filterpy | 512 x | >= 300 x | met |" in inside
+    assert "2 of 3 targets met." in inside
+    # the floors as counted: per particle (SIR) and per Kalman step
+    assert "| SIR step: bytes/particle (no resampling) | 248 B |" in inside
+    assert "| SIR step: instructions per particle, step | 812.5 |" in inside
+    assert "| Kalman step (C loop): instructions per step, all filters | 12,345 |" in inside
+    assert "| CPF N=100 step from Python: instructions, total | 4,928,307 |" in inside
+    # written again from another report: the block is replaced, the rest untouched
+    recorded["machine"]["commit"] = "def5678"
+    report.write_text(json.dumps(recorded))
+    write_readme.main([str(report), "--readme", str(readme)])
+    again = readme.read_text()
+    assert again.count(write_readme.BEGIN) == 1 and "commit def5678" in again and "commit abc1234" not in again
+    assert again.replace("def5678", "abc1234") == text
+
+
+def test_the_committed_readme_block_names_its_command_and_commit():
+    import write_readme
+
+    text = write_readme.README.read_text()
+    assert text.count(write_readme.BEGIN) == 1 and text.count(write_readme.END) == 1
+    inside = text.split(write_readme.BEGIN)[1].split(write_readme.END)[0]
+    assert "python benchmarks/write_readme.py " in inside and "`abyssal bench" in inside
+    assert re.search(r"commit [0-9a-f]{7}", inside) and "targets met." in inside
+    assert text.index(write_readme.END) < text.index("## Generated code")  # the history stays below it

@@ -111,3 +111,69 @@ def test_refusals_name_their_argument():
         kld_resample(np.array([0.5, 0.5]), np.zeros((2, 3)), rng)
     with pytest.raises(TypeError, match="rng"):
         kld_resample(np.array([0.5, 0.5]), np.zeros((2, 2)), 3)
+
+
+def _former_kld_resample(w, states, rng, params):
+    """kld_resample as NumPy wrote it before the draws moved to C: every particle's bin numbered by numpy.unique over
+    all N, each chunk's new bins by a second numpy.unique (an independent oracle of the same rule)."""
+    index = np.empty((len(params.coordinates), states.shape[1]))
+    for i, (row, width) in enumerate(zip(params.coordinates, params.bin_size)):
+        with np.errstate(over="ignore"):
+            np.divide(states[row], width, out=index[i])
+        np.clip(index[i], -1e300, 1e300, out=index[i])
+        np.floor(index[i], out=index[i])
+        index[i] -= index[i].min()
+    if 21 * index.shape[0] <= 63 and index.max(initial=0.0) < 2**21:
+        key = np.zeros(states.shape[1], dtype=np.int64)
+        for row in index:
+            key = key * (2**21) + row.astype(np.int64)
+        bin_of = np.unique(key, return_inverse=True)[1]
+    else:
+        bin_of = np.unique(index, axis=1, return_inverse=True)[1].reshape(-1)
+    occupied = np.zeros(int(bin_of.max()) + 1, dtype=bool)
+    limit = params.limit_table()
+    cumulative = np.cumsum(w)
+    cumulative /= cumulative[-1]
+    drawn, n_done, k = [], 0, 0
+    while n_done < params.n_max:
+        size = min(int(params.chunk) if n_done else max(int(params.n_min), 1), params.n_max - n_done)
+        idx = np.minimum(np.searchsorted(cumulative, rng.random(size), side="right"), w.shape[0] - 1)
+        bins = bin_of[idx]
+        _, first = np.unique(bins, return_index=True)
+        new = np.zeros(size, dtype=bool)
+        new[first] = ~occupied[bins[first]]
+        occupied[bins] = True
+        k_after = k + np.cumsum(new)
+        stop = np.flatnonzero(n_done + np.arange(1, size + 1) >= limit[k_after])
+        if stop.size:
+            drawn.append(idx[:int(stop[0]) + 1])
+            return np.concatenate(drawn).astype(np.int64)
+        drawn.append(idx)
+        k, n_done = int(k_after[-1]), n_done + size
+    return np.concatenate(drawn).astype(np.int64)
+
+
+def test_bins_counted_on_the_drawn_keys_equal_the_former_numpy_renumbering():
+    """The C draws (each drawn particle binned into a hash set of occupied bins) give the former NumPy form's
+    ancestors and leave the Generator where it left it, on random clouds: 1 to 3 binned rows, clouds near and far
+    from the origin (1e7, -3e9), on the grid (integer states), every particle in one bin, wider than 2^21 bins."""
+    rng = np.random.default_rng(0)
+    for trial in range(250):
+        N, D = int(rng.integers(1, 2500)), int(rng.integers(1, 4))
+        params = KLDResampling(bin_size=tuple(rng.uniform(0.1, 20.0, D)), coordinates=tuple(range(1, D + 1)),
+                               n_min=int(rng.integers(1, 60)), n_max=int(rng.integers(60, 2500)),
+                               chunk=int(rng.integers(1, 600)))
+        states = rng.normal(size=(D + 2, N)) * 10 ** rng.uniform(-2, 4) + rng.choice([0.0, 1e7, -3e9])
+        if trial % 7 == 0:
+            states = np.round(states)
+        if trial % 11 == 0:
+            states[1:] = 0.25
+        if trial % 13 == 0:
+            states[1] *= 1e9
+        w = rng.random(N) ** 4
+        w /= w.sum()
+        seed = int(rng.integers(2**40))
+        a, b = np.random.default_rng(seed), np.random.default_rng(seed)
+        np.testing.assert_array_equal(kld_resample(w, states, a, params), _former_kld_resample(w, states, b, params),
+                                      err_msg=f"trial {trial}")
+        assert a.bit_generator.state == b.bit_generator.state, trial

@@ -147,3 +147,35 @@ def test_a_uniform_rounded_up_to_one_draws_the_last_particle_with_weight():
     weights = np.array([0.25, 0.75, 0.0])  # the last particle has no weight
     assert list(inverse_cdf(weights, np.array([0.1, 0.5, 1.0]))) == [0, 1, 1]
     assert list(inverse_cdf(np.array([0.5, 0.5]), np.array([1.0, 1.0]))) == [1, 1]
+
+
+def test_ancestors_in_c_equal_the_schemes_from_the_same_uniforms():
+    """compiled.resample.Ancestors (the C the carried proposals resample with) gives the systematic and multinomial
+    schemes' ancestors bit for bit from the same Generator draws, with zero weights, ties and a last uniform at 1."""
+    from abyssal.runtime.compiled.resample import Ancestors, gather_items, gather_rows
+    from abyssal.runtime.resampling import multinomial_resample
+
+    rng = np.random.default_rng(4)
+    anc = Ancestors(5000)
+    for trial in range(200):
+        n = int(rng.integers(1, 5000))
+        w = rng.random(n) ** 6 * (rng.random(n) > 0.3)
+        w[int(rng.integers(n))] += 1e-3
+        w /= w.sum()
+        seed = int(rng.integers(2**40))
+        a, b = np.random.default_rng(seed), np.random.default_rng(seed)
+        np.testing.assert_array_equal(anc.systematic(w, a.random()), systematic_resample(w, b))
+        np.testing.assert_array_equal(anc.multinomial(w, a.random(n)), multinomial_resample(w, b))
+        assert a.bit_generator.state == b.bit_generator.state
+    w = np.array([0.2, 0.3, 0.5, 0.0])
+    assert anc.systematic(w, 1.0 - 2**-53, 4)[-1] == 2  # the last particle of positive weight
+    assert anc.multinomial(w, np.array([1.0, 0.0, 0.5])).tolist() == [0, 2, 2]  # sorted: 0, 0.5, 1.0
+    src = rng.normal(size=(3, 40))
+    dst = np.zeros((3, 40))
+    idx = np.array([5, 5, 0, 39, 7], dtype=np.int64)
+    gather_rows(dst, src, idx)
+    np.testing.assert_array_equal(dst[:, :5], src[:, idx])
+    blocks = rng.normal(size=(40, 2, 2))
+    out = np.zeros_like(blocks)
+    gather_items(out, blocks, idx, 4)
+    np.testing.assert_array_equal(out[:5], blocks[idx])

@@ -87,12 +87,21 @@ class CompiledBootstrap:
     def start(self, engine, x0: np.ndarray, P0: np.ndarray) -> None:
         """The first committed side: uniform weights over the N particles drawn, the moments (x0, P0); the
         generator's key, one draw from the filter's rng."""
+        self.first_side(engine, x0, P0)
+        self.step.rng[0] = sir.draw_key(engine.rng)
+
+    def first_side(self, engine, x0: np.ndarray, P0: np.ndarray) -> None:
+        """The first committed side: uniform weights over the N particles drawn, the moments (x0, P0)."""
         step, n = self.step, engine.N
         step.count = n
         step.log_w[0][:n], step.w[0][:n] = -math.log(n), 1.0 / n
         step.means[0][...], step.covs[0][...] = x0, P0
-        step.rng[0] = sir.draw_key(engine.rng)
         self.point(engine, n, True)
+
+    @property
+    def streams(self) -> np.ndarray | None:
+        """The step's generator state [Philox key, step counter]."""
+        return self.step.rng
 
     # ---------------------------------------------------------------- views of the committed side
     def particles(self, n: int) -> np.ndarray:

@@ -138,6 +138,7 @@ from ...noise.mixtures import LOG_2PI, GaussianMixture, weighted_moments
 from ...numerics import angle_indices, gaussian_draws, wrap_to_pi
 from ...resampling import KLDResampling, ResamplingPolicy, normalise_log_weights
 from ..kalman.gate import InnovationGate
+from .carried import CompiledCarried
 from .compiled import CompiledBootstrap
 
 __all__ = ["LOG_UNDERFLOW", "BootstrapProposal", "MeasurementNoise", "Proposal", "SIRFilter", "TransitionNoise",
@@ -372,7 +373,8 @@ class SIRFilter(FilterBase):
         # The bootstrap proposal's step is one compiled call (compiled.py) over the buffers of its C step;
         # otherwise two particle buffers, each bound to its own f and h: ``particles`` (x_{k-1}) and ``proposed``
         # (x_k, written by the proposal). A step without resampling commits by swapping them.
-        self._compiled = CompiledBootstrap(self, self.capacity) if CompiledBootstrap.fits(self) else None
+        self._compiled = (CompiledBootstrap(self, self.capacity) if CompiledBootstrap.fits(self)
+                          else CompiledCarried(self, self.capacity) if CompiledCarried.fits(self) else None)
         if self._compiled is None:
             self._batches = [ModelBatch(model, self.capacity, self._p), ModelBatch(model, self.capacity, self._p)]
             self._measures = [MeasureBatch(model, b.x, self._p) for b in self._batches]
@@ -419,7 +421,7 @@ class SIRFilter(FilterBase):
     @property
     def streams(self) -> np.ndarray | None:
         """The compiled step's generator state [Philox key, step counter] (None: the step is not compiled)."""
-        return None if self._compiled is None else self._compiled.step.rng
+        return None if self._compiled is None else self._compiled.streams
 
     def checkpoint(self) -> dict:
         state = super().checkpoint()

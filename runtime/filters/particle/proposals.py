@@ -79,10 +79,11 @@ def _gaussian_draw(engine, f: np.ndarray, mean: np.ndarray, C: np.ndarray) -> np
 
 
 class CarriedGaussianProposal(Proposal):
-    """A generated sigma-point predict + update of (x^i, P^i) per particle, P^i carried (module docstring).
+    """A sigma-point predict + update of (x^i, P^i) per particle, P^i carried (module docstring).
 
-    A subclass builds the two batches over engine.capacity slices (``_batches``) and may fuse them
-    (``_evaluate``)."""
+    With a Gaussian zero-mean process noise the engine runs it in C (carried.py: the whole proposal in one call,
+    ``algebra`` says which rule); otherwise in NumPy around the runtime's batched steps: a subclass builds the two
+    batches over engine.capacity slices (``_batches``, built when first used) and may fuse them (``_evaluate``)."""
 
     _state = ("carried", "failed_slices")
     #: an entry gated gate_patience times in a row is used by the next update: each particle's own sigma-point
@@ -93,25 +94,56 @@ class CarriedGaussianProposal(Proposal):
         """(predict batch, update batch chained to its outputs), sized to engine.capacity."""
         raise NotImplementedError
 
+    def algebra(self, engine) -> tuple:
+        """(the runtime's filter: "ckf", "ukf", "mcukf" or "huber", the unscented rule (alpha, beta, kappa), the MCC
+        bandwidth, the Huber threshold, a particle's own outlier guard in standard deviations (inf: none))."""
+        raise NotImplementedError
+
     def bind(self, engine) -> None:
+        from .carried import CompiledCarried
+
         self._engine = engine
-        self._pb, self._ub = self._batches(engine)
+        self._compiled = engine._compiled.proposal if isinstance(engine._compiled, CompiledCarried) else None
+        self._pair = None  # the NumPy path's batches (_pb, _ub), built when first used
         self._r_mean, self._q_mean = engine.noise.mean, engine.transition.mean
         # P^i_0 = P0, or its nearest factorable when P0 is singular (a sigma-point step needs a factor)
         P0 = engine.P
         start = P0 if np.linalg.eigvalsh(P0)[0] > 0 else factorable_covariance(P0, engine.transition.covariance)
-        self._pb.cov[:, :, :engine.N] = start[:, :, None]
+        if self._compiled is not None:  # (exactly symmetric, as the C keeps every P^i)
+            self._compiled.committed(engine.N)[...] = 0.5 * (start + start.T)
+        else:
+            self._pb.cov[:, :, :engine.N] = start[:, :, None]
         self._next_cov = None  # P^i of the step under way, committed by commit()
         self._next_failed = 0
         #: particles whose update failed its guards on a repaired covariance (they proposed from their prediction)
         self.failed_slices = 0
 
     @property
+    def _pb(self):
+        """The NumPy path's predict batch (built when first used). Beside the C proposal it is its reference: its
+        input covariances are then the committed carried ones whenever it is read."""
+        if self._pair is None:
+            self._pair = self._batches(self._engine)
+        if self._compiled is not None:
+            self._pair[0].cov[:, :, :self._engine.N] = self.carried
+        return self._pair[0]
+
+    @property
+    def _ub(self):
+        """The NumPy path's update batch, chained to _pb."""
+        if self._pair is None:
+            self._pair = self._batches(self._engine)
+        return self._pair[1]
+
+    @property
     def carried(self) -> np.ndarray:
-        """P^i of the N particles (n, n, N): a view of the generated predict's input buffer."""
+        """P^i of the N particles (n, n, N): a view of the committed covariances."""
+        if self._compiled is not None:
+            return np.moveaxis(self._compiled.committed(self._engine.N), 0, -1)
         return self._pb.cov[:, :, :self._engine.N]
 
-    def _check_dt(self, engine, u, dt) -> None:
+    def check_dt(self, engine, u, dt) -> None:
+        """Refuse a dt at which f needs substeps (the sigma-point steps cannot be subdivided)."""
         pieces = 1 if dt <= engine._checked_dt else engine.pieces(u, dt)
         if pieces > 1:
             raise ValueError(f"{engine.name} ({self.name}): dt = {dt!r} s is beyond the model's stable range (f needs "
@@ -143,7 +175,7 @@ class CarriedGaussianProposal(Proposal):
 
     def predict(self, engine, u, dt) -> None:
         self._next_failed = 0
-        self._check_dt(engine, u, dt)
+        self.check_dt(engine, u, dt)
         engine.transition_draw(u, dt)
         self._inputs(engine, u, dt)
         self._predict(engine.N)
@@ -155,7 +187,7 @@ class CarriedGaussianProposal(Proposal):
     def move(self, engine, u, dt, z, present):
         N, pb, ub = engine.N, self._pb, self._ub
         self._next_failed = 0
-        self._check_dt(engine, u, dt)
+        self.check_dt(engine, u, dt)
         f = engine.propagate(u, dt)  # transition means f(x^i_{k-1}) + E[w]
         self._inputs(engine, u, dt)
         ub.present[:] = present
@@ -200,6 +232,10 @@ class CarriedCubatureProposal(CarriedGaussianProposal):
 
     name = "cubature, carried P^i"
 
+    def algebra(self, engine) -> tuple:
+        # the engine's gate on the cloud, or (gate off) the batch's own per-particle outlier guard, proposal only
+        return "ckf", (1.0, 2.0, 0.0), np.inf, np.inf, np.inf if engine.gate.probability > 0.0 else 100.0
+
     def _batches(self, engine):
         model, cap = engine.model, engine.capacity
         pb = CubaturePredictBatch(model, cap, engine.p)
@@ -238,11 +274,18 @@ class UnscentedProposal(CarriedGaussianProposal):
         self.update, self.sigma, self.gamma = update, float(sigma), float(gamma)
         self.name = {"ukf": "unscented", "huber": "unscented, Huber update", "mcc": "unscented, MCC update"}[update]
 
+    def bind(self, engine) -> None:
+        #: the scaled unscented rule (alpha, beta, kappa) = (1, 0, 3 - n): the paper's lambda = 3 - n
+        self.abk = np.array([1.0, 0.0, 3.0 - engine.model.n_x])
+        super().bind(engine)
+
+    def algebra(self, engine) -> tuple:
+        kind = {"ukf": "ukf", "huber": "huber", "mcc": "mcukf"}[self.update]
+        return kind, (1.0, 0.0, 3.0 - engine.model.n_x), self.sigma, self.gamma, np.inf
+
     def _batches(self, engine):
         model, cap = engine.model, engine.capacity
         function, extra = UNSCENTED_UPDATES[self.update]
-        #: the scaled unscented rule (alpha, beta, kappa) = (1, 0, 3 - n): the paper's lambda = 3 - n
-        self.abk = np.array([1.0, 0.0, 3.0 - model.n_x])
         extra = [np.array([self.sigma if extra == "sigma" else self.gamma])] if extra else []
         pb = UnscentedPredictBatch(model, cap, engine.p, engine.transition.covariance, self.abk)
         ub = UnscentedUpdateBatch(model, function, cap, engine.p, pb.mean_pred, pb.cov_pred, engine.noise.covariance,
