@@ -419,8 +419,12 @@ class KalmanFilter(FilterBase):
         """update(z, p=None): every sensor stacked, at the filter's time (the fixed-rate call); or
         update(sensor, z, t, R=None, p=None): one sensor's measurement stamped t (update_sensor). (One signature for
         both forms, its second argument z or p by form: a *args signature costs the stamped call ~0.3 µs.)"""
-        if type(z) is str and z in self._sensor_index or isinstance(z, str) and (t is not None or R is not None):
-            return self.update_sensor(z, z_or_p, t, R, p)  # (an unknown name is refused there, naming the sensors)
+        if type(z) is str and z in self._sensor_index:
+            return self.update_sensor(z, z_or_p, t, R, p)
+        if isinstance(z, str) and not (z_or_p is t is R is p is None):
+            raise ValueError(
+                f"{type(self).__name__}.update: z (or sensor) {z!r} is neither a measurement vector nor one of model "
+                f"{self.model.name!r}'s sensors {list(self.model.sensor_names)}")
         if t is not None or R is not None:
             raise TypeError(f"{type(self).__name__}.update: t and R belong to one sensor's update, "
                             f"update(sensor, z, t, R=None, p=None) with sensor one of {list(self.model.sensor_names)}")
