@@ -34,6 +34,11 @@ accepted update is undefined or there was none), ``nis_dof`` (int), ``ess`` (flo
 Kalman filters) and ``n_particles`` (float; NaN for Kalman filters). ``checkpoint()`` returns an
 opaque copy of the whole state and reports; ``restore(checkpoint)`` puts it back.
 
+A model that declares its max_dt (``Envelope(max_dt=...)``, recorded in its manifest) says the longest step it is
+meant for: a filter stepped (``predict``, ``step``, ``run``) with a longer dt warns once (``warnings.warn``, a
+``LongStepWarning``; once per filter object) and goes on (a step its model cannot take in one piece is subdivided
+or refused, as always).
+
 ``run`` is all-or-nothing: when row k is refused, the filter is restored to its state before
 ``run`` and the error (same type) names the row; the cause is chained (``__cause__``).
 
@@ -61,6 +66,7 @@ import math
 import numbers
 import threading
 import time
+import warnings
 from collections import deque
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
@@ -72,7 +78,8 @@ from abyssal.arrays import real_array
 from .numerics import SYMMETRY_TOLERANCE, angle_indices, nees, wrap_angles
 
 __all__ = [
-    "Filter", "FilterBase", "NUMERICAL_FAILURES", "Stateful", "FilterResult", "as_generator", "check_count", "check_covariance",
+    "Filter", "FilterBase", "LongStepWarning", "NUMERICAL_FAILURES", "Stateful", "FilterResult", "as_generator", "check_count",
+    "check_covariance",
     "check_dt", "check_p", "check_state", "check_u", "check_z", "real_array", "register", "registered_filters",
     "run_filter",
 ]
@@ -320,6 +327,22 @@ def as_generator(rng) -> np.random.Generator:
 
 
 # ---------------------------------------------------------------------------------------------
+# the model's declared step
+
+
+class LongStepWarning(UserWarning):
+    """A filter was stepped with a dt beyond its model's declared max_dt (once per filter object)."""
+
+
+def declared_max_dt(model) -> float | None:
+    """The max_dt the model declares in its envelope (its manifest's), None when it declares none."""
+    envelope = getattr(model, "envelope", None)
+    if not isinstance(envelope, dict) or not envelope.get("declared") or envelope.get("max_dt") is None:
+        return None
+    return float(envelope["max_dt"])
+
+
+# ---------------------------------------------------------------------------------------------
 # the transaction and run: one implementation for every filter
 
 
@@ -410,6 +433,8 @@ class FilterBase(Stateful):
     ess: float = math.nan
     n_particles: float = math.nan
     _touched: tuple[str, ...] | None = None
+    #: whether a dt beyond the model's declared max_dt is still to be warned about (once per filter object)
+    _long_step_unwarned: bool = False
 
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)
@@ -425,6 +450,8 @@ class FilterBase(Stateful):
         self._p[:] = model.p_default
         self._p_is_default = True
         self._lock = threading.Lock()
+        self._max_dt = declared_max_dt(model)
+        self._long_step_unwarned = self._max_dt is not None
 
     @property
     def x(self) -> np.ndarray:
@@ -453,6 +480,8 @@ class FilterBase(Stateful):
             raise self._numerical_failure(error) from error
         finally:
             self._lock.release()
+        if self._long_step_unwarned:
+            self._warn_long_step(dt)
 
     def update(self, z, p=None) -> bool:
         """Correct the estimate with the present (finite) entries of z; False (nothing changed) when z is
@@ -471,11 +500,14 @@ class FilterBase(Stateful):
         if not self._lock.acquire(False):
             raise self._busy()
         try:
-            return self._step_call(u, dt, z, p)
+            updated = self._step_call(u, dt, z, p)
         except NUMERICAL_FAILURES as error:
             raise self._numerical_failure(error) from error
         finally:
             self._lock.release()
+        if self._long_step_unwarned:
+            self._warn_long_step(dt)
+        return updated
 
     def run(self, U, Z, dt, params=None, truth=None) -> FilterResult:
         """Filter a whole sequence (see ``run_filter``)."""
@@ -546,6 +578,16 @@ class FilterBase(Stateful):
 
     def _update(self, z, present) -> bool:
         raise NotImplementedError(f"{type(self).__name__} implements neither _advance nor _update")
+
+    def _warn_long_step(self, dt) -> None:
+        """Warn (once per filter) after an accepted step whose dt is beyond the model's declared max_dt."""
+        dt = float(dt)  # the call accepted it: a positive finite number
+        if dt > self._max_dt:
+            self._long_step_unwarned = False
+            warnings.warn(f"{type(self).__name__}: dt = {dt:g} s is beyond the longest step model {self.model.name!r} "
+                          f"declares, max_dt = {self._max_dt:g} s (its envelope): its discretisation is not meant for it "
+                          "(`abyssal verify` reports the longest step it is stable at); a step it cannot take in one piece "
+                          "is subdivided or refused. Said once per filter.", LongStepWarning, stacklevel=3)
 
     def _busy(self) -> RuntimeError:
         return RuntimeError(f"{type(self).__name__} is being used from two threads at once; a filter is not thread-safe "
