@@ -337,8 +337,6 @@ class ModelBundle:
         self.angle_states = tuple(manifest.get("angle_states", ()))
         #: "rk4" / "euler" (a discretised continuous model) or "discrete" (x_next given directly)
         self.discretisation = manifest["discretisation"]
-        #: the filter families generated for this model (None: recorded before families were a choice)
-        self.filter_families = manifest.get("filter_families")
         #: the operating envelope the manifest records: {"declared": bool, "states"/"inputs": name -> [low, high],
         #: "max_dt", "min_dt", "default_range"} (None: a manifest written before models declared envelopes)
         self.envelope = manifest.get("envelope")
@@ -348,12 +346,23 @@ class ModelBundle:
         self.n_w, self.n_y = len(self.noise_names), len(self.output_names)
         self.p_default = np.array([q["default"] for q in manifest["parameters"]], dtype=np.float64)
         self.p_default.setflags(write=False)
+        #: the model's sensors (manifest "sensors": name, offset, p_offset, outputs, parameters, noise, angle_outputs,
+        #: rate, latency, functions), in the order of the stacked measurement
+        self.sensors = tuple(manifest.get("sensors", ()))
+        self.sensor_names = tuple(s["name"] for s in self.sensors)
         self._cdll = ctypes.CDLL(str(library))
         prefix = self.name + "_"
         self.functions = {
             name[len(prefix):]: CompiledFunction(name, library, self._cdll, spec)
             for name, spec in sorted(manifest["functions"].items())
         }
+
+    def sensor(self, name: str) -> dict:
+        """The manifest's record of the sensor called name (KeyError listing the model's sensors)."""
+        for s in self.sensors:
+            if s["name"] == name:
+                return s
+        raise KeyError(f"model {self.name!r} has no sensor {name!r}; its sensors: {list(self.sensor_names)}")
 
     def __repr__(self):
         return (f"<ModelBundle {self.name}: {self.n_x} states, {self.n_u} inputs, {self.n_p} parameters, "

@@ -32,7 +32,6 @@ from . import integrity
 GENERATED_DIR = Path(__file__).resolve().parent
 #: the folder holding the package's three layer folders in a source checkout (symbolic/, generated/, runtime/)
 SOURCE_ROOT = GENERATED_DIR.parent
-DEFAULT_FILTERS = ("ekf", "ukf", "ckf", "robust")
 
 
 class NotASourceCheckout(RuntimeError):
@@ -53,28 +52,23 @@ def _installed_package_folders() -> list[Path]:
 
 
 # --------------------------------------------------------------------------- one model -> files
-def model_files(model, families=DEFAULT_FILTERS, origin=None) -> dict[str, str]:
-    """File name -> text of one model folder (see codegen.generate_model); the model's own further
-    functions (``Model.functions``, e.g. tan3dof's fuzzy logic) go into ``<name>_functions.c``."""
+def model_files(model, origin=None) -> dict[str, str]:
+    """File name -> text of one model folder (see codegen.generate_model): the model's f, F, G, each sensor's h and
+    H, the SoA kernels and the descriptor; the model's own further functions (``Model.functions``, e.g. tan3dof's
+    fuzzy logic) go into ``<name>_functions.c``. Every filter's algebra is the C runtime's: nothing per filter."""
     from abyssal.symbolic import codegen
-    from abyssal.symbolic.filters import check_families, filter_units
 
-    families = check_families(families)
     origin = origin or codegen.Origin(command="abyssal.generate()", check="abyssal.check_generated()",
                                       source=f"a Model object named {model.name!r}")
-    filters = filter_units(model, families)
-    # a filter unit may carry a model function that shares its leaves (the EKF's file holds F)
-    carried = {fn.name() for unit in filters for fn in unit.functions}
-    units = [codegen.Unit("model", tuple(fn for fn in codegen.model_functions(model) if fn.name() not in carried)),
-             *filters]
+    units = [codegen.Unit("model", codegen.model_functions(model))]
     generated = {fn.name() for unit in units for fn in unit.functions} | {f"{model.name}_descriptor"}
     clashes = sorted(fn.name() for fn in model.functions if fn.name() in generated)
     if clashes:
-        raise ValueError(f"model {model.name!r}: functions {clashes} have the names of generated model or filter "
-                         "functions; rename them")
+        raise ValueError(f"model {model.name!r}: functions {clashes} have the names of generated model functions; "
+                         "rename them")
     if model.functions:
         units.append(codegen.Unit("functions", model.functions))
-    files = codegen.generate_model(model, units, origin, families)
+    files = codegen.generate_model(model, units, origin)
     files["manifest.json"] = integrity.seal(files["manifest.json"])  # load refuses a manifest edited after this
     return files
 
@@ -122,8 +116,7 @@ def _problems(folder: Path, files: dict[str, str], label: str) -> list[str]:
 def expected_files(models: list[str] | None = None) -> dict[Path, str]:
     """Path (relative to generated/) -> text, for every registered model (or the named ones)."""
     from abyssal.symbolic import codegen
-    from abyssal.symbolic.filters import FAMILIES
-    from abyssal.symbolic.models import FILTER_FAMILIES, REGISTRY
+    from abyssal.symbolic.models import REGISTRY
 
     names = list(REGISTRY) if models is None else models
     unknown = [n for n in names if n not in REGISTRY]
@@ -134,7 +127,7 @@ def expected_files(models: list[str] | None = None) -> dict[Path, str]:
     for name in names:
         origin = codegen.Origin(source=f"symbolic/models/{name}.py")
         model = REGISTRY[name]()
-        for fname, text in model_files(model, FILTER_FAMILIES.get(name, FAMILIES), origin).items():
+        for fname, text in model_files(model, origin).items():
             out[Path(name) / fname] = text
     return out
 
@@ -267,24 +260,24 @@ def _user_folder(out_dir, name: str) -> Path:
     return folder
 
 
-def generate(model, out_dir, filters=DEFAULT_FILTERS, *, origin=None) -> Path:
+def generate(model, out_dir, *, origin=None) -> Path:
     """Write ``<out_dir>/<model.name>/`` (C, SoA kernels, manifest) and return that folder.
 
     model: a Model, or a function returning one (its file is then recorded, so `abyssal verify`
-    can compare the compiled C with CasADi). filters: the filter families to generate (any of
-    "ekf", "ukf", "ckf", "robust"; "robust" needs "ukf"). Files that did not change are not
-    rewritten (their compiled library stays cached); C files no longer generated are removed.
+    can compare the compiled C with CasADi). Every filter runs on what is written (the C runtime
+    holds their algebra). Files that did not change are not rewritten (their compiled library stays
+    cached); C files no longer generated are removed.
     """
     built, derived = _resolve_model(model, out_dir)
     folder = _user_folder(out_dir, built.name)
-    _write(folder, model_files(built, filters, origin or derived))
+    _write(folder, model_files(built, origin or derived))
     return folder
 
 
-def check_folder(model, out_dir, filters=DEFAULT_FILTERS, *, origin=None) -> list[str]:
+def check_folder(model, out_dir, *, origin=None) -> list[str]:
     """Drift of ``<out_dir>/<model.name>/`` against the model (empty when up to date)."""
     built, derived = _resolve_model(model, out_dir)
     folder = Path(out_dir).expanduser().resolve() / built.name
     if not (folder / "manifest.json").is_file():
         return [f"missing: {folder} has no manifest.json (not generated yet)"]
-    return _problems(folder, model_files(built, filters, origin or derived), str(Path(out_dir) / built.name))
+    return _problems(folder, model_files(built, origin or derived), str(Path(out_dir) / built.name))

@@ -78,9 +78,9 @@ from abyssal.arrays import real_array
 from .numerics import SYMMETRY_TOLERANCE, angle_indices, nees, wrap_angles
 
 __all__ = [
-    "Filter", "FilterBase", "LongStepWarning", "NUMERICAL_FAILURES", "Stateful", "FilterResult", "as_generator", "check_count",
-    "check_covariance",
-    "check_dt", "check_p", "check_state", "check_u", "check_z", "real_array", "register", "registered_filters",
+    "Filter", "FilterBase", "LongStepWarning", "NUMERICAL_FAILURES", "RunArguments", "Stateful", "FilterResult", "as_generator", "check_count",
+    "check_covariance", "check_run_arguments",
+    "check_dt", "check_p", "check_state", "check_time", "check_u", "check_z", "real_array", "register", "registered_filters",
     "run_filter",
 ]
 
@@ -241,6 +241,20 @@ def check_dt(dt) -> float:
     if not 0.0 < dt < math.inf:
         raise ValueError(f"dt must be a positive finite number of seconds, got {dt!r}")
     return dt
+
+
+def check_time(t, name: str = "t") -> float:
+    """A time stamp: a finite real number of seconds."""
+    if type(t) is float and math.isfinite(t):
+        return t
+    if isinstance(t, np.ndarray) and t.shape == ():
+        t = t.item()
+    if isinstance(t, (bool, np.bool_)) or not isinstance(t, numbers.Real):
+        raise TypeError(f"{name} must be a real number of seconds, got {type(t).__name__}")
+    t = float(t)
+    if not math.isfinite(t):
+        raise ValueError(f"{name} must be a finite number of seconds, got {t!r}")
+    return t
 
 
 def check_p(p, model) -> np.ndarray | None:
@@ -433,8 +447,10 @@ class FilterBase(Stateful):
     ess: float = math.nan
     n_particles: float = math.nan
     _touched: tuple[str, ...] | None = None
-    #: whether a dt beyond the model's declared max_dt is still to be warned about (once per filter object)
-    _long_step_unwarned: bool = False
+    #: the step a dt is compared with: the model's declared max_dt until the filter has warned about a longer one
+    #: (``_warn_long_step``), inf after that or when the model declares none (one comparison on the hot path)
+    _max_dt: float = math.inf
+    _declared_max_dt: float | None = None
 
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)
@@ -450,8 +466,8 @@ class FilterBase(Stateful):
         self._p[:] = model.p_default
         self._p_is_default = True
         self._lock = threading.Lock()
-        self._max_dt = declared_max_dt(model)
-        self._long_step_unwarned = self._max_dt is not None
+        self._declared_max_dt = declared_max_dt(model)
+        self._max_dt = math.inf if self._declared_max_dt is None else self._declared_max_dt
 
     @property
     def x(self) -> np.ndarray:
@@ -480,7 +496,7 @@ class FilterBase(Stateful):
             raise self._numerical_failure(error) from error
         finally:
             self._lock.release()
-        if self._long_step_unwarned:
+        if dt > self._max_dt:  # (the call accepted dt: a positive finite real number)
             self._warn_long_step(dt)
 
     def update(self, z, p=None) -> bool:
@@ -505,7 +521,7 @@ class FilterBase(Stateful):
             raise self._numerical_failure(error) from error
         finally:
             self._lock.release()
-        if self._long_step_unwarned:
+        if dt > self._max_dt:  # (the call accepted dt: a positive finite real number)
             self._warn_long_step(dt)
         return updated
 
@@ -579,15 +595,15 @@ class FilterBase(Stateful):
     def _update(self, z, present) -> bool:
         raise NotImplementedError(f"{type(self).__name__} implements neither _advance nor _update")
 
-    def _warn_long_step(self, dt) -> None:
-        """Warn (once per filter) after an accepted step whose dt is beyond the model's declared max_dt."""
-        dt = float(dt)  # the call accepted it: a positive finite number
-        if dt > self._max_dt:
-            self._long_step_unwarned = False
-            warnings.warn(f"{type(self).__name__}: dt = {dt:g} s is beyond the longest step model {self.model.name!r} "
-                          f"declares, max_dt = {self._max_dt:g} s (its envelope): its discretisation is not meant for it "
-                          "(`abyssal verify` reports the longest step it is stable at); a step it cannot take in one piece "
-                          "is subdivided or refused. Said once per filter.", LongStepWarning, stacklevel=3)
+    def _warn_long_step(self, dt, stacklevel: int = 3) -> None:
+        """Once per filter: an accepted step (predict, step, run, predict_to) of dt beyond the model's declared max_dt.
+        Every filter's calls compare dt with ``_max_dt`` and call this when it is longer; it then sets ``_max_dt`` to
+        inf, so the filter says it once. stacklevel: the user's frame as seen from here."""
+        self._max_dt = math.inf
+        warnings.warn(f"{type(self).__name__}: dt = {float(dt):g} s is beyond the longest step model {self.model.name!r} "
+                      f"declares, max_dt = {self._declared_max_dt:g} s (its envelope): its discretisation is not meant for "
+                      "it (`abyssal verify` reports the longest step it is stable at); a step it cannot take in one piece "
+                      "is subdivided or refused. Said once per filter.", LongStepWarning, stacklevel=stacklevel)
 
     def _busy(self) -> RuntimeError:
         return RuntimeError(f"{type(self).__name__} is being used from two threads at once; a filter is not thread-safe "
@@ -610,13 +626,21 @@ def _rows(value, T: int, n: int, name: str, *, allow_nan: bool = False) -> np.nd
     return A
 
 
-def run_filter(filt, U, Z, dt, params=None, truth=None) -> FilterResult:
-    """For k < T: filt.step(U[k], dt[k], Z[k], params[k]); all-or-nothing.
+@dataclass
+class RunArguments:
+    """run()'s arguments, checked: U (T, n_u), Z (T, n_y) or None, dts (T,) floats, rows_p (T entries: None or
+    (n_p,)), truth (T, n_x) or None, has_data (T,) bools (a row of Z with a finite entry)."""
 
-    Every argument is checked before the first step. If a step is refused at row k, the filter
-    is restored to its state before the call and the error (same type) names row k.
-    """
-    model = filt.model
+    U: np.ndarray
+    Z: np.ndarray | None
+    dts: list
+    rows_p: list
+    truth: np.ndarray | None
+    has_data: np.ndarray
+
+
+def check_run_arguments(model, U, Z, dt, params=None, truth=None) -> RunArguments:
+    """Every argument of run() checked before the first step (each refusal names the argument, row and column)."""
     U = real_array(U, "U")
     if U.ndim != 2 or U.shape[1] != model.n_u:
         raise ValueError(f"U must have shape (T, {model.n_u}), got {U.shape}")
@@ -640,6 +664,19 @@ def run_filter(filt, U, Z, dt, params=None, truth=None) -> FilterResult:
     if truth is not None:
         truth = _rows(truth, T, model.n_x, "truth")
     has_data = np.zeros(T, dtype=bool) if Z is None else np.isfinite(Z).any(axis=1)
+    return RunArguments(U, Z, dts, rows_p, truth, has_data)
+
+
+def run_filter(filt, U, Z, dt, params=None, truth=None) -> FilterResult:
+    """For k < T: filt.step(U[k], dt[k], Z[k], params[k]); all-or-nothing.
+
+    Every argument is checked before the first step. If a step is refused at row k, the filter
+    is restored to its state before the call and the error (same type) names row k.
+    """
+    model = filt.model
+    a = check_run_arguments(model, U, Z, dt, params, truth)
+    U, Z, dts, rows_p, truth, has_data = a.U, a.Z, a.dts, a.rows_p, a.truth, a.has_data
+    T = U.shape[0]
     n = model.n_x
     xs, Ps = np.empty((T, n)), np.empty((T, n, n))
     nis, dof = np.full(T, np.nan), np.zeros(T, dtype=int)
@@ -659,8 +696,13 @@ def run_filter(filt, U, Z, dt, params=None, truth=None) -> FilterResult:
     except (ValueError, TypeError, FloatingPointError, np.linalg.LinAlgError) as error:
         filt.restore(saved)
         raise type(error)(f"run: row {k} refused ({error}); the filter was restored to its state before run") from error
-    nees = None if truth is None else _nees(truth, xs, Ps, angle_indices(model, "states"))
-    return FilterResult(x=xs, P=Ps, nis=nis, nis_dof=dof, nees=nees, ess=ess, particles=particles, step_time=times)
+    return FilterResult(x=xs, P=Ps, nis=nis, nis_dof=dof, nees=result_nees(model, truth, xs, Ps), ess=ess,
+                        particles=particles, step_time=times)
+
+
+def result_nees(model, truth, xs: np.ndarray, Ps: np.ndarray) -> np.ndarray | None:
+    """The NEES of a run's estimates against the truth (None without one)."""
+    return None if truth is None else _nees(truth, xs, Ps, angle_indices(model, "states"))
 
 
 def _nees(truth: np.ndarray, xs: np.ndarray, Ps: np.ndarray, angle_states) -> np.ndarray:

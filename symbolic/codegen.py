@@ -6,23 +6,24 @@ column-major, as CasADi stores them):
     <m>_f(x, u, p, dt) -> x_next        one discrete step, noise input at zero
     <m>_F(x, u, p, dt) -> dfdx          its Jacobian in x (n_x, n_x)
     <m>_G(x, u, p, dt) -> dfdw          its Jacobian in the noise input (n_x, n_w), held over dt
-    <m>_h(x, p) -> y                    measurement
+    <m>_h(x, p) -> y                    the measurement: every sensor stacked
     <m>_H(x, p) -> dhdx                 its Jacobian (n_y, n_x)
+    <m>_<s>_h, <m>_<s>_H                each sensor's own (a model with several sensors)
     <m>_xdot(x, u, p, w) -> xdot        continuous dynamics (continuous models)
     <m>_x_next(x, u, p, w, dt) -> x_next  the given step with its noise input (discrete models)
 
-Filter families (abyssal.symbolic.filters) add their whole steps as further units: MX graphs of
-calls to SX leaves (the model's step and measurement, the points, the moments, the gain), each
-leaf emitted once per file, so a file grows with the model plus the dense algebra, not with
-(sigma points x model). The manifest's ``instructions`` of a function count the operations one
-call executes (operation_count). Each unit becomes one C file; next to CasADi's code every
-function gets a ``<name>_batch``
-entry point that evaluates it over N column-major slices (see BATCH_TEMPLATE), so N is
-chosen at run time instead of being fixed by ``Function.map``.
+That is all the generated code of a model: every filter's algebra (EKF, UKF, CKF, robust updates,
+per-particle proposals, smoothing) is written once in the C runtime (runtime/c), which reaches the
+model through the descriptor ``<m>_descriptor.c`` written here (its type: abyssal_model.h, copied
+into the folder). So the generated C grows with the model, not with the filters. The manifest's
+``instructions`` of a function count the operations one call executes (operation_count). Each
+unit becomes one C file; next to CasADi's code every function gets a ``<name>_batch`` entry point
+that evaluates it over N column-major slices (see BATCH_TEMPLATE), so N is chosen at run time
+instead of being fixed by ``Function.map``.
 
-For particle work, ``<m>_f`` and ``<m>_h`` also get a structure-of-arrays kernel
-``<name>_soa`` in ``<m>_soa.c`` (see soa_kernel): the SX algorithm written out as one loop
-over particles that the C compiler vectorises, with glibc's vector sin/cos (libmvec).
+For particle and sigma-point work, ``<m>_f`` and each sensor's h also get a structure-of-arrays
+kernel ``<name>_soa`` in ``<m>_soa.c`` (see soa_kernel): the SX algorithm written out as one loop
+over points that the C compiler vectorises, with glibc's vector sin/cos (libmvec).
 """
 from __future__ import annotations
 
@@ -73,8 +74,23 @@ CASADI_SYMBOL_EXPORT int {name}_batch(casadi_int N, const casadi_real** arg, con
 """
 
 
-#: function suffix -> names of the inputs that vary per particle in its SoA kernel.
+#: function suffix -> names of the inputs that vary per particle in its SoA kernel (and every sensor's
+#: "<sensor>_h" of a model with several sensors, as "h": soa_kernels(model))
 SOA_KERNELS = {"f": ("x", "u"), "h": ("x",)}
+
+
+def sensor_suffix(model: Model, index: int) -> str:
+    """The suffix of sensor `index`'s generated h (H: the same with "H"): the model's own "h" when it has one sensor
+    (the stacked measurement is that sensor's), else "<sensor>_h"."""
+    return "h" if len(model.sensors) == 1 else f"{model.sensors[index].name}_h"
+
+
+def soa_kernels(model: Model) -> dict[str, tuple[str, ...]]:
+    """SOA_KERNELS with each sensor's h of the model."""
+    kernels = dict(SOA_KERNELS)
+    for k in range(len(model.sensors)):
+        kernels[sensor_suffix(model, k)] = ("x",)
+    return kernels
 
 # C expression of each SX operation, matching CasADi's own code generator operation by operation.
 _C_OPERATIONS = {
@@ -251,6 +267,14 @@ def model_functions(model: Model) -> tuple[ca.Function, ...]:
         ca.Function(f"{m}_h", [x, p], [ca.densify(model.y)], ["x", "p"], ["y"], FUNCTION_OPTIONS),
         ca.Function(f"{m}_H", [x, p], [ca.densify(ca.jacobian(model.y, x))], ["x", "p"], ["dhdx"], FUNCTION_OPTIONS),
     ]
+    if len(model.sensors) > 1:  # each sensor's own h and H (one sensor's are the model's h and H)
+        for k, sensor in enumerate(model.sensors):
+            h = sensor_suffix(model, k)
+            functions += [
+                ca.Function(f"{m}_{h}", [x, p], [ca.densify(sensor.y)], ["x", "p"], ["y"], FUNCTION_OPTIONS),
+                ca.Function(f"{m}_{h[:-1]}H", [x, p], [ca.densify(ca.jacobian(sensor.y, x))], ["x", "p"], ["dhdx"],
+                            FUNCTION_OPTIONS),
+            ]
     if model.is_discrete:
         functions.append(ca.Function(f"{m}_x_next", [x, u, p, w, dt], [ca.densify(model.x_next)], ["x", "u", "p", "w", "dt"],
                                      ["x_next"], FUNCTION_OPTIONS))
@@ -344,12 +368,12 @@ def unit_source(model: Model, unit: Unit, origin: Origin) -> str:
 
 def soa_source(model: Model, functions: list[ca.Function], origin: Origin) -> tuple[str, dict]:
     """C text of the SoA kernels of a model's unit 'model' and their manifest entries."""
-    kernels, entries = [], {}
+    kernels, entries, specs = [], {}, soa_kernels(model)
     for fn in functions:
         suffix = fn.name()[len(model.name) + 1:]
-        if suffix not in SOA_KERNELS:
+        if suffix not in specs:
             continue
-        batched = tuple(fn.name_in(k) in SOA_KERNELS[suffix] for k in range(fn.n_in()))
+        batched = tuple(fn.name_in(k) in specs[suffix] for k in range(fn.n_in()))
         kernels.append(soa_kernel(fn, batched))
         entries[fn.name()] = [fn.name_in(k) for k in range(fn.n_in()) if batched[k]]
     listing = "\n".join(f" *   {name}_soa" for name in entries)
@@ -360,12 +384,11 @@ def soa_source(model: Model, functions: list[ca.Function], origin: Origin) -> tu
 #: the type of every model's descriptor: the interface this generator writes to and the C runtime
 #: (runtime/c) reads models through; hand-written, copied into every generated folder
 MODEL_HEADER = Path(__file__).resolve().parent / "abyssal_model.h"
-#: the generated functions an ``abyssal_model`` descriptor points to, in the order of its fields
-#: (abyssal_model.h); a function the model was generated without is a NULL entry
-DESCRIPTOR_FUNCTIONS = ("f", "F", "h", "H", "ekf_predict", "ekf_update", "ekf_step", "ckf_predict_points",
-                        "ckf_predict_weights", "ckf_update", "ukf_predict_points", "ukf_predict_weights", "ukf_update",
-                        "mcukf_update", "huber_ukf_update")
+#: the model functions an ``abyssal_model`` descriptor points to, in the order of its fields (abyssal_model.h)
+DESCRIPTOR_FUNCTIONS = ("f", "F", "G")
 DESCRIPTOR_HEADER = MODEL_HEADER.name
+#: the layout version of abyssal_model.h this generator writes (ABYSSAL_MODEL_VERSION)
+DESCRIPTOR_VERSION = 2
 
 
 def _c_string(text: str) -> str:
@@ -378,33 +401,58 @@ def _c_strings(name: str, texts) -> str:
     return f"static const char* const {name}[{max(1, len(texts))}] = {{{body}}};"
 
 
+def _c_flags(name: str, n: int, flagged) -> str:
+    flags = ", ".join("1" if i in flagged else "0" for i in range(n)) or "0"
+    return f"static const unsigned char {name}[{max(1, n)}] = {{{flags}}};"
+
+
+def model_id(model: Model) -> int:
+    """The model's 64-bit id: the first 16 hex digits of its equations' sha256 (a filter object records it)."""
+    return int(model.equations_hash()[:16], 16)
+
+
 def descriptor_source(model: Model, functions: dict[str, dict], origin: Origin) -> str:
-    """C text of ``<m>_descriptor.c``: the ``abyssal_model`` the C runtime reaches the model through (sizes,
-    default parameters, names and units, the generated functions with their work sizes)."""
+    """C text of ``<m>_descriptor.c``: the ``abyssal_model`` the C runtime reaches the model through (sizes, default
+    parameters, names and units, its sensors, the generated functions with their work sizes)."""
     m = model.name
-    present = [suffix for suffix in DESCRIPTOR_FUNCTIONS if f"{m}_{suffix}" in functions]
-    soa = [suffix for suffix in SOA_KERNELS if functions.get(f"{m}_{suffix}", {}).get("soa_batched_inputs")]
+    layout = model.sensor_layout()
+    suffixes = [s for s in DESCRIPTOR_FUNCTIONS if f"{m}_{s}" in functions]
+    for k in range(len(model.sensors)):
+        h = sensor_suffix(model, k)
+        suffixes += [h, h[:-1] + "H"]
+    soa = [s for s in soa_kernels(model) if functions.get(f"{m}_{s}", {}).get("soa_batched_inputs")]
     lines = [f'#include "{DESCRIPTOR_HEADER}"', ""]
     lines += [f"extern int {m}_{suffix}(const double** arg, double** res, long long* iw, double* w, int mem);"
-              for suffix in present]
+              for suffix in dict.fromkeys(suffixes)]
     lines += [f"extern int {m}_{suffix}_soa(long long n, long long ld, const double** arg, double** res);" for suffix in soa]
     defaults = ", ".join(repr(float(q.default)) for q in model.parameters) or "0"
     lines += ["", f"static const double p_default[{max(1, model.n_p)}] = {{{defaults}}};"]
-    for kind, quantities in (("state", model.states), ("input", model.inputs), ("parameter", model.parameters),
-                             ("output", model.outputs)):
+    for kind, quantities in (("state", model.states), ("input", model.inputs), ("parameter", model.parameters)):
         lines.append(_c_strings(f"{kind}_names", (q.name for q in quantities)))
         lines.append(_c_strings(f"{kind}_units", (q.unit for q in quantities)))
-    fields = [f'  "{m}", {model.n_x}, {model.n_u}, {model.n_p}, {model.n_y}, p_default,',
-              "  state_names, state_units, input_names, input_units, parameter_names, parameter_units, output_names,",
-              "  output_units,"]
+    lines.append(_c_flags("angle_states", model.n_x, set(model.angle_states)))
     entries = []
-    for suffix in DESCRIPTOR_FUNCTIONS[:4]:
-        entries.append(_descriptor_entry(m, suffix, functions))
-    fields.append("  " + ", ".join(entries) + ",")
-    fields.append("  " + ", ".join(f"{m}_{s}_soa" if s in soa else "0" for s in ("f", "h")) + ",")
-    fields += ["  " + _descriptor_entry(m, suffix, functions) + "," for suffix in DESCRIPTOR_FUNCTIONS[4:]]
-    fields[-1] = fields[-1].rstrip(",")
-    listing = "\n".join(f" *   {m}_{suffix}" for suffix in present)
+    for k, (sensor, place) in enumerate(zip(model.sensors, layout)):
+        tag, h = f"sensor{k}", sensor_suffix(model, k)
+        lines.append(_c_strings(f"{tag}_output_names", (q.name for q in sensor.outputs)))
+        lines.append(_c_strings(f"{tag}_output_units", (q.unit for q in sensor.outputs)))
+        lines.append(_c_flags(f"{tag}_angles", sensor.n_y, set(sensor.angle_outputs)))
+        R = "0"
+        if sensor.noise is not None:
+            values = ", ".join(repr(float(sensor.noise[i][j])) for j in range(sensor.n_y) for i in range(sensor.n_y))
+            lines.append(f"static const double {tag}_R[{sensor.n_y * sensor.n_y}] = {{{values}}};")
+            R = f"{tag}_R"
+        entries.append(f'  {{{_c_string(sensor.name)}, {sensor.n_y}, {place["offset"]}, {place["p_offset"]}, {sensor.n_q}, {R}, '
+                       f"{tag}_angles, {tag}_output_names, {tag}_output_units,\n   "
+                       f"{_descriptor_entry(m, h, functions)}, {_descriptor_entry(m, h[:-1] + 'H', functions)}, "
+                       f"{m}_{h}_soa}}")
+    lines += ["", f"static const abyssal_sensor sensors[{len(model.sensors)}] = {{", ",\n".join(entries), "};"]
+    fields = [f'  {DESCRIPTOR_VERSION}, "{m}", 0x{model_id(model):016x}ULL,',
+              f"  {model.n_x}, {model.n_u}, {model.n_p}, {model.n_w}, {model.n_y}, {len(model.sensors)}, p_default,",
+              "  state_names, state_units, input_names, input_units, parameter_names, parameter_units, angle_states,",
+              "  " + ", ".join(_descriptor_entry(m, suffix, functions) for suffix in DESCRIPTOR_FUNCTIONS) + ",",
+              f"  {m}_f_soa, sensors"]
+    listing = "\n".join(f" *   {m}_{suffix}" for suffix in dict.fromkeys(suffixes))
     banner = _banner(model, origin, listing, f"the descriptor {m}_descriptor ({DESCRIPTOR_HEADER}) points to")
     return banner + "\n".join(lines) + f"\n\nconst abyssal_model {m}_descriptor = {{\n" + "\n".join(fields) + "\n};\n"
 
@@ -416,12 +464,28 @@ def _descriptor_entry(m: str, suffix: str, functions: dict[str, dict]) -> str:
     return f"{{{m}_{suffix}, {spec['sz_arg']}, {spec['sz_res']}, {spec['sz_iw']}, {spec['sz_w']}}}"
 
 
-def generate_model(model: Model, units: list[Unit], origin: Origin, families: tuple[str, ...] | None = None) -> dict[str, str]:
-    """File name -> text for one model folder: one C file per unit, the SoA kernels and manifest.json.
+def sensors_record(model: Model) -> list[dict]:
+    """The manifest's "sensors": each sensor's layout, outputs, parameters, noise, angles, rate and latency."""
+    out = []
+    for k, (sensor, place) in enumerate(zip(model.sensors, model.sensor_layout())):
+        h = sensor_suffix(model, k)
+        out.append({
+            "name": sensor.name, "description": sensor.description, "offset": place["offset"],
+            "p_offset": place["p_offset"],
+            "outputs": [{"name": q.name, "unit": q.unit, "description": q.description} for q in sensor.outputs],
+            "parameters": [{"name": q.name, "unit": q.unit, "default": q.default, "description": q.description}
+                           for q in sensor.parameters],
+            "noise": [list(row) for row in sensor.noise] if sensor.noise is not None else None,
+            "angle_outputs": list(sensor.angle_outputs), "rate": sensor.rate,
+            "latency": list(sensor.latency) if sensor.latency is not None else None,
+            "functions": {"h": f"{model.name}_{h}", "H": f"{model.name}_{h[:-1]}H", "h_soa": f"{model.name}_{h}_soa"},
+        })
+    return out
 
-    `families` (the filter families the units hold) is recorded in the manifest, so `abyssal verify`
-    can say which families a folder was generated without.
-    """
+
+def generate_model(model: Model, units: list[Unit], origin: Origin) -> dict[str, str]:
+    """File name -> text for one model folder: one C file per unit, the SoA kernels, the descriptor, its type
+    (abyssal_model.h) and manifest.json."""
     files: dict[str, str] = {}
     functions: dict[str, dict] = {}
     for unit in units:
@@ -456,7 +520,8 @@ def generate_model(model: Model, units: list[Unit], origin: Origin, families: tu
         "angle_outputs": list(model.angle_outputs),
         "angle_states": list(model.angle_states),
         "envelope": model.envelope_record(),
-        "filter_families": list(families) if families is not None else None,
+        "sensors": sensors_record(model),
+        "model_id": f"{model_id(model):016x}",
         "notes": list(model.notes),
         "files": {
             name: {"bytes": len(text.encode()), "sha256": hashlib.sha256(text.encode()).hexdigest()}

@@ -14,6 +14,13 @@ vehicle's mass or a leader vehicle's position without regenerating C; their defa
 are recorded in the manifest and used when the runtime is given ``p=None``
 (``bundle.params(m=30.0)`` overrides them by name).
 
+A model measures through :class:`Sensor`s: each its own h_k(x, p) with its outputs (names and units),
+its own parameters (a DVL's lever arm, a leader vehicle's position), its declared noise, angle
+outputs, nominal rate and latency. The model's stacked measurement is every sensor's outputs in
+order, and each sensor's own parameters are appended to the model's parameter vector (named
+``<sensor>_<parameter>``). A model given one ``y = h(x, p)`` instead has one sensor, named
+``measurement``, with the model's outputs.
+
 A model may declare its operating :class:`Envelope`: the nominal range of each state and input
 (for Euler angles, where the kinematics are regular) and the step lengths it is meant for.
 `abyssal verify` samples a model without a NumPy twin inside it; it is recorded in the manifest
@@ -161,7 +168,137 @@ def envelope_record(envelope: Envelope | None, state_names, input_names) -> dict
             "default_range": list(DEFAULT_RANGE)}
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
+class Sensor:
+    """One sensor of a model: y_k = h_k(x, p), with its own outputs, parameters, noise, angles and timing.
+
+    Fields
+    ------
+    name: a C identifier, unique among the model's sensors; it prefixes its outputs and parameters in the
+        model's stacked layout (``dvl_u``, ``dvl_lever_x``).
+    outputs: one Quantity per output (name, unit, description).
+    y: h_k as an SX column (n_y_k, 1) of the model's x, the model's own parameters p and this sensor's q.
+    parameters: its own runtime parameters (Parameter: name, unit, default), e.g. a lever arm or the position
+        of the vehicle it ranges to; a measurement may carry its own values (``update(sensor, z, t, p=...)``).
+    q: the SX column of their symbols (one per parameter, in order; ``symbols("dvl", parameters)`` makes it).
+    noise: its declared measurement noise: a standard deviation per output (in the output's unit) or an
+        (n_y_k, n_y_k) covariance; None declares none (a filter is then given R).
+    angle_outputs: indices (into its outputs) of angles: their innovations wrap to (-pi, pi].
+    rate: its nominal rate in Hz (None: irregular); latency: seconds between a measurement's stamp and its
+        arrival, a number or a (min, max) range (None: unknown). Both describe the sensor (manifest, exported
+        header, simulators); a filter takes each measurement's own stamp.
+    description: what it is.
+    """
+
+    name: str
+    outputs: tuple[Quantity, ...]
+    y: ca.SX
+    parameters: tuple[Parameter, ...] = ()
+    q: ca.SX | None = None
+    noise: object = None
+    angle_outputs: tuple[int, ...] = ()
+    rate: float | None = None
+    latency: float | tuple[float, float] | None = None
+    description: str = ""
+
+    def __post_init__(self):
+        label = f"sensor {self.name!r}"
+        problem = c_identifier_problem(self.name)
+        if problem:
+            raise ValueError(f"sensor name {problem}")
+        object.__setattr__(self, "outputs", tuple(self.outputs))
+        object.__setattr__(self, "parameters", tuple(self.parameters))
+        object.__setattr__(self, "angle_outputs", tuple(self.angle_outputs))
+        if not self.outputs:
+            raise ValueError(f"{label}: it needs at least one output")
+        if isinstance(self.y, ca.MX):
+            raise ValueError(f"{label}: y is a casadi.MX expression; build it from casadi.SX")
+        try:
+            y = ca.SX(self.y)
+        except (NotImplementedError, TypeError, RuntimeError) as exc:
+            raise ValueError(f"{label}: y must be a casadi.SX expression, got {type(self.y).__name__} ({exc})") from None
+        if y.shape != (len(self.outputs), 1):
+            raise ValueError(f"{label}: y has shape {y.shape}, expected ({len(self.outputs)}, 1) (one row per output)")
+        object.__setattr__(self, "y", y)
+        q = ca.SX(0, 1) if self.q is None else ca.SX(self.q)
+        if q.numel() != len(self.parameters) or (q.numel() and (q.size2() != 1 or not q.is_valid_input())):
+            raise ValueError(f"{label}: q must be a column of {len(self.parameters)} plain SX symbols, one per parameter "
+                             f"(symbols({self.name!r}, parameters) makes it), got shape {q.shape}")
+        object.__setattr__(self, "q", q)
+        for i in self.angle_outputs:
+            if not isinstance(i, int) or isinstance(i, bool) or not 0 <= i < len(self.outputs):
+                raise ValueError(f"{label}: angle_outputs index {i!r} is out of range 0..{len(self.outputs) - 1}")
+        object.__setattr__(self, "noise", self._checked_noise())
+        if self.rate is not None and not (isinstance(self.rate, (int, float)) and 0 < self.rate < math.inf):
+            raise ValueError(f"{label}: rate must be a positive number of Hz or None, got {self.rate!r}")
+        latency = self.latency
+        if latency is not None:
+            pair = (latency, latency) if isinstance(latency, (int, float)) else tuple(latency)
+            if len(pair) != 2 or not all(isinstance(v, (int, float)) and 0 <= v < math.inf for v in pair) or pair[0] > pair[1]:
+                raise ValueError(f"{label}: latency must be seconds >= 0 or a (min, max) range, got {latency!r}")
+            object.__setattr__(self, "latency", (float(pair[0]), float(pair[1])))
+
+    def _checked_noise(self):
+        """The declared noise as a covariance (a tuple of row tuples), or None."""
+        if self.noise is None:
+            return None
+        m, label = len(self.outputs), f"sensor {self.name!r}: noise"
+        try:
+            rows = [list(map(float, r)) for r in self.noise] if _is_matrix(self.noise) else [float(v) for v in self.noise]
+        except (TypeError, ValueError):
+            raise ValueError(f"{label} must be {m} standard deviations or an ({m}, {m}) covariance, got "
+                             f"{self.noise!r}") from None
+        if rows and isinstance(rows[0], float):
+            if len(rows) != m or not all(0 < v < math.inf for v in rows):
+                raise ValueError(f"{label}: {m} positive finite standard deviations expected, got {rows}")
+            cov = [[rows[i] ** 2 if i == j else 0.0 for j in range(m)] for i in range(m)]
+        else:
+            cov = rows
+            if len(cov) != m or any(len(r) != m for r in cov):
+                raise ValueError(f"{label}: an ({m}, {m}) covariance expected")
+            if not all(math.isfinite(v) for r in cov for v in r) or any(cov[i][j] != cov[j][i] for i in range(m)
+                                                                        for j in range(m)):
+                raise ValueError(f"{label}: the covariance must be finite and symmetric")
+            if any(cov[i][i] <= 0 for i in range(m)) or not _positive_definite(cov):
+                raise ValueError(f"{label}: the covariance must be positive definite")
+        return tuple(tuple(r) for r in cov)
+
+    @property
+    def n_y(self) -> int:
+        return len(self.outputs)
+
+    @property
+    def n_q(self) -> int:
+        return len(self.parameters)
+
+
+def _is_matrix(value) -> bool:
+    try:
+        first = next(iter(value))
+    except (TypeError, StopIteration):
+        return False
+    return hasattr(first, "__iter__")
+
+
+def _positive_definite(cov) -> bool:
+    """Whether a small symmetric matrix is positive definite (a plain Cholesky)."""
+    m = len(cov)
+    L = [[0.0] * m for _ in range(m)]
+    for j in range(m):
+        d = cov[j][j] - sum(L[j][k] ** 2 for k in range(j))
+        if not d > 0:
+            return False
+        L[j][j] = math.sqrt(d)
+        for i in range(j + 1, m):
+            L[i][j] = (cov[i][j] - sum(L[i][k] * L[j][k] for k in range(j))) / L[j][j]
+    return True
+
+
+#: the name of the one sensor of a model given by y = h(x, p)
+DEFAULT_SENSOR = "measurement"
+
+
+@dataclass(frozen=True, kw_only=True)
 class Model:
     """Symbolic model of a vehicle.
 
@@ -172,7 +309,10 @@ class Model:
         identifiers, unique within each group.
     x, u, p, w: the CasADi SX column symbols of those vectors (w may have 0 rows).
     xdot: continuous dynamics f(x, u, p, w), shape (n_x, 1); None for a discrete model.
-    y: measurement h(x, p), shape (n_y, 1).
+    y: measurement h(x, p), shape (n_y, 1): one sensor, named "measurement", with the outputs above; or
+    sensors: the model's sensors (:class:`Sensor`), instead of y and outputs. The model's outputs, y,
+        angle_outputs and its parameters and p then include every sensor's (outputs ``<sensor>_<output>``
+        stacked in the order of the sensors, parameters ``<sensor>_<parameter>`` appended).
     discretisation: "rk4" or "euler" for a continuous model (default "rk4"), "discrete" for a
         discrete one (the default when x_next is given); substeps: steps of dt/substeps in one call.
     angle_outputs: indices of outputs that are angles (innovations wrap to (-pi, pi]).
@@ -195,15 +335,16 @@ class Model:
     name: str
     states: tuple[Quantity, ...]
     inputs: tuple[Quantity, ...]
-    parameters: tuple[Parameter, ...]
-    noises: tuple[Quantity, ...]
-    outputs: tuple[Quantity, ...]
+    parameters: tuple[Parameter, ...] = ()
+    noises: tuple[Quantity, ...] = ()
+    outputs: tuple[Quantity, ...] = ()
     x: ca.SX
     u: ca.SX
-    p: ca.SX
-    w: ca.SX
-    xdot: ca.SX | None
-    y: ca.SX
+    p: ca.SX | None = None
+    w: ca.SX | None = None
+    xdot: ca.SX | None = None
+    y: ca.SX | None = None
+    sensors: tuple[Sensor, ...] = ()
     discretisation: str | None = None
     substeps: int = 1
     angle_outputs: tuple[int, ...] = ()
@@ -218,6 +359,10 @@ class Model:
         problem = c_identifier_problem(self.name)
         if problem:
             raise ValueError(f"model name {problem}: it names the generated folder and prefixes every C symbol")
+        for label in ("p", "w"):
+            if getattr(self, label) is None:
+                object.__setattr__(self, label, ca.SX(0, 1))
+        self._resolve_sensors()
         self._check_expressions()
         self._check_names()
         self._check_shapes()
@@ -229,6 +374,78 @@ class Model:
     # ----------------------------------------------------------------- validation
     def _fail(self, message: str):
         raise ValueError(f"model {self.name!r}: {message}")
+
+    def _resolve_sensors(self):
+        """The stacked measurement from the sensors, or the one sensor of a model given by y and outputs."""
+        sensors = tuple(self.sensors)
+        if len(sensors) == 1 and isinstance(sensors[0], Sensor) and sensors[0].name == DEFAULT_SENSOR and self.y is not None:
+            sensors = ()  # the one sensor of a model given by y (dataclasses.replace passes it back): rebuilt from y
+        if sensors and self._resolved_form(sensors):  # a model rebuilt from a resolved one (dataclasses.replace)
+            n_q = sum(s.n_q for s in sensors)
+            object.__setattr__(self, "parameters", tuple(self.parameters)[: len(self.parameters) - n_q])
+            object.__setattr__(self, "p", ca.SX(self.p)[: ca.SX(self.p).numel() - n_q])
+            object.__setattr__(self, "outputs", ())
+            object.__setattr__(self, "y", None)
+            object.__setattr__(self, "angle_outputs", ())
+        object.__setattr__(self, "_explicit_sensors", bool(sensors))
+        if not sensors:
+            if self.y is None:
+                self._fail("it has no measurement: give y = h(x, p) with its outputs, or sensors=(Sensor(...), ...) "
+                           "(abyssal.symbolic.Sensor); a filter needs at least one")
+            outputs = tuple(self.outputs)
+            try:
+                y = ca.SX(self.y)
+            except (NotImplementedError, TypeError, RuntimeError):
+                y = self.y  # refused with its reason by _check_expressions
+            angles_valid = all(isinstance(i, int) and not isinstance(i, bool) and 0 <= i < len(outputs)
+                               for i in self.angle_outputs)  # else _check_indices names the problem
+            if isinstance(y, ca.SX) and not isinstance(self.y, ca.MX) and y.shape == (len(outputs), 1) and outputs \
+                    and angles_valid:
+                sensor = Sensor(name=DEFAULT_SENSOR, outputs=outputs, y=y, angle_outputs=tuple(self.angle_outputs),
+                                description="the model's measurement y = h(x, p)")
+                object.__setattr__(self, "sensors", (sensor,))
+            else:
+                object.__setattr__(self, "sensors", ())
+            return
+        if self.y is not None or tuple(self.outputs) or tuple(self.angle_outputs):
+            self._fail("give either y and outputs (one measurement) or sensors, not both; with sensors, the outputs, y "
+                       "and angle_outputs are the sensors' stacked")
+        names = [s.name for s in sensors if isinstance(s, Sensor)]
+        if len(names) != len(sensors):
+            self._fail("sensors must be abyssal Sensor objects (abyssal.symbolic.Sensor)")
+        duplicates = sorted({n for n in names if names.count(n) > 1})
+        if duplicates:
+            self._fail(f"sensors: duplicate names {duplicates}")
+        outputs, parameters, q, ys, angles, row = [], list(self.parameters), [ca.vec(ca.SX(self.p))], [], [], 0
+        for s in sensors:
+            outputs += [Quantity(f"{s.name}_{o.name}", o.unit, o.description) for o in s.outputs]
+            parameters += [Parameter(f"{s.name}_{prm.name}", prm.unit, prm.default, prm.description) for prm in s.parameters]
+            q.append(s.q)
+            ys.append(s.y)
+            angles += [row + i for i in s.angle_outputs]
+            row += s.n_y
+        object.__setattr__(self, "sensors", sensors)
+        object.__setattr__(self, "outputs", tuple(outputs))
+        object.__setattr__(self, "parameters", tuple(parameters))
+        object.__setattr__(self, "p", ca.vertcat(*q))
+        object.__setattr__(self, "y", ca.vertcat(*ys))
+        object.__setattr__(self, "angle_outputs", tuple(angles))
+
+    def _resolved_form(self, sensors) -> bool:
+        """Whether outputs, y, parameters and p are already the stacked ones of these sensors (a resolved model passed
+        back through dataclasses.replace), so that resolving again must not append the sensors' twice."""
+        if self.y is None or not all(isinstance(s, Sensor) for s in sensors):
+            return False
+        names = [f"{s.name}_{o.name}" for s in sensors for o in s.outputs]
+        own = [f"{s.name}_{q.name}" for s in sensors for q in s.parameters]
+        parameters = [q.name for q in self.parameters]
+        p = ca.SX(self.p)
+        n_q = len(own)
+        if [q.name for q in self.outputs] != names or parameters[len(parameters) - n_q:] != own or p.numel() < n_q:
+            return False
+        tail = [p[p.numel() - n_q + k] for k in range(n_q)]
+        symbols_ = [s.q[k] for s in sensors for k in range(s.n_q)]
+        return all(ca.is_equal(a, b) for a, b in zip(tail, symbols_))
 
     def _check_expressions(self):
         """Every expression is SX (MX refused, numbers converted); the kind is resolved."""
@@ -326,6 +543,16 @@ class Model:
         free_h = names(self.y, [self.x, self.p])
         if free_h:
             self._fail(f"h may depend on x and p only, found {free_h} in y (an input in the measurement: make it a parameter)")
+        if self._explicit_sensors:
+            own = ca.vertcat(*[s.q for s in self.sensors])
+            dynamics_p = self.p[: self.n_p - own.numel()]
+            for s in self.sensors:
+                free = names(s.y, [self.x, dynamics_p, s.q])
+                if free:
+                    self._fail(f"sensor {s.name!r}: its y uses {free}, which are not states, the model's parameters or "
+                               "its own (another sensor's parameters, an input or a noise?)")
+            if self.xdot is not None and ca.depends_on(self.xdot, own) or self.x_next is not None and ca.depends_on(self.x_next, own):
+                self._fail("the dynamics use a sensor's own parameters; make them the model's parameters")
 
     def _check_functions(self):
         object.__setattr__(self, "functions", tuple(self.functions))
@@ -411,6 +638,24 @@ class Model:
         """Parameter name -> default value, in vector order."""
         return {prm.name: float(prm.default) for prm in self.parameters}
 
+    def sensor_layout(self) -> list[dict]:
+        """Per sensor: its name, its first output in the stacked measurement (offset), its first own parameter in p
+        (p_offset, after the model's and earlier sensors' parameters) and sizes."""
+        layout, row = [], 0
+        p_offset = self.n_p - sum(s.n_q for s in self.sensors) if self._explicit_sensors else self.n_p
+        for s in self.sensors:
+            layout.append({"name": s.name, "offset": row, "n_y": s.n_y, "p_offset": p_offset, "n_q": s.n_q})
+            row += s.n_y
+            p_offset += s.n_q
+        return layout
+
+    def sensor(self, name: str) -> Sensor:
+        """The sensor called name (KeyError listing the model's sensors)."""
+        for s in self.sensors:
+            if s.name == name:
+                return s
+        raise KeyError(f"model {self.name!r} has no sensor {name!r}; its sensors: {[s.name for s in self.sensors]}")
+
     def parameter_vector(self, **values: float) -> list[float]:
         """The parameter vector with the named entries changed: ``model.parameter_vector(m=30.0)``."""
         return parameter_vector(self.name, self.defaults, values)
@@ -428,8 +673,9 @@ class Model:
         else:
             dynamics = [str(self.xdot)]
         extra = [f"{fn.name()}: {fn.serialize()}" for fn in self.functions]
+        sensors = [f"sensor {s.name}: {s.n_y} outputs, {s.n_q} parameters" for s in self.sensors] if self._explicit_sensors else []
         text = "\n".join([self.name, self.discretisation, str(self.substeps), str(self.angle_outputs), names, defaults,
-                          *dynamics, str(self.y), *extra])
+                          *dynamics, str(self.y), *extra, *sensors])
         return hashlib.sha256(text.encode()).hexdigest()
 
 

@@ -1,15 +1,15 @@
 """`abyssal verify` section for seed 002 (cooperative navigation), on the cn2d bundle (IVBCKF on linear_cv).
 
-* Per-particle proposal steps: ``ukf_predict``, ``ukf_update``, ``mcukf_update`` and
-  ``huber_ukf_update`` evaluated over 257 particles in one batched call (the ``_batch`` entry
-  points through ``ParallelBatch``, as the UPF/HRUPF/MCUPF use them) vs the single-step functions
-  called particle by particle: <= 1e-12 (relative to the largest entry).
+* Per-particle proposal steps: the C runtime's ``ukf_predict``, ``ukf_update``, ``mcukf_update`` and
+  ``huber_ukf_update`` (compiled.kalman.BatchStep) evaluated over 257 particles in one batched call
+  (through ``ParallelBatch``, as the UPF/HRUPF/MCUPF use them) vs the same steps called particle by
+  particle: <= 1e-12 (relative to the largest entry).
 * Limits: the MCC update with sigma = 1e12 (C = 1 exactly in double), and the Huber update with gamma = 1e12, vs the plain
   UKF update: <= 1e-12.
 * The MCC update vs a NumPy transcription of eqs. 36-39 (one fixed point: R~ = R / C with
   C = exp(-(z - z_pred)^2 / (2 R sigma^2)), capped at exponent 50) at innovations of 0.5, 5 and 40 m:
   <= 1e-9 relative.
-* IVBCKF (runtime/filters/kalman/ivbckf.py: generated cubature update inside the VB iteration) vs
+* IVBCKF (runtime/filters/kalman/ivbckf.py: the runtime's cubature update inside the VB iteration) vs
   a NumPy transcription of the iteration of the paper's ref. 21 in linear Kalman form on the
   linear_cv model (where the cubature update is exact), with an outlier in the measurement:
   <= 1e-9 relative.
@@ -40,6 +40,7 @@ def _particle_cloud(rng, N):
 
 def batch_checks(bundle) -> list[Check]:
     from abyssal.runtime.compiled.batches import ParallelBatch
+    from abyssal.runtime.compiled.kalman import BatchStep
 
     rng = np.random.default_rng(0)
     N = 257
@@ -49,18 +50,18 @@ def batch_checks(bundle) -> list[Check]:
     abk, z, mask = np.array([1.0, 0.0, 1.0]), np.array([480.0]), np.ones(1)
     out = []
     xp, Pp, ok = np.zeros((2, N), order="F"), np.zeros((2, 2, N), order="F"), np.zeros((1, N), order="F")
-    ParallelBatch(bundle.function("ukf_predict"), [x, P, u, p, dt, Q.reshape(-1, order="F"), abk],
+    ParallelBatch(BatchStep(bundle, "ukf_predict"), [x, P, u, p, dt, Q.reshape(-1, order="F"), abk],
                   [True, True, False, False, False, False, False], [xp, Pp, ok], N)(N)
-    single = bundle.function("ukf_predict")
+    single = BatchStep(bundle, "ukf_predict")
     err = max(max(_rel(np.ravel(r[0]), xp[:, j]), _rel(r[1], Pp[:, :, j]))
               for j in range(N) for r in [single(x[:, j], P[:, :, j], u, p, dt, Q, abk)])
     out.append(Check(MODEL, "ukf_predict_batch over 257 particles", "ukf_predict per particle", err, 1e-12))
     for name, extra in (("ukf_update", []), ("mcukf_update", [np.array([15.0])]), ("huber_ukf_update", [np.array([1.345])])):
         xo, Po = np.zeros((2, N), order="F"), np.zeros((2, 2, N), order="F")
         nu, S, ok = np.zeros((1, N), order="F"), np.zeros((1, N), order="F"), np.zeros((1, N), order="F")
-        ParallelBatch(bundle.function(name), [xp, Pp, z, p, R.reshape(-1, order="F"), mask, abk, *extra],
+        ParallelBatch(BatchStep(bundle, name), [xp, Pp, z, p, R.reshape(-1, order="F"), mask, abk, *extra],
                       [True, True] + [False] * (5 + len(extra)), [xo, Po, nu, S, ok], N)(N)
-        single = bundle.function(name)
+        single = BatchStep(bundle, name)
         err = max(max(_rel(np.ravel(r[0]), xo[:, j]), _rel(r[1], Po[:, :, j]))
                   for j in range(N) for r in [single(xp[:, j], Pp[:, :, j], z, p, R, mask, abk, *extra)])
         out.append(Check(MODEL, f"{name}_batch over 257 particles", f"{name} per particle", err, 1e-12))
@@ -70,8 +71,10 @@ def batch_checks(bundle) -> list[Check]:
 def limit_checks(bundle) -> list[Check]:
     x, P = np.array([100.0, -50.0]), np.array([[30.0, 5.0], [5.0, 20.0]])
     p, R, mask, abk = np.array([400.0, 300.0]), np.array([[0.1]]), np.ones(1), np.array([1.0, 0.0, 1.0])
-    ukf = bundle.function("ukf_update")
-    mcc, huber = bundle.function("mcukf_update"), bundle.function("huber_ukf_update")
+    from abyssal.runtime.compiled.kalman import BatchStep
+
+    ukf = BatchStep(bundle, "ukf_update")
+    mcc, huber = BatchStep(bundle, "mcukf_update"), BatchStep(bundle, "huber_ukf_update")
     out = []
     z_pred = float(np.ravel(ukf(x, P, np.zeros(1), p, R, mask, abk)[2])[0]) * -1.0  # innovation of z = 0 is -z_pred
     for dz in (0.5, 5.0, 40.0):

@@ -1,5 +1,5 @@
-"""`abyssal verify` section: the generated filter steps (through the runtime classes) against
-reference numerics they were not produced by.
+"""`abyssal verify` section: the filters (the C runtime's algebra on the model's generated f, F, h, H,
+through the runtime classes) against reference numerics they were not produced by.
 
 Checks per model (errors are max |difference| / max(1, max |reference|) over a short
 simulated run of STEPS predict+update steps):
@@ -20,14 +20,13 @@ simulated run of STEPS predict+update steps):
   every model that needs no filterpy and reuses the model's loaded build (it once generated and compiled a
   linearised copy of a user's model for the exact Kalman filter: 1.3-1.7 MB of C compiled a second time);
 * MCUKF with sigma = inf and HuberUKF with gamma = inf == UKF (the robust updates' limits);
-* the fused steps <m>_ckf_step, <m>_ekf_step (what step() calls) == predict then update.
+* step() (one transaction of the runtime) == predict then update.
 
 Our sigma-point updates redraw the points from the predicted mean and covariance, while
 filterpy reuses the propagated points; the oracles are configured the same way (filterpy's by setting
 ``sigmas_f`` from the predicted (x, P) before each update). Angle outputs use the
 same residual (wrapped to (-pi, pi]) on both sides. filterpy is a test-only dependency,
-imported here lazily; if it is missing, the checks that need it are reported as skipped. A model
-generated without some filter family gets a skipped check naming each missing family.
+imported here lazily; if it is missing, the checks that need it are reported as skipped.
 """
 from __future__ import annotations
 
@@ -39,7 +38,6 @@ import numpy as np
 
 from abyssal.runtime.filters.kalman import CKF, EKF, MCUKF, UKF, HuberUKF
 from abyssal.runtime.numerics import relative_error, wrap_to_pi as wrap
-from abyssal.symbolic.filters.families import FUNCTIONS
 
 from .report import Check
 
@@ -129,7 +127,7 @@ def run_ours(flt, sc: Scenario, mask_entries=None):
 
 
 def run_ours_fused(flt, sc: Scenario):
-    """(x, P) after every step(), which uses the generated fused predict + update when there is one."""
+    """(x, P) after every step() (predict and update in one call of the runtime)."""
     out = []
     for k in range(len(sc.U)):
         flt.step(sc.U[k], sc.dt, sc.Z[k], sc.p)
@@ -240,10 +238,6 @@ def compare(model: str, name: str, reference: str, ours, theirs, tolerance: floa
     return Check(model, name, reference, error, tolerance, detail=f"max relative error of x and P over {len(ours)} steps")
 
 
-#: family -> the generated functions it must provide (the predicts and updates; the fused steps are optional)
-FAMILY_FUNCTIONS = {family: tuple(name for role, name in roles.items() if role != "step") for family, roles in FUNCTIONS.items()}
-
-
 def _is_linear(bundle, sc: Scenario) -> bool:
     """F and H the same at two distant points: the model is linear (affine), so the Kalman filter is exact."""
     rng = np.random.default_rng(11)
@@ -254,18 +248,12 @@ def _is_linear(bundle, sc: Scenario) -> bool:
 
 
 def checks(bundle, target=None) -> list[Check]:
-    """The filter checks of every generated family; a family the model lacks is reported as skipped."""
+    """The filter checks (every filter runs on every model: the algebra is the C runtime's)."""
     model = bundle.name
-    present = {family: all(f in bundle.functions for f in functions) for family, functions in FAMILY_FUNCTIONS.items()}
-    result = [Check.skip(model, f"{family} filter steps", "filterpy / exact Kalman filter",
-                         f"the model was generated without the {family!r} filter family "
-                         f"(its families: {bundle.filter_families})")
-              for family, there in present.items() if not there]
+    result = []
     sc = scenario(bundle)
     args = (bundle, sc.x0, sc.P0, sc.Q, sc.R)
-    ekf = run_ours(EKF(*args), sc) if present["ekf"] else None
-    ukf = run_ours(UKF(*args), sc) if present["ukf"] else None
-    ckf = run_ours(CKF(*args), sc) if present["ckf"] else None
+    ekf, ukf, ckf = run_ours(EKF(*args), sc), run_ours(UKF(*args), sc), run_ours(CKF(*args), sc)
     oracles = [("a NumPy sigma-point filter", "NumPy sigma-point filter", numpy_sigma_point_run)]
     if importlib.util.find_spec("filterpy") is None:
         result.append(Check.skip(model, "filters vs filterpy", "filterpy",
@@ -275,36 +263,29 @@ def checks(bundle, target=None) -> list[Check]:
         oracles.append(("filterpy", "filterpy UKF", filterpy_sigma_point_run))
     for label, reference, oracle in oracles:
         suffix = "" if label == "filterpy" else f" vs {label}"
-        if ckf is not None:
-            result.append(compare(model, f"ckf step{suffix}", f"{reference}, Merwe(1, 0, 0)", ckf,
-                                  oracle(bundle, sc, 1.0, 0.0, 0.0)))
-        if ukf is not None:
-            for a, b, k in UKF_PARAMETERS:
-                result.append(compare(model, f"ukf step ({a:g}, {b:g}, {k:g}){suffix}",
-                                      f"{reference}, Merwe({a:g}, {b:g}, {k:g})",
-                                      run_ours(UKF(*args, alpha=a, beta=b, kappa=k), sc), oracle(bundle, sc, a, b, k)))
-        if ckf is not None and bundle.n_y > 1:
+        result.append(compare(model, f"ckf step{suffix}", f"{reference}, Merwe(1, 0, 0)", ckf,
+                              oracle(bundle, sc, 1.0, 0.0, 0.0)))
+        for a, b, k in UKF_PARAMETERS:
+            result.append(compare(model, f"ukf step ({a:g}, {b:g}, {k:g}){suffix}",
+                                  f"{reference}, Merwe({a:g}, {b:g}, {k:g})",
+                                  run_ours(UKF(*args, alpha=a, beta=b, kappa=k), sc), oracle(bundle, sc, a, b, k)))
+        if bundle.n_y > 1:
             masked = [bundle.n_y - 1]
             kept = [i for i in range(bundle.n_y) if i not in masked]
             result.append(compare(model, f"ckf masked update{suffix}", f"{reference} on the kept entries",
                                   run_ours(CKF(*args), sc, mask_entries=masked),
                                   oracle(bundle, sc, 1.0, 0.0, 0.0, kept=kept)))
-    if ekf is not None and importlib.util.find_spec("filterpy") is not None:
+    if importlib.util.find_spec("filterpy") is not None:
         result.append(compare(model, "ekf step (Joseph)", "filterpy ExtendedKalmanFilter", ekf, filterpy_ekf_run(bundle, sc)))
     exact = exact_kalman_run(bundle, sc)
     if _is_linear(bundle, sc):
         for family, ours in (("ekf", ekf), ("ukf", ukf), ("ckf", ckf)):
-            if ours is not None:
-                result.append(compare(model, f"{family} on a linear model", "exact Kalman filter", ours, exact))
-    elif ekf is not None:
+            result.append(compare(model, f"{family} on a linear model", "exact Kalman filter", ours, exact))
+    else:
         result.append(compare(model, "ekf step vs Kalman filter of the linearised model", "exact Kalman filter "
                               "(NumPy) on F, H at each estimate", ekf, exact))
-    if ckf is not None:
-        result.append(compare(model, "ckf fused step", "ckf predict then update", run_ours_fused(CKF(*args), sc), ckf))
-    if ekf is not None:
-        result.append(compare(model, "ekf fused step", "ekf predict then update", run_ours_fused(EKF(*args), sc), ekf))
-    if present["robust"] and ukf is not None:
-        result.append(compare(model, "mcukf, sigma = inf", "ukf step", run_ours(MCUKF(*args, sigma=math.inf), sc), ukf))
-        result.append(compare(model, "huber ukf, gamma = inf", "ukf step", run_ours(HuberUKF(*args, gamma=math.inf), sc),
-                              ukf))
+    result.append(compare(model, "ckf step()", "ckf predict then update", run_ours_fused(CKF(*args), sc), ckf))
+    result.append(compare(model, "ekf step()", "ekf predict then update", run_ours_fused(EKF(*args), sc), ekf))
+    result.append(compare(model, "mcukf, sigma = inf", "ukf step", run_ours(MCUKF(*args, sigma=math.inf), sc), ukf))
+    result.append(compare(model, "huber ukf, gamma = inf", "ukf step", run_ours(HuberUKF(*args, gamma=math.inf), sc), ukf))
     return result

@@ -5,37 +5,17 @@
  * Functions (the descriptor cn2d_descriptor (abyssal_model.h) points to):
  *   cn2d_f
  *   cn2d_F
+ *   cn2d_G
  *   cn2d_h
  *   cn2d_H
- *   cn2d_ekf_predict
- *   cn2d_ekf_update
- *   cn2d_ekf_step
- *   cn2d_ckf_predict_points
- *   cn2d_ckf_predict_weights
- *   cn2d_ckf_update
- *   cn2d_ukf_predict_points
- *   cn2d_ukf_predict_weights
- *   cn2d_ukf_update
- *   cn2d_mcukf_update
- *   cn2d_huber_ukf_update
  */
 #include "abyssal_model.h"
 
 extern int cn2d_f(const double** arg, double** res, long long* iw, double* w, int mem);
 extern int cn2d_F(const double** arg, double** res, long long* iw, double* w, int mem);
+extern int cn2d_G(const double** arg, double** res, long long* iw, double* w, int mem);
 extern int cn2d_h(const double** arg, double** res, long long* iw, double* w, int mem);
 extern int cn2d_H(const double** arg, double** res, long long* iw, double* w, int mem);
-extern int cn2d_ekf_predict(const double** arg, double** res, long long* iw, double* w, int mem);
-extern int cn2d_ekf_update(const double** arg, double** res, long long* iw, double* w, int mem);
-extern int cn2d_ekf_step(const double** arg, double** res, long long* iw, double* w, int mem);
-extern int cn2d_ckf_predict_points(const double** arg, double** res, long long* iw, double* w, int mem);
-extern int cn2d_ckf_predict_weights(const double** arg, double** res, long long* iw, double* w, int mem);
-extern int cn2d_ckf_update(const double** arg, double** res, long long* iw, double* w, int mem);
-extern int cn2d_ukf_predict_points(const double** arg, double** res, long long* iw, double* w, int mem);
-extern int cn2d_ukf_predict_weights(const double** arg, double** res, long long* iw, double* w, int mem);
-extern int cn2d_ukf_update(const double** arg, double** res, long long* iw, double* w, int mem);
-extern int cn2d_mcukf_update(const double** arg, double** res, long long* iw, double* w, int mem);
-extern int cn2d_huber_ukf_update(const double** arg, double** res, long long* iw, double* w, int mem);
 extern int cn2d_f_soa(long long n, long long ld, const double** arg, double** res);
 extern int cn2d_h_soa(long long n, long long ld, const double** arg, double** res);
 
@@ -46,24 +26,20 @@ static const char* const input_names[3] = {"c", "s", "theta"};
 static const char* const input_units[3] = {"m/s", "m/s", "rad"};
 static const char* const parameter_names[2] = {"x_r", "y_r"};
 static const char* const parameter_units[2] = {"m", "m"};
-static const char* const output_names[1] = {"range"};
-static const char* const output_units[1] = {"m"};
+static const unsigned char angle_states[2] = {0, 0};
+static const char* const sensor0_output_names[1] = {"range"};
+static const char* const sensor0_output_units[1] = {"m"};
+static const unsigned char sensor0_angles[1] = {0};
+
+static const abyssal_sensor sensors[1] = {
+  {"measurement", 1, 0, 2, 0, 0, sensor0_angles, sensor0_output_names, sensor0_output_units,
+   {cn2d_h, 2, 1, 0, 3}, {cn2d_H, 2, 1, 0, 4}, cn2d_h_soa}
+};
 
 const abyssal_model cn2d_descriptor = {
-  "cn2d", 2, 3, 2, 1, p_default,
-  state_names, state_units, input_names, input_units, parameter_names, parameter_units, output_names,
-  output_units,
-  {cn2d_f, 4, 1, 0, 8}, {cn2d_F, 4, 1, 0, 2}, {cn2d_h, 2, 1, 0, 3}, {cn2d_H, 2, 1, 0, 4},
-  cn2d_f_soa, cn2d_h_soa,
-  {cn2d_ekf_predict, 6, 3, 0, 8},
-  {cn2d_ekf_update, 6, 5, 0, 14},
-  {cn2d_ekf_step, 9, 5, 0, 17},
-  {cn2d_ckf_predict_points, 2, 2, 0, 11},
-  {cn2d_ckf_predict_weights, 0, 2, 0, 1},
-  {cn2d_ckf_update, 6, 5, 0, 25},
-  {cn2d_ukf_predict_points, 3, 2, 0, 10},
-  {cn2d_ukf_predict_weights, 1, 2, 0, 4},
-  {cn2d_ukf_update, 7, 5, 0, 29},
-  {cn2d_mcukf_update, 8, 5, 0, 29},
-  {cn2d_huber_ukf_update, 8, 5, 0, 29}
+  2, "cn2d", 0xd18b0bc949beb8ebULL,
+  2, 3, 2, 2, 1, 1, p_default,
+  state_names, state_units, input_names, input_units, parameter_names, parameter_units, angle_states,
+  {cn2d_f, 4, 1, 0, 8}, {cn2d_F, 4, 1, 0, 2}, {cn2d_G, 4, 1, 0, 2},
+  cn2d_f_soa, sensors
 };

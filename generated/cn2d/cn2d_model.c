@@ -5,6 +5,7 @@
  * Functions (operations per call: CasADi SX instructions after common-subexpression elimination,
  * of the function itself or of the leaves it calls, times the calls):
  *   cn2d_f                             20 operations
+ *   cn2d_F                              6 operations
  *   cn2d_G                              6 operations
  *   cn2d_h                             11 operations
  *   cn2d_H                             14 operations
@@ -40,6 +41,7 @@
 #define casadi_f2 CASADI_PREFIX(f2)
 #define casadi_f3 CASADI_PREFIX(f3)
 #define casadi_f4 CASADI_PREFIX(f4)
+#define casadi_f5 CASADI_PREFIX(f5)
 #define casadi_s0 CASADI_PREFIX(s0)
 #define casadi_s1 CASADI_PREFIX(s1)
 #define casadi_s2 CASADI_PREFIX(s2)
@@ -182,8 +184,97 @@ CASADI_SYMBOL_EXPORT int cn2d_f_work_bytes(casadi_int *sz_arg, casadi_int* sz_re
   return 0;
 }
 
-/* cn2d_G:(x[2],u[3],p[2],dt)->(dfdw[2x2]) */
+/* cn2d_F:(x[2],u[3],p[2],dt)->(dfdx[2x2]) */
 static int casadi_f1(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a0, a1;
+  a0=1.;
+  if (res[0]!=0) res[0][0]=a0;
+  a1=0.;
+  if (res[0]!=0) res[0][1]=a1;
+  if (res[0]!=0) res[0][2]=a1;
+  if (res[0]!=0) res[0][3]=a0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int cn2d_F(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f1(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int cn2d_F_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void cn2d_F_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void cn2d_F_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void cn2d_F_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int cn2d_F_n_in(void) { return 4;}
+
+CASADI_SYMBOL_EXPORT casadi_int cn2d_F_n_out(void) { return 1;}
+
+CASADI_SYMBOL_EXPORT casadi_real cn2d_F_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* cn2d_F_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "x";
+    case 1: return "u";
+    case 2: return "p";
+    case 3: return "dt";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* cn2d_F_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "dfdx";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* cn2d_F_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s0;
+    case 1: return casadi_s1;
+    case 2: return casadi_s0;
+    case 3: return casadi_s2;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* cn2d_F_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s3;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int cn2d_F_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 4;
+  if (sz_res) *sz_res = 1;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int cn2d_F_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 4*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 1*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  return 0;
+}
+
+/* cn2d_G:(x[2],u[3],p[2],dt)->(dfdw[2x2]) */
+static int casadi_f2(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a0, a1;
   a0=arg[3]? arg[3][0] : 0;
   if (res[0]!=0) res[0][0]=a0;
@@ -195,7 +286,7 @@ static int casadi_f1(const casadi_real** arg, casadi_real** res, casadi_int* iw,
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_G(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f1(arg, res, iw, w, mem);
+  return casadi_f2(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_G_checkout(void) {
@@ -272,7 +363,7 @@ CASADI_SYMBOL_EXPORT int cn2d_G_work_bytes(casadi_int *sz_arg, casadi_int* sz_re
 }
 
 /* cn2d_h:(x[2],p[2])->(y) */
-static int casadi_f2(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f3(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a0, a1, a2;
   a0=arg[0]? arg[0][0] : 0;
   a1=arg[1]? arg[1][0] : 0;
@@ -289,7 +380,7 @@ static int casadi_f2(const casadi_real** arg, casadi_real** res, casadi_int* iw,
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_h(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f2(arg, res, iw, w, mem);
+  return casadi_f3(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_h_checkout(void) {
@@ -362,7 +453,7 @@ CASADI_SYMBOL_EXPORT int cn2d_h_work_bytes(casadi_int *sz_arg, casadi_int* sz_re
 }
 
 /* cn2d_H:(x[2],p[2])->(dhdx[1x2]) */
-static int casadi_f3(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f4(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a0, a1, a2, a3;
   a0=arg[0]? arg[0][0] : 0;
   a1=arg[1]? arg[1][0] : 0;
@@ -382,7 +473,7 @@ static int casadi_f3(const casadi_real** arg, casadi_real** res, casadi_int* iw,
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_H(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f3(arg, res, iw, w, mem);
+  return casadi_f4(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_H_checkout(void) {
@@ -455,7 +546,7 @@ CASADI_SYMBOL_EXPORT int cn2d_H_work_bytes(casadi_int *sz_arg, casadi_int* sz_re
 }
 
 /* cn2d_xdot:(x[2],u[3],p[2],w[2])->(xdot[2]) */
-static int casadi_f4(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f5(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a0, a1, a2, a3, a4, a5;
   a0=arg[1]? arg[1][0] : 0;
   a1=arg[1]? arg[1][2] : 0;
@@ -478,7 +569,7 @@ static int casadi_f4(const casadi_real** arg, casadi_real** res, casadi_int* iw,
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_xdot(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f4(arg, res, iw, w, mem);
+  return casadi_f5(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int cn2d_xdot_checkout(void) {
@@ -572,6 +663,26 @@ CASADI_SYMBOL_EXPORT int cn2d_f_batch(casadi_int N, const casadi_real** arg, con
     for (k = 0; k < 4; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
     for (k = 0; k < 1; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
     if (cn2d_f(a, r, iw, w, 0)) return (int)(1 + j);
+  }
+  return 0;
+}
+
+/* cn2d_F_batch: evaluate cn2d_F for j = 0..N-1 on slices arg[k] + j*arg_step[k] and
+ * res[k] + j*res_step[k] (a step of 0 shares the argument). Returns 0, or 1 + j of the first
+ * failing evaluation. */
+CASADI_SYMBOL_EXPORT int cn2d_F_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
+                                  casadi_real** res, const casadi_int* res_step) {
+  const casadi_real* a[4];
+  casadi_real* r[1];
+  casadi_int iw[1];
+  casadi_real w[2];
+  casadi_int j, k;
+  for (k = 0; k < 4; ++k) a[k] = 0;
+  for (k = 0; k < 1; ++k) r[k] = 0;
+  for (j = 0; j < N; ++j) {
+    for (k = 0; k < 4; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
+    for (k = 0; k < 1; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
+    if (cn2d_F(a, r, iw, w, 0)) return (int)(1 + j);
   }
   return 0;
 }

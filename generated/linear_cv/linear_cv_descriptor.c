@@ -5,37 +5,17 @@
  * Functions (the descriptor linear_cv_descriptor (abyssal_model.h) points to):
  *   linear_cv_f
  *   linear_cv_F
+ *   linear_cv_G
  *   linear_cv_h
  *   linear_cv_H
- *   linear_cv_ekf_predict
- *   linear_cv_ekf_update
- *   linear_cv_ekf_step
- *   linear_cv_ckf_predict_points
- *   linear_cv_ckf_predict_weights
- *   linear_cv_ckf_update
- *   linear_cv_ukf_predict_points
- *   linear_cv_ukf_predict_weights
- *   linear_cv_ukf_update
- *   linear_cv_mcukf_update
- *   linear_cv_huber_ukf_update
  */
 #include "abyssal_model.h"
 
 extern int linear_cv_f(const double** arg, double** res, long long* iw, double* w, int mem);
 extern int linear_cv_F(const double** arg, double** res, long long* iw, double* w, int mem);
+extern int linear_cv_G(const double** arg, double** res, long long* iw, double* w, int mem);
 extern int linear_cv_h(const double** arg, double** res, long long* iw, double* w, int mem);
 extern int linear_cv_H(const double** arg, double** res, long long* iw, double* w, int mem);
-extern int linear_cv_ekf_predict(const double** arg, double** res, long long* iw, double* w, int mem);
-extern int linear_cv_ekf_update(const double** arg, double** res, long long* iw, double* w, int mem);
-extern int linear_cv_ekf_step(const double** arg, double** res, long long* iw, double* w, int mem);
-extern int linear_cv_ckf_predict_points(const double** arg, double** res, long long* iw, double* w, int mem);
-extern int linear_cv_ckf_predict_weights(const double** arg, double** res, long long* iw, double* w, int mem);
-extern int linear_cv_ckf_update(const double** arg, double** res, long long* iw, double* w, int mem);
-extern int linear_cv_ukf_predict_points(const double** arg, double** res, long long* iw, double* w, int mem);
-extern int linear_cv_ukf_predict_weights(const double** arg, double** res, long long* iw, double* w, int mem);
-extern int linear_cv_ukf_update(const double** arg, double** res, long long* iw, double* w, int mem);
-extern int linear_cv_mcukf_update(const double** arg, double** res, long long* iw, double* w, int mem);
-extern int linear_cv_huber_ukf_update(const double** arg, double** res, long long* iw, double* w, int mem);
 extern int linear_cv_f_soa(long long n, long long ld, const double** arg, double** res);
 extern int linear_cv_h_soa(long long n, long long ld, const double** arg, double** res);
 
@@ -46,24 +26,20 @@ static const char* const input_names[2] = {"a_x", "a_y"};
 static const char* const input_units[2] = {"m/s^2", "m/s^2"};
 static const char* const parameter_names[2] = {"s_x", "s_y"};
 static const char* const parameter_units[2] = {"m", "m"};
-static const char* const output_names[2] = {"d_x", "d_y"};
-static const char* const output_units[2] = {"m", "m"};
+static const unsigned char angle_states[4] = {0, 0, 0, 0};
+static const char* const sensor0_output_names[2] = {"d_x", "d_y"};
+static const char* const sensor0_output_units[2] = {"m", "m"};
+static const unsigned char sensor0_angles[2] = {0, 0};
+
+static const abyssal_sensor sensors[1] = {
+  {"measurement", 2, 0, 2, 0, 0, sensor0_angles, sensor0_output_names, sensor0_output_units,
+   {linear_cv_h, 2, 1, 0, 2}, {linear_cv_H, 2, 1, 0, 2}, linear_cv_h_soa}
+};
 
 const abyssal_model linear_cv_descriptor = {
-  "linear_cv", 4, 2, 2, 2, p_default,
-  state_names, state_units, input_names, input_units, parameter_names, parameter_units, output_names,
-  output_units,
-  {linear_cv_f, 4, 1, 0, 9}, {linear_cv_F, 4, 1, 0, 3}, {linear_cv_h, 2, 1, 0, 2}, {linear_cv_H, 2, 1, 0, 2},
-  linear_cv_f_soa, linear_cv_h_soa,
-  {linear_cv_ekf_predict, 6, 3, 0, 17},
-  {linear_cv_ekf_update, 6, 5, 0, 41},
-  {linear_cv_ekf_step, 9, 5, 0, 50},
-  {linear_cv_ckf_predict_points, 2, 2, 0, 19},
-  {linear_cv_ckf_predict_weights, 0, 2, 0, 1},
-  {linear_cv_ckf_update, 6, 5, 0, 53},
-  {linear_cv_ukf_predict_points, 3, 2, 0, 21},
-  {linear_cv_ukf_predict_weights, 1, 2, 0, 4},
-  {linear_cv_ukf_update, 7, 5, 0, 46},
-  {linear_cv_mcukf_update, 8, 5, 0, 51},
-  {linear_cv_huber_ukf_update, 8, 5, 0, 53}
+  2, "linear_cv", 0x3921f0ab22d48800ULL,
+  4, 2, 2, 2, 2, 1, p_default,
+  state_names, state_units, input_names, input_units, parameter_names, parameter_units, angle_states,
+  {linear_cv_f, 4, 1, 0, 9}, {linear_cv_F, 4, 1, 0, 3}, {linear_cv_G, 4, 1, 0, 3},
+  linear_cv_f_soa, sensors
 };

@@ -5,6 +5,7 @@
  * Functions (operations per call: CasADi SX instructions after common-subexpression elimination,
  * of the function itself or of the leaves it calls, times the calls):
  *   linear_cv_f                        48 operations
+ *   linear_cv_F                        19 operations
  *   linear_cv_G                        15 operations
  *   linear_cv_h                         8 operations
  *   linear_cv_H                        10 operations
@@ -40,11 +41,13 @@
 #define casadi_f2 CASADI_PREFIX(f2)
 #define casadi_f3 CASADI_PREFIX(f3)
 #define casadi_f4 CASADI_PREFIX(f4)
+#define casadi_f5 CASADI_PREFIX(f5)
 #define casadi_s0 CASADI_PREFIX(s0)
 #define casadi_s1 CASADI_PREFIX(s1)
 #define casadi_s2 CASADI_PREFIX(s2)
 #define casadi_s3 CASADI_PREFIX(s3)
 #define casadi_s4 CASADI_PREFIX(s4)
+#define casadi_s5 CASADI_PREFIX(s5)
 
 /* Symbol visibility in DLLs */
 #ifndef CASADI_SYMBOL_EXPORT
@@ -73,8 +76,9 @@ CASADI_SYMBOL_EXPORT int linear_cv_model_casadi_real_size(void) { return (int) s
 static const casadi_int casadi_s0[3] = {4, 1, 1};
 static const casadi_int casadi_s1[3] = {2, 1, 1};
 static const casadi_int casadi_s2[3] = {1, 1, 1};
-static const casadi_int casadi_s3[3] = {4, 2, 1};
-static const casadi_int casadi_s4[3] = {2, 4, 1};
+static const casadi_int casadi_s3[3] = {4, 4, 1};
+static const casadi_int casadi_s4[3] = {4, 2, 1};
+static const casadi_int casadi_s5[3] = {2, 4, 1};
 
 /* linear_cv_f:(x[4],u[2],p[2],dt)->(x_next[4]) */
 static int casadi_f0(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
@@ -207,8 +211,110 @@ CASADI_SYMBOL_EXPORT int linear_cv_f_work_bytes(casadi_int *sz_arg, casadi_int* 
   return 0;
 }
 
-/* linear_cv_G:(x[4],u[2],p[2],dt)->(dfdw[4x2]) */
+/* linear_cv_F:(x[4],u[2],p[2],dt)->(dfdx[4x4]) */
 static int casadi_f1(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a0, a1, a2;
+  a0=1.;
+  if (res[0]!=0) res[0][0]=a0;
+  a1=0.;
+  if (res[0]!=0) res[0][1]=a1;
+  if (res[0]!=0) res[0][2]=a1;
+  if (res[0]!=0) res[0][3]=a1;
+  if (res[0]!=0) res[0][4]=a1;
+  if (res[0]!=0) res[0][5]=a0;
+  if (res[0]!=0) res[0][6]=a1;
+  if (res[0]!=0) res[0][7]=a1;
+  a2=arg[3]? arg[3][0] : 0;
+  if (res[0]!=0) res[0][8]=a2;
+  if (res[0]!=0) res[0][9]=a1;
+  if (res[0]!=0) res[0][10]=a0;
+  if (res[0]!=0) res[0][11]=a1;
+  if (res[0]!=0) res[0][12]=a1;
+  if (res[0]!=0) res[0][13]=a2;
+  if (res[0]!=0) res[0][14]=a1;
+  if (res[0]!=0) res[0][15]=a0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int linear_cv_F(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f1(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int linear_cv_F_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void linear_cv_F_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void linear_cv_F_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void linear_cv_F_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int linear_cv_F_n_in(void) { return 4;}
+
+CASADI_SYMBOL_EXPORT casadi_int linear_cv_F_n_out(void) { return 1;}
+
+CASADI_SYMBOL_EXPORT casadi_real linear_cv_F_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* linear_cv_F_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "x";
+    case 1: return "u";
+    case 2: return "p";
+    case 3: return "dt";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* linear_cv_F_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "dfdx";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* linear_cv_F_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s0;
+    case 1: return casadi_s1;
+    case 2: return casadi_s1;
+    case 3: return casadi_s2;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* linear_cv_F_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s3;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int linear_cv_F_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 4;
+  if (sz_res) *sz_res = 1;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int linear_cv_F_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 4*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 1*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  return 0;
+}
+
+/* linear_cv_G:(x[4],u[2],p[2],dt)->(dfdw[4x2]) */
+static int casadi_f2(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a0, a1, a2;
   a0=arg[3]? arg[3][0] : 0;
   a1=6.;
@@ -229,7 +335,7 @@ static int casadi_f1(const casadi_real** arg, casadi_real** res, casadi_int* iw,
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_G(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f1(arg, res, iw, w, mem);
+  return casadi_f2(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_G_checkout(void) {
@@ -284,7 +390,7 @@ CASADI_SYMBOL_EXPORT const casadi_int* linear_cv_G_sparsity_in(casadi_int i) {
 
 CASADI_SYMBOL_EXPORT const casadi_int* linear_cv_G_sparsity_out(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s3;
+    case 0: return casadi_s4;
     default: return 0;
   }
 }
@@ -306,7 +412,7 @@ CASADI_SYMBOL_EXPORT int linear_cv_G_work_bytes(casadi_int *sz_arg, casadi_int* 
 }
 
 /* linear_cv_h:(x[4],p[2])->(y[2]) */
-static int casadi_f2(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f3(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a0, a1;
   a0=arg[0]? arg[0][0] : 0;
   a1=arg[1]? arg[1][0] : 0;
@@ -320,7 +426,7 @@ static int casadi_f2(const casadi_real** arg, casadi_real** res, casadi_int* iw,
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_h(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f2(arg, res, iw, w, mem);
+  return casadi_f3(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_h_checkout(void) {
@@ -393,7 +499,7 @@ CASADI_SYMBOL_EXPORT int linear_cv_h_work_bytes(casadi_int *sz_arg, casadi_int* 
 }
 
 /* linear_cv_H:(x[4],p[2])->(dhdx[2x4]) */
-static int casadi_f3(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f4(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a0, a1;
   a0=1.;
   if (res[0]!=0) res[0][0]=a0;
@@ -409,7 +515,7 @@ static int casadi_f3(const casadi_real** arg, casadi_real** res, casadi_int* iw,
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_H(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f3(arg, res, iw, w, mem);
+  return casadi_f4(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_H_checkout(void) {
@@ -460,7 +566,7 @@ CASADI_SYMBOL_EXPORT const casadi_int* linear_cv_H_sparsity_in(casadi_int i) {
 
 CASADI_SYMBOL_EXPORT const casadi_int* linear_cv_H_sparsity_out(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s4;
+    case 0: return casadi_s5;
     default: return 0;
   }
 }
@@ -482,7 +588,7 @@ CASADI_SYMBOL_EXPORT int linear_cv_H_work_bytes(casadi_int *sz_arg, casadi_int* 
 }
 
 /* linear_cv_xdot:(x[4],u[2],p[2],w[2])->(xdot[4]) */
-static int casadi_f4(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f5(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a0, a1;
   a0=arg[0]? arg[0][2] : 0;
   if (res[0]!=0) res[0][0]=a0;
@@ -500,7 +606,7 @@ static int casadi_f4(const casadi_real** arg, casadi_real** res, casadi_int* iw,
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_xdot(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f4(arg, res, iw, w, mem);
+  return casadi_f5(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int linear_cv_xdot_checkout(void) {
@@ -594,6 +700,26 @@ CASADI_SYMBOL_EXPORT int linear_cv_f_batch(casadi_int N, const casadi_real** arg
     for (k = 0; k < 4; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
     for (k = 0; k < 1; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
     if (linear_cv_f(a, r, iw, w, 0)) return (int)(1 + j);
+  }
+  return 0;
+}
+
+/* linear_cv_F_batch: evaluate linear_cv_F for j = 0..N-1 on slices arg[k] + j*arg_step[k] and
+ * res[k] + j*res_step[k] (a step of 0 shares the argument). Returns 0, or 1 + j of the first
+ * failing evaluation. */
+CASADI_SYMBOL_EXPORT int linear_cv_F_batch(casadi_int N, const casadi_real** arg, const casadi_int* arg_step,
+                                  casadi_real** res, const casadi_int* res_step) {
+  const casadi_real* a[4];
+  casadi_real* r[1];
+  casadi_int iw[1];
+  casadi_real w[3];
+  casadi_int j, k;
+  for (k = 0; k < 4; ++k) a[k] = 0;
+  for (k = 0; k < 1; ++k) r[k] = 0;
+  for (j = 0; j < N; ++j) {
+    for (k = 0; k < 4; ++k) a[k] = arg[k] ? arg[k] + j * arg_step[k] : 0;
+    for (k = 0; k < 1; ++k) r[k] = res[k] ? res[k] + j * res_step[k] : 0;
+    if (linear_cv_F(a, r, iw, w, 0)) return (int)(1 + j);
   }
   return 0;
 }

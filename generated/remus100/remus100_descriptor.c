@@ -5,21 +5,17 @@
  * Functions (the descriptor remus100_descriptor (abyssal_model.h) points to):
  *   remus100_f
  *   remus100_F
+ *   remus100_G
  *   remus100_h
  *   remus100_H
- *   remus100_ukf_predict_points
- *   remus100_ukf_predict_weights
- *   remus100_ukf_update
  */
 #include "abyssal_model.h"
 
 extern int remus100_f(const double** arg, double** res, long long* iw, double* w, int mem);
 extern int remus100_F(const double** arg, double** res, long long* iw, double* w, int mem);
+extern int remus100_G(const double** arg, double** res, long long* iw, double* w, int mem);
 extern int remus100_h(const double** arg, double** res, long long* iw, double* w, int mem);
 extern int remus100_H(const double** arg, double** res, long long* iw, double* w, int mem);
-extern int remus100_ukf_predict_points(const double** arg, double** res, long long* iw, double* w, int mem);
-extern int remus100_ukf_predict_weights(const double** arg, double** res, long long* iw, double* w, int mem);
-extern int remus100_ukf_update(const double** arg, double** res, long long* iw, double* w, int mem);
 extern int remus100_f_soa(long long n, long long ld, const double** arg, double** res);
 extern int remus100_h_soa(long long n, long long ld, const double** arg, double** res);
 
@@ -30,24 +26,20 @@ static const char* const input_names[3] = {"n_rpm", "tau_M", "tau_N"};
 static const char* const input_units[3] = {"rev/min", "N m", "N m"};
 static const char* const parameter_names[55] = {"g", "W", "B", "xg", "yg", "zg", "xb", "yb", "zb", "Ixx", "Iyy", "Izz", "Xudot", "Yvdot", "Zwdot", "Yrdot", "Zqdot", "Mwdot", "Nvdot", "Kpdot", "Mqdot", "Nrdot", "Xuu", "Xwq", "Xqq", "Xvr", "Xrr", "Yvv", "Yrr", "Yuv", "Ywp", "Yur", "Ypq", "Zww", "Zqq", "Zuw", "Zuq", "Zvp", "Zrp", "Kpp", "Mww", "Mqq", "Muw", "Muq", "Mvp", "Mrp", "Nvv", "Nrr", "Nuv", "Nur", "Nwp", "Npq", "kT", "kQ", "prop_torque"};
 static const char* const parameter_units[55] = {"m/s^2", "N", "N", "m", "m", "m", "m", "m", "m", "kg m^2", "kg m^2", "kg m^2", "kg", "kg", "kg", "kg m/rad", "kg m/rad", "kg m", "kg m", "kg m^2/rad", "kg m^2/rad", "kg m^2/rad", "kg/m", "kg/rad", "kg m/rad", "kg/rad", "kg m/rad", "kg/m", "kg m/rad^2", "kg/m", "kg/rad", "kg/rad", "kg m/rad", "kg/m", "kg m/rad^2", "kg/m", "kg/rad", "kg/rad", "kg/rad", "kg m^2/rad^2", "kg", "kg m^2/rad^2", "kg", "kg m/rad", "kg m/rad", "kg m^2/rad^2", "kg", "kg m^2/rad^2", "kg", "kg m/rad", "kg m/rad", "kg m^2/rad^2", "N s^2/rad^2", "N m s^2/rad^2", "1"};
-static const char* const output_names[10] = {"u", "v", "w", "p", "q", "r", "z", "phi", "theta", "psi"};
-static const char* const output_units[10] = {"m/s", "m/s", "m/s", "rad/s", "rad/s", "rad/s", "m", "rad", "rad", "rad"};
+static const unsigned char angle_states[12] = {0, 0, 0, 0, 0, 0, 0, 0, 0, 1, 1, 1};
+static const char* const sensor0_output_names[10] = {"u", "v", "w", "p", "q", "r", "z", "phi", "theta", "psi"};
+static const char* const sensor0_output_units[10] = {"m/s", "m/s", "m/s", "rad/s", "rad/s", "rad/s", "m", "rad", "rad", "rad"};
+static const unsigned char sensor0_angles[10] = {0, 0, 0, 0, 0, 0, 0, 1, 1, 1};
+
+static const abyssal_sensor sensors[1] = {
+  {"measurement", 10, 0, 55, 0, 0, sensor0_angles, sensor0_output_names, sensor0_output_units,
+   {remus100_h, 2, 1, 0, 1}, {remus100_H, 2, 1, 0, 2}, remus100_h_soa}
+};
 
 const abyssal_model remus100_descriptor = {
-  "remus100", 12, 3, 55, 10, p_default,
-  state_names, state_units, input_names, input_units, parameter_names, parameter_units, output_names,
-  output_units,
-  {remus100_f, 4, 1, 0, 180}, {remus100_F, 4, 1, 0, 728}, {remus100_h, 2, 1, 0, 1}, {remus100_H, 2, 1, 0, 2},
-  remus100_f_soa, remus100_h_soa,
-  {0, 0, 0, 0, 0},
-  {0, 0, 0, 0, 0},
-  {0, 0, 0, 0, 0},
-  {0, 0, 0, 0, 0},
-  {0, 0, 0, 0, 0},
-  {0, 0, 0, 0, 0},
-  {remus100_ukf_predict_points, 6, 4, 0, 995},
-  {remus100_ukf_predict_weights, 1, 2, 0, 4},
-  {remus100_ukf_update, 14, 11, 0, 4851},
-  {0, 0, 0, 0, 0},
-  {0, 0, 0, 0, 0}
+  2, "remus100", 0x40d32319e15c7abbULL,
+  12, 3, 55, 6, 10, 1, p_default,
+  state_names, state_units, input_names, input_units, parameter_names, parameter_units, angle_states,
+  {remus100_f, 4, 1, 0, 180}, {remus100_F, 4, 1, 0, 728}, {remus100_G, 4, 1, 0, 613},
+  remus100_f_soa, sensors
 };

@@ -5,37 +5,17 @@
  * Functions (the descriptor rov4dof_descriptor (abyssal_model.h) points to):
  *   rov4dof_f
  *   rov4dof_F
+ *   rov4dof_G
  *   rov4dof_h
  *   rov4dof_H
- *   rov4dof_ekf_predict
- *   rov4dof_ekf_update
- *   rov4dof_ekf_step
- *   rov4dof_ckf_predict_points
- *   rov4dof_ckf_predict_weights
- *   rov4dof_ckf_update
- *   rov4dof_ukf_predict_points
- *   rov4dof_ukf_predict_weights
- *   rov4dof_ukf_update
- *   rov4dof_mcukf_update
- *   rov4dof_huber_ukf_update
  */
 #include "abyssal_model.h"
 
 extern int rov4dof_f(const double** arg, double** res, long long* iw, double* w, int mem);
 extern int rov4dof_F(const double** arg, double** res, long long* iw, double* w, int mem);
+extern int rov4dof_G(const double** arg, double** res, long long* iw, double* w, int mem);
 extern int rov4dof_h(const double** arg, double** res, long long* iw, double* w, int mem);
 extern int rov4dof_H(const double** arg, double** res, long long* iw, double* w, int mem);
-extern int rov4dof_ekf_predict(const double** arg, double** res, long long* iw, double* w, int mem);
-extern int rov4dof_ekf_update(const double** arg, double** res, long long* iw, double* w, int mem);
-extern int rov4dof_ekf_step(const double** arg, double** res, long long* iw, double* w, int mem);
-extern int rov4dof_ckf_predict_points(const double** arg, double** res, long long* iw, double* w, int mem);
-extern int rov4dof_ckf_predict_weights(const double** arg, double** res, long long* iw, double* w, int mem);
-extern int rov4dof_ckf_update(const double** arg, double** res, long long* iw, double* w, int mem);
-extern int rov4dof_ukf_predict_points(const double** arg, double** res, long long* iw, double* w, int mem);
-extern int rov4dof_ukf_predict_weights(const double** arg, double** res, long long* iw, double* w, int mem);
-extern int rov4dof_ukf_update(const double** arg, double** res, long long* iw, double* w, int mem);
-extern int rov4dof_mcukf_update(const double** arg, double** res, long long* iw, double* w, int mem);
-extern int rov4dof_huber_ukf_update(const double** arg, double** res, long long* iw, double* w, int mem);
 extern int rov4dof_f_soa(long long n, long long ld, const double** arg, double** res);
 extern int rov4dof_h_soa(long long n, long long ld, const double** arg, double** res);
 
@@ -46,24 +26,20 @@ static const char* const input_names[4] = {"tau_X", "tau_Y", "tau_Z", "tau_N"};
 static const char* const input_units[4] = {"N", "N", "N", "N m"};
 static const char* const parameter_names[17] = {"m", "I_z", "X_udot", "Y_vdot", "Z_wdot", "N_rdot", "X_u", "Y_v", "Z_w", "N_r", "X_uu", "Y_vv", "Z_ww", "N_rr", "W", "B", "T_b"};
 static const char* const parameter_units[17] = {"kg", "kg m^2", "kg", "kg", "kg", "kg m^2", "N s/m", "N s/m", "N s/m", "N m s", "N s^2/m^2", "N s^2/m^2", "N s^2/m^2", "N m s^2", "N", "N", "s"};
-static const char* const output_names[4] = {"x", "y", "z", "psi"};
-static const char* const output_units[4] = {"m", "m", "m", "rad"};
+static const unsigned char angle_states[12] = {0, 0, 0, 1, 0, 0, 0, 0, 0, 0, 0, 0};
+static const char* const sensor0_output_names[4] = {"x", "y", "z", "psi"};
+static const char* const sensor0_output_units[4] = {"m", "m", "m", "rad"};
+static const unsigned char sensor0_angles[4] = {0, 0, 0, 1};
+
+static const abyssal_sensor sensors[1] = {
+  {"measurement", 4, 0, 17, 0, 0, sensor0_angles, sensor0_output_names, sensor0_output_units,
+   {rov4dof_h, 2, 1, 0, 1}, {rov4dof_H, 2, 1, 0, 2}, rov4dof_h_soa}
+};
 
 const abyssal_model rov4dof_descriptor = {
-  "rov4dof", 12, 4, 17, 4, p_default,
-  state_names, state_units, input_names, input_units, parameter_names, parameter_units, output_names,
-  output_units,
-  {rov4dof_f, 4, 1, 0, 78}, {rov4dof_F, 8, 3, 0, 424}, {rov4dof_h, 2, 1, 0, 1}, {rov4dof_H, 2, 1, 0, 2},
-  rov4dof_f_soa, rov4dof_h_soa,
-  {rov4dof_ekf_predict, 10, 5, 0, 724},
-  {rov4dof_ekf_update, 6, 5, 0, 187},
-  {rov4dof_ekf_step, 19, 10, 0, 1243},
-  {rov4dof_ckf_predict_points, 4, 4, 0, 968},
-  {rov4dof_ckf_predict_weights, 0, 2, 0, 1},
-  {rov4dof_ckf_update, 12, 9, 0, 663},
-  {rov4dof_ukf_predict_points, 6, 4, 0, 995},
-  {rov4dof_ukf_predict_weights, 1, 2, 0, 4},
-  {rov4dof_ukf_update, 14, 9, 0, 670},
-  {rov4dof_mcukf_update, 15, 9, 0, 670},
-  {rov4dof_huber_ukf_update, 15, 9, 0, 670}
+  2, "rov4dof", 0x0c91ed00b698defbULL,
+  12, 4, 17, 8, 4, 1, p_default,
+  state_names, state_units, input_names, input_units, parameter_names, parameter_units, angle_states,
+  {rov4dof_f, 4, 1, 0, 78}, {rov4dof_F, 4, 1, 0, 170}, {rov4dof_G, 4, 1, 0, 149},
+  rov4dof_f_soa, sensors
 };

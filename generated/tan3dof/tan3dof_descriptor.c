@@ -5,6 +5,7 @@
  * Functions (the descriptor tan3dof_descriptor (abyssal_model.h) points to):
  *   tan3dof_f
  *   tan3dof_F
+ *   tan3dof_G
  *   tan3dof_h
  *   tan3dof_H
  */
@@ -12,6 +13,7 @@
 
 extern int tan3dof_f(const double** arg, double** res, long long* iw, double* w, int mem);
 extern int tan3dof_F(const double** arg, double** res, long long* iw, double* w, int mem);
+extern int tan3dof_G(const double** arg, double** res, long long* iw, double* w, int mem);
 extern int tan3dof_h(const double** arg, double** res, long long* iw, double* w, int mem);
 extern int tan3dof_H(const double** arg, double** res, long long* iw, double* w, int mem);
 extern int tan3dof_f_soa(long long n, long long ld, const double** arg, double** res);
@@ -24,24 +26,20 @@ static const char* const input_names[2] = {"v", "omega"};
 static const char* const input_units[2] = {"m/s", "rad/s"};
 static const char* const parameter_names[2] = {"d_x", "d_y"};
 static const char* const parameter_units[2] = {"m/s", "m/s"};
-static const char* const output_names[1] = {"heading"};
-static const char* const output_units[1] = {"rad"};
+static const unsigned char angle_states[3] = {0, 0, 1};
+static const char* const sensor0_output_names[1] = {"heading"};
+static const char* const sensor0_output_units[1] = {"rad"};
+static const unsigned char sensor0_angles[1] = {1};
+
+static const abyssal_sensor sensors[1] = {
+  {"measurement", 1, 0, 2, 0, 0, sensor0_angles, sensor0_output_names, sensor0_output_units,
+   {tan3dof_h, 2, 1, 0, 1}, {tan3dof_H, 2, 1, 0, 1}, tan3dof_h_soa}
+};
 
 const abyssal_model tan3dof_descriptor = {
-  "tan3dof", 3, 2, 2, 1, p_default,
-  state_names, state_units, input_names, input_units, parameter_names, parameter_units, output_names,
-  output_units,
-  {tan3dof_f, 4, 1, 0, 11}, {tan3dof_F, 4, 1, 0, 8}, {tan3dof_h, 2, 1, 0, 1}, {tan3dof_H, 2, 1, 0, 1},
-  tan3dof_f_soa, tan3dof_h_soa,
-  {0, 0, 0, 0, 0},
-  {0, 0, 0, 0, 0},
-  {0, 0, 0, 0, 0},
-  {0, 0, 0, 0, 0},
-  {0, 0, 0, 0, 0},
-  {0, 0, 0, 0, 0},
-  {0, 0, 0, 0, 0},
-  {0, 0, 0, 0, 0},
-  {0, 0, 0, 0, 0},
-  {0, 0, 0, 0, 0},
-  {0, 0, 0, 0, 0}
+  2, "tan3dof", 0x33f6a2c7119f2636ULL,
+  3, 2, 2, 4, 1, 1, p_default,
+  state_names, state_units, input_names, input_units, parameter_names, parameter_units, angle_states,
+  {tan3dof_f, 4, 1, 0, 11}, {tan3dof_F, 4, 1, 0, 8}, {tan3dof_G, 4, 1, 0, 18},
+  tan3dof_f_soa, sensors
 };

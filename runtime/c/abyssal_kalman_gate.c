@@ -102,6 +102,10 @@ int abyssal_gate_note(abyssal_gate* gate, const unsigned char* gated, const unsi
   return 0;
 }
 
+long long abyssal_gate_streak(const abyssal_gate* gate, int entry) {
+  return entry >= 0 && entry < gate->m ? streaks(gate)[entry] : 0;
+}
+
 void abyssal_gate_accepted_all(abyssal_gate* gate) {
   if (gate->streaking) {
     memset(streaks(gate), 0, sizeof(long long) * (size_t)gate->m);

@@ -70,6 +70,9 @@ int abyssal_gate_judge(const abyssal_gate* gate, int round, const double* nu, co
  * 1 when P is to be inflated (an entry gated `patience` times in a row; counted in inflations), else 0. */
 int abyssal_gate_note(abyssal_gate* gate, const unsigned char* gated, const unsigned char* present);
 
+/* The current run of consecutive gated updates of an entry (0 for an index out of range). */
+long long abyssal_gate_streak(const abyssal_gate* gate, int entry);
+
 /* A complete measurement passed: every streak ends. */
 void abyssal_gate_accepted_all(abyssal_gate* gate);
 

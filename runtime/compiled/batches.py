@@ -1,7 +1,8 @@
-"""Batched calls of generated C over particles or mixture components, on preallocated buffers.
+"""Batched calls of compiled C over particles or mixture components, on preallocated buffers.
 
-``ModelBatch`` runs the SIMD structure-of-arrays kernels of f and h over (n, N) particle
-batches; ``PredictBatch`` / ``UpdateBatch`` run a generated sigma-point predict or update
+``ModelBatch`` runs the model's generated SIMD structure-of-arrays kernels of f and h over (n, N)
+particle batches; ``PredictBatch`` / ``UpdateBatch`` run a sigma-point predict or update of the C
+runtime (``kalman.BatchStep``: the algebra every Kalman filter runs)
 (cubature: ``CubaturePredictBatch`` / ``CubatureUpdateBatch`` / ``CubatureStepBatch``; unscented
 and robust: ``UnscentedPredictBatch`` / ``UnscentedUpdateBatch``) over (n, cap) means and
 (n, n, cap) covariances through the ``<name>_batch`` entry points, split over the cores by
@@ -18,6 +19,7 @@ import numpy as np
 
 from ..noise.mixtures import LOG_2PI
 from ..numerics import repair_covariance
+from .kalman import BatchStep
 
 # ---------------------------------------------------------------------------------------------
 # batched generated C
@@ -169,7 +171,7 @@ class PredictBatch:
         self.u, self.p, self.dt = np.zeros(bundle.n_u), _parameter_buffer(p), np.zeros(1)
         self.mean_pred, self.cov_pred, self.ok = _f_zeros(n, capacity), _f_zeros(n, n, capacity), _f_zeros(1, capacity)
         rule = [np.asarray(r, dtype=np.float64) for r in rule]
-        self._eval = ParallelBatch(bundle.function(function), [self.mean, self.cov, self.u, self.p, self.dt, self.Q, *rule],
+        self._eval = ParallelBatch(BatchStep(bundle, function), [self.mean, self.cov, self.u, self.p, self.dt, self.Q, *rule],
                                    [True, True, False, False, False, Q is None] + [False] * len(rule),
                                    [self.mean_pred, self.cov_pred, self.ok], capacity)
 
@@ -220,7 +222,7 @@ class UpdateBatch:
         self.mean_post, self.cov_post = _f_zeros(n, capacity), _f_zeros(n, n, capacity)
         self.innovation, self.S, self.ok = _f_zeros(m, capacity), _f_zeros(m, m, capacity), _f_zeros(1, capacity)
         rule = [np.asarray(r, dtype=np.float64) for r in rule]
-        self._eval = ParallelBatch(bundle.function(function), [self.mean, self.cov, self.z, self.p, self.R, self.mask, *rule],
+        self._eval = ParallelBatch(BatchStep(bundle, function), [self.mean, self.cov, self.z, self.p, self.R, self.mask, *rule],
                                    [True, True, per_slice, False, per_slice, per_slice] + [False] * len(rule),
                                    [self.mean_post, self.cov_post, self.innovation, self.S, self.ok], capacity)
 
@@ -312,7 +314,7 @@ class CubatureStepBatch:
         self.capacity = min(predict.capacity, update.capacity)
         self.mask = np.ones_like(update.mask)  # never gated: a gated step goes through the two-stage path
         self._eval = ParallelBatch(
-            bundle.function("ckf_step"),
+            BatchStep(bundle, "ckf_step"),
             [predict.mean, predict.cov, predict.u, predict.p, predict.dt, predict.Q, update.z, update.R, self.mask],
             [True, True, False, False, False, True, True, True, True],
             [update.mean_post, update.cov_post, update.innovation, update.S, update.ok], self.capacity)

@@ -16,10 +16,12 @@ from abyssal.symbolic.codegen import MODEL_HEADER
 
 #: the folder of the hand-written C runtime (C99, compiled with -Wall -Wextra -Werror -pedantic)
 C_DIR = Path(__file__).resolve().parent.parent / "c"
-#: the Kalman family: the filter object, its transaction, the gate, covariance checks and repair, and the
+#: the Kalman family: the filter object (its transaction, sensors, time and history, smoothing), the algebra of
+#: every step (abyssal_kalman_steps), the dense linear algebra, the gate, covariance checks and repair, and the
 #: CasADi-convention entry points Python binds (abyssal_kalman_binding.c: not shipped by `abyssal export`)
-KALMAN = ("abyssal_kalman.h", "abyssal_kalman.c", "abyssal_kalman_gate.h", "abyssal_kalman_gate.c",
-          "abyssal_kalman_covariance.h", "abyssal_kalman_covariance.c", "abyssal_kalman_binding.c")
+KALMAN = ("abyssal_kalman.h", "abyssal_kalman.c", "abyssal_kalman_steps.h", "abyssal_kalman_steps.c", "abyssal_linalg.h",
+          "abyssal_linalg.c", "abyssal_kalman_gate.h", "abyssal_kalman_gate.c", "abyssal_kalman_covariance.h",
+          "abyssal_kalman_covariance.c", "abyssal_kalman_binding.c")
 #: the SIR step (its *_soa.c files compile with the structure-of-arrays flags)
 SIR = ("abyssal_rng.h", "abyssal_sir.h", "abyssal_sir_soa.c", "abyssal_sir_terrain.h", "abyssal_sir_terrain_soa.c")
 #: the templates of an exported project (CMakeLists.txt.in, run_csv.c, the tests)

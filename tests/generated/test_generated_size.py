@@ -1,20 +1,19 @@
-"""Generated filter steps grow with the work, not with its expansion (symbolic/filters/common.py).
+"""Generated code is the model's: f with its substeps, F, G, each sensor's h and H, the SoA kernels and the
+descriptor; no filter algebra (the C runtime holds it once, generic over the dimensions).
 
-A chain of damped pendulums (n = 2k states) is generated in memory; these check the structure the
-size rests on: the model's step is emitted once per C file and called per sigma point, fused steps
-call their predict and update, and a bigger step (more substeps) adds its own size once to a
-filter file instead of once per sigma point. Steps small enough to be emitted flat (common.FLAT_MAX_INSTRUCTIONS)
-are flat by design, so the structure tests turn flattening off; the last tests check the flat form.
+A chain of damped pendulums (n = 2k states) is generated in memory; these check what a folder holds, that its C
+grows with the model's own operation count (not with the filters or the sigma points), and the SoA kernels'
+structure.
 """
 from __future__ import annotations
 
+import json
+
 import casadi as ca
-import numpy as np
 import pytest
 
 from abyssal.generated.regenerate import model_files
-from abyssal.symbolic.filters import common
-from abyssal.symbolic.model import Model, Parameter, Quantity, symbols
+from abyssal.symbolic.model import Model, Parameter, Quantity, Sensor, symbols
 
 
 def pendulum_chain(k: int, substeps: int = 1) -> Model:
@@ -33,84 +32,50 @@ def pendulum_chain(k: int, substeps: int = 1) -> Model:
                  xdot=ca.vertcat(*xdot), y=theta, substeps=substeps)
 
 
-def leaf_definitions(text: str, name: str) -> int:
-    """How many functions named `name` the C text defines (CasADi writes "/* name:(...) */" above each)."""
-    return text.count(f"/* {name}:(")
-
-
 @pytest.fixture(scope="module")
 def chain_files():
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(common, "FLAT_MAX_INSTRUCTIONS", 0)  # every step as calls, however small
-        return model_files(pendulum_chain(3), families=("ekf", "ukf", "ckf", "robust"))
+    return model_files(pendulum_chain(3))
 
 
-def test_the_model_step_is_emitted_once_for_every_sigma_point_family(chain_files):
-    text = chain_files["chain3_sigma_points.c"]
-    for shared in ("chain3_step", "chain3_cholesky", "chain3_kalman", "chain3_predicted", "chain3_outer"):
-        assert leaf_definitions(text, shared) == 1, shared
-    # the points' loop calls the step: a map over the 2n (+1) points of n = 6 states, not 2n copies
-    for points in (12, 13):
-        assert leaf_definitions(text, f"map{points}_chain3_step") == 1, points
+def test_a_folder_holds_the_model_and_no_filter(chain_files):
+    assert set(chain_files) == {"chain3_model.c", "chain3_soa.c", "chain3_descriptor.c", "abyssal_model.h",
+                                "manifest.json"}
+    functions = json.loads(chain_files["manifest.json"])["functions"]
+    assert set(functions) == {"chain3_f", "chain3_F", "chain3_h", "chain3_H", "chain3_xdot"}
+    for text in chain_files.values():
+        for filter_step in ("ekf_", "ukf_", "ckf_", "mcukf", "huber"):
+            assert filter_step not in text
 
 
-def test_fused_steps_call_predict_and_update_in_the_same_file(chain_files):
-    assert set(chain_files) == {"chain3_model.c", "chain3_ekf.c", "chain3_sigma_points.c", "chain3_soa.c",
-                                "chain3_descriptor.c", "abyssal_model.h", "manifest.json"}
-    for family, file in (("ekf", "chain3_ekf.c"), ("ckf", "chain3_sigma_points.c")):
-        for part in ("predict", "update", "step"):
-            assert leaf_definitions(chain_files[file], f"chain3_{family}_{part}") == 1, (family, part)
+def test_the_c_grows_with_the_models_own_operations():
+    """Doubling the chain doubles f's and F's operations; the folder's C must grow by about the same factor (a
+    filter step written out per model grew as n^2.2 and its compile time as n^2.4)."""
+    sizes, operations = [], []
+    for k in (3, 6, 12):
+        files = model_files(pendulum_chain(k))
+        sizes.append(sum(len(t) for name, t in files.items() if name.endswith(".c")))
+        spec = json.loads(files["manifest.json"])["functions"]
+        operations.append(sum(spec[f"chain{k}_{s}"]["instructions"] for s in ("f", "F", "h", "H")))
+    for a in range(2):
+        size_growth, work_growth = sizes[a + 1] / sizes[a], operations[a + 1] / operations[a]
+        assert size_growth <= 1.25 * work_growth, (sizes, operations)
 
 
-def test_the_ekf_and_the_model_jacobian_share_one_step_and_jacobian(chain_files):
-    assert leaf_definitions(chain_files["chain3_ekf.c"], "chain3_step_and_jacobian") == 1
-    assert leaf_definitions(chain_files["chain3_ekf.c"], "chain3_F") == 1
-    assert leaf_definitions(chain_files["chain3_model.c"], "chain3_F") == 0
-
-
-def test_robust_updates_share_the_unscented_points(chain_files):
-    text = chain_files["chain3_sigma_points.c"]
-    assert leaf_definitions(text, "chain3_ukf_points") == 1
-    for name in ("chain3_ukf_update", "chain3_mcukf_update", "chain3_huber_ukf_update"):
-        assert leaf_definitions(text, name) == 1, name
-
-
-def test_a_bigger_step_adds_its_size_once_not_once_per_point(monkeypatch):
-    monkeypatch.setattr(common, "FLAT_MAX_INSTRUCTIONS", 0)
-    small, big = (model_files(pendulum_chain(4, substeps), families=("ckf",)) for substeps in (1, 8))
-    grown_model = len(big["chain4_model.c"]) - len(small["chain4_model.c"])
-    grown_ckf = len(big["chain4_sigma_points.c"]) - len(small["chain4_sigma_points.c"])
-    assert grown_model > 20_000  # eight RK4 substeps are much more code than one (f, F and xdot)
-    # the CKF file holds one more copy of the bigger step (f alone is about a third of what the model file gained);
-    # an inlined step would add it once per point: 8 points, several times the model file's growth
-    assert 0 < grown_ckf < 0.6 * grown_model
-
-
-def test_generated_steps_keep_their_values_when_restructured():
-    """The C structure is an MX graph of SX leaves: evaluated in CasADi it equals the plain SX algebra."""
-    from abyssal.symbolic.filters import filter_units
-    from abyssal.symbolic.filters.linalg import guarded_cholesky, symmetrise, weighted_outer, weighted_sum
-    from abyssal.symbolic.filters.sigma_points import cubature_rule
-    from abyssal.symbolic.filters.common import transition
-
+def test_every_sensor_gets_its_h_h_jacobian_and_kernel():
     model = pendulum_chain(2)
-    predict = {fn.name(): fn for unit in filter_units(model, ("ckf",)) for fn in unit.functions}["chain2_ckf_predict"]
-    rng = np.random.default_rng(3)
-    n = model.n_x
-    A = rng.normal(size=(n, n))
-    x, P, u, p, dt, Q = rng.normal(size=n), A @ A.T + np.eye(n), rng.normal(size=2), [9.81, 0.3, 2.0], 0.05, 0.01 * np.eye(n)
-    # the same predict written as one SX expression, from the shared algebra helpers
-    L, _ = guarded_cholesky(symmetrise(ca.SX(P)))
-    rule = cubature_rule(n)
-    f = transition(model)
-    X = rule.points(ca.SX(x), L)
-    Y = ca.horzcat(*[f(X[:, j], u, p, dt) for j in range(rule.n_points)])
-    mean = weighted_sum(Y, rule.wm)
-    cov = weighted_outer(Y - ca.repmat(mean, 1, rule.n_points), rule.wc) + Q
-    x_pred, P_pred, ok = predict(x, P, u, p, dt, Q)
-    np.testing.assert_allclose(np.array(x_pred).ravel(), np.array(ca.evalf(mean)).ravel(), rtol=1e-13, atol=1e-15)
-    np.testing.assert_allclose(np.array(P_pred), np.array(ca.evalf(cov)), rtol=1e-12, atol=1e-15)
-    assert float(ok) == 1.0
+    x, ys = model.x, [model.x[0], ca.vertcat(model.x[1], model.x[3])]
+    two = Model(name="chain2s", states=model.states, inputs=model.inputs, parameters=model.parameters, x=x, u=model.u,
+                p=model.p, xdot=model.xdot, sensors=(
+                    Sensor(name="angle", outputs=(Quantity("th0", "rad"),), y=ys[0], noise=(0.01,)),
+                    Sensor(name="gyro", outputs=(Quantity("om0", "rad/s"), Quantity("om1", "rad/s")), y=ys[1])))
+    files = model_files(two)
+    functions = json.loads(files["manifest.json"])["functions"]
+    for name in ("chain2s_angle_h", "chain2s_angle_H", "chain2s_gyro_h", "chain2s_gyro_H", "chain2s_h", "chain2s_H"):
+        assert name in functions, name
+    assert functions["chain2s_gyro_h"]["soa_batched_inputs"] == ["x"]
+    descriptor = files["chain2s_descriptor.c"]
+    assert '{"angle", 1, 0, 3, 0, sensor0_R,' in descriptor and '{"gyro", 2, 1, 3, 0, 0,' in descriptor
+    assert "chain2s_gyro_h_soa}" in descriptor
 
 
 def test_soa_kernels_compute_shared_work_once_before_the_loop(chain_files):
@@ -122,42 +87,3 @@ def test_soa_kernels_compute_shared_work_once_before_the_loop(chain_files):
     assert before.count("const casadi_real c") >= 6 and "a2[" in before and "a3[" in before
     loop = loop[: loop.index("return 0;")]
     assert "a2[" not in loop and "a3[" not in loop and "sin(" in loop and "sin(" not in before
-
-
-def _steps(model, families):
-    from abyssal.symbolic.filters import filter_units
-
-    return {fn.name(): fn for unit in filter_units(model, families) for fn in unit.functions}
-
-
-def test_small_steps_are_flat_and_equal_their_calls(monkeypatch):
-    """A 2-state model's steps are one SX expression each (no calls left); evaluated in CasADi they equal the
-    same steps built as calls to leaves, to rounding."""
-    families = ("ekf", "ukf", "ckf", "robust")
-    flat = _steps(pendulum_chain(1), families)
-    monkeypatch.setattr(common, "FLAT_MAX_INSTRUCTIONS", 0)
-    calls = _steps(pendulum_chain(1), families)
-    rng = np.random.default_rng(5)
-    for name, fn in flat.items():
-        assert fn.is_a("SXFunction") and not any(fn.instruction_id(k) == ca.OP_CALL for k in range(fn.n_instructions())), name
-        assert calls[name].is_a("MXFunction") or name.endswith("ekf_update"), name  # (the EKF update is one leaf)
-        args = []
-        for i in range(fn.n_in()):
-            a = rng.normal(size=fn.size_in(i))
-            if fn.name_in(i) in ("P", "Q", "R"):
-                a = a @ a.T + 2.0 * np.eye(a.shape[0])
-            elif fn.name_in(i) == "mask":
-                a = np.ones(fn.size_in(i))
-            elif fn.name_in(i) == "abk":
-                a = np.array([1.0, 0.0, 1.0])
-            elif fn.name_in(i) in ("dt", "sigma", "gamma"):
-                a = np.array([[0.1 if fn.name_in(i) == "dt" else 1.5]])
-            args.append(a)
-        for a, b in zip(fn.call(args), calls[name].call(args)):
-            np.testing.assert_allclose(np.array(a), np.array(b), rtol=1e-12, atol=1e-14, err_msg=name)
-
-
-def test_large_steps_keep_their_calls():
-    steps = _steps(pendulum_chain(6), ("ckf",))  # n = 12: tens of thousands of operations inlined
-    assert common.inlined_size(steps["chain6_ckf_step"]) > common.FLAT_MAX_INSTRUCTIONS
-    assert steps["chain6_ckf_step"].is_a("MXFunction")

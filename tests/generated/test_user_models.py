@@ -49,7 +49,8 @@ def test_generated_folder_names_the_command_that_wrote_it(project):
     manifest = json.loads((folder / "manifest.json").read_text())
     assert manifest["generated_by"]["command"] == command
     assert manifest["generated_by"]["model_function"] == {"file": "../../cybership.py", "function": "cybership"}
-    assert manifest["angle_states"] == [2] and manifest["filter_families"] == ["ekf", "ukf", "ckf", "robust"]
+    assert manifest["angle_states"] == [2] and "filter_families" not in manifest
+    assert [s["name"] for s in manifest["sensors"]] == ["measurement"]
 
 
 def test_load_by_path_gives_a_working_bundle(vessel, project):
@@ -73,7 +74,7 @@ def test_verify_folder_passes_with_every_check_family(project):
                      "F vs central differences (compiled f in x)", "G vs central differences",
                      "H vs central differences (compiled h)", "f vs rk4 of compiled xdot", "one step vs solve_ivp",
                      "order 4", "f_batch (SIMD, U per-column)", "h_batch", "ckf step", "ukf step (1, 2, 0)",
-                     "ekf step (Joseph)", "ekf step vs Kalman filter of the linearised model", "ckf fused step",
+                     "ekf step (Joseph)", "ekf step vs Kalman filter of the linearised model", "ckf step()",
                      "mcukf, sigma = inf", "huber ukf, gamma = inf", "ckf step vs a NumPy sigma-point filter",
                      "ukf step (0.5, 2, 1) vs a NumPy sigma-point filter",
                      "ckf masked update vs a NumPy sigma-point filter"):
@@ -96,20 +97,12 @@ def test_model_folder_without_its_model_skips_casadi_checks_with_the_reason(proj
     assert not verify.run_all(folders=[moved], strict=True).ok
 
 
-def test_missing_filter_families_are_reported_as_skipped(vessel):
-    class WithoutRobust:
-        def __init__(self, bundle):
-            self._bundle = bundle
-            self.functions = {k: v for k, v in bundle.functions.items() if k not in ("mcukf_update", "huber_ukf_update")}
-
-        def __getattr__(self, name):
-            return getattr(self._bundle, name)
-
-    checks = verify_filters.checks(WithoutRobust(vessel))
-    skipped = [c for c in checks if c.skipped]
-    assert [c.name for c in skipped] == ["robust filter steps"]
-    assert "without the 'robust' filter family" in skipped[0].skipped
-    assert all(c.ok for c in checks) and any(c.name == "ckf step" for c in checks)
+def test_every_filter_is_verified_on_a_users_model(vessel):
+    """No filter family to choose any more: every filter runs the C runtime's algebra on the model's f, F, h, H."""
+    checks = verify_filters.checks(vessel)
+    names = {c.name for c in checks}
+    assert {"ckf step", "ekf step (Joseph)", "ckf step()", "mcukf, sigma = inf", "huber ukf, gamma = inf"} <= names
+    assert all(c.ok for c in checks) and not any(c.skipped for c in checks)
 
 
 def test_drift_check_of_a_user_folder_fails_when_the_model_file_changes(project, capsys, monkeypatch):
@@ -132,11 +125,11 @@ def test_drift_check_of_a_user_folder_fails_when_the_model_file_changes(project,
 
 
 @pytest.mark.parametrize("damage, message", [
-    (lambda f: (f / "cybership_sigma_points.c").write_text((f / "cybership_sigma_points.c").read_text().replace("a0", "a0 ", 1)),
-     r"cybership_sigma_points.c does not match its manifest \(edited by hand or truncated"),
+    (lambda f: (f / "cybership_model.c").write_text((f / "cybership_model.c").read_text().replace("a0", "a0 ", 1)),
+     r"cybership_model.c does not match its manifest \(edited by hand or truncated"),
     (lambda f: (f / "cybership_soa.c").write_bytes((f / "cybership_soa.c").read_bytes()[:100]),
      "cybership_soa.c does not match its manifest .*100 bytes"),
-    (lambda f: (f / "cybership_ekf.c").unlink(), "cybership_ekf.c is listed in the manifest but missing"),
+    (lambda f: (f / "cybership_descriptor.c").unlink(), "cybership_descriptor.c is listed in the manifest but missing"),
     (lambda f: (f / "manifest.json").write_text((f / "manifest.json").read_text()[:50]), "not a valid abyssal manifest"),
 ])
 def test_damaged_folders_are_refused_naming_the_file(project, tmp_path, damage, message):
@@ -230,7 +223,7 @@ def _one_noise():
 def test_a_model_with_one_noise_input_has_matrix_jacobians_and_verifies(tmp_path):
     from abyssal.runtime import process_noise
 
-    folder = abyssal.generate(_one_noise(), tmp_path, filters=("ekf",))
+    folder = abyssal.generate(_one_noise(), tmp_path)
     bundle = abyssal.load(folder)
     x, u = np.array([1.0, 0.5]), np.array([2.0])
     G = bundle.G(x, u, None, 0.1)
@@ -310,5 +303,5 @@ def test_further_functions_are_validated(tmp_path):
     m = ca.MX.sym("m")
     with pytest.raises(ValueError, match="not an SX Function"):
         _toy_with_functions((ca.Function("toy_d_mx", [m], [2 * m]),))
-    with pytest.raises(ValueError, match="names of generated model or filter functions"):
+    with pytest.raises(ValueError, match="names of generated model functions"):
         abyssal.generate(_toy_with_functions((ca.Function("toy_d_h", [a], [a]),)), tmp_path)

@@ -328,7 +328,7 @@ def _damped_oscillator():
 def test_a_model_with_one_noise_input_verifies_and_gives_its_process_noise(tmp_path):
     from abyssal.runtime.filters.kalman.engine import process_noise
 
-    folder = abyssal.generate(_damped_oscillator(), tmp_path, filters=("ckf",))
+    folder = abyssal.generate(_damped_oscillator(), tmp_path)
     assert abyssal.verify(folder).ok
     bundle = abyssal.generated.load(folder)
     x, u = np.array([0.5, -0.2]), np.array([1.0])

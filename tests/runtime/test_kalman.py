@@ -37,8 +37,8 @@ def test_filters_equal_their_oracles(name):
     pytest.importorskip("filterpy")
     checks = verify_filters.checks(abyssal.generated.load(name))
     names = {c.name for c in checks}
-    assert {"ckf step", "ekf step (Joseph)", "mcukf, sigma = inf", "huber ukf, gamma = inf", "ckf fused step",
-            "ekf fused step"} <= names
+    assert {"ckf step", "ekf step (Joseph)", "mcukf, sigma = inf", "huber ukf, gamma = inf", "ckf step()",
+            "ekf step()"} <= names
     if name == "linear_cv":
         assert "ckf on a linear model" in names
     failed = [(c.name, c.error) for c in checks if not c.ok]
@@ -187,14 +187,16 @@ def test_bad_covariances_are_refused(rov, kind, matrix):
         flt.reset(np.zeros(n), matrix)
 
 
-def test_generated_steps_flag_non_positive_definite_covariance_without_nan(rov):
+def test_the_runtimes_steps_flag_non_positive_definite_covariance_without_nan(rov):
+    from abyssal.runtime.compiled.kalman import BatchStep
+
     n = rov.n_x
     x, u, p, Q = np.full(n, 0.5), TAU, rov.params(), 1e-3 * np.eye(n)
     v = np.arange(1.0, n + 1)[:, None]
+    predict = BatchStep(rov, "ckf_predict")
     for P in (np.diag([1.0] * (n - 1) + [-1e-3]), v @ v.T):  # indefinite, rank one
         outs = [np.zeros(n), np.zeros((n, n), order="F"), np.zeros(1)]
-        rov.functions["ckf_predict"].bind(
-            [x, np.asfortranarray(P), u, p, np.array([0.1]), np.asfortranarray(Q)], outs)()
+        predict.bind_batch([x, np.asfortranarray(P), u, p, np.array([0.1]), np.asfortranarray(Q)], outs, 1)(1)
         assert outs[2][0] == 0.0
         assert np.all(np.isfinite(outs[0])) and np.all(np.isfinite(outs[1]))
 
@@ -221,14 +223,20 @@ def test_repair_covariance_clips_eigenvalues():
     np.testing.assert_allclose(np.linalg.eigvalsh(B), [4e-6, 1.0, 4.0])
 
 
-def test_a_diverging_filter_raises_and_keeps_its_state(rov):
+def test_an_absurd_state_is_refused_naming_the_state_and_kept(rov):
+    # the state itself blows the predict up: the message names x or P, never u (issue 33)
     n = rov.n_x
     flt = CKF(rov, np.full(n, 1e150), 1e290 * np.eye(n), np.eye(n), np.eye(4))
     x, P = flt.x, flt.P
-    with pytest.raises(ValueError, match="diverged"):
+    with pytest.raises(ValueError, match="state given to the filter.*x or P is outside"):
         flt.predict(TAU, 0.1)
     np.testing.assert_array_equal(flt.x, x)
     np.testing.assert_array_equal(flt.P, P)
+    flt.reset(np.zeros(n), np.eye(n))
+    flt.predict(TAU, 0.1)  # a sane state predicts again
+    flt.reset(np.full(n, 1e150), 1e290 * np.eye(n))
+    with pytest.raises(ValueError, match="state given to the filter"):
+        flt.predict(TAU, 0.1)
 
 
 @pytest.mark.parametrize("cls, option", [(MCUKF, {"sigma": 2.0}), (HuberUKF, {"gamma": 1.345})])
@@ -348,3 +356,36 @@ def test_huge_finite_covariances_are_validated_without_overflow(rov):
         CKF(rov, np.zeros(n), -1e308 * np.eye(n), np.eye(n), np.eye(4))
     with pytest.raises(TypeError, match="P0"):
         CKF(rov, np.zeros(n), np.eye(n) + 0j, np.eye(n), np.eye(4))
+
+
+@pytest.mark.parametrize("cls", [EKF, UKF, CKF])
+def test_run_loops_in_c_and_equals_stepping_bit_for_bit(rov, cls):
+    """run() is one call of the C runtime (abyssal_kalman_run); its results and reports are those of step()."""
+    rng = np.random.default_rng(4)
+    T = 120
+    U = np.tile(TAU, (T, 1)) + rng.normal(size=(T, 4))
+    Z = rng.normal(size=(T, 4)) * 0.1
+    Z[::7, 1] = np.nan
+    Z[10] = np.nan
+    Z[40, 0] = 1e4  # gated
+    params = np.tile(rov.params(), (T, 1))
+    params[60:, 0] = 30.0  # p changes mid-run
+    a, b = rov_filter(rov, cls), rov_filter(rov, cls)
+    result = a.run(U, Z, 0.1, params=params)
+    for k in range(T):
+        updated = b.step(U[k], 0.1, None if np.isnan(Z[k]).all() else Z[k], params[k])
+        assert np.array_equal(result.x[k], b.x) and np.array_equal(result.P[k], b.P)
+        assert (result.nis[k] == b.nis) if updated else np.isnan(result.nis[k])
+    assert a._committed.tobytes() == b._committed.tobytes()
+    assert np.array_equal(a.p, b.p) and a.gated == b.gated == 1
+
+
+def test_a_refused_row_of_run_restores_the_filter_and_names_the_row(rov):
+    flt = rov_filter(rov, CKF)
+    before = flt._committed.copy()
+    U = np.tile(TAU, (20, 1))
+    params = np.tile(rov.params(), (20, 1))
+    params[13, 0] = -1e300  # a mass that blows the predict up
+    with pytest.raises(ValueError, match="run: row 13 refused"):
+        flt.run(U, None, 0.1, params=params)
+    assert flt._committed.tobytes() == before.tobytes()

@@ -110,15 +110,19 @@ def test_the_option_struct_mirrors_the_c_one(runtime):
     assert (ckf.filter, ckf.alpha, ckf.beta, ckf.kappa, ckf.sigma, ckf.gamma) == (3, 1.0, 2.0, 0.0, 15.0, 1.345)
     assert (ckf.gate_probability, ckf.gate_patience, ckf.gate_inflation) == (1e-10, 5, 4.0)
     assert (ckf.growth_limit, ckf.max_substeps, ckf.repair_floor) == (1e3, 64, 1e-10)
+    assert (ckf.huber_iterations, ckf.gate_max_inflations, ckf.noise, ckf.history_entries, ckf.history_seconds,
+            ckf.smoothing) == (3, 10, kr.NOISE["step"], 0, 2.0, 0)
     header = kr.GateHeader()
     assert ctypes.sizeof(header) == 80  # abyssal_gate: 1 + 2 * 4 / 8 + 8 eight-byte fields
 
 
 @pytest.mark.parametrize("code, words", [
-    (kr.E_U, "u has non-finite"), (kr.E_DT, "dt must be"), (kr.E_Z, "use NaN"), (kr.E_P, "p has non-finite"),
+    (kr.E_U, "u has non-finite"), (kr.E_DT, "dt must be"), (kr.E_Z, "use NaN"), (kr.E_P, "parameters) has non-finite"),
     (kr.E_DIVERGED, "diverged"), (kr.E_UNSTABLE, "max_substeps"), (kr.E_UNSTABLE_INPUT, "u or p: the predict blew up"),
     (kr.E_SIGMA_POINTS, "alpha"), (kr.E_GATE, "gate_"),
     (kr.E_SUBSTEPS, "growth_limit"), (kr.E_MODEL, "model"), (kr.E_R, "R:"), (kr.E_MEMORY, "memory"),
+    (kr.E_SENSOR, "sensor"), (kr.E_TIME, "t: not finite"), (kr.E_TOO_LATE, "older than the filter's history"),
+    (kr.E_LIVE, "initialised filter"), (kr.E_UNSTABLE_STATE, "x or P"), (kr.E_OPTIONS, "history_entries"),
 ])
 def test_the_python_codes_mirror_the_c_messages(runtime, code, words):
     assert words in runtime.message(code)
@@ -140,7 +144,7 @@ def state_bytes(flt) -> bytes:
     """The bytes of the filter object that are its state: everything up to the end of the committed region but
     the two spare buffer sets of x and P and the spare innovation/S buffer (scratch of the next call)."""
     memory = flt._memory
-    spare = [flt._x[k] for k in range(3) if k != flt._cur] + [flt._P[k] for k in range(3) if k != flt._cur]
+    spare = [flt._x[k] for k in range(kr.SETS) if k != flt._cur] + [flt._P[k] for k in range(kr.SETS) if k != flt._cur]
     if flt._reported[0] >= 0:
         spare += [flt._innovation[1 - flt._reported[0]], flt._S[1 - flt._reported[0]]]
     mask = np.ones(flt._committed.nbytes, dtype=bool)
@@ -166,40 +170,98 @@ def test_a_refused_call_changes_no_byte_of_the_state(rov):
         assert state_bytes(flt) == before
     diverging = CKF(rov, np.full(n, 1e150), 1e290 * np.eye(n), np.eye(n), np.eye(4))
     before = state_bytes(diverging)
-    with pytest.raises(ValueError, match="diverged"):
+    with pytest.raises(ValueError, match="state given to the filter"):
         diverging.predict(tau, 0.1)
     assert state_bytes(diverging) == before
 
 
+def c_step(runtime):
+    fn = runtime.cdll.abyssal_kalman_step
+    fn.restype = ctypes.c_int
+    fn.argtypes = [ctypes.c_void_p] * 3 + [ctypes.c_double] + [ctypes.c_void_p] * 3
+    return fn
+
+
 @pytest.mark.parametrize("cls", [EKF, CKF, UKF])
 def test_the_filter_object_is_a_relocatable_checkpoint(rov, cls):
-    """The object holds no pointer into itself: its memory copied to another buffer is a working filter."""
+    """The object holds no pointer at all: its memory copied to another buffer is a working filter."""
     n = rov.n_x
     tau = np.array([5.0, 1.0, 2.0, 0.1])
-    flt = cls(rov, np.full(n, 0.5), 0.2 * np.eye(n), 1e-3 * np.eye(n), np.diag([0.1, 0.1, 0.05, 0.01]))
+    flt = cls(rov, np.full(n, 0.5), 0.2 * np.eye(n), 1e-3 * np.eye(n), np.diag([0.1, 0.1, 0.05, 0.01]),
+              history_seconds=1.0)
     flt.step(tau, 0.1, np.array([0.5, 0.5, 0.5, 0.5]))
     runtime = flt._runtime
-    runtime.cdll.abyssal_kalman_step.restype = ctypes.c_int
-    runtime.cdll.abyssal_kalman_step.argtypes = [ctypes.c_void_p] * 2 + [ctypes.c_double] + [ctypes.c_void_p] * 3
+    step = c_step(runtime)
     copy = flt._memory.copy()
     z = np.array([0.6, np.nan, 0.55, 0.5])
     for _ in range(5):
         flt.step(tau, 0.1, z)
-        assert runtime.cdll.abyssal_kalman_step(ptr(copy), ptr(tau), 0.1, ptr(z), None, None) == kr.UPDATED
+        assert step(ptr(copy), runtime.descriptor, ptr(tau), 0.1, ptr(z), None, None) == kr.UPDATED
     assert copy.tobytes()[: flt._committed.nbytes] == flt._memory.tobytes()[: flt._committed.nbytes]
 
 
-@pytest.mark.parametrize("cls, generated_predict, rule", [(CKF, "ckf_predict", {}), (UKF, "ukf_predict", {"alpha": 0.5})])
-def test_the_runtimes_sigma_point_predict_equals_the_generated_one(rov, cls, generated_predict, rule):
-    """The runtime propagates the generated points through the SIMD kernel and forms their moments itself; the
-    generated whole predict (f per point, SX moments) is an independent computation of the same step."""
-    rng = np.random.default_rng(8)
-    A = rng.normal(size=(12, 12))
-    x, P = 0.3 * rng.normal(size=12), 0.01 * A @ A.T + 0.1 * np.eye(12)
-    u, Q = np.array([20.0, 5.0, 10.0, 0.5]), 1e-3 * np.eye(12)
-    flt = cls(rov, x, P, Q, np.eye(4), **rule)
-    flt.predict(u, 0.1)
-    extra = [np.array([rule["alpha"], 2.0, 0.0])] if rule else []
-    x_pred, P_pred = rov.functions[generated_predict](x, P, u, rov.params(), 0.1, Q, *extra)[:2]
-    assert np.abs(flt.x - x_pred).max() <= 1e-13 * np.abs(x_pred).max()
-    assert np.abs(flt.P - P_pred).max() <= 1e-13 * np.abs(P_pred).max()
+CHILD = """
+import sys, numpy as np, ctypes, abyssal.generated
+from abyssal.runtime.compiled import kalman as kr
+rov = abyssal.generated.load("rov4dof")
+runtime = kr.KalmanRuntime.of(rov)
+memory = np.load(sys.argv[1])
+step = runtime.cdll.abyssal_kalman_step
+step.restype, step.argtypes = ctypes.c_int, [ctypes.c_void_p] * 3 + [ctypes.c_double] + [ctypes.c_void_p] * 3
+tau, z = np.array([5.0, 1.0, 2.0, 0.1]), np.array([0.6, np.nan, 0.55, 0.5])
+codes = [step(memory.ctypes.data, runtime.descriptor, tau.ctypes.data, 0.1, z.ctypes.data, None, None) for _ in range(5)]
+np.save(sys.argv[2], memory)
+print(codes)
+"""
+
+
+def test_a_filter_object_saved_in_one_process_runs_in_another(rov, tmp_path):
+    """The memory of a filter written to a file and read back by another process (another address space, the
+    model's descriptor elsewhere) steps exactly as the original does (issue 33: it used to hold a pointer)."""
+    import subprocess
+    import sys
+    n = rov.n_x
+    tau, z = np.array([5.0, 1.0, 2.0, 0.1]), np.array([0.6, np.nan, 0.55, 0.5])
+    flt = CKF(rov, np.full(n, 0.5), 0.2 * np.eye(n), 1e-3 * np.eye(n), np.diag([0.1, 0.1, 0.05, 0.01]))
+    flt.step(tau, 0.1, z)
+    np.save(tmp_path / "saved.npy", flt._memory)
+    done = subprocess.run([sys.executable, "-c", CHILD, str(tmp_path / "saved.npy"), str(tmp_path / "after.npy")],
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    for _ in range(5):
+        flt.step(tau, 0.1, z)
+    after = np.load(tmp_path / "after.npy")
+    assert after.tobytes()[: flt._committed.nbytes] == flt._memory.tobytes()[: flt._committed.nbytes]
+
+
+def test_another_models_descriptor_is_refused_and_changes_nothing(rov):
+    cv = abyssal.generated.load("linear_cv")
+    flt = CKF(rov, np.zeros(12), np.eye(12), 1e-3 * np.eye(12), np.eye(4))
+    before = flt._memory.copy()
+    tau, z = np.array([5.0, 1.0, 2.0, 0.1]), np.zeros(4)
+    assert c_step(flt._runtime)(ptr(flt._memory), kr.KalmanRuntime.of(cv).descriptor, ptr(tau), 0.1, ptr(z), None,
+                                None) == kr.E_MODEL
+    assert flt._memory.tobytes() == before.tobytes()
+
+
+def test_init_on_a_live_filter_is_refused_and_changes_nothing(rov):
+    runtime = kr.KalmanRuntime.of(rov)
+    flt = CKF(rov, np.zeros(12), np.eye(12), 1e-3 * np.eye(12), np.eye(4))
+    before = flt._memory.copy()
+    o = runtime.options("ckf")
+    bad_x0 = np.full(12, np.nan)
+    eye, R = np.eye(12), np.eye(4)
+    code = runtime.kalman_init(ptr(flt._memory), flt._memory.nbytes, runtime.descriptor, o, ptr(bad_x0), ptr(eye), ptr(eye),
+                               ptr(R), 0.0, None)
+    assert code == kr.E_LIVE and flt._memory.tobytes() == before.tobytes()
+    runtime.kalman_release(ptr(before))  # released memory may be built again
+    assert runtime.kalman_init(ptr(before), before.nbytes, runtime.descriptor, o, ptr(np.zeros(12)), ptr(eye), ptr(eye),
+                               ptr(R), 0.0, None) == kr.OK
+
+
+def test_get_report_accepts_null(rov):
+    flt = CKF(rov, np.zeros(12), np.eye(12), 1e-3 * np.eye(12), np.eye(4))
+    fn = flt._runtime.cdll.abyssal_kalman_get_report
+    fn.restype, fn.argtypes = None, [ctypes.c_void_p, ctypes.c_void_p]
+    fn(ptr(flt._memory), None)  # no crash: nothing is written
+    fn(None, None)

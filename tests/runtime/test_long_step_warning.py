@@ -61,3 +61,30 @@ def test_a_model_without_a_declared_max_dt_never_warns():
         warnings.simplefilter("always")
         flt.step(np.zeros(cv.n_u), 5.0)
     assert long_step_warnings(record) == []
+
+
+def test_one_warning_class_for_every_path_of_a_kalman_filter(rov):
+    """predict_to, update_sensor ahead of the filter's time and run() warn too, with the same LongStepWarning, once
+    per filter object; a late fix (behind the filter's time) and a refused call do not."""
+    u = np.zeros(rov.n_u)
+    assert issubclass(LongStepWarning, UserWarning)
+    cases = {
+        "predict_to": lambda f: f.predict_to(0.8, u),
+        "update_sensor": lambda f: f.update_sensor(rov.sensor_names[0], np.asarray(f.model.h(f.x, f.p))[
+            : len(rov.sensors[0]["outputs"])], 0.8),
+        "run": lambda f: f.run(np.zeros((3, rov.n_u)), None, np.array([0.1, 0.9, 0.1])),
+    }
+    for name, call in cases.items():
+        flt = kalman(rov)
+        with warnings.catch_warnings(record=True) as record:
+            warnings.simplefilter("always")
+            flt.predict_to(0.3, u)  # within max_dt
+            with pytest.raises(ValueError):
+                flt.predict_to(-5.0, u)  # refused (back in time): no warning
+            assert long_step_warnings(record) == [], name
+            call(flt)
+            flt.predict_to(float(flt.t) + 3.0, u)
+            flt.step(u, 2.0)
+        assert len(long_step_warnings(record)) == 1, name
+        assert "max_dt = 0.5 s" in str(long_step_warnings(record)[0].message), name
+        assert not [w for w in record if w.category is RuntimeWarning], name  # the engine's former warning is gone

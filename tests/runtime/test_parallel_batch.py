@@ -8,11 +8,12 @@ import pytest
 from abyssal.generated import load
 from abyssal.runtime.compiled import batches
 from abyssal.runtime.compiled.batches import ParallelBatch
+from abyssal.runtime.compiled.kalman import BatchStep
 
 
 def _batch(n=300):
     """cn2d's ukf_predict over a cloud of n particle states and covariances (the UPF's batch)."""
-    fn = load("cn2d").function("ukf_predict")
+    fn = BatchStep(load("cn2d"), "ukf_predict")
     rng = np.random.default_rng(0)
     x = np.asfortranarray(rng.normal([100.0, -50.0], 20.0, (n, 2)).T)
     A = rng.normal(0, 3.0, (n, 2, 2))

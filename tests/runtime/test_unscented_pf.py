@@ -4,6 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from abyssal.runtime.compiled.kalman import BatchStep
 from abyssal.runtime.experiments.cn import scenario
 from abyssal.runtime.filters.kalman.ivbckf import IVBCKF
 from abyssal.runtime.filters.particle.unscented import UnscentedParticleFilter
@@ -28,10 +29,10 @@ def test_batched_update_equals_single_calls(cn, trial):
     pb(f.N)
     ub(f.N)
     for j in (0, 17, 99):
-        xp, Pp, _ = cn.function("ukf_predict")(mean[:, j], cov[:, :, j], trial.U[1], trial.params[1], trial.dt, Q,
+        xp, Pp, _ = BatchStep(cn, "ukf_predict")(mean[:, j], cov[:, :, j], trial.U[1], trial.params[1], trial.dt, Q,
                                                proposal.abk)
         np.testing.assert_allclose(np.ravel(xp), pb.mean_pred[:, j], rtol=1e-13, atol=1e-9)
-        xu, Pu, *_ = cn.function("mcukf_update")(xp, Pp, trial.Z[1], trial.params[1], R, np.ones(1), proposal.abk,
+        xu, Pu, *_ = BatchStep(cn, "mcukf_update")(xp, Pp, trial.Z[1], trial.params[1], R, np.ones(1), proposal.abk,
                                                  np.array([15.0]))
         np.testing.assert_allclose(np.ravel(xu), ub.mean_post[:, j], rtol=1e-13, atol=1e-9)
         np.testing.assert_allclose(np.asarray(Pu), ub.cov_post[:, :, j], rtol=1e-12, atol=1e-12)

@@ -19,12 +19,12 @@ VEHICLES = Path(__file__).resolve().parents[1] / "vehicles"
 
 @pytest.fixture(scope="module")
 def generated(tmp_path_factory):
-    """gen/bluerov2_bare and gen/otter (EKF and CKF families), written by the CLI."""
+    """gen/bluerov2_bare and gen/otter, written by the CLI."""
     from abyssal.runtime import cli
 
     out = tmp_path_factory.mktemp("vehicles") / "gen"
     for spec in ("bluerov2_bare.py:bluerov2_bare", "otter.py:otter"):
-        assert cli.main(["regenerate", "--model", str(VEHICLES / spec), "--out", str(out), "--filters", "ekf,ckf"]) == 0
+        assert cli.main(["regenerate", "--model", str(VEHICLES / spec), "--out", str(out)]) == 0
     return out
 
 

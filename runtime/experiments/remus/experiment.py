@@ -157,7 +157,7 @@ def reading_model(reading: str, out: Path) -> str:
     from abyssal.symbolic.models.remus100 import remus100
 
     model = replace(remus100(name=f"remus100_{scheme}{substeps}"), discretisation=scheme, substeps=substeps)
-    return str(generate(model, out / "generated", filters=("ukf",)))
+    return str(generate(model, out / "generated"))
 
 
 def prepare(config: RemusConfig, out_dir: Path | None = None, progress=None):

@@ -31,9 +31,12 @@ Contract
   |eigenvalue| (default 1e-10); P0 = 0 becomes ``repair_floor`` x max(max |Q|, 1) x I, the Dirac's nearest
   Gaussian. Counted in ``repairs``; a failed retry is refused ("the filter diverged").
 * Innovation gate (on by default; gate.py describes the rule): options ``gate_probability`` (default 1e-10;
-  0 turns it off), ``gate_patience`` (5) and ``gate_inflation`` (4); an update with every entry gated returns
-  False (the predict stands). Counted in ``gated`` and ``inflations``. (rov4dof, CKF, a permanent 25 m jump
-  of the x fix: re-acquired within 5 + 5 updates; tests/runtime/test_kalman.py.)
+  0 turns it off), ``gate_patience`` (5), ``gate_inflation`` (4) and ``gate_max_inflations`` (10 per streak, so P
+  grows at most 4^10 along a sensor: a real jump of up to ~1000 gate widths is re-acquired, a sensor stuck
+  further out is held as rejected); an update with every entry gated returns False (the predict stands). Counted
+  in ``gated`` and ``inflations``. (rov4dof, CKF, a permanent 25 m jump of the x fix: re-acquired within 5 + 5
+  updates; tests/runtime/test_kalman.py. A depth gauge stuck at +1e6 m from the first step: rejected after 10
+  inflations, the filter carried on by the others; tests/runtime/test_unit_slip.py.)
 * dt beyond the model's stable range: every predict is checked for a covariance that grows more than
   ``growth_limit`` (default 1e3) times (max diag P + max diag Q) in one step, or an integration that stops
   being finite (sigma points at high speed make explicit RK4 unstable: rov4dof at dt = 1 s). Such a step is
@@ -56,13 +59,18 @@ with the UKF step.
 """
 from __future__ import annotations
 
+import ctypes
+import math
+import time
+
 import numpy as np
 
 from abyssal.runtime.compiled import kalman as kr
 
-from ...contract import (FilterBase, FilterResult, _nonfinite_message, _vector, check_covariance, check_dt, check_state,
-                         register)
+from ...contract import (FilterBase, FilterResult, _nonfinite_message, _vector, check_covariance, check_dt,
+                         check_run_arguments, check_state, check_time, register, result_nees)
 from ...numerics import REPAIR_FLOOR, repair_covariance
+from .units import UnitWatch
 
 __all__ = [
     "CKF", "EKF", "FilterResult", "HuberUKF", "KalmanFilter", "MCUKF", "UKF", "process_noise", "repair_covariance",
@@ -70,6 +78,9 @@ __all__ = [
 
 #: dt types the hot path hands to the C runtime as they are (anything else, a bool included, is checked first)
 _PLAIN_NUMBERS = frozenset({float, int, np.float64})
+_BLOCK_TIME = kr.BLOCK_TIME
+#: the history's events when a filter keeps one (history_seconds > 0 or smoothing) and history_entries is not given
+DEFAULT_HISTORY_ENTRIES = 256
 
 
 def process_noise(model, x, u, dt, Qw, p=None) -> np.ndarray:
@@ -87,9 +98,10 @@ class KalmanFilter(FilterBase):
     #: the filter object's committed state (a view of its memory): what checkpoint/restore copy
     _state = ("_committed",)
 
-    def __init__(self, model, x0, P0, Q, R, *, repair_floor: float = REPAIR_FLOOR, gate_probability: float = 1e-10,
-                 gate_patience: int = 5, gate_inflation: float = 4.0, growth_limit: float = 1e3, max_substeps: int = 64,
-                 **rule):
+    def __init__(self, model, x0, P0, Q, R=None, *, t0: float = 0.0, noise: str = "step", history_seconds: float = 0.0,
+                 history_entries: int | None = None, smoothing: bool = False, repair_floor: float = REPAIR_FLOOR,
+                 gate_probability: float = 1e-10, gate_patience: int = 5, gate_inflation: float = 4.0,
+                 gate_max_inflations: int = 10, growth_limit: float = 1e3, max_substeps: int = 64, **rule):
         if not (hasattr(model, "functions") and hasattr(model, "library")):
             raise TypeError(f"{type(self).__name__} needs a model bundle from abyssal.generated.load(); got {model!r}")
         runtime = kr.KalmanRuntime.of(model)
@@ -98,14 +110,22 @@ class KalmanFilter(FilterBase):
                              "of the Kalman family (it has no <model>_descriptor.c): regenerate it (`abyssal regenerate`, "
                              "or `abyssal regenerate --model FILE.py:FUNCTION --out DIR`)")
         n, m = model.n_x, model.n_y
+        if noise not in kr.NOISE:
+            raise ValueError(f"{type(self).__name__}: noise={noise!r}: choose one of {sorted(kr.NOISE)} (how Q accrues: per "
+                             "predict call, per second, or Q is the spectral density of the model's noise inputs)")
         x0 = check_state(x0, n, "x0")
         P0 = check_covariance(P0, n, "P0")
-        Q = check_covariance(Q, n, "Q")
-        R = check_covariance(R, m, "R", definite=True)
+        Q = check_covariance(Q, model.n_w if noise == "inputs" else n, "Q")
+        R = None if R is None else check_covariance(R, m, "R", definite=True)
+        t0 = check_time(t0, "t0")
+        if history_entries is None:
+            history_entries = DEFAULT_HISTORY_ENTRIES if history_seconds > 0 or smoothing else 0
         values = dict(repair_floor=repair_floor, gate_probability=gate_probability, gate_patience=gate_patience,
-                      gate_inflation=gate_inflation, growth_limit=growth_limit, max_substeps=max_substeps, **rule)
+                      gate_inflation=gate_inflation, gate_max_inflations=gate_max_inflations, growth_limit=growth_limit,
+                      max_substeps=max_substeps, noise=noise, history_seconds=history_seconds,
+                      history_entries=history_entries, smoothing=smoothing, **rule)
         try:
-            options = runtime.options(self.kind, **values)
+            options = runtime.options(self.kind, **{**values, "noise": kr.NOISE[noise], "smoothing": int(bool(smoothing))})
         except (TypeError, ValueError, OverflowError) as exc:  # not a number (or an int beyond C's int)
             raise type(exc)(f"{type(self).__name__}: options {values}: {exc}") from None
         code = runtime.kalman_check_options(runtime.descriptor, options)
@@ -114,16 +134,24 @@ class KalmanFilter(FilterBase):
         size = runtime.kalman_work_size(runtime.descriptor, options)
         memory = np.zeros(size // 8)
         code = runtime.kalman_init(memory.ctypes.data, size, runtime.descriptor, options, x0.ctypes.data, P0.ctypes.data,
-                                   Q.ctypes.data, R.ctypes.data, None)
+                                   Q.ctypes.data, None if R is None else R.ctypes.data, t0, None)
         if code != kr.OK:
+            if code == kr.E_R and R is None:
+                undeclared = [s["name"] for s in model.sensors if s.get("noise") is None]
+                raise ValueError(f"{type(self).__name__}: R is required: sensor(s) {undeclared} declare no noise (give R, "
+                                 f"the ({m}, {m}) covariance of every sensor's outputs stacked, or declare the sensors' noise)")
             raise ValueError(f"{type(self).__name__}: {runtime.message(code)}")
         self._runtime, self._memory, self.options = runtime, memory, values
-        self._view(runtime, n, m)
-        # the call block [dt, u, z, p] and the return code, bound once to each of the runtime's calls
-        n_u, n_p = model.n_u, model.n_p
-        self._io = np.zeros(1 + n_u + m + n_p)
-        self._u, self._z = self._io[1:1 + n_u], self._io[1 + n_u:1 + n_u + m]
-        self._init_contract(model, p_buffer=self._io[1 + n_u + m:])
+        self._view(runtime, n, m, Q.shape[0], len(model.sensors))
+        # the call block [model, dt or t, sensor, has_R, has_q, u, z, p, R, q] and the return code, bound once to each
+        # of the runtime's calls (abyssal_kalman_binding.c)
+        n_u, n_p, head = model.n_u, model.n_p, kr.BLOCK_HEAD
+        self._io = np.zeros(head + n_u + m + n_p + m * m + n_p)
+        self._io[:1].view(np.uint64)[0] = runtime.descriptor  # the descriptor's address (its bits, not a number)
+        self._u, self._z = self._io[head:head + n_u], self._io[head + n_u:head + n_u + m]
+        at = head + n_u + m + n_p
+        self._R_call, self._q_call = self._io[at:at + m * m], self._io[at + m * m:]
+        self._init_contract(model, p_buffer=self._io[head + n_u + m:at])
         self._code = np.zeros(1)
         self._buffers, calls = [], {}
         for name in kr.CALLS:
@@ -134,14 +162,21 @@ class KalmanFilter(FilterBase):
             self._buffers.append(buffer)  # an evaluation holds a raw pointer to its buffer (and it to the arrays)
         self._call_step, self._call_predict = calls["step"], calls["predict"]
         self._call_update, self._call_check_p = calls["update"], calls["check_p"]
+        self._call_predict_to, self._call_update_sensor = calls["predict_to"], calls["update_sensor"]
         # memoryviews: the cheapest way to move a few floats in and out on the hot path. The slice assignment
         # view[:] = u takes u's buffer directly and checks that u is exactly a float64 vector of the right
         # length: another format or shape raises ValueError, an object without a buffer (list, None) TypeError.
         self._u_view, self._z_view = memoryview(self._u), memoryview(self._z)
         self._io_view, self._code_view = memoryview(self._io), memoryview(self._code)
         self._gate = None
+        self._acquire, self._release = self._lock.acquire, self._lock.release  # (bound once: the hot path's lock)
+        self._sensor_index = {name: k for k, name in enumerate(model.sensor_names)}
+        # each sensor's outputs, own parameters, and a view of its outputs' place in the call block
+        self._sensor_views = [(len(s["outputs"]), len(s["parameters"]), memoryview(self._z[:len(s["outputs"])]))
+                              for s in model.sensors]
+        self._unit_watch = UnitWatch(model, type(self).__name__)  # the first updates, for values in another unit
 
-    def _view(self, runtime, n: int, m: int) -> None:
+    def _view(self, runtime, n: int, m: int, q_rows: int, n_sensors: int) -> None:
         """NumPy views of the filter object's parts (abyssal_kalman_offset)."""
         memory, address = self._memory, self._memory.ctypes.data
 
@@ -155,28 +190,35 @@ class KalmanFilter(FilterBase):
         def integer(item, dtype):
             return np.frombuffer(memory, dtype, 1, at(item))
 
-        self._x = [doubles(kr.AT_X + k, (n,)) for k in range(3)]
-        self._P = [doubles(kr.AT_P + k, (n, n)) for k in range(3)]
+        self._x = [doubles(kr.AT_X + k, (n,)) for k in range(kr.SETS)]
+        self._P = [doubles(kr.AT_P + k, (n, n)) for k in range(kr.SETS)]
         self._innovation = [doubles(kr.AT_INNOVATION + k, (m,)) for k in range(2)]
-        self._S = [doubles(kr.AT_S + k, (m, m)) for k in range(2)]
-        self._Q, self._R = doubles(kr.AT_Q, (n, n)), doubles(kr.AT_R, (m, m))
+        self._S = [np.frombuffer(memory, np.float64, m * m, at(kr.AT_S + k)) for k in range(2)]
+        self._Q = doubles(kr.AT_Q, (q_rows, q_rows))
+        self._R = doubles(kr.AT_R, (m, m))
         self._current, self._reported = integer(kr.AT_CURRENT, np.int32), integer(kr.AT_REPORTED, np.int32)
+        self._reported_rows = integer(kr.AT_REPORTED_ROWS, np.int32)
+        self._reported_sensor = integer(kr.AT_REPORTED_SENSOR, np.int32)
         self._nis, self._nis_dof = integer(kr.AT_NIS, np.float64), integer(kr.AT_NIS_DOF, np.int32)
         self._repairs, self._substeps = integer(kr.AT_REPAIRS, np.int64), integer(kr.AT_SUBSTEPS, np.int64)
+        self._inflations, self._late = integer(kr.AT_INFLATIONS, np.int64), integer(kr.AT_LATE, np.int64)
+        self._time, self._history = integer(kr.AT_TIME, np.float64), integer(kr.AT_HISTORY, np.int32)
+        self._sensor_block = np.frombuffer(memory, np.float64, n_sensors * len(kr.SENSOR_FIELDS),
+                                           at(kr.AT_SENSORS)).reshape(n_sensors, len(kr.SENSOR_FIELDS))
         gate = at(kr.AT_GATE)
-        self._gate_counters = {name: np.frombuffer(memory, np.int64, 1, gate + getattr(kr.GateHeader, name).offset)
-                               for name in ("gated", "inflations")}
+        self._gate_counters = {"gated": np.frombuffer(memory, np.int64, 1, gate + kr.GateHeader.gated.offset)}
         self._gate_offset = gate
         self._committed = memory[: at(kr.AT_STATE_BYTES) // 8]
 
     def _option_message(self, code: int, runtime, values: dict, model) -> str:
-        names = {kr.E_SIGMA_POINTS: ("alpha", "beta", "kappa"), kr.E_ROBUST: ("sigma", "gamma"),
-                 kr.E_GATE: ("gate_probability", "gate_patience", "gate_inflation"),
-                 kr.E_SUBSTEPS: ("growth_limit", "max_substeps", "repair_floor")}.get(code, ())
+        names = {kr.E_SIGMA_POINTS: ("alpha", "beta", "kappa"), kr.E_ROBUST: ("sigma", "gamma", "huber_iterations"),
+                 kr.E_GATE: ("gate_probability", "gate_patience", "gate_inflation", "gate_max_inflations"),
+                 kr.E_SUBSTEPS: ("growth_limit", "max_substeps", "repair_floor"),
+                 kr.E_OPTIONS: ("noise", "history_entries", "history_seconds", "smoothing")}.get(code, ())
         got = ", ".join(f"{name}={values[name]!r}" for name in names if name in values)
         if code == kr.E_MODEL:
-            return (f"{type(self).__name__}: {runtime.message(code)}; model {model.name!r} has the filter families "
-                    f"{model.filter_families}")
+            return (f"{type(self).__name__}: {runtime.message(code)}; model {model.name!r} (regenerate its folder if it was "
+                    "written by an older abyssal)")
         return f"{type(self).__name__}: {runtime.message(code)}; got {got} (n = {model.n_x})"
 
     # -------------------------------------------------------------- state
@@ -196,6 +238,11 @@ class KalmanFilter(FilterBase):
         return self._P[self._current[0]].copy()
 
     @property
+    def t(self) -> float:
+        """The filter's time, s (t0, advanced by every predict)."""
+        return float(self._time[0])
+
+    @property
     def Q(self) -> np.ndarray:
         return self._Q.copy()
 
@@ -213,8 +260,16 @@ class KalmanFilter(FilterBase):
         R = check_covariance(value, self._R.shape[0], "R", definite=True)
         self._with_lock(lambda: self._checked(self._runtime.kalman_set_R(self._memory.ctypes.data, R.ctypes.data)))
 
+    def set_sensor_R(self, sensor: str, R) -> None:
+        """Replace one sensor's block of R (its (n_y_k, n_y_k) covariance) for later measurements."""
+        k = self._sensor(sensor)
+        rows = self.model.sensors[k]["outputs"]
+        R = check_covariance(R, len(rows), "R", definite=True)
+        self._with_lock(lambda: self._checked(self._runtime.kalman_set_sensor_R(
+            self._memory.ctypes.data, self._runtime.descriptor, k, R.ctypes.data)))
+
     def reset(self, x, P) -> None:
-        """Replace the state (checked like x0 and P0)."""
+        """Replace the state (checked like x0 and P0); the history restarts from it."""
         n = self.model.n_x
         x = check_state(x, n, "x")
         P = check_covariance(P, n, "P")
@@ -233,17 +288,28 @@ class KalmanFilter(FilterBase):
         finally:
             self._lock.release()
 
+    # -------------------------------------------------------------- reports
     @property
     def innovation(self) -> np.ndarray | None:
-        """Innovation of the last accepted update (0 on unused entries), or None."""
+        """Innovation of the last accepted update (its rows: every sensor stacked, or the one sensor it measured;
+        0 on unused entries), or None."""
         r = self._reported[0]
-        return None if r < 0 else self._innovation[r].copy()
+        return None if r < 0 else self._innovation[r][: self._reported_rows[0]].copy()
 
     @property
     def S(self) -> np.ndarray | None:
         """Innovation covariance of the last accepted update (identity rows on unused entries), or None."""
         r = self._reported[0]
-        return None if r < 0 else self._S[r].copy()
+        if r < 0:
+            return None
+        rows = int(self._reported_rows[0])
+        return self._S[r][: rows * rows].reshape(rows, rows, order="F").copy()
+
+    @property
+    def reported_sensor(self) -> str | None:
+        """The sensor the last accepted update measured (None: every sensor stacked, or none yet)."""
+        k = int(self._reported_sensor[0])
+        return self.model.sensor_names[k] if k >= 0 else None
 
     @property
     def nis(self) -> float:
@@ -262,8 +328,8 @@ class KalmanFilter(FilterBase):
 
     @property
     def inflations(self) -> int:
-        """Covariance inflations after gate_patience consecutive gated updates of an entry."""
-        return int(self._gate_counters["inflations"][0])
+        """Covariance inflations along a sensor's directions after gate_patience consecutive gates of its entries."""
+        return int(self._inflations[0])
 
     @property
     def repairs(self) -> int:
@@ -274,6 +340,30 @@ class KalmanFilter(FilterBase):
     def substeps(self) -> int:
         """Predicts subdivided because dt was beyond the model's stable range."""
         return int(self._substeps[0])
+
+    @property
+    def late(self) -> int:
+        """Measurements fused at their own earlier stamp from the history."""
+        return int(self._late[0])
+
+    @property
+    def history(self) -> int:
+        """Events (predicts, updates) the history holds now."""
+        return int(self._history[0])
+
+    def sensor_report(self, sensor: str) -> dict:
+        """What one sensor did so far: used (its updates that used an entry), accepted (its entries used), gated (its
+        entries left out), late (its measurements fused from the history), inflations, rejected (held as stuck or
+        lost), nis and nis_dof of its last accepted update, last_t (its last stamp)."""
+        row = self._sensor_block[self._sensor(sensor)]
+        out = dict(zip(kr.SENSOR_FIELDS, row.tolist()))
+        del out["accepted_at_streak"]  # (the runtime's bookkeeping of the inflation rule)
+        for name in ("used", "gated", "inflations", "late", "nis_dof", "streak_inflations", "accepted"):
+            out[name] = int(out[name])
+        out["rejected"] = bool(out["rejected"])
+        if out["last_t"] == -math.inf:
+            out["last_t"] = math.nan
+        return out
 
     @property
     def code(self) -> int:
@@ -290,33 +380,202 @@ class KalmanFilter(FilterBase):
             self._gate = InnovationGate.over(self._memory, self._gate_offset)
         return self._gate
 
-    # -------------------------------------------------------------- the contract's calls (FilterBase holds the lock)
-    def _step_call(self, u, dt, z, p) -> bool:
-        try:  # exact float64 vectors of the right length only (see __init__), else the checked path
-            self._u_view[:] = u
-            if z is not None:
-                self._z_view[:] = z
-        except (TypeError, ValueError):
-            self._u[:] = _vector(u, self.model.n_u, "u")
-            if z is not None:
-                self._z[:] = _vector(z, self.model.n_y, "z")
-        self._io_view[0] = dt if type(dt) in _PLAIN_NUMBERS else check_dt(dt)
-        saved = None if p is None and self._p_is_default else self._use_p(p)
-        if z is None:
-            self._call_predict()
-        else:
-            self._call_step()
-        code = self._code_view[0]
-        if code >= 0.0:
+    # -------------------------------------------------------------- sensors and time
+    def _sensor(self, name) -> int:
+        if not isinstance(name, str):
+            raise TypeError(f"sensor must be a sensor's name (str), got {type(name).__name__}")
+        try:
+            return self._sensor_index[name]
+        except KeyError:
+            raise ValueError(f"sensor {name!r} is not one of model {self.model.name!r}'s sensors "
+                             f"{list(self.model.sensor_names)}") from None
+
+    def predict_to(self, t, u, p=None) -> None:
+        """Integrate from the filter's time to t (s) with the input u held over the interval (and parameters p;
+        None: the model's defaults). t equal to the filter's time only holds u and p; an earlier t is refused."""
+        if not self._lock.acquire(False):
+            raise self._busy()
+        try:
+            t = check_time(t, "t")
+            try:
+                self._u_view[:] = u
+            except (TypeError, ValueError):
+                self._u[:] = _vector(u, self.model.n_u, "u")
+            self._io_view[kr.BLOCK_TIME] = t
+            saved = None if p is None and self._p_is_default else self._use_p(p)
+            start = self._time[0]
+            self._call_predict_to()
+            if self._code_view[0] < 0.0:
+                raise self._refusal(self._code_view[0], saved, "predict_to")
+            if t - start > self._max_dt:  # (contract.py's FilterBase: once per filter, after an accepted call)
+                self._warn_long_step(t - start)
+        finally:
+            self._lock.release()
+
+    def update(self, z, *args, **kwargs) -> bool:
+        """update(z, p=None): every sensor stacked, at the filter's time (the fixed-rate call); or
+        update(sensor, z, t, R=None, p=None): one sensor's measurement stamped t (update_sensor)."""
+        if isinstance(z, str) and (z in self._sensor_index or len(args) + len(kwargs) > 1 or "t" in kwargs):
+            return self.update_sensor(z, *args, **kwargs)  # (an unknown name is refused there, naming the sensors)
+        return super().update(z, *args, **kwargs)
+
+    def update_sensor(self, sensor: str, z, t, R=None, p=None) -> bool:
+        """One sensor's measurement z (its outputs; NaN entries missing) stamped t (s), with R (its own covariance,
+        e.g. a USBL fix's quality figure; None: the filter's) and p (the sensor's own parameters, e.g. a leader's
+        position; None: those held). Ahead of the filter's time it is predicted to t with the held input first; behind
+        it (a late fix) it is fused at t from the history (history_seconds), or refused when older. Returns whether
+        a measurement entry was used; a refusal (ValueError) leaves the filter unchanged."""
+        if not self._lock.acquire(False):
+            raise self._busy()
+        try:
+            k = self._sensor(sensor)
+            rows, n_q, z_view = self._sensor_views[k]
+            if type(t) not in _PLAIN_NUMBERS:  # (a plain number's finiteness is the C runtime's check)
+                t = check_time(t, "t")
+            try:  # an exact float64 vector of the sensor's outputs goes straight in, as in step()
+                z_view[:] = z
+            except (TypeError, ValueError):
+                z = _vector(z, rows, "z")
+                self._z[:rows] = z
+            self._io_view[kr.BLOCK_TIME] = t
+            self._io_view[kr.BLOCK_SENSOR] = k
+            if R is None:
+                self._io_view[kr.BLOCK_HAS_R] = 0.0
+            else:
+                self._R_call[: rows * rows] = check_covariance(R, rows, "R", definite=True).reshape(-1, order="F")
+                self._io_view[kr.BLOCK_HAS_R] = 1.0
+            if p is None:
+                self._io_view[kr.BLOCK_HAS_Q] = 0.0
+            else:
+                self._q_call[:n_q] = check_state(p, n_q, "p")
+                self._io_view[kr.BLOCK_HAS_Q] = 1.0
+            if self._unit_watch is not None:
+                spec = self.model.sensors[k]
+                offset = spec["offset"]
+                R_k = self._R[offset:offset + rows, offset:offset + rows] if R is None else self._R_call[:rows * rows]
+                self._watch_units(k, self._z[:rows], np.reshape(R_k, (rows, rows)),
+                                  None if p is None else (spec["p_offset"], self._q_call[:n_q]))
+            start = self._time[0]
+            self._call_update_sensor()
+            code = self._code_view[0]
+            if code < 0.0:
+                raise self._sensor_refusal(int(code), sensor, t, z)
+            if t - start > self._max_dt:  # predicted ahead to t first (a late fix: t - start < 0)
+                self._warn_long_step(t - start)
             return code == 1.0
-        raise self._refusal(code, saved, "step")
+        finally:
+            self._lock.release()
+
+    def smooth(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Rauch-Tung-Striebel smoothing over the history (smoothing=True): (t (K,), x (K, n_x), P (K, n_x, n_x)),
+        one row per event the history holds, oldest first, given every measurement in it (the C runtime's
+        abyssal_kalman_smooth). The filter is unchanged."""
+        if not self.options.get("smoothing"):
+            raise ValueError(f"{type(self).__name__}.smooth: built without smoothing=True (the history keeps no smoother "
+                             "gains)")
+        n, K = self.model.n_x, self.history
+        t, x, P = np.empty(K), np.empty((K, n)), np.empty((K, n, n))
+        count = ctypes.c_int(0)
+        if not self._lock.acquire(False):
+            raise self._busy()
+        try:
+            code = self._runtime.kalman_smooth(self._memory.ctypes.data, t.ctypes.data, x.ctypes.data, P.ctypes.data, K,
+                                               ctypes.byref(count))
+        finally:
+            self._lock.release()
+        if code != kr.OK:
+            raise ValueError(f"{type(self).__name__}.smooth: {self._runtime.message(code)}")
+        return t[: count.value], x[: count.value], np.ascontiguousarray(np.transpose(P[: count.value], (0, 2, 1)))
+
+    # -------------------------------------------------------------- a whole sequence in one call
+    def run(self, U, Z, dt, params=None, truth=None) -> FilterResult:
+        """Filter a whole sequence in one call of the C runtime (abyssal_kalman_run): the same steps, results and
+        reports as T calls of step(); all-or-nothing (a refused row k restores the filter and the error names
+        row k). step_time is the run's time per row (the C loop is not timed row by row)."""
+        model = self.model
+        a = check_run_arguments(model, U, Z, dt, params, truth)
+        T, n = a.U.shape[0], model.n_x
+        U = np.ascontiguousarray(a.U)
+        Z = None if a.Z is None else np.ascontiguousarray(np.where(a.has_data[:, None], a.Z, np.nan))
+        dts = np.ascontiguousarray(a.dts, dtype=np.float64)
+        given = [p for p in a.rows_p if p is not None]
+        P_rows = None if not given else np.ascontiguousarray([model.p_default if p is None else p for p in a.rows_p])
+        longest = float(dts.max()) if dts.size else 0.0
+        xs, Ps = np.empty((T, n)), np.empty((T, n, n))
+        nis, dof, row = np.full(T, np.nan), np.zeros(T, dtype=np.int32), ctypes.c_longlong(-1)
+        if not self._lock.acquire(False):
+            raise self._busy()
+        try:
+            saved = self._committed.copy()
+            start = time.perf_counter()
+            code = self._runtime.kalman_run(self._memory.ctypes.data, self._runtime.descriptor, T, U.ctypes.data,
+                                            dts.ctypes.data, 1, None if Z is None else Z.ctypes.data,
+                                            None if P_rows is None else P_rows.ctypes.data, 1, xs.ctypes.data,
+                                            Ps.ctypes.data, nis.ctypes.data, dof.ctypes.data, ctypes.byref(row))
+            elapsed = time.perf_counter() - start
+            if code < 0:
+                k = int(row.value)
+                self._committed[...] = saved
+                self._u[:], self._io_view[kr.BLOCK_TIME] = U[k], dts[k]
+                if Z is not None:
+                    self._z[:] = Z[k]
+                p_saved = (self._p.copy(), self._p_is_default)
+                self._p[:] = model.p_default if P_rows is None else P_rows[k]
+                error = self._refusal(code, p_saved, "step")
+                raise type(error)(f"run: row {k} refused ({error}); the filter was restored to its state before run") \
+                    from error
+        finally:
+            self._lock.release()
+        if T:  # the parameter buffer as T calls of step() leave it
+            FilterBase._set_p(self, a.rows_p[-1])
+        if longest > self._max_dt:
+            self._warn_long_step(longest)
+        return FilterResult(x=xs, P=Ps, nis=nis, nis_dof=dof.astype(int), nees=result_nees(model, a.truth, xs, Ps),
+                            ess=np.full(T, np.nan), particles=np.full(T, np.nan),
+                            step_time=np.full(T, elapsed / max(T, 1)))
+
+    # -------------------------------------------------------------- the contract's calls (FilterBase holds the lock)
+    def step(self, u, dt, z=None, p=None) -> bool:
+        """predict(u, dt, p) then update(z, p) as one transaction; returns whether an update happened. (The
+        contract's step in one frame: the C step is itself the transaction, and this is the hot path.)"""
+        if not self._acquire(False):
+            raise self._busy()
+        try:
+            try:  # exact float64 vectors of the right length only (see __init__), else the checked path
+                self._u_view[:] = u
+                if z is not None:
+                    self._z_view[:] = z
+            except (TypeError, ValueError):
+                self._u[:] = _vector(u, self.model.n_u, "u")
+                if z is not None:
+                    self._z[:] = _vector(z, self.model.n_y, "z")
+            if type(dt) not in _PLAIN_NUMBERS:
+                dt = check_dt(dt)
+            self._io_view[_BLOCK_TIME] = dt
+            saved = None if p is None and self._p_is_default else self._use_p(p)
+            if z is None:
+                self._call_predict()
+            else:
+                if self._unit_watch is not None:
+                    self._watch_units(None, self._z, self._R, None)
+                self._call_step()
+            code = self._code_view[0]
+            if code >= 0.0:
+                if dt > self._max_dt:  # (contract.py's FilterBase: once per filter, after an accepted call)
+                    self._warn_long_step(dt)
+                return code == 1.0
+            raise self._refusal(code, saved, "step")
+        finally:
+            self._release()
 
     def _predict_call(self, u, dt, p) -> None:
         try:
             self._u_view[:] = u
         except (TypeError, ValueError):
             self._u[:] = _vector(u, self.model.n_u, "u")
-        self._io_view[0] = dt if type(dt) in _PLAIN_NUMBERS else check_dt(dt)
+        if type(dt) not in _PLAIN_NUMBERS:
+            dt = check_dt(dt)
+        self._io_view[kr.BLOCK_TIME] = dt
         saved = None if p is None and self._p_is_default else self._use_p(p)
         self._call_predict()
         if self._code_view[0] < 0.0:
@@ -329,6 +588,8 @@ class KalmanFilter(FilterBase):
             except (TypeError, ValueError):
                 self._z[:] = _vector(z, self.model.n_y, "z")
         saved = None if p is None and self._p_is_default else self._use_p(p)
+        if z is not None and self._unit_watch is not None:
+            self._watch_units(None, self._z, self._R, None)
         if z is None:
             self._call_check_p()
         else:
@@ -340,6 +601,27 @@ class KalmanFilter(FilterBase):
             self._p[:], self._p_is_default = saved
         return code == 1.0
 
+    def _watch_units(self, sensor, z, R, sensor_p) -> None:
+        """Hand the unit watch (units.py) sensor k's values z (None: every sensor, z stacked) with the prediction h(x)
+        from the filter's estimate (sensor_p: (its offset in p, the sensor's own parameters of this call) or None)."""
+        watch = self._unit_watch
+        if not (any(watch.watching) if sensor is None else watch.watching[sensor]):
+            return
+        p = self._p.copy()
+        if sensor_p is not None:
+            p[sensor_p[0]:sensor_p[0] + len(sensor_p[1])] = sensor_p[1]
+        with np.errstate(all="ignore"):
+            y = self.model.h(self.x, p)
+        z = np.asarray(z, dtype=float)
+        for k in range(len(watch.sensors)) if sensor is None else (sensor,):
+            first, end = watch.sensors[k]
+            values = z[first:end] if sensor is None else z
+            if watch.watching[k] and not np.isnan(values).all():
+                block = R[first:end, first:end] if sensor is None else R
+                watch.observe_sensor(k, values, y[first:end], block)
+        if watch.done:
+            self._unit_watch = None
+
     def _use_p(self, p):
         """p into the call block (None: the model's defaults); returns what to put back if the call is refused.
         Its shape and type are checked here, its values by the C runtime."""
@@ -349,14 +631,16 @@ class KalmanFilter(FilterBase):
         FilterBase._set_p(self, p)
         return saved
 
+    def _block_parts(self):
+        io, n_u, m, head = self._io.copy(), self.model.n_u, self.model.n_y, kr.BLOCK_HEAD
+        return io[head:head + n_u], io[head + n_u:head + n_u + m], self._p.copy(), float(io[kr.BLOCK_TIME])
+
     def _refusal(self, code: float, saved_p, call: str) -> Exception:
         """The ValueError of a refused call (the C object is unchanged); p is put back."""
         code = int(code)
-        io = self._io.copy()
+        u, z, p, dt = self._block_parts()
         if saved_p is not None:
             self._p[:], self._p_is_default = saved_p
-        n_u, m = self.model.n_u, self.model.n_y
-        u, z, p, dt = io[1:1 + n_u], io[1 + n_u:1 + n_u + m], io[1 + n_u + m:], float(io[0])
         name = f"{type(self).__name__}.{call}"
         if code == kr.E_U:
             return ValueError(f"{name}: {_nonfinite_message('u', u)}")
@@ -368,6 +652,8 @@ class KalmanFilter(FilterBase):
                               "NaN for a missing entry")
         if code == kr.E_DT:
             return ValueError(f"{name}: dt must be a positive finite number of seconds, got {dt!r}")
+        if code == kr.E_TIME:
+            return ValueError(f"{name}: t = {dt!r} s is before the filter's time {self.t!r} s (a predict cannot go back)")
         if code == kr.E_UNSTABLE:
             k, limit = self.options["max_substeps"], self.options["growth_limit"]
             return ValueError(
@@ -385,6 +671,36 @@ class KalmanFilter(FilterBase):
                 f"{k} substeps (the covariance grew more than {limit:g}x in one substep, or the integration overflowed): "
                 "u or p drive the model out of its stable range at this state, or the filter diverged. State left "
                 "unchanged.")
+        if code == kr.E_UNSTABLE_STATE:
+            x = self.x
+            return ValueError(
+                f"{name}: the state given to the filter (x0 or reset: |x| up to {np.max(np.abs(x)):.3g}, largest variance "
+                f"{np.max(np.diag(self.P)):.3g}) blew up in its first predict over dt = {dt!r} s even in "
+                f"{self.options['max_substeps']} substeps: x or P is outside the model's stable range. State left "
+                "unchanged.")
+        return ValueError(f"{name}: {self._runtime.message(code)}")
+
+    def _sensor_refusal(self, code: int, sensor: str, t: float, z: np.ndarray) -> Exception:
+        name = f"{type(self).__name__}.update({sensor!r})"
+        report = self.sensor_report(sensor)
+        if code == kr.E_TIME:
+            if not math.isfinite(t):
+                return ValueError(f"{name}: t must be a finite time stamp in seconds, got {t!r}")
+            return ValueError(f"{name}: t = {t!r} s is not after this sensor's previous stamp {report['last_t']!r} s (each "
+                              "sensor's stamps must increase)")
+        if code == kr.E_TOO_LATE:
+            lag = self.options["history_seconds"]
+            return ValueError(f"{name}: t = {t!r} s is older than the history holds (the filter is at {self.t!r} s; "
+                              f"history_seconds = {lag!r}, history_entries = {self.options['history_entries']}): the "
+                              "measurement was not used; nothing changed")
+        if code == kr.E_Z:
+            bad = np.flatnonzero(np.isinf(z))
+            return ValueError(f"{name}: z has infinite entries at {bad.tolist()[:8]}; use NaN for a missing entry")
+        if code == kr.E_U:
+            return ValueError(f"{name}: t = {t!r} s is ahead of the filter's time {self.t!r} s and no input is held to "
+                              "predict with: call predict_to (or step) first")
+        if code == kr.E_P:
+            return ValueError(f"{name}: p (the sensor's own parameters) has non-finite entries")
         return ValueError(f"{name}: {self._runtime.message(code)}")
 
 
@@ -408,7 +724,8 @@ class UKF(KalmanFilter):
 
     kind = "ukf"
 
-    def __init__(self, model, x0, P0, Q, R, *, alpha: float = 1.0, beta: float = 2.0, kappa: float = 0.0, **options):
+    def __init__(self, model, x0, P0, Q, R=None, *, alpha: float = 1.0, beta: float = 2.0, kappa: float = 0.0,
+                 **options):
         super().__init__(model, x0, P0, Q, R, alpha=alpha, beta=beta, kappa=kappa, **options)
 
 
@@ -418,7 +735,7 @@ class MCUKF(UKF):
 
     kind = "mcukf"
 
-    def __init__(self, model, x0, P0, Q, R, *, sigma: float = 15.0, **options):
+    def __init__(self, model, x0, P0, Q, R=None, *, sigma: float = 15.0, **options):
         super().__init__(model, x0, P0, Q, R, sigma=sigma, **options)
 
 
@@ -428,6 +745,5 @@ class HuberUKF(UKF):
 
     kind = "huber"
 
-    def __init__(self, model, x0, P0, Q, R, *, gamma: float = 1.345, **options):
+    def __init__(self, model, x0, P0, Q, R=None, *, gamma: float = 1.345, **options):
         super().__init__(model, x0, P0, Q, R, gamma=gamma, **options)
-

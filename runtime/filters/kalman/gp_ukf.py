@@ -11,7 +11,7 @@ abyssal.symbolic.filters.gp_ukf) are ``gp_data``, bound once: the compiled predi
 
 Update: the observation model. Seed 004 and Ko et al. learn an observation GP too; here the
 sensors observe states directly (h is remus100's [u v w p q r z phi theta psi]), so the update
-is the generated ``remus100_ukf_update`` of the model bundle with R from the sensors (held
+is the C runtime's UKF update (``ukf_update``) on the model bundle's h with R from the sensors (held
 noise plus quantisation, LSB^2/12). This is a choice: an observation GP would only relearn the
 identity plus the same noise.
 
@@ -31,6 +31,7 @@ import math
 import casadi as ca
 import numpy as np
 
+from ...compiled.kalman import BatchStep
 from ...contract import FilterBase, check_covariance, check_dt, check_p, check_state, register
 from ...numerics import factorable_covariance, grew_beyond
 from .gate import InnovationGate
@@ -60,8 +61,8 @@ class GPUKF(FilterBase):
     def __init__(self, model, predict_library, predict_name: str, x0, P0, R, *, gp_dt: float, gp_data=(),
                  alpha: float = 1.0, beta: float = 2.0, kappa: float = 0.0, gate_probability: float = 1e-10,
                  gate_patience: int = 5, gate_inflation: float = 4.0, growth_limit: float = 1e3):
-        if not hasattr(model, "functions") or "ukf_update" not in model.functions:
-            raise TypeError("GPUKF needs a model bundle with a generated ukf_update (its observation model)")
+        if not hasattr(model, "functions") or not hasattr(model, "library"):
+            raise TypeError(f"GPUKF needs a model bundle from abyssal.generated.load() (its observation model); got {model!r}")
         n, m = model.n_x, model.n_y
         if not all(math.isfinite(v) for v in (alpha, beta, kappa)) or not alpha**2 * (n + kappa) > 0:
             raise ValueError(f"sigma points need finite alpha, beta, kappa with alpha^2 (n + kappa) > 0 (n = {n})")
@@ -94,7 +95,7 @@ class GPUKF(FilterBase):
             self._buffer.set_arg(i, memoryview(a.reshape(-1, order="F")))
         for i, a in enumerate(self._pout):
             self._buffer.set_res(i, memoryview(a.reshape(-1, order="F")))
-        self._update_fn = model.function("ukf_update")
+        self._update_fn = BatchStep(model, "ukf_update")
 
     @property
     def gated(self) -> int:

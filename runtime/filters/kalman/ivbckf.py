@@ -8,12 +8,12 @@ matrices. Seed 002's prior parameters: chi = kappa = 5 (Gamma shapes of omega, n
 scale matrices: u = n + 1 + tau_P, t = m + 1 + tau_R, so tau_P = 5, tau_R = 3 for n = 2, m = 1;
 the defaults keep those tau for any n and m: u = n + 6, t = m + 4).
 
-One step: the generated cubature predict ``<m>_ckf_predict`` gives (x^-, P^-); then with
+One step: the C runtime's cubature predict (``ckf_predict``, compiled.kalman.BatchStep) gives (x^-, P^-); then with
 U0 = tau_P P^-, T0 = tau_R R, E[P^-1] = P^-^-1, E[R^-1] = R^-1, E[xi] = E[lambda] = 1,
 E[omega] = chi / phi, E[nu] = kappa / zeta, ``iterations`` (default 10, ours) fixed-point passes:
 
     P~ = E[P^-1]^-1 / E[xi],  R~ = E[R^-1]^-1 / E[lambda]
-    (x, P) = <m>_ckf_update(x^-, P~, z, p, R~)                          (generated C)
+    (x, P) = ckf_update(x^-, P~, z, p, R~)                              (the C runtime)
     A = (x - x^-)(x - x^-)^T + P;  B = E[(z - h(x))(z - h(x))^T]          (cubature points of N(x, P))
     eta = (E[omega] + n) / 2, theta = (E[omega] + tr(A E[P^-1])) / 2;  E[xi] = eta / theta
     E[lambda] = (E[nu] + m) / (E[nu] + tr(B E[R^-1]))
@@ -22,7 +22,7 @@ E[omega] = chi / phi, E[nu] = kappa / zeta, ``iterations`` (default 10, ours) fi
 
 The "- 1/2" in the rate of omega comes from Stirling's approximation of log Gamma(omega / 2) (a
 copy of the authors' code has "+ 1/2"; the derivation gives "- 1/2", which keeps the rate >= phi
-because E[xi] - E[ln xi] >= 1). The update and h run in generated C; the iteration's small
+because E[xi] - E[ln xi] >= 1). The update runs in the C runtime, h in the model's generated C; the iteration's small
 matrix algebra is NumPy (n = 2, m = 1 here).
 """
 from __future__ import annotations
@@ -32,6 +32,7 @@ import math
 import numpy as np
 from scipy.special import digamma
 
+from ...compiled.kalman import BatchStep
 from ...contract import FilterBase, check_covariance, check_state, register
 from ...numerics import angle_indices, factorable_covariance, grew_beyond, wrap_angles
 from .gate import InnovationGate
@@ -87,8 +88,8 @@ class IVBCKF(FilterBase):
         self.iterations = int(iterations)
         self.gate = InnovationGate(self.R, probability=gate_probability, patience=gate_patience, inflation=gate_inflation)
         self.growth_limit = float(growth_limit)
-        self._predict_fn = model.function("ckf_predict")
-        self._update_fn = model.function("ckf_update")
+        self._predict_fn = BatchStep(model, "ckf_predict")
+        self._update_fn = BatchStep(model, "ckf_update")
         self._h = model.function("h")
         self._angle_outputs = angle_indices(model, "outputs")
         self.nis, self.nis_dof = math.nan, 0

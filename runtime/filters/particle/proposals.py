@@ -7,16 +7,16 @@ forms and the UPF family of seed 002.
   and P^i_{k|k} is kept, following its particle through resampling (``commit``). A particle whose
   update fails its guards even on a repaired covariance proposes from its prediction
   (``failed_slices``).
-  * ``CarriedCubatureProposal`` -- the CPF of seed 000 (eqs. 30-33 as printed): the generated CKF
-    predict + update (fused into one call when nothing is added between them). P^i converges to
+  * ``CarriedCubatureProposal`` -- the CPF of seed 000 (eqs. 30-33 as printed): the C runtime's CKF
+    predict + update per particle (fused into one call when nothing is added between them). P^i converges to
     the CKF posterior, which is much wider than the one-step process noise, so the importance
     ratio p(x|x_prev)/q is often degenerate (ESS near 1): see tests/runtime/test_particle_filters.py.
   * ``UnscentedProposal(update="ukf" | "huber" | "mcc")`` -- the UPF / HRUPF / MCUPF of seed 002
-    (eqs. 7-19, 36-39): the generated ``ukf_predict`` with the scaled unscented rule alpha = 1,
+    (eqs. 7-19, 36-39): the C runtime's ``ukf_predict`` with the scaled unscented rule alpha = 1,
     beta = 0, kappa = 3 - n (the paper's lambda = 3 - n) and the update ``ukf_update``,
-    ``huber_ukf_update`` (Huber gamma, 3 IRLS iterations fixed at generation) or ``mcukf_update``
-    (R~ = R / C_k, the correntropy kernel of bandwidth sigma; its exponent is capped at 50 in the
-    generated code, symbolic/filters/robust.py, so C_k >= e^-50 and R~ stays finite).
+    ``huber_ukf_update`` (Huber gamma, 3 IRLS iterations) or ``mcukf_update``
+    (R~ = R / C_k, the correntropy kernel of bandwidth sigma; its exponent is capped at 50 in
+    runtime/c/abyssal_kalman_steps.c, so C_k >= e^-50 and R~ stays finite).
 * ``OptimalCubatureProposal`` -- the locally optimal form: each particle's cubature step starts
   from P^i = 0, so its predicted density is N(f(x^i_{k-1}), Q_k) and the cubature update with z
   approximates p(x_k | x^i_{k-1}, z) (exact for a linear measurement, where the weight becomes
@@ -44,7 +44,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from abyssal.symbolic.filters.families import FUNCTIONS
 
 from ...compiled.batches import (CubaturePredictBatch, CubatureStepBatch, CubatureUpdateBatch, MeasureBatch,
                                  UnscentedPredictBatch, UnscentedUpdateBatch)
@@ -224,8 +223,7 @@ class CarriedCubatureProposal(CarriedGaussianProposal):
 
 
 #: update kind -> (generated function, its extra argument)
-UNSCENTED_UPDATES = {"ukf": (FUNCTIONS["ukf"]["update"], None), "huber": (FUNCTIONS["robust"]["huber_update"], "gamma"),
-                     "mcc": (FUNCTIONS["robust"]["mcc_update"], "sigma")}
+UNSCENTED_UPDATES = {"ukf": ("ukf_update", None), "huber": ("huber_ukf_update", "gamma"), "mcc": ("mcukf_update", "sigma")}
 
 
 class UnscentedProposal(CarriedGaussianProposal):
@@ -243,10 +241,6 @@ class UnscentedProposal(CarriedGaussianProposal):
     def _batches(self, engine):
         model, cap = engine.model, engine.capacity
         function, extra = UNSCENTED_UPDATES[self.update]
-        for name in (FUNCTIONS["ukf"]["predict"], function):
-            if name not in model.functions:
-                raise ValueError(f"{self.name} proposal: the model {model.name!r} has no generated {name!r} (regenerate "
-                                 f"it with the {'robust' if extra else 'ukf'} family)")
         #: the scaled unscented rule (alpha, beta, kappa) = (1, 0, 3 - n): the paper's lambda = 3 - n
         self.abk = np.array([1.0, 0.0, 3.0 - model.n_x])
         extra = [np.array([self.sigma if extra == "sigma" else self.gamma])] if extra else []

@@ -7,11 +7,12 @@
 
 The SIR engine (engine.py) with the unscented proposal (proposals.py, ``UnscentedProposal``):
 every particle j carries its own Gaussian (x^j, P^j) (van der Merwe's UPF, the paper's eqs. 5-6
-and 7-19). One step, all per-particle work in generated C over all particles in one call each:
+and 7-19). One step, all per-particle work in the C runtime over all particles in one call each
+(compiled.kalman.BatchStep, the algebra of the Kalman filters, on the model's generated h and f):
 
-1. ``<m>_ukf_predict_batch`` on (x^j_{k-1}, P^j_{k-1}) with Q (eqs. 7-10);
-2. ``<m>_ukf_update_batch`` (UPF), ``<m>_huber_ukf_update_batch`` (HRUPF: Huber gamma, 3 IRLS
-   iterations fixed at generation) or ``<m>_mcukf_update_batch`` (MCUPF: R~ = R / C_k with the
+1. ``ukf_predict`` on (x^j_{k-1}, P^j_{k-1}) with Q (eqs. 7-10);
+2. ``ukf_update`` (UPF), ``huber_ukf_update`` (HRUPF: Huber gamma, 3 IRLS
+   iterations) or ``mcukf_update`` (MCUPF: R~ = R / C_k with the
    correntropy kernel of bandwidth sigma, eqs. 36-39) with the range and the leader position p;
 3. a draw x^j_k ~ N(x^j_{k|k}, P^j_{k|k}) (eq. 19), weights by eq. 20 -- the Gaussian
    likelihood p(z | x) with the filter's R, the transition density N(x; f(x^j_{k-1}), Q) and the
@@ -28,8 +29,8 @@ Decisions:
   points match the Gaussian's fourth moment along each axis. (cn2d's f is linear in x, so the
   predict is exact for any lambda; lambda only matters in the range update.)
 * The MCC kernel weight C_k underflows for large whitened innovations (sigma = 15, R = 0.1: a 30 m
-  innovation gives ~2e-9, 60 m gives 1e-35). It is floored in the generated update
-  (symbolic/filters/robust.py: the kernel exponent is capped at MCC_MAX_EXPONENT = 50, so
+  innovation gives ~2e-9, 60 m gives 1e-35). It is floored in the update
+  (runtime/c/abyssal_kalman_steps.c: the kernel exponent is capped at ABYSSAL_MCC_MAX_EXPONENT = 50, so
   C_k >= e^-50 ~ 2e-22 and R/C_k stays finite); the capped update then ignores the range.
 * Estimates: x and P are the weighted mean and covariance before resampling (eqs. 23-24 after
   resampling have the same expectation and more noise).
