@@ -378,6 +378,20 @@ def _copy(value):
     return value
 
 
+#: the key of a filter checkpoint's identity (FilterBase.checkpoint)
+CHECKPOINT_HEADER = "abyssal checkpoint of"
+
+
+def _same(a, b) -> bool:
+    """Equal option values (NaN equal to NaN: an option may be NaN)."""
+    if isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b):
+        return True
+    try:
+        return bool(a == b)
+    except (TypeError, ValueError):
+        return a is b
+
+
 def _put(owner, name: str, saved) -> None:
     """Restore one entry: in place where the current value is a buffer of the same shape (a buffer may be
     bound to generated C), else by assignment of a copy."""
@@ -594,6 +608,63 @@ class FilterBase(Stateful):
 
     def _update(self, z, present) -> bool:
         raise NotImplementedError(f"{type(self).__name__} implements neither _advance nor _update")
+
+    # ---------------------------------------------------------------- checkpoints that travel
+    def checkpoint(self) -> dict:
+        """An opaque copy of everything the filter holds and reports, with what it belongs to (CHECKPOINT_HEADER: the
+        filter's kind, its model's name and id, its sizes and options). Plain data: it pickles, and restores into a
+        filter of the same kind, model, sizes and options in another process, bit for bit."""
+        state = super().checkpoint()
+        state[CHECKPOINT_HEADER] = self._checkpoint_identity()
+        return state
+
+    def restore(self, checkpoint: dict) -> None:
+        """Put a checkpoint of this filter (or of one of the same kind, model, sizes and options) back; any other is
+        refused, naming what differs, and the filter is left unchanged."""
+        self._check_checkpoint(checkpoint)
+        super().restore(checkpoint)
+
+    def _checkpoint_identity(self) -> dict:
+        model = self.model
+        manifest = getattr(model, "manifest", None) or {}
+        sizes = {name: int(getattr(model, name)) for name in ("n_x", "n_u", "n_y", "n_p") if hasattr(model, name)}
+        return {"kind": type(self).__name__, "model": str(getattr(model, "name", type(model).__name__)),
+                "model id": manifest.get("model_id") or manifest.get("equations_sha256"),
+                "sizes": {**sizes, **self._checkpoint_sizes()}, "options": self._checkpoint_options()}
+
+    def _checkpoint_sizes(self) -> dict:
+        """Sizes of the filter's buffers beyond the model's (a filter with such buffers adds them)."""
+        return {}
+
+    def _checkpoint_options(self) -> dict:
+        """The options a checkpoint must share with the filter it is restored into (default: ``self.options``)."""
+        options = getattr(self, "options", None)
+        return dict(options) if isinstance(options, dict) else {}
+
+    def _check_checkpoint(self, checkpoint) -> None:
+        """Refuse (ValueError, naming what differs; the filter unchanged) a checkpoint of another kind of filter,
+        model, size or option set, or no checkpoint of a filter at all."""
+        name = type(self).__name__
+        if not isinstance(checkpoint, dict) or not isinstance(checkpoint.get(CHECKPOINT_HEADER), dict):
+            raise ValueError(f"{name}.restore: refused, not a checkpoint of a filter (give what a filter's checkpoint() "
+                             f"returned; got {type(checkpoint).__name__}); the filter is unchanged")
+        theirs, ours = checkpoint[CHECKPOINT_HEADER], self._checkpoint_identity()
+        differs = []
+        for key in ("kind", "model", "model id", "sizes", "options"):
+            a, b = theirs.get(key), ours[key]
+            if isinstance(a, dict) and isinstance(b, dict):
+                for item in sorted(set(a) | set(b), key=str):
+                    if not _same(a.get(item, "(none)"), b.get(item, "(none)")):
+                        differs.append(f"{key[:-1] if key.endswith('s') else key} {item} = {a.get(item, '(none)')!r} "
+                                       f"(this filter: {b.get(item, '(none)')!r})")
+            elif not _same(a, b):
+                differs.append(f"{key} {a!r} (this filter: {b!r})")
+        missing = [entry for entry in self._state if entry not in checkpoint]
+        if missing and not differs:
+            differs.append(f"entries {missing} are missing")
+        if differs:
+            raise ValueError(f"{name}.restore: refused, the checkpoint is of another filter: {'; '.join(differs)}; the "
+                             "filter is unchanged")
 
     def _warn_long_step(self, dt, stacklevel: int = 3) -> None:
         """Once per filter: an accepted step (predict, step, run, predict_to) of dt beyond the model's declared max_dt.

@@ -622,6 +622,9 @@ class KalmanFilter(FilterBase):
         if watch.done:
             self._unit_watch = None
 
+    def _checkpoint_sizes(self) -> dict:
+        return {"object doubles": int(self._committed.size), "sensors": len(self.model.sensors)}
+
     def _use_p(self, p):
         """p into the call block (None: the model's defaults); returns what to put back if the call is refused.
         Its shape and type are checked here, its values by the C runtime."""
