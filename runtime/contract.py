@@ -32,10 +32,13 @@ Input rules (the ``check_*`` helpers below; every filter uses them, none re-impl
 Reporting attributes every filter has (read by ``run``): ``nis`` (float, NaN when the last
 accepted update is undefined or there was none), ``nis_dof`` (int), ``ess`` (float; NaN for
 Kalman filters) and ``n_particles`` (float; NaN for Kalman filters). ``checkpoint()`` returns an
-opaque copy of the whole state and reports; ``restore(checkpoint)`` puts it back.
+opaque copy of the whole state and reports, plain data (it pickles) with what it belongs to (the filter's kind, its
+model's name and id, sizes and options); ``restore(checkpoint)`` puts it back, in this process or another, bit for bit,
+and refuses (ValueError naming each difference, the filter unchanged) a checkpoint of anything else.
 
 A model that declares its max_dt (``Envelope(max_dt=...)``, recorded in its manifest) says the longest step it is
-meant for: a filter stepped (``predict``, ``step``, ``run``) with a longer dt warns once (``warnings.warn``, a
+meant for: a filter stepped (``predict``, ``step``, ``run``; a Kalman filter's ``predict_to`` and
+``update_sensor`` ahead of its time too) with a longer dt warns once (``warnings.warn``, a
 ``LongStepWarning``; once per filter object) and goes on (a step its model cannot take in one piece is subdivided
 or refused, as always).
 
