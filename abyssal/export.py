@@ -19,10 +19,12 @@ The vectors: ``steps`` (default 10^4) steps of a simulated run of the model insi
 missing entries (NaN), gross outliers (gated), one long dt (subdivided where the model needs it) and three
 refused rows (a non-finite u, a negative dt, an infinite z entry: the C must refuse them too, with the same
 code, and go on unchanged). Python and the exported C run the same C runtime and the same generated C, so the
-recorded rows equal run_csv's bit for bit when compiled with the same floating-point contraction (none:
--ffp-contract=off in abyssal's build and in the CMake project) and the same libm, whatever the -march or build type
-(measured: the Otter-like USV's 1057 and 2013 recorded rows, CMake Release without -march against abyssal's
--O3 -march=native, all identical); to rounding otherwise (another compiler's contraction, another sin/cos); ctest
+recorded rows equal run_csv's bit for bit when compiled with abyssal's own flags. Both builds leave floating-point
+contraction off (-ffp-contract=off in abyssal's build and in the CMake project), so another -march or build type
+changes nothing but the sin/cos of the structure-of-arrays kernel (abyssal's build vectorises it with the libmvec
+variant of its -march; the CMake default calls the scalar libm). Measured against CMake's default Release build:
+the Otter-like USV's 1057 and 2013 recorded rows all identical; rov4dof's within 1.9e-13 (steps) and 1.4e-10 (the
+time-stamped calls; 2e-9 with GCC's default contraction). ctest
 compares x and P at 1e-12 of max(1, |value|) and the NIS at 1e-9 (the innovation z - h(x) cancels between two large
 numbers).
 """

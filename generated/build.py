@@ -64,8 +64,8 @@ from functools import lru_cache
 from pathlib import Path
 
 # -ffp-contract=off: no a * b + c fused into an FMA (GCC's default in its GNU modes wherever -march=native has FMA);
-# the exported CMake project compiles with the same rule, so its ctest reproduces the recorded vectors bit for bit
-# on any machine with the same libm, whatever its -march (issue 33: 7.1e-10 on the Otter with another contraction)
+# the exported CMake project compiles with the same rule, so another -march or build type changes its results only
+# through the SoA kernel's sin/cos (libmvec's variant; abyssal/export.py has the measurements)
 DEFAULT_CFLAGS = "-O3 -fPIC -fno-semantic-interposition -march=native -ffp-contract=off"
 LINK_FLAGS = ["-shared"]
 LIBS = ["-lm"]

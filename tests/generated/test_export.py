@@ -247,8 +247,9 @@ def test_a_users_model_with_a_long_step_exports_and_ctest_reproduces_it_bit_for_
     """Issue 33: the Otter-like USV (tests/vehicles/otter.py: a 0.1 s propeller lag, no envelope) exported with the
     recorded run's long step (>= 5 s, subdivided by the runtime): CMake's default build (Release, no -march) passes
     ctest, and since both builds leave floating-point contraction off (abyssal's -ffp-contract=off and the project's),
-    run_csv's rows equal the recorded ones bit for bit (the exported CKF's ctest once failed 2 of 3 here, 7.1e-10
-    after the long step against 1e-12)."""
+    run_csv's rows equal the recorded ones bit for bit (with GCC's default contraction under -march=native none did;
+    the exported CKF's ctest once failed 2 of 3 here, 7.1e-10 after the long step against 1e-12). (A model whose
+    structure-of-arrays kernel vectorises its sin/cos differs by libmvec's roundings instead: rov4dof 1.9e-13.)"""
     tool("cmake", "the exported project's build")
     env = {**os.environ, "PYTHONPATH": ""}
     subprocess.run([sys.executable, "-m", "abyssal.runtime.cli", "regenerate", "--model",
