@@ -44,6 +44,7 @@ Environment (every error names the variable):
 from __future__ import annotations
 
 import ctypes
+import errno
 import fcntl
 import hashlib
 import json
@@ -62,7 +63,10 @@ from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 
-DEFAULT_CFLAGS = "-O3 -fPIC -fno-semantic-interposition -march=native"
+# -ffp-contract=off: no a * b + c fused into an FMA (GCC's default in its GNU modes wherever -march=native has FMA);
+# the exported CMake project compiles with the same rule, so another -march or build type changes its results only
+# through the SoA kernel's sin/cos (libmvec's variant; abyssal/export.py has the measurements)
+DEFAULT_CFLAGS = "-O3 -fPIC -fno-semantic-interposition -march=native -ffp-contract=off"
 LINK_FLAGS = ["-shared"]
 LIBS = ["-lm"]
 # Structure-of-arrays kernels (files *_soa.c): let the loop vectorise with libmvec's sin/cos/tan instead of the
@@ -578,15 +582,21 @@ def build(model: str, sources: dict[str, str], *, symbols=(), strict: bool = Fal
     except CompilerNotFoundError as exc:
         raise CompilerNotFoundError(f"{exc}; no cached library either: {_near_misses(root, model)}") from None
     timeout = build_timeout()
-    _ensure_root(root)
     try:
+        _ensure_root(root)
         lock = _KeyLock(root / f"{entry.name}.lock", wait=timeout + LOCK_MARGIN)
         with lock:
             lib = _valid_entry(entry, lib_name, key)  # another process may have built it while we waited
             if lib is None:
                 _build_entry(model, sources, symbols, flags, (requested_var, requested), key, cc, timeout, entry, strict)
-    except PermissionError as exc:
-        raise CacheError(f"{_describe_root(root)} is not writable: {exc}") from exc
+    except CacheError as exc:
+        raise CacheError(f"{model}: {exc}") from exc.__cause__
+    except OSError as exc:  # a read-only or full cache (EACCES, EROFS, ENOSPC, EDQUOT, ...): named, never raw
+        why = {errno.EACCES: "is not writable", errno.EPERM: "is not writable", errno.EROFS: "is on a read-only file "
+               "system", errno.ENOSPC: "has no space left", errno.EDQUOT: "is over its disk quota"}.get(exc.errno,
+                                                                                                     "cannot be written")
+        raise CacheError(f"{model}: cannot build its library into the cache: {_describe_root(root)} {why} ({exc}); free "
+                         "space there or set ABYSSAL_CACHE_DIR to a writable folder") from exc
     lib = _valid_entry(entry, lib_name, key)
     if lib is None or not _claim(entry):
         raise BuildError(f"cache entry {entry} is not valid right after building it")

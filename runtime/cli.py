@@ -302,6 +302,9 @@ def main(argv=None) -> int:
     except (KeyError, ValueError, RuntimeError, OSError, MissingExtraError) as exc:
         print(f"abyssal {args.command}: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt as exc:  # Ctrl-C: one line (a campaign says what it kept), no traceback
+        print(f"abyssal {args.command}: {exc or 'interrupted'}", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

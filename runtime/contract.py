@@ -32,7 +32,15 @@ Input rules (the ``check_*`` helpers below; every filter uses them, none re-impl
 Reporting attributes every filter has (read by ``run``): ``nis`` (float, NaN when the last
 accepted update is undefined or there was none), ``nis_dof`` (int), ``ess`` (float; NaN for
 Kalman filters) and ``n_particles`` (float; NaN for Kalman filters). ``checkpoint()`` returns an
-opaque copy of the whole state and reports; ``restore(checkpoint)`` puts it back.
+opaque copy of the whole state and reports, plain data (it pickles) with what it belongs to (the filter's kind, its
+model's name and id, sizes and options); ``restore(checkpoint)`` puts it back, in this process or another, bit for bit,
+and refuses (ValueError naming each difference, the filter unchanged) a checkpoint of anything else.
+
+A model that declares its max_dt (``Envelope(max_dt=...)``, recorded in its manifest) says the longest step it is
+meant for: a filter stepped (``predict``, ``step``, ``run``; a Kalman filter's ``predict_to`` and
+``update_sensor`` ahead of its time too) with a longer dt warns once (``warnings.warn``, a
+``LongStepWarning``; once per filter object) and goes on (a step its model cannot take in one piece is subdivided
+or refused, as always).
 
 ``run`` is all-or-nothing: when row k is refused, the filter is restored to its state before
 ``run`` and the error (same type) names the row; the cause is chained (``__cause__``).
@@ -61,6 +69,7 @@ import math
 import numbers
 import threading
 import time
+import warnings
 from collections import deque
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
@@ -72,7 +81,7 @@ from abyssal.arrays import real_array
 from .numerics import SYMMETRY_TOLERANCE, angle_indices, nees, wrap_angles
 
 __all__ = [
-    "Filter", "FilterBase", "NUMERICAL_FAILURES", "RunArguments", "Stateful", "FilterResult", "as_generator", "check_count",
+    "Filter", "FilterBase", "LongStepWarning", "NUMERICAL_FAILURES", "RunArguments", "Stateful", "FilterResult", "as_generator", "check_count",
     "check_covariance", "check_run_arguments",
     "check_dt", "check_p", "check_state", "check_time", "check_u", "check_z", "real_array", "register", "registered_filters",
     "run_filter",
@@ -335,6 +344,22 @@ def as_generator(rng) -> np.random.Generator:
 
 
 # ---------------------------------------------------------------------------------------------
+# the model's declared step
+
+
+class LongStepWarning(UserWarning):
+    """A filter was stepped with a dt beyond its model's declared max_dt (once per filter object)."""
+
+
+def declared_max_dt(model) -> float | None:
+    """The max_dt the model declares in its envelope (its manifest's), None when it declares none."""
+    envelope = getattr(model, "envelope", None)
+    if not isinstance(envelope, dict) or not envelope.get("declared") or envelope.get("max_dt") is None:
+        return None
+    return float(envelope["max_dt"])
+
+
+# ---------------------------------------------------------------------------------------------
 # the transaction and run: one implementation for every filter
 
 
@@ -354,6 +379,20 @@ def _copy(value):
     if isinstance(value, (list, tuple, deque)):
         return type(value)(_copy(v) for v in value)
     return value
+
+
+#: the key of a filter checkpoint's identity (FilterBase.checkpoint)
+CHECKPOINT_HEADER = "abyssal checkpoint of"
+
+
+def _same(a, b) -> bool:
+    """Equal option values (NaN equal to NaN: an option may be NaN)."""
+    if isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b):
+        return True
+    try:
+        return bool(a == b)
+    except (TypeError, ValueError):
+        return a is b
 
 
 def _put(owner, name: str, saved) -> None:
@@ -425,6 +464,10 @@ class FilterBase(Stateful):
     ess: float = math.nan
     n_particles: float = math.nan
     _touched: tuple[str, ...] | None = None
+    #: the step a dt is compared with: the model's declared max_dt until the filter has warned about a longer one
+    #: (``_warn_long_step``), inf after that or when the model declares none (one comparison on the hot path)
+    _max_dt: float = math.inf
+    _declared_max_dt: float | None = None
 
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)
@@ -440,6 +483,8 @@ class FilterBase(Stateful):
         self._p[:] = model.p_default
         self._p_is_default = True
         self._lock = threading.Lock()
+        self._declared_max_dt = declared_max_dt(model)
+        self._max_dt = math.inf if self._declared_max_dt is None else self._declared_max_dt
 
     @property
     def x(self) -> np.ndarray:
@@ -468,6 +513,8 @@ class FilterBase(Stateful):
             raise self._numerical_failure(error) from error
         finally:
             self._lock.release()
+        if dt > self._max_dt:  # (the call accepted dt: a positive finite real number)
+            self._warn_long_step(dt)
 
     def update(self, z, p=None) -> bool:
         """Correct the estimate with the present (finite) entries of z; False (nothing changed) when z is
@@ -486,11 +533,14 @@ class FilterBase(Stateful):
         if not self._lock.acquire(False):
             raise self._busy()
         try:
-            return self._step_call(u, dt, z, p)
+            updated = self._step_call(u, dt, z, p)
         except NUMERICAL_FAILURES as error:
             raise self._numerical_failure(error) from error
         finally:
             self._lock.release()
+        if dt > self._max_dt:  # (the call accepted dt: a positive finite real number)
+            self._warn_long_step(dt)
+        return updated
 
     def run(self, U, Z, dt, params=None, truth=None) -> FilterResult:
         """Filter a whole sequence (see ``run_filter``)."""
@@ -561,6 +611,73 @@ class FilterBase(Stateful):
 
     def _update(self, z, present) -> bool:
         raise NotImplementedError(f"{type(self).__name__} implements neither _advance nor _update")
+
+    # ---------------------------------------------------------------- checkpoints that travel
+    def checkpoint(self) -> dict:
+        """An opaque copy of everything the filter holds and reports, with what it belongs to (CHECKPOINT_HEADER: the
+        filter's kind, its model's name and id, its sizes and options). Plain data: it pickles, and restores into a
+        filter of the same kind, model, sizes and options in another process, bit for bit."""
+        state = super().checkpoint()
+        state[CHECKPOINT_HEADER] = self._checkpoint_identity()
+        return state
+
+    def restore(self, checkpoint: dict) -> None:
+        """Put a checkpoint of this filter (or of one of the same kind, model, sizes and options) back; any other is
+        refused, naming what differs, and the filter is left unchanged."""
+        self._check_checkpoint(checkpoint)
+        super().restore(checkpoint)
+
+    def _checkpoint_identity(self) -> dict:
+        model = self.model
+        manifest = getattr(model, "manifest", None) or {}
+        sizes = {name: int(getattr(model, name)) for name in ("n_x", "n_u", "n_y", "n_p") if hasattr(model, name)}
+        return {"kind": type(self).__name__, "model": str(getattr(model, "name", type(model).__name__)),
+                "model id": manifest.get("model_id") or manifest.get("equations_sha256"),
+                "sizes": {**sizes, **self._checkpoint_sizes()}, "options": self._checkpoint_options()}
+
+    def _checkpoint_sizes(self) -> dict:
+        """Sizes of the filter's buffers beyond the model's (a filter with such buffers adds them)."""
+        return {}
+
+    def _checkpoint_options(self) -> dict:
+        """The options a checkpoint must share with the filter it is restored into (default: ``self.options``)."""
+        options = getattr(self, "options", None)
+        return dict(options) if isinstance(options, dict) else {}
+
+    def _check_checkpoint(self, checkpoint) -> None:
+        """Refuse (ValueError, naming what differs; the filter unchanged) a checkpoint of another kind of filter,
+        model, size or option set, or no checkpoint of a filter at all."""
+        name = type(self).__name__
+        if not isinstance(checkpoint, dict) or not isinstance(checkpoint.get(CHECKPOINT_HEADER), dict):
+            raise ValueError(f"{name}.restore: refused, not a checkpoint of a filter (give what a filter's checkpoint() "
+                             f"returned; got {type(checkpoint).__name__}); the filter is unchanged")
+        theirs, ours = checkpoint[CHECKPOINT_HEADER], self._checkpoint_identity()
+        differs = []
+        for key in ("kind", "model", "model id", "sizes", "options"):
+            a, b = theirs.get(key), ours[key]
+            if isinstance(a, dict) and isinstance(b, dict):
+                for item in sorted(set(a) | set(b), key=str):
+                    if not _same(a.get(item, "(none)"), b.get(item, "(none)")):
+                        differs.append(f"{key[:-1] if key.endswith('s') else key} {item} = {a.get(item, '(none)')!r} "
+                                       f"(this filter: {b.get(item, '(none)')!r})")
+            elif not _same(a, b):
+                differs.append(f"{key} {a!r} (this filter: {b!r})")
+        missing = [entry for entry in self._state if entry not in checkpoint]
+        if missing and not differs:
+            differs.append(f"entries {missing} are missing")
+        if differs:
+            raise ValueError(f"{name}.restore: refused, the checkpoint is of another filter: {'; '.join(differs)}; the "
+                             "filter is unchanged")
+
+    def _warn_long_step(self, dt, stacklevel: int = 3) -> None:
+        """Once per filter: an accepted step (predict, step, run, predict_to) of dt beyond the model's declared max_dt.
+        Every filter's calls compare dt with ``_max_dt`` and call this when it is longer; it then sets ``_max_dt`` to
+        inf, so the filter says it once. stacklevel: the user's frame as seen from here."""
+        self._max_dt = math.inf
+        warnings.warn(f"{type(self).__name__}: dt = {float(dt):g} s is beyond the longest step model {self.model.name!r} "
+                      f"declares, max_dt = {self._declared_max_dt:g} s (its envelope): its discretisation is not meant for "
+                      "it (`abyssal verify` reports the longest step it is stable at); a step it cannot take in one piece "
+                      "is subdivided or refused. Said once per filter.", LongStepWarning, stacklevel=stacklevel)
 
     def _busy(self) -> RuntimeError:
         return RuntimeError(f"{type(self).__name__} is being used from two threads at once; a filter is not thread-safe "

@@ -74,8 +74,10 @@ def c_identifier_problem(name) -> str | None:
 
 
 #: The range of a state or input the envelope does not name (and of every one when a model declares
-#: no envelope): a unit box, what an engineer would call "order one" in SI units.
+#: no envelope): a unit box about the rest state (zero), what an engineer would call "order one" in SI units.
 DEFAULT_RANGE = (-1.0, 1.0)
+#: The longest step `abyssal verify` tries when a model declares no max_dt: it derives the step from the model
+#: (the largest dt up to this one at which the discretisation is stable at rest and across the box) and says so.
 DEFAULT_MAX_DT = 0.5
 DEFAULT_MIN_DT = 0.01
 
@@ -91,17 +93,20 @@ class Envelope:
         angles at +-pi/2), the range is where they are regular, e.g. ``"theta": (-1.4, 1.4)``.
     inputs: input name -> (low, high), likewise.
         A state or input not named gets ``DEFAULT_RANGE`` = [-1, 1].
-    max_dt: the longest step [s] the discretisation is meant for (> 0, finite).
+    max_dt: the longest step [s] the model is meant for (> 0, finite), or None (the default): not declared,
+        `abyssal verify` derives it from the model (the largest dt up to DEFAULT_MAX_DT at which the
+        discretisation is stable across the box) and says so. A declared max_dt is a promise the filters
+        keep: stepped with a longer dt, a filter warns once (``FilterBase``).
     min_dt: the shortest step [s] (0 < min_dt <= max_dt).
 
     ``abyssal verify`` draws a model's states, inputs and dt uniformly inside this box when the model
-    has no NumPy twin, and reports a step leaving 10x the box (about its centre) as diverged. The
-    names are checked against the Model it is given to (``Model(..., envelope=Envelope(...))``).
+    has no NumPy twin. The names are checked against the Model it is given to
+    (``Model(..., envelope=Envelope(...))``).
     """
 
     states: dict[str, tuple[float, float]] = field(default_factory=dict)
     inputs: dict[str, tuple[float, float]] = field(default_factory=dict)
-    max_dt: float = DEFAULT_MAX_DT
+    max_dt: float | None = None
     min_dt: float = DEFAULT_MIN_DT
 
     def __post_init__(self):
@@ -124,6 +129,8 @@ class Envelope:
                 checked[name] = (low, high)
             object.__setattr__(self, group, checked)  # a copy: later edits of the caller's dict do not leak in
         for label in ("max_dt", "min_dt"):
+            if label == "max_dt" and self.max_dt is None:
+                continue
             try:
                 value = _real(getattr(self, label))
             except (TypeError, ValueError):
@@ -131,7 +138,7 @@ class Envelope:
             if not math.isfinite(value) or value <= 0:
                 raise ValueError(f"Envelope {label} = {value!r} s: must be positive and finite")
             object.__setattr__(self, label, value)
-        if self.min_dt > self.max_dt:
+        if self.max_dt is not None and self.min_dt > self.max_dt:
             raise ValueError(f"Envelope min_dt = {self.min_dt!r} s is larger than max_dt = {self.max_dt!r} s")
 
     def __hash__(self):
@@ -150,8 +157,9 @@ def _real(value) -> float:
 
 
 def envelope_record(envelope: Envelope | None, state_names, input_names) -> dict:
-    """The manifest's "envelope" entry: every state's and input's range (defaults resolved), the dt range,
-    whether the model declared it (False: the defaults of a model that declares none) and the default range."""
+    """The manifest's "envelope" entry: every state's and input's range (defaults resolved), the dt range
+    (max_dt None: not declared, derived by `abyssal verify`), whether the model declared an envelope (False:
+    the defaults of a model that declares none) and the default range."""
     declared = envelope is not None
     envelope = envelope if declared else Envelope()
     states, inputs = envelope.resolved(state_names, input_names)
@@ -316,8 +324,8 @@ class Model:
         (e.g. a noise law: tan3dof's fuzzy_sigma), each named ``<name>_<suffix>`` and loaded as
         ``bundle.function("<suffix>")``; ``abyssal verify`` compares their C with CasADi.
     envelope: the operating :class:`Envelope` (nominal state and input ranges, dt range); None
-        declares none (verify then samples [-1, 1] and dt in [0.01, 0.5] s, and says so). Recorded in
-        the manifest; not part of equations_hash.
+        declares none (verify then samples [-1, 1] about the rest state and dt up to the largest stable step
+        it finds, at most 0.5 s, and says so). Recorded in the manifest; not part of equations_hash.
 
     Validation happens here, when the Model is built, so a mistake is reported next to the line
     that made it rather than as a compiler error or a silently wrong filter: SX (not MX)

@@ -25,6 +25,18 @@ Decisions:
   whose worker dies, or which raises, is tried once more. A run that fails twice is returned in
   ``CampaignResult.failures`` with its seed (entropy and spawn key: rerun it alone with
   ``run_one(config, failure.seed_sequence())``); the others are kept. Callers exit non-zero.
+* Never a hang: the campaign waits on its futures in slices of WATCH_SECONDS and a watchdog looks at the
+  cluster between them. A finished run's rows must arrive within GATHER_SECONDS (a worker that died holding
+  them loses them: the run is submitted again); a local cluster with no live worker for NO_WORKER_SECONDS (a
+  worker whose restart hangs under load: seen at load 8-23) is replaced by a new one (its worker processes
+  killed) and its unfinished runs are submitted again; a run is submitted at most ATTEMPTS times, then
+  recorded as failed with its seed; and
+  when no run finishes for ``run_timeout`` seconds (default DEFAULT_RUN_TIMEOUT), every unfinished run is
+  recorded as failed with its seed. So ``run_campaign`` returns, whatever happens to the workers.
+* Ctrl-C (SIGINT): the finished runs are written to the table and ``CampaignInterrupted`` (a
+  KeyboardInterrupt) says how many, in one line, for the command to print (``abyssal reproduce`` exits 130;
+  ``--resume`` runs the others). Local workers ignore SIGINT (a terminal's Ctrl-C reaches the whole process
+  group): the campaign closes them.
 * Seeds inside a run: ``derive(seed, *keys)`` gives a sub-stream without calling ``spawn`` (which
   mutates the SeedSequence: a retried run in the same process would otherwise draw new numbers).
 * Resume/merge: the rows are checkpointed to ``csv_path`` (rewritten atomically, at most every
@@ -49,13 +61,17 @@ Decisions:
 """
 from __future__ import annotations
 
+import contextlib
 import csv
 import hashlib
 import io
 import json
+import logging
 import math
 import os
+import signal
 import sys
+import threading
 import time
 import traceback
 from dataclasses import dataclass, field
@@ -74,6 +90,40 @@ SINGLE_THREAD_ENV = {name: "1" for name in ("OMP_NUM_THREADS", "MKL_NUM_THREADS"
                                              "NUMEXPR_NUM_THREADS", "VECLIB_MAXIMUM_THREADS")}
 
 RunOne = Callable[[Any, np.random.SeedSequence], list]
+
+#: seconds between the campaign's looks at its futures and its workers (the watchdog's period)
+WATCH_SECONDS = 1.0
+#: seconds the rows of a finished run may take to reach the campaign (else its worker died holding them)
+GATHER_SECONDS = 30.0
+#: seconds a local cluster may have no live worker while runs wait before it is replaced
+NO_WORKER_SECONDS = 60.0
+#: default seconds a campaign waits while no run finishes before it records the unfinished ones as failed
+DEFAULT_RUN_TIMEOUT = 3600.0
+#: times a run is submitted in all: again only when its rows were lost with a worker or its cluster was replaced (a
+#: run that raises, or kills its worker, is retried once by Dask within one submission, then fails)
+ATTEMPTS = 3
+#: seconds a cluster and its client may take to close
+CLOSE_SECONDS = 20.0
+#: run in every local worker process at its start (a preload, in its main thread): a terminal's Ctrl-C goes to the
+#: whole process group, and the campaign, not the worker, decides what happens then; a worker that is being closed
+#: (the campaign ends or was interrupted) logs nothing (the runs it was given are cancelled, each a warning)
+_WORKER_PRELOAD = """
+import logging, signal  # abyssal campaign worker
+signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def dask_setup(worker):
+    from distributed.core import Status
+
+    closing = {Status.closing, Status.closing_gracefully, Status.closed}
+
+    def open_only(record):
+        return worker.status not in closing
+
+    for name in ("distributed", ""):
+        for handler in logging.getLogger(name).handlers:
+            handler.addFilter(open_only)
+"""
 
 
 def run_seeds(seed: int, runs: int) -> list[np.random.SeedSequence]:
@@ -106,6 +156,10 @@ class RunFailure:
     def describe(self) -> str:
         last = self.error.strip().splitlines()[-1] if self.error.strip() else "unknown error"
         return f"run {self.run} failed twice (seed: SeedSequence({self.entropy}, spawn_key={self.spawn_key})): {last}"
+
+
+class CampaignInterrupted(KeyboardInterrupt):
+    """Ctrl-C stopped a campaign; its finished runs are in the table (the message says how many, in one line)."""
 
 
 @dataclass
@@ -480,16 +534,19 @@ def check_resume(csv_path: str | Path, experiment: str, seed: int = 0, extra_col
 def run_campaign(run_one: RunOne, config, runs: int, seed: int = 0, *, workers: int | None = None,
                  scheduler: str | None = None, csv_path: str | Path | None = None, resume: bool = False,
                  experiment: str = "campaign", extra_columns: Sequence[str] = (), checkpoint_seconds: float = 5.0,
-                 progress: bool = True, progress_stream=None) -> CampaignResult:
+                 progress: bool = True, progress_stream=None, run_timeout: float = DEFAULT_RUN_TIMEOUT) -> CampaignResult:
     """Run ``run_one(config, seed_i)`` for i = 0..runs-1 and return the sorted rows (see the module docstring).
 
     workers: local worker processes (default: the cores; 0 = in this process); scheduler: address of an
-    existing Dask scheduler (then workers is ignored); csv_path: checkpoint/result table; resume: reuse its runs.
+    existing Dask scheduler (then workers is ignored); csv_path: checkpoint/result table; resume: reuse its runs;
+    run_timeout: seconds without any run finishing after which the unfinished runs are recorded as failed.
     """
     if runs < 1:
         raise ValueError(f"runs must be >= 1, got {runs}")
     if workers is not None and workers < 0:
         raise ValueError(f"workers must be >= 0, got {workers}")
+    if not run_timeout > 0:
+        raise ValueError(f"run_timeout must be a positive number of seconds, got {run_timeout!r}")
     columns = tuple(TIDY_COLUMNS[:-1]) + tuple(extra_columns) + ("value",)
     if resume and csv_path is None:
         raise ValueError("resume needs a csv_path (--out)")
@@ -534,53 +591,258 @@ def run_campaign(run_one: RunOne, config, runs: int, seed: int = 0, *, workers: 
                 progress(f"(run {run_index(s)}, {time.perf_counter() - started:.1f} s)")
                 checkpoint()
         else:
-            where = _run_on_dask(run_one, config, todo, columns, workers, scheduler, rows, failures, progress, checkpoint)
+            where = _DaskRuns(run_one, config, columns, workers, scheduler, run_timeout, rows, failures, progress,
+                              checkpoint).run(todo)
+    except KeyboardInterrupt:
+        interrupted = True
+    else:
+        interrupted = False
     finally:
-        progress.close()
-        checkpoint(force=True)
+        with _sigint_ignored():  # a second Ctrl-C must not cut the table's last write short
+            progress.close()
+            checkpoint(force=True)
+    if interrupted:
+        finished = len({row["run"] for row in rows})
+        kept = f"kept in {table.path}" if table is not None else "not kept (no table: give --out)"
+        raise CampaignInterrupted(f"interrupted: {finished} finished run(s) of {runs} {kept}"
+                                  + ("; --resume runs the others" if table is not None else ""))
     failures.sort(key=lambda f: f.run)
     return CampaignResult(sort_rows(rows, columns), columns, failures, len(done), len(todo) - len(failures),
                           time.perf_counter() - t0, where)
 
 
-def _run_on_dask(run_one, config, todo, columns, workers, scheduler, rows, failures, progress, checkpoint) -> str:
-    dask = require("dask", "a Monte-Carlo campaign on Dask")
-    distributed = require("distributed", "a Monte-Carlo campaign on Dask")
-    Client, LocalCluster, as_completed = distributed.Client, distributed.LocalCluster, distributed.as_completed
+@contextlib.contextmanager
+def _sigint_ignored():
+    """SIGINT ignored inside (in the main thread; elsewhere nothing to do: signals reach the main thread only)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
-    with dask.config.set({"distributed.scheduler.allowed-failures": 1}):
-        if scheduler is not None:
-            cluster, where = None, f"scheduler {scheduler}"
-            client = Client(scheduler)
-        else:
-            # loopback only; the scheduler's HTTP routes on a free port (its default, 8787, may be taken)
-            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                                   dashboard_address=None, env=dict(SINGLE_THREAD_ENV),
-                                   scheduler_kwargs={"dashboard": False, "dashboard_address": "127.0.0.1:0"})
-            client, where = Client(cluster), f"local cluster, {workers} worker process(es)"
+
+@contextlib.contextmanager
+def _sigint_deferred():
+    """Inside, SIGINT sets the flag it yields instead of raising where it lands (in the main thread; elsewhere the
+    flag stays unset): the caller raises KeyboardInterrupt between its waits. (Raised inside Dask's client.sync, a
+    KeyboardInterrupt makes the event loop log a traceback of distributed's own.)"""
+    flag = threading.Event()
+    if threading.current_thread() is not threading.main_thread():
+        yield flag
+        return
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: flag.set())
+    try:
+        yield flag
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+@contextlib.contextmanager
+def _quiet(logger: str = "distributed"):
+    """Dask's logging silenced (a teardown after Ctrl-C or a lost worker logs tracebacks of cancelled tasks)."""
+    log = logging.getLogger(logger)
+    level = log.level
+    log.setLevel(logging.CRITICAL + 1)
+    try:
+        yield
+    finally:
+        log.setLevel(level)
+
+
+class _DaskRuns:
+    """The runs of a campaign on Dask, waited for with a watchdog (the module docstring's "Never a hang")."""
+
+    def __init__(self, run_one, config, columns, workers, scheduler, run_timeout, rows, failures, progress, checkpoint):
+        self.run_one, self.config, self.columns = run_one, config, columns
+        self.workers, self.scheduler, self.run_timeout = workers, scheduler, run_timeout
+        self.rows, self.failures, self.progress, self.checkpoint = rows, failures, progress, checkpoint
+        self.dask = require("dask", "a Monte-Carlo campaign on Dask")
+        self.distributed = require("distributed", "a Monte-Carlo campaign on Dask")
+        self.client = self.cluster = None
+        self.pending: dict = {}  # future -> (seed, attempt)
+        self.abandoned = False  # runs were given up on: their workers may never answer a close
+
+    # ------------------------------------------------------------------ the cluster
+    def _connect(self) -> str:
+        Client, LocalCluster = self.distributed.Client, self.distributed.LocalCluster
+        if self.scheduler is not None:
+            self.client = Client(self.scheduler)
+            return f"scheduler {self.scheduler}"
+        # loopback only; the scheduler's HTTP routes on a free port (its default, 8787, may be taken)
+        preload = [*self.dask.config.get("distributed.worker.preload", []), _WORKER_PRELOAD]
+        self.cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                    dashboard_address=None, env=dict(SINGLE_THREAD_ENV), preload=preload,
+                                    scheduler_kwargs={"dashboard": False, "dashboard_address": "127.0.0.1:0"})
+        self.client = Client(self.cluster)
+        return f"local cluster, {self.workers} worker process(es)"
+
+    def _kill_workers(self, cluster) -> None:
+        """SIGKILL to the local cluster's worker processes (one whose start hung never answers a close)."""
+        for nanny in list(cluster.workers.values()) if cluster is not None else ():
+            pid = getattr(getattr(getattr(nanny, "process", None), "process", None), "pid", None)
+            if pid:
+                with contextlib.suppress(OSError):
+                    os.kill(pid, signal.SIGKILL)
+
+    def _close(self, kill: bool = False) -> None:
+        """Close the client and the local cluster within CLOSE_SECONDS each (kill: its worker processes first); a
+        worker process left behind is killed."""
+        client, cluster, self.client, self.cluster = self.client, self.cluster, None, None
+        with _quiet():
+            if kill:
+                self._kill_workers(cluster)
+            for closing in (client, cluster):
+                if closing is None:
+                    continue
+                try:
+                    closing.close(timeout=CLOSE_SECONDS)
+                except Exception:  # noqa: BLE001 -- a cluster that cannot close cleanly is killed below
+                    pass
+            self._kill_workers(cluster)
+
+    def _live_workers(self) -> int:
         try:
-            futures = {}
-            for s in todo:
-                future = client.submit(run_task, run_one, config, s, columns, retries=1, pure=False,
-                                       key=f"run-{run_index(s)}-{dask.base.tokenize(s.entropy, os.getpid(), time.time_ns())}")
-                futures[future] = s
-            for future in as_completed(futures):
-                s = futures[future]
-                if future.status == "finished":
-                    rows += future.result()
-                    progress(f"(run {run_index(s)})")
+            return len(self.client.scheduler_info(n_workers=-1)["workers"])
+        except Exception:  # noqa: BLE001 -- a scheduler that does not answer has no worker we can use
+            return 0
+
+    # ------------------------------------------------------------------ the runs
+    def _submit(self, seed, attempt: int) -> None:
+        key = f"run-{run_index(seed)}-{self.dask.base.tokenize(seed.entropy, os.getpid(), time.time_ns())}"
+        future = self.client.submit(run_task, self.run_one, self.config, seed, self.columns, retries=1, pure=False,
+                                    key=key)
+        self.pending[future] = (seed, attempt)
+
+    def _again(self, seed, attempt: int, why: str) -> None:
+        """Submit a run once more, or record it as failed with its seed after ATTEMPTS submissions."""
+        if attempt < ATTEMPTS:
+            self._submit(seed, attempt + 1)
+        else:
+            self._fail(seed, why)
+
+    def _fail(self, seed, why: str) -> None:
+        self.failures.append(RunFailure(run_index(seed), seed.entropy, tuple(seed.spawn_key), why))
+        self.progress(f"(run {run_index(seed)} FAILED)")
+
+    def _collect(self, future) -> None:
+        seed, attempt = self.pending.pop(future)
+        if future.status == "finished" and not self._held(future):
+            self._again(seed, attempt, "its rows were lost with its worker")
+        elif future.status == "finished":
+            try:
+                rows = self._gather(future)
+            except Exception as error:  # noqa: BLE001 -- the worker holding its rows died (or its rows are bad)
+                if isinstance(error, (TimeoutError, self.distributed.CancelledError, OSError)):
+                    self._again(seed, attempt, f"its rows were lost with its worker ({type(error).__name__})")
                 else:
-                    exc = future.exception()
-                    tb = "".join(traceback.format_exception(type(exc), exc, exc.__traceback__)) if exc else future.status
-                    failures.append(RunFailure(run_index(s), s.entropy, tuple(s.spawn_key), tb))
-                    progress(f"(run {run_index(s)} FAILED)")
-                future.release()
-                checkpoint()
-        finally:
-            client.close()
-            if cluster is not None:
-                cluster.close()
-    return where
+                    self._fail(seed, "".join(traceback.format_exception(type(error), error, error.__traceback__)))
+            else:
+                self.rows += rows
+                self.progress(f"(run {run_index(seed)})")
+        else:
+            try:
+                exc = future.exception(timeout=GATHER_SECONDS) if future.status == "error" else None
+            except Exception as error:  # noqa: BLE001 -- the exception itself could not be fetched
+                exc = error
+            tb = "".join(traceback.format_exception(type(exc), exc, exc.__traceback__)) if exc else future.status
+            self._fail(seed, tb)
+        future.release()
+        self.checkpoint()
+
+    @staticmethod
+    def _gather(future):
+        """The rows of a finished run, waited for at most GATHER_SECONDS (TimeoutError after). The wait is a thread's:
+        Dask's own result(timeout=...) leaves an orphaned task in its event loop when it times out, whose exception,
+        reported when the garbage collector frees it, has broken CPython 3.11's AST compiler in the same process."""
+        box: list = []
+
+        def fetch():
+            try:
+                box.append(("rows", future.result()))
+            except BaseException as error:  # noqa: BLE001 -- handed to the caller
+                box.append(("error", error))
+
+        fetcher = threading.Thread(target=fetch, name="abyssal-campaign-gather", daemon=True)
+        fetcher.start()
+        fetcher.join(GATHER_SECONDS)
+        if not box:  # still waiting: it ends when the client closes
+            raise TimeoutError(f"the rows did not arrive within {GATHER_SECONDS:g} s")
+        kind, value = box[0]
+        if kind == "error":
+            raise value
+        return value
+
+    def _held(self, future) -> bool:
+        """Whether a live worker holds the rows of a finished run (a gather of rows that died with their worker
+        would wait for a recomputation; timed out, it leaves an orphaned task behind in Dask's event loop)."""
+        try:
+            return bool(self.client.who_has([future]).get(future.key))
+        except Exception:  # noqa: BLE001 -- a scheduler that does not answer holds nothing we can gather
+            return False
+
+    def _replace_cluster(self) -> None:
+        """A new local cluster for the unfinished runs (the old one has no live worker)."""
+        waiting = list(self.pending.values())
+        self.pending.clear()
+        self._close(kill=True)
+        self._connect()
+        for seed, attempt in waiting:
+            self._again(seed, attempt, f"its local cluster lost every worker for {NO_WORKER_SECONDS:g} s")
+
+    def _give_up(self) -> None:
+        for future, (seed, _) in list(self.pending.items()):
+            with contextlib.suppress(Exception):
+                future.cancel()
+            self._fail(seed, f"no run finished within run_timeout = {self.run_timeout:g} s ({self._live_workers()} live "
+                             "worker(s)): a run that hangs, or workers that never came back")
+        self.pending.clear()
+        self.abandoned = True
+
+    def run(self, todo) -> str:
+        with self.dask.config.set({"distributed.scheduler.allowed-failures": 1}):
+            where = self._connect()
+            try:
+                with _sigint_deferred() as interrupted:
+                    self._watch(todo, interrupted)
+            finally:
+                with _sigint_ignored():  # a second Ctrl-C must not leave worker processes behind
+                    # runs still out (Ctrl-C) or given up on: their workers are killed, not asked to finish
+                    self._close(kill=bool(self.pending) or self.abandoned)
+        return where
+
+    def _watch(self, todo, interrupted: threading.Event) -> None:
+        """Submit the runs and wait for them in WATCH_SECONDS slices, the watchdog between them."""
+        for seed in todo:
+            self._submit(seed, 1)
+        last_finish, no_worker_since = time.monotonic(), None
+        while self.pending:
+            if interrupted.is_set():
+                raise KeyboardInterrupt
+
+            try:
+                self.distributed.wait(list(self.pending), timeout=WATCH_SECONDS, return_when="FIRST_COMPLETED")
+            except (TimeoutError, self.distributed.CancelledError):
+                pass  # nothing finished in this slice, or a future was cancelled (collected below)
+            done = [future for future in self.pending if future.done()]
+            for future in done:
+                self._collect(future)
+            now = time.monotonic()
+            if done:
+                last_finish = now
+            if not self.pending:
+                break
+            if self._live_workers():
+                no_worker_since = None
+            elif no_worker_since is None:
+                no_worker_since = now
+            elif self.cluster is not None and now - no_worker_since > NO_WORKER_SECONDS:
+                self._replace_cluster()
+                last_finish, no_worker_since = time.monotonic(), None
+            if now - last_finish > self.run_timeout:
+                self._give_up()
 
 
 def summarise_failures(result: CampaignResult) -> str:

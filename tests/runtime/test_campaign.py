@@ -5,7 +5,11 @@ The toy experiments below are module-level (picklable); the module is pickled by
 Dask workers need not import this test file.
 """
 import os
+import signal
+import subprocess
 import sys
+import textwrap
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -20,13 +24,26 @@ cloudpickle.register_pickle_by_value(sys.modules[__name__])
 
 @dataclass(frozen=True)
 class Toy:
-    """marker_dir: where 'die-once' runs leave a mark; fail_runs raise always; die_runs kill the worker."""
+    """marker_dir: where 'die-once' runs leave a mark; fail_runs raise always; die_runs kill the worker;
+    stall_marker: a file a dying run writes first, which STALL_PRELOAD reads (the worker restart then hangs)."""
 
     marker_dir: str = ""
     fail_runs: tuple = ()
     flaky_runs: tuple = ()
     die_once_runs: tuple = ()
     die_always_runs: tuple = ()
+    stall_marker: str = ""
+
+
+#: a worker preload (run at every worker process's start): a start that finds the marker removes it and hangs, as a
+#: worker restart under heavy load did (the campaign then had no live worker and waited forever)
+STALL_PRELOAD = """
+import os, time  # abyssal test: a worker restart that hangs
+MARKER = os.environ.get("ABYSSAL_TEST_STALL_MARKER", "")
+if MARKER and os.path.exists(MARKER):
+    os.remove(MARKER)
+    time.sleep(3600)
+"""
 
 
 def toy_run_one(config: Toy, seed: np.random.SeedSequence) -> list[dict]:
@@ -39,6 +56,8 @@ def toy_run_one(config: Toy, seed: np.random.SeedSequence) -> list[dict]:
         raise RuntimeError("flaky once")
     if run in config.die_once_runs and not marker.exists():
         marker.write_text("1")
+        if config.stall_marker:
+            Path(config.stall_marker).write_text("1")
         os._exit(3)  # the worker process dies mid-task
     if run in config.die_always_runs:
         os._exit(3)
@@ -71,6 +90,7 @@ def test_seeds_do_not_depend_on_the_number_of_runs_and_derive_does_not_mutate():
     assert s.n_children_spawned == 0 and campaign.run_index(s) == 1
 
 
+@pytest.mark.timeout(300)
 def test_rows_sorted_and_identical_in_process_and_on_two_workers(tmp_path):
     config = Toy(marker_dir=str(tmp_path))
     inline = campaign.run_campaign(toy_run_one, config, 6, seed=3, workers=0)
@@ -101,6 +121,7 @@ def test_malformed_rows_are_a_failure_not_silently_kept():
     assert not result.ok and "names run 1, but its seed is run 0" in result.failures[0].error
 
 
+@pytest.mark.timeout(300)
 def test_a_dead_worker_loses_only_its_task(tmp_path):
     config = Toy(marker_dir=str(tmp_path), die_once_runs=(1,), die_always_runs=(2,))
     result = campaign.run_campaign(toy_run_one, config, 4, seed=5, workers=1)
@@ -147,3 +168,115 @@ def test_arguments_are_checked():
         campaign.run_campaign(toy_run_one, Toy(), 1, workers=-1)
     with pytest.raises(ValueError, match="csv_path"):
         campaign.run_campaign(toy_run_one, Toy(), 1, workers=0, resume=True)
+
+
+@pytest.mark.timeout(300)
+def test_a_worker_whose_restart_hangs_does_not_hang_the_campaign(tmp_path, monkeypatch):
+    """Run 1 kills its worker and the restarted worker hangs at its start (STALL_PRELOAD): no live worker is left,
+    which hung the campaign at load 8-23. The watchdog replaces the local cluster after NO_WORKER_SECONDS and submits
+    the unfinished runs again: every run finishes, with the rows of an undisturbed campaign."""
+    import dask
+
+    stall = tmp_path / "stall"
+    monkeypatch.setenv("ABYSSAL_TEST_STALL_MARKER", str(stall))
+    monkeypatch.setattr(campaign, "NO_WORKER_SECONDS", 3.0)
+    config = Toy(marker_dir=str(tmp_path), die_once_runs=(1,), stall_marker=str(stall))
+    with dask.config.set({"distributed.worker.preload": [STALL_PRELOAD]}):
+        result = campaign.run_campaign(toy_run_one, config, 4, seed=5, workers=1, run_timeout=120)
+    assert result.ok, campaign.summarise_failures(result)
+    reference = campaign.run_campaign(toy_run_one, Toy(marker_dir=str(tmp_path)), 4, seed=5, workers=0)
+    assert result.rows == reference.rows
+    assert not stall.exists()  # the hung start happened (it removed the marker)
+
+
+@pytest.mark.timeout(300)
+def test_runs_that_never_finish_are_recorded_as_failed_with_their_seeds(tmp_path, monkeypatch):
+    """A worker that keeps hanging at its restart and a scheduler with no worker: after run_timeout seconds without a
+    finished run, the unfinished runs are failures with their seeds, the finished ones kept; the call returns."""
+    import dask
+
+    stall = tmp_path / "stall"
+    monkeypatch.setenv("ABYSSAL_TEST_STALL_MARKER", str(stall))
+    monkeypatch.setattr(campaign, "NO_WORKER_SECONDS", 1e9)  # never replaced: only run_timeout ends the wait
+    config = Toy(marker_dir=str(tmp_path), die_once_runs=(2,), stall_marker=str(stall))
+    with dask.config.set({"distributed.worker.preload": [STALL_PRELOAD]}):
+        result = campaign.run_campaign(toy_run_one, config, 4, seed=5, workers=1, run_timeout=8,
+                                       csv_path=tmp_path / "t.csv")
+    assert 2 in [f.run for f in result.failures] and "run_timeout = 8 s" in result.failures[-1].error
+    assert all(f.entropy == 5 and f.spawn_key == (f.run,) for f in result.failures)
+    assert {r["run"] for r in campaign.read_csv(tmp_path / "t.csv")} == {r["run"] for r in result.rows}
+
+
+TOY_EXPERIMENT = """
+import time
+from dataclasses import dataclass
+
+EXTRA_COLUMNS = ()
+
+
+@dataclass(frozen=True)
+class Config:
+    def quick(self):
+        return self
+
+
+def run_one(config, seed):
+    time.sleep(0.2)
+    run = int(seed.spawn_key[-1])
+    return [{"run": run, "case": "a", "filter": "toy", "metric": "m", "value": float(run)}]
+
+
+def report(rows, config):
+    return "toy"
+
+
+def figures(rows, out, config, seed, prepared):
+    return []
+
+
+def document(rows, config, prepared):
+    return {}
+"""
+
+REPRODUCE_TOY = """
+import sys
+sys.path.insert(0, {folder!r})
+from abyssal.runtime import cli
+from abyssal.runtime.experiments import reproduce
+reproduce.EXPERIMENTS["toy"] = reproduce.Experiment("toy", "toy_experiment", (), runs=400, quick_runs=400)
+sys.exit(cli.main(["reproduce", "toy", "--workers", {workers!r}, "--out", {out!r}]))
+"""
+
+
+@pytest.mark.timeout(300)
+@pytest.mark.parametrize("workers", ["0", "1"])
+def test_ctrl_c_ends_abyssal_reproduce_with_one_line_and_keeps_the_finished_runs(tmp_path, workers):
+    """SIGINT of `abyssal reproduce` (a toy experiment in the registry, 400 runs of 0.2 s) once a few runs are in
+    the table: exit 130, one line on stderr besides the progress lines (no traceback), and the finished runs in the
+    CSV, which --resume accepts."""
+    (tmp_path / "toy_experiment.py").write_text(textwrap.dedent(TOY_EXPERIMENT))
+    out = tmp_path / "out"
+    script = REPRODUCE_TOY.format(folder=str(tmp_path), workers=workers, out=str(out))
+    proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "PYTHONPATH": str(tmp_path)})
+    try:
+        deadline = time.monotonic() + 200
+        while time.monotonic() < deadline and proc.poll() is None:
+            sidecar = out / "toy.csv.meta.json"
+            if sidecar.exists() and '"runs": {}' not in sidecar.read_text():
+                break
+            time.sleep(0.2)
+        time.sleep(1.0)
+        os.kill(proc.pid, signal.SIGINT)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, err
+    lines = [line for line in err.splitlines() if line.strip() and not line.startswith("[toy] run ")]
+    assert len(lines) == 1 and "Traceback" not in err, err
+    kept = campaign.read_csv(out / "toy.csv")
+    assert lines[0] == (f"abyssal reproduce: interrupted: {len(kept)} finished run(s) of 400 kept in {out / 'toy.csv'}; "
+                        "--resume runs the others")
+    assert 0 < len(kept) < 400 and [r["value"] for r in kept] == [float(r["run"]) for r in kept]
+    campaign.check_resume(out / "toy.csv", "toy", 0)  # the table is one --resume adopts

@@ -220,7 +220,10 @@ def test_envelope_is_recorded_with_defaults_and_does_not_change_the_equations_ha
     record = enveloped.envelope_record()
     assert record == {"declared": True, "states": {"a": [-2.0, 3.0], "b": list(DEFAULT_RANGE)},
                       "inputs": {"c": list(DEFAULT_RANGE)}, "max_dt": 0.2, "min_dt": 0.01, "default_range": [-1.0, 1.0]}
-    assert plain.envelope_record()["declared"] is False and plain.envelope_record()["max_dt"] == 0.5
+    # no envelope, or no max_dt: not declared (None), derived by `abyssal verify` from the model
+    assert plain.envelope_record()["declared"] is False and plain.envelope_record()["max_dt"] is None
+    assert make_model(envelope=Envelope(states={"a": (-2, 3)})).envelope_record()["max_dt"] is None
+    assert Envelope(min_dt=0.7).min_dt == 0.7  # a min_dt alone: nothing to compare it with
     assert codegen.generate_model(enveloped, [], codegen.BUILTIN)["manifest.json"].count('"envelope"') == 1
 
 

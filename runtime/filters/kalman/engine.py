@@ -62,7 +62,6 @@ from __future__ import annotations
 import ctypes
 import math
 import time
-import warnings
 
 import numpy as np
 
@@ -177,9 +176,6 @@ class KalmanFilter(FilterBase):
         self._sensor_views = [(len(s["outputs"]), len(s["parameters"]), memoryview(self._z[:len(s["outputs"])]))
                               for s in model.sensors]
         self._sensor_heads = [memoryview(np.array([k, 0.0, 0.0])) for k in range(len(model.sensors))]
-        self._warned_max_dt = False
-        envelope = model.envelope  # the declared max_dt (its envelope), inf when none is declared
-        self._max_dt = float(envelope["max_dt"]) if envelope and envelope.get("declared") else math.inf
         self._unit_watch = UnitWatch(model, type(self).__name__)  # the first updates, for values in another unit
 
     def _view(self, runtime, n: int, m: int, q_rows: int, n_sensors: int) -> None:
@@ -409,9 +405,12 @@ class KalmanFilter(FilterBase):
                 self._u[:] = _vector(u, self.model.n_u, "u")
             self._io_view[kr.BLOCK_TIME] = t
             saved = None if p is None and self._p_is_default else self._use_p(p)
+            start = self._time[0]
             self._call_predict_to()
             if self._code_view[0] < 0.0:
                 raise self._refusal(self._code_view[0], saved, "predict_to")
+            if t - start > self._max_dt:  # (contract.py's FilterBase: once per filter, after an accepted call)
+                self._warn_long_step(t - start)
         finally:
             self._lock.release()
 
@@ -466,6 +465,7 @@ class KalmanFilter(FilterBase):
             if self._unit_watch is not None and self._unit_watch.watching[k]:
                 spec = self.model.sensors[k]
                 predicted = self._unit_prediction(k, None if p is None else (spec["p_offset"], self._q_call[:n_q]))
+            start = self._time[0]
             self._call_update_sensor()
             code = self._code_view[0]
             if code < 0.0:
@@ -474,6 +474,8 @@ class KalmanFilter(FilterBase):
                 offset = self.model.sensors[k]["offset"]
                 R_k = self._R[offset:offset + rows, offset:offset + rows] if R is None else self._R_call[:rows * rows]
                 self._observe_units(k, self._z[:rows], np.reshape(R_k, (rows, rows)), predicted)
+            if t - start > self._max_dt:  # predicted ahead to t first (a late fix: t - start < 0)
+                self._warn_long_step(t - start)
             return code == 1.0
         finally:
             self._release()
@@ -512,8 +514,7 @@ class KalmanFilter(FilterBase):
         dts = np.ascontiguousarray(a.dts, dtype=np.float64)
         given = [p for p in a.rows_p if p is not None]
         P_rows = None if not given else np.ascontiguousarray([model.p_default if p is None else p for p in a.rows_p])
-        if dts.size and dts.max() > 0:
-            self._warn_beyond_max_dt(float(dts.max()), stacklevel=3)
+        longest = float(dts.max()) if dts.size else 0.0
         xs, Ps = np.empty((T, n)), np.empty((T, n, n))
         nis, dof, row = np.full(T, np.nan), np.zeros(T, dtype=np.int32), ctypes.c_longlong(-1)
         if not self._lock.acquire(False):
@@ -541,6 +542,8 @@ class KalmanFilter(FilterBase):
             self._lock.release()
         if T:  # the parameter buffer as T calls of step() leave it
             FilterBase._set_p(self, a.rows_p[-1])
+        if longest > self._max_dt:
+            self._warn_long_step(longest)
         return FilterResult(x=xs, P=Ps, nis=nis, nis_dof=dof.astype(int), nees=result_nees(model, a.truth, xs, Ps),
                             ess=np.full(T, np.nan), particles=np.full(T, np.nan),
                             step_time=np.full(T, elapsed / max(T, 1)))
@@ -563,8 +566,6 @@ class KalmanFilter(FilterBase):
             if type(dt) not in _PLAIN_NUMBERS:
                 dt = check_dt(dt)
             self._io_view[_BLOCK_TIME] = dt
-            if dt > self._max_dt:
-                self._warn_beyond_max_dt(dt)
             saved = None if p is None and self._p_is_default else self._use_p(p)
             if z is None:
                 self._call_predict()
@@ -575,6 +576,8 @@ class KalmanFilter(FilterBase):
                     self._observe_units(None, self._z, self._R, predicted)
             code = self._code_view[0]
             if code >= 0.0:
+                if dt > self._max_dt:  # (contract.py's FilterBase: once per filter, after an accepted call)
+                    self._warn_long_step(dt)
                 return code == 1.0
             raise self._refusal(code, saved, "step")
         finally:
@@ -588,8 +591,6 @@ class KalmanFilter(FilterBase):
         if type(dt) not in _PLAIN_NUMBERS:
             dt = check_dt(dt)
         self._io_view[kr.BLOCK_TIME] = dt
-        if dt > self._max_dt:
-            self._warn_beyond_max_dt(dt)
         saved = None if p is None and self._p_is_default else self._use_p(p)
         self._call_predict()
         if self._code_view[0] < 0.0:
@@ -646,15 +647,8 @@ class KalmanFilter(FilterBase):
         if watch.done:
             self._unit_watch = None
 
-    def _warn_beyond_max_dt(self, dt: float, stacklevel: int = 4) -> None:
-        """Once per filter: a step longer than the model's declared max_dt (its envelope) is outside what the model
-        was verified for (the runtime still subdivides a step that blows up)."""
-        if self._warned_max_dt or not dt > self._max_dt:
-            return
-        self._warned_max_dt = True
-        warnings.warn(f"{type(self).__name__}: dt = {dt!r} s is beyond model {self.model.name!r}'s declared max_dt = "
-                      f"{self._max_dt!r} s (its envelope); the filter runs it, outside what the model was verified "
-                      "for", RuntimeWarning, stacklevel=stacklevel)
+    def _checkpoint_sizes(self) -> dict:
+        return {"object doubles": int(self._committed.size), "sensors": len(self.model.sensors)}
 
     def _use_p(self, p):
         """p into the call block (None: the model's defaults); returns what to put back if the call is refused.

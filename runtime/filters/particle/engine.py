@@ -430,10 +430,43 @@ class SIRFilter(FilterBase):
         return state
 
     def restore(self, checkpoint: dict) -> None:
+        self._check_checkpoint(checkpoint)  # before anything is put back: a refused checkpoint changes nothing
         if self._compiled is not None:  # the sides first: the arrays are restored into their views
             self.N = checkpoint["N"]
             self._compiled.restore(self, checkpoint["compiled"], checkpoint["weights"], checkpoint["_prior"])
         super().restore(checkpoint)
+
+    def _checkpoint_sizes(self) -> dict:
+        return {"capacity": int(self.capacity)}
+
+    def _checkpoint_options(self) -> dict:
+        return {"proposal": type(self.proposal).__name__, "policy": repr(self.policy),
+                "compiled step": self._compiled is not None}
+
+    def _check_checkpoint(self, checkpoint) -> None:
+        """FilterBase's identity check, then the cloud: N particles (1 <= N <= the capacity), finite, with finite
+        non-negative weights summing to 1 (within 1e-9) and finite (or -inf) log-weights; each refusal names the
+        entry, and the filter is unchanged."""
+        super()._check_checkpoint(checkpoint)
+        name = f"{type(self).__name__}.restore: refused"
+        N = checkpoint["N"]
+        if isinstance(N, bool) or not isinstance(N, (int, np.integer)) or not 1 <= N <= self.capacity:
+            raise ValueError(f"{name}, N = {N!r} is not a particle count in [1, {self.capacity}] (this filter's capacity); "
+                             "the filter is unchanged")
+        particles, weights, logs = (np.asarray(checkpoint[k], dtype=float) for k in ("particles", "weights", "log_weights"))
+        if particles.shape != (self.model.n_x, N) or weights.shape != (N,) or logs.shape != (N,):
+            raise ValueError(f"{name}, the shapes of particles {particles.shape}, weights {weights.shape} and log_weights "
+                             f"{logs.shape} are not ({self.model.n_x}, {N}), ({N},), ({N},) for N = {N}; the filter is "
+                             "unchanged")
+        if not np.all(np.isfinite(particles)):
+            column = int(np.argwhere(~np.isfinite(particles))[0][1])
+            raise ValueError(f"{name}, particle {column} is not finite ({particles[:, column]}); the filter is unchanged")
+        total = float(np.sum(weights)) if np.all(np.isfinite(weights)) else math.nan
+        if not (np.all(weights >= 0) and abs(total - 1.0) <= 1e-9):
+            raise ValueError(f"{name}, the weights must be finite, non-negative and sum to 1 (sum {total!r}, smallest "
+                             f"{float(np.min(weights))!r}); the filter is unchanged")
+        if np.any(np.isnan(logs)) or np.any(logs == np.inf):
+            raise ValueError(f"{name}, log_weights must be finite or -inf; the filter is unchanged")
 
     @property
     def gated(self) -> int:

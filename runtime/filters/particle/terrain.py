@@ -216,6 +216,7 @@ class TerrainParticleFilter(FilterBase):
         return state
 
     def restore(self, checkpoint: dict) -> None:
+        self._check_checkpoint(checkpoint)  # before anything is put back: a refused checkpoint changes nothing
         self._sir.cur, self._sir.side, self._sir.weights_match = checkpoint["sides"]
         self._x, self._P = self._sir.mean(self._sir.side), self._sir.cov(self._sir.side)
         super().restore(checkpoint)  # into the buffers of the restored sides
