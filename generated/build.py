@@ -78,8 +78,8 @@ SOA_FLAGS = ["-fopenmp-simd", "-DABYSSAL_OPENMP_SIMD", "-fno-builtin-sin", "-fno
              "-fno-math-errno", "-fno-trapping-math"]
 # CasADi's straight-line model code (files *_model.c): gcc's partial-redundancy elimination and code hoisting take
 # 20-30 % of its compile time on the larger models and gain no step time (benchmarks/README.md, "Compile flags per
-# file kind"). They compute the same values, but where gcc contracts a*b+c into one fma depends on the expressions
-# they leave: results can move at rounding level (chain24: 7e-17; rov4dof and BlueROV2 bit-identical). gcc only.
+# file kind"). They compute the same values: with contraction off (DEFAULT_CFLAGS) results are bit-identical (with
+# contraction on, where gcc fuses a*b+c depends on the expressions they leave: chain24 moved by 7e-17). gcc only.
 STRAIGHT_LINE_GCC_FLAGS = ["-fno-tree-pre", "-fno-code-hoisting"]
 #: hand-written C (the runtime of abyssal.runtime.compiled) compiles strictly: build(..., strict=True)
 STRICT_FLAGS = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic"]
