@@ -4,6 +4,7 @@
 //     #include "abyssal_kalman.hpp"
 //     using Filter = abyssal::KalmanFilter<12, 4, 4, 17>;   // n_x, n_u, n_y, n_p (the header names them)
 //     Filter ckf(rov4dof_descriptor, abyssal_kalman_default_options(ABYSSAL_CKF), x0, P0, Q, R);
+//     (or Q.data() and nullptr: Q of the noise inputs with options.noise = ABYSSAL_NOISE_INPUTS, R the sensors' own)
 //     int code = ckf.step(u, 0.1, z);    // std::array arguments; z optional; >= 0 success, < 0 refused
 //     ckf.predict_to(t, u);              // time-stamped: integrate to t with u held
 //     ckf.update(0, z_fix, t_fix);       // sensor 0's measurement stamped t_fix (late: fused from the history)
@@ -72,6 +73,12 @@ class KalmanFilter {
 
   KalmanFilter(const abyssal_model& model, const abyssal_kalman_options& options, const State& x0,
                const Covariance& P0, const Covariance& Q, const MeasurementCovariance& R, double t0 = 0.0)
+      : KalmanFilter(model, options, x0, P0, Q.data(), R.data(), t0) {}
+
+  // Q and R as abyssal_kalman_init takes them: Q (column-major) n_x x n_x, or n_w x n_w with options.noise =
+  // ABYSSAL_NOISE_INPUTS (the model's noise inputs); R n_y x n_y, or nullptr for the sensors' declared noise.
+  KalmanFilter(const abyssal_model& model, const abyssal_kalman_options& options, const State& x0,
+               const Covariance& P0, const double* Q, const double* R, double t0 = 0.0)
       : model_(&model) {
     if (model.n_x != static_cast<int>(NX) || model.n_u != static_cast<int>(NU) || model.n_y != static_cast<int>(NY) ||
         model.n_p != static_cast<int>(NP))
@@ -80,8 +87,7 @@ class KalmanFilter {
     bytes_ = abyssal_kalman_work_size(&model, &options);
     if (bytes_ == 0) throw std::invalid_argument(message(abyssal_kalman_check_options(&model, &options)));
     memory_.reset(new double[(bytes_ + 7) / 8]);
-    int code = abyssal_kalman_init(memory_.get(), bytes_, &model, &options, x0.data(), P0.data(), Q.data(), R.data(),
-                                   t0, &filter_);
+    int code = abyssal_kalman_init(memory_.get(), bytes_, &model, &options, x0.data(), P0.data(), Q, R, t0, &filter_);
     if (code != ABYSSAL_OK) throw std::invalid_argument(message(code));
   }
 

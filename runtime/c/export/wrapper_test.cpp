@@ -190,6 +190,19 @@ int main(int argc, char** argv) {
       if (!(difference <= tolerance)) ++failures;
     }
   }
+  // The constructor taking Q and R as abyssal_kalman_init does (pointers) builds the same filter.
+  {
+    Filter raw(*ABYSSAL_EXPORTED_MODEL, options, x0, P0, Q.data(), R.data());
+    Filter typed(*ABYSSAL_EXPORTED_MODEL, options, x0, P0, Q, R);
+    for (std::size_t k = 0; k < 50 && k < rows.size(); ++k) {
+      apply(raw, rows[k], stamped);
+      apply(typed, rows[k], stamped);
+    }
+    if (raw.x().array() != typed.x().array() || raw.P().array() != typed.P().array()) {
+      std::cerr << "the pointer constructor built another filter than the array one\n";
+      ++failures;
+    }
+  }
   // A copy is a checkpoint: both filters go on bit-identically.
   Filter copy = filter;
   if (stamped) {  // the stamps go on from the end of the run

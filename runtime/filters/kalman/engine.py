@@ -422,8 +422,8 @@ class KalmanFilter(FilterBase):
             return self.update_sensor(z, z_or_p, t, R, p)
         if isinstance(z, str) and not (z_or_p is t is R is p is None):
             raise ValueError(
-                f"{type(self).__name__}.update: z (or sensor) {z!r} is neither a measurement vector nor one of model "
-                f"{self.model.name!r}'s sensors {list(self.model.sensor_names)}")
+                f"{type(self).__name__}.update: z (or sensor) {z!r} is not one of model {self.model.name!r}'s sensors "
+                f"{list(self.model.sensor_names)} (nor a measurement vector)")
         if t is not None or R is not None:
             raise TypeError(f"{type(self).__name__}.update: t and R belong to one sensor's update, "
                             f"update(sensor, z, t, R=None, p=None) with sensor one of {list(self.model.sensor_names)}")
