@@ -82,16 +82,25 @@ def _commit() -> str:
     return head + ("+changes" if dirty else "")
 
 
-def machine(quick: bool = False) -> dict:
+def machine(quick: bool = False, only: tuple[str, ...] | None = None) -> dict:
     """Where and when the run happened: the README's block prints it beside the targets."""
     return {"python": platform.python_version(), "cpu": platform.processor() or platform.machine(),
             "cpu_model": _cpu_model(), "cores": os.cpu_count(), "load_start": _load_average(), "date_start": _now(),
-            "commit": _commit(), "command": "abyssal bench --quick" if quick else "abyssal bench"}
+            "commit": _commit(), "command": "abyssal bench" + (" --quick" if quick else "")
+            + (f" --only {','.join(only)}" if only else "")}
 
 
-def main(json_output: bool = False, out: str | None = "benchmarks/results", quick: bool = False) -> int:
-    report = {"machine": machine(quick), "sections": {}}
+def main(json_output: bool = False, out: str | None = "benchmarks/results", quick: bool = False,
+         only: tuple[str, ...] | None = None) -> int:
+    """Every section (or those named in `only`, without the bench_ prefix) in SECTIONS' order."""
+    unknown = set(only or ()) - {s.removeprefix("bench_") for s in SECTIONS}
+    if unknown:
+        raise SystemExit(f"abyssal bench --only: no section {', '.join(sorted(unknown))} (sections: "
+                         f"{', '.join(s.removeprefix('bench_') for s in SECTIONS)})")
+    report = {"machine": machine(quick, only), "sections": {}}
     for section in SECTIONS:
+        if only and section.removeprefix("bench_") not in only:
+            continue
         module = importlib.import_module(section)  # a missing or renamed section is an error, never skipped
         key = section.removeprefix("bench_")
         if not json_output:

@@ -1,13 +1,14 @@
 """The summary block of benchmarks/README.md, written from one `abyssal bench --json` report (never typed by hand).
 
     abyssal bench --json > /dev/null                     # writes benchmarks/results/bench.json as well
-    python benchmarks/write_readme.py benchmarks/results/bench.json [--readme benchmarks/README.md]
+    python benchmarks/write_readme.py benchmarks/results/bench.json [MORE.json ...] [--readme benchmarks/README.md]
 
 The block sits between the markers ``<!-- bench:begin -->`` and ``<!-- bench:end -->`` (added below the README's
 first paragraph when absent); everything outside them is left as it is. It holds: the command and the commit of the
-run, the machine (CPU model, cores, load average at start and end, date), every target of every section with its
-value, limit and met/missed, and the floors the sections counted beside the ratios: bytes and instructions per
-particle (the SIR step and its f kernel) and per Kalman step.
+run (of each run, when several reports are given: a section is taken from the first report that holds it), the
+machine (CPU model, cores, load average at start and end, date), every target of every section with its value,
+limit and met/missed, and the floors the sections counted beside the ratios: bytes and instructions per particle
+(the SIR step and its f kernel) and per Kalman step.
 """
 from __future__ import annotations
 
@@ -73,35 +74,51 @@ def floors(report: dict) -> list[tuple[str, str, str]]:
     return rows
 
 
-def block(report: dict, source: str) -> str:
-    machine = report.get("machine", {})
-    command = machine.get("command") or "abyssal bench --json"
-    lines = [BEGIN,
-             f"<!-- written by `python benchmarks/write_readme.py {source}` from one `{command}` run; do not edit by "
-             "hand -->",
-             "",
-             f"## Latest run: every target, met or missed (`{command}`, commit {machine.get('commit', 'unknown')})",
-             "",
-             f"Machine: {machine.get('cpu_model') or machine.get('cpu', 'unknown CPU')}, "
-             f"{machine.get('cores', '?')} cores; load average (1, 5, 15 min) at start {_load(machine, 'load_start')}, "
-             f"at end {_load(machine, 'load_end')}; {machine.get('date_start', '?')} to {machine.get('date_end', '?')}; "
-             f"Python {machine.get('python', '?')}. Targets are ratios measured in the same run unless their unit says "
-             "otherwise; compare ratios, not times, across machines.",
-             "",
-             "| section | target | value | limit | |",
-             "|---|---|---|---|---|"]
+def _machine_line(machine: dict) -> str:
+    return (f"{machine.get('cpu_model') or machine.get('cpu', 'unknown CPU')}, {machine.get('cores', '?')} cores; "
+            f"load average (1, 5, 15 min) at start {_load(machine, 'load_start')}, at end {_load(machine, 'load_end')}; "
+            f"{machine.get('date_start', '?')} to {machine.get('date_end', '?')}; Python {machine.get('python', '?')}")
+
+
+def block(runs: list[tuple[dict, str]]) -> str:
+    """The block from one or more reports [(report, its path)]: a section is taken from the first report holding it."""
+    merged: dict = {"sections": {}}
+    origin: dict[str, int] = {}
+    for k, (report, _) in enumerate(runs):
+        for key, section in report.get("sections", {}).items():
+            if key not in merged["sections"]:
+                merged["sections"][key], origin[key] = section, k
+    machines = [report.get("machine", {}) for report, _ in runs]
+    commands = [m.get("command") or "abyssal bench --json" for m in machines]
+    sources = " ".join(source for _, source in runs)
+    lines = [BEGIN, f"<!-- written by `python benchmarks/write_readme.py {sources}` from "
+             + ", ".join(f"`{c}`" for c in commands) + "; do not edit by hand -->", ""]
+    if len(runs) == 1:
+        lines += [f"## Latest run: every target, met or missed (`{commands[0]}`, commit "
+                  f"{machines[0].get('commit', 'unknown')})", "", f"Machine: {_machine_line(machines[0])}. "
+                  "Targets are ratios measured in the same run unless their unit says otherwise; compare ratios, not "
+                  "times, across machines."]
+    else:
+        lines += ["## Latest runs: every target, met or missed", ""]
+        lines += [f"{k + 1}. `{c}`, commit {m.get('commit', 'unknown')}: sections "
+                  f"{', '.join(key for key, o in origin.items() if o == k) or '(none used)'}; {_machine_line(m)}."
+                  for k, (c, m) in enumerate(zip(commands, machines))]
+        lines += ["", "Targets are ratios measured in the same run unless their unit says otherwise; compare ratios, "
+                  "not times, across machines."]
+    lines += ["", "| section | target | value | limit | |", "|---|---|---|---|---|"]
     met = total = 0
-    for key, section in report.get("sections", {}).items():
+    for key, section in merged["sections"].items():
+        label = key if len(runs) == 1 else f"{key} (run {origin[key] + 1})"
         for t in section.get("targets", []):
             total += 1
             met += bool(t.get("met"))
             note = f" ({t['note']})" if t.get("note") else ""
-            lines.append(f"| {key} | {_cell(t['name'] + note)} | {_number(t.get('value'), t.get('unit', ''))} | "
+            lines.append(f"| {label} | {_cell(t['name'] + note)} | {_number(t.get('value'), t.get('unit', ''))} | "
                          f"{t.get('direction', '<=')} {_number(t.get('limit'), t.get('unit', ''))} | "
                          f"{'met' if t.get('met') else '**missed**'} |")
-    lines += ["", f"{met} of {total} targets met.", "", "Floors (counted in the same run):", "",
+    lines += ["", f"{met} of {total} targets met.", "", "Floors (counted in the same run as their section):", "",
               "| floor | value | counted by |", "|---|---|---|"]
-    rows = floors(report)
+    rows = floors(merged)
     lines += [f"| {_cell(a)} | {b} | {c} |" for a, b, c in rows] or ["| (none counted in this run) | | |"]
     lines += ["", END]
     return "\n".join(lines)
@@ -121,12 +138,13 @@ def write(readme: Path, text: str) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("report", help="bench.json written by `abyssal bench` (or its --json output)")
+    parser.add_argument("reports", nargs="+", help="bench.json written by `abyssal bench` (or its --json output); "
+                        "with several (e.g. `abyssal bench --only ...` runs), a section from the first that holds it")
     parser.add_argument("--readme", default=str(README))
     args = parser.parse_args(argv)
-    report = json.loads(Path(args.report).read_text())
+    runs = [(json.loads(Path(path).read_text()), path) for path in args.reports]
     readme = Path(args.readme)
-    readme.write_text(write(readme, block(report, args.report)))
+    readme.write_text(write(readme, block(runs)))
     print(f"wrote the bench block of {readme}")
     return 0
 

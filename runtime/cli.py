@@ -138,7 +138,8 @@ def _bench(args) -> int:
         sys.path.insert(0, folder)  # the sections import each other by file name, as when run as scripts
     if args.folders:
         return importlib.import_module("bench_folder").main(args.folders, json_output=args.json, quick=args.quick)
-    return importlib.import_module("bench").main(json_output=args.json, out=args.out, quick=args.quick)
+    only = tuple(args.only.split(",")) if args.only else None
+    return importlib.import_module("bench").main(json_output=args.json, out=args.out, quick=args.quick, only=only)
 
 
 def _export(args) -> int:
@@ -235,6 +236,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print the results as JSON")
     p.add_argument("--out", default="benchmarks/results", help="folder for the JSON results (default: %(default)s)")
     p.add_argument("--quick", action="store_true", help="fewer repetitions (smoke run)")
+    p.add_argument("--only", metavar="SECTION,...", help="these sections only (models, filters, particles, ...)")
     p.add_argument("folders", nargs="*", metavar="DIR", help="model folders to time (default: the built-in benchmarks)")
     p.set_defaults(run=_bench)
 

@@ -148,6 +148,29 @@ def test_the_readme_block_is_written_from_a_recorded_report(tmp_path):
     assert again.replace("def5678", "abc1234") == text
 
 
+def test_several_reports_take_each_section_from_the_first_that_holds_it(tmp_path):
+    import write_readme
+
+    main_run = copy.deepcopy(RECORDED)
+    main_run["machine"]["command"] = "abyssal bench --only particles,sir"
+    del main_run["sections"]["filters"]
+    quick = copy.deepcopy(RECORDED)
+    quick["machine"].update(command="abyssal bench --quick", commit="0123abc")
+    quick["sections"]["particles"]["targets"][0]["value"] = 0.99  # (shadowed by the first report's)
+    paths = []
+    for name, report in (("main.json", main_run), ("quick.json", quick)):
+        paths.append(tmp_path / name)
+        paths[-1].write_text(json.dumps(report))
+    readme = tmp_path / "README.md"
+    readme.write_text("# benchmarks\n\nThe intro.\n")
+    write_readme.main([str(p) for p in paths] + ["--readme", str(readme)])
+    inside = readme.read_text().split(write_readme.BEGIN)[1].split(write_readme.END)[0]
+    assert "1. `abyssal bench --only particles,sir`, commit abc1234: sections particles, sir;" in inside
+    assert "2. `abyssal bench --quick`, commit 0123abc: sections filters;" in inside
+    assert "| particles (run 1) | CPF N=100 step over 1dd3f6b's | 0.61 x |" in inside and "0.99" not in inside
+    assert "| filters (run 2) | CKF speed-up over filterpy | 512 x |" in inside
+    assert "| Kalman step (C loop): instructions per step, all filters | 12,345 |" in inside
+
 def test_the_committed_readme_block_names_its_command_and_commit():
     import write_readme
 
