@@ -62,12 +62,14 @@ def test_a_heading_in_degrees_is_named_once(rov, kind):
 
 @pytest.mark.parametrize("kind", [EKF, CKF])
 def test_a_small_heading_in_degrees_is_named(rov, kind):
-    """A vehicle heading near north (0.02-0.1 rad: under 2 pi when given in degrees) with its heading in degrees:
-    the raw values lie beyond the gate, the same values taken as degrees fit the prediction."""
-    U, Z, dt = rov_run(rov, psi=0.05)
+    """A vehicle heading near north (0.06 rad: 3.4 degrees, under 2 pi) with its heading in degrees: the raw values
+    lie beyond the gate (3.4 rad wraps to -2.9, nine prior sigmas from 0.06), the same values taken as degrees fit the
+    prediction. (A heading of 0.07-0.1 rad in degrees wraps to within seven prior sigmas here and is taken as a
+    heading of its own, which later values then agree with: no unit can be told from such a stream.)"""
+    U, Z, dt = rov_run(rov, psi=0.06)
     Z[:, 3] = np.degrees(Z[:, 3])
-    assert np.abs(Z[:, 3]).max() < 2 * np.pi
-    caught = steps_warnings(filter_on(rov, kind, psi=0.05), U, Z, dt)
+    assert np.abs(Z[:SAMPLES, 3]).max() < 2 * np.pi  # (the values the watch decides on)
+    caught = steps_warnings(filter_on(rov, kind, psi=0.06), U, Z, dt)
     assert len(caught) == 1 and "'psi' (rad)" in str(caught[0].message) and "degrees" in str(caught[0].message)
 
 
@@ -87,6 +89,21 @@ def test_values_in_the_models_units_and_a_stuck_gauge_are_not_a_unit_slip(rov):
     report = flt.sensor_report("measurement")  # and the stuck gauge is dropped, not re-acquired
     assert report["rejected"] and report["inflations"] == flt.options["gate_max_inflations"]
     assert abs(flt.x[2]) < 10.0
+
+
+def test_a_sensor_at_odds_with_a_prediction_of_zero_is_no_unit_slip(tmp_path):
+    """A DVL reading 0.5 m/s where the filter knows the velocity to be exactly 0 (zero P0 and noise along it): the
+    values lie beyond the gate, and divided by 3.6 they would "fit" the zero prediction, but that is no evidence of
+    km/h: no warning."""
+    vehicle = abyssal.load(abyssal.generate(sensor_vehicle(), tmp_path / "gen"))
+    flt = EKF(vehicle, np.zeros(4), np.diag([4.0, 4.0, 1.0, 0.0]), np.diag([0.04, 0.0]), None, noise="inputs")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        for k in range(2 * SAMPLES):
+            t = 0.2 * (k + 1)
+            flt.predict_to(t, np.zeros(0))
+            flt.update("dvl", np.array([0.0, 0.5]), t)
+    assert not [w for w in caught if issubclass(w.category, UnitSlipWarning)]
 
 
 def test_the_watch_ends_after_its_samples(rov):

@@ -111,10 +111,13 @@ class UnitWatch:
             # values too small for a ratio (a heading near north in degrees): converted, they fit the prediction
             # (half of them at least: once the gate's patience runs out, the filter may take them as they are and
             # its prediction follows them)
+            # (only where the prediction itself is beyond SIGMAS sigma of zero: values divided by a factor shrink
+            # towards zero and would "fit" any prediction near it)
             converted = z / factor - y
             if self.angle[row]:
                 converted = np.angle(np.exp(1j * converted))
-            fit = int((np.abs(converted) <= SIGMAS * np.maximum(sigma, 1e-300)).sum())
+            band = SIGMAS * np.maximum(sigma, 1e-300)
+            fit = int(((np.abs(converted) <= band) & (np.abs(y) > band)).sum())
             if fit >= SAMPLES // 2:
                 return f"{name} (converted from {name}, {fit} of them fit the prediction)"
         return None
