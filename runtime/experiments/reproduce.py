@@ -30,6 +30,7 @@ import inspect
 import json
 import math
 import sys
+import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -128,8 +129,9 @@ def _check_needs(experiment: Experiment, args) -> None:
 
 def run(name: str, args, config=None) -> int:
     """`abyssal reproduce NAME` on the campaign harness; `config` overrides the paper's set-up (tests use a
-    short one). Rows go to <out>/NAME.csv, the summary to <out>/NAME.json, the figures beside them."""
-    from . import campaign
+    short one). Rows go to <out>/NAME.csv, the summary to <out>/NAME.json (with its provenance: the command, commit,
+    CPU, load and wall time, provenance.py), the figures beside them."""
+    from . import campaign, provenance
 
     experiment = EXPERIMENTS[name]
     module = experiment.experiment_module()
@@ -148,6 +150,11 @@ def run(name: str, args, config=None) -> int:
     if out:
         out.mkdir(parents=True, exist_ok=True)
     say = lambda message: print(f"[{name}] {message}", file=sys.stderr, flush=True)  # noqa: E731
+    record = provenance.started(
+        provenance.reproduce_command(name, runs=runs, seed=args.seed, quick=quick,
+                                     particles=getattr(args, "particles", None) if experiment.particles else None),
+        getattr(args, "workers", None), getattr(args, "scheduler", None))
+    t0 = time.perf_counter()
     prepared = None
     if experiment.prepare:
         if getattr(args, "resume", False) and out:  # a table resume would refuse, refused before the preparation
@@ -164,7 +171,8 @@ def run(name: str, args, config=None) -> int:
     document = {"experiment": name, "runs": runs, "runs_in_table": len(result.runs),
                 "seed": args.seed, "quick": quick, "config": repr(config), **module.document(rows, config, prepared),
                 "failures": [f.describe() for f in result.failures], "wall_seconds": result.wall_seconds,
-                "where": result.where, "rows_csv": str(out / f"{name}.csv") if out else None}
+                "where": result.where, "rows_csv": str(out / f"{name}.csv") if out else None,
+                "provenance": provenance.finished(record, time.perf_counter() - t0)}
     report = module.report(rows, config) if rows else f"{name}: no rows (every run failed)"
     if experiment.timings_apart and rows:
         report += "\n\n" + module.timing_table(rows)

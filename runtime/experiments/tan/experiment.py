@@ -22,13 +22,17 @@ for the terrain of each track). The paper's words (it prints figures, not an err
   (1 m) that is given the true current as its model parameter -- a matched-model oracle (under a current
   only: with none it is the sigma = 1 m filter). It has no drift to absorb, so it shows what the terrain
   supports when nothing is unknown; it cannot tell how much of a failure is due to the map.
+* Gate: none (``gate_probability=0``): the paper's SIR (Fig. 5) has none; with the engine's default gate a depth
+  far outside the cloud's predicted depth would be left out.
 
 Rows: one per run x case x filter x metric; metrics mean_error_m, final_error_m, max_error_m, lost (1 when the
 error ever exceeded 1000 m), lost_at_s (in a lost run only: when it first did), mean_std_m (the filter's own
 position spread sqrt(P_xx + P_yy), averaged over the run), outside_99 (the share of steps whose true position
 lies outside the filter's own 99 % ellipse: 0.01 for a consistent filter, near 1 for a confidently wrong one),
 step_us (median wall time of one step, a timing: never compared across runs) and, for the fuzzy filters,
-mean_sigma_m. Figures of single tracks (paths, errors, spreads, fuzzy inputs) come from a separate figure run
+mean_sigma_m and the inputs' saturation: gradient_clipped, rate_clipped, input_clipped (the share of steps whose
+gradient, gradient rate, or either lies beyond the rule table's [-20, 20], where the fuzzy system clips it).
+Figures of single tracks (paths, errors, spreads, fuzzy inputs) come from a separate figure run
 (``figure_runs``): run 0's seeds of cases chosen from the table, recomputed in this process.
 """
 from __future__ import annotations
@@ -164,7 +168,19 @@ class FilterRun:
             out["outside_99"] = self.outside_99()
         if self.sigma is not None:
             out["mean_sigma_m"] = float(self.sigma.mean())
+            out.update(input_saturation(self.gradient, self.gradient_rate))
         return out
+
+
+def input_saturation(gradient: np.ndarray, gradient_rate: np.ndarray) -> dict[str, float]:
+    """The shares of steps whose fuzzy inputs lie beyond the rule table's domain (Table 2: [-20, 20]), where the
+    fuzzy system clips them: the gradient, the gradient rate, and either."""
+    from abyssal.symbolic.fuzzy import INPUT_DOMAIN
+
+    low, high = INPUT_DOMAIN
+    g = (gradient < low) | (gradient > high)
+    r = (gradient_rate < low) | (gradient_rate > high)
+    return {"gradient_clipped": float(g.mean()), "rate_clipped": float(r.mean()), "input_clipped": float((g | r).mean())}
 
 
 def _finish(run: FilterRun, truth: Truth) -> FilterRun:
@@ -186,7 +202,8 @@ def run_filter(bundle, terrain, config: TanConfig, truth: Truth, sigma, rng: np.
     P0 = np.diag([config.initial_std ** 2, config.initial_std ** 2, 0.0])
     filt = TerrainParticleFilter(bundle, start, P0, sigma, config.altimeter_sigma, config.n_particles, rng,
                                  terrain=terrain, policy=ResamplingPolicy("systematic", config.resample_threshold),
-                                 gradient_scale=fuzzy_units[0], rate_length_m=fuzzy_units[1])
+                                 gradient_scale=fuzzy_units[0], rate_length_m=fuzzy_units[1],
+                                 gate_probability=0.0)  # the paper's SIR (Fig. 5) has no innovation gate
     est, cov, times = np.empty((T, 2)), np.empty((T, 3)), np.empty(T)
     fuzzy = sigma == "fuzzy"
     sig = np.empty(T) if fuzzy else None
@@ -391,6 +408,7 @@ def report(rows, config: TanConfig) -> str:
                          _mean_cell(e, "mean_sigma_m", ".2f")])
         lines += [f"== {case}", *aligned(header, body), ""]
     lines.append("final = mean over runs of the error at the end; max(med) = median over runs of the largest error.")
+    lines += ["", *saturation_table(s, config)]
     if config.oracle_sigma is not None:
         lines.append(f"{ORACLE}: SIR with sigma = {config.oracle_sigma:g} m given the true current -- a matched-model "
                      "oracle, not a method of the paper (run under a current only).")
@@ -402,6 +420,23 @@ def report(rows, config: TanConfig) -> str:
                      f"machine; THE PAPER: {paper.PAPER_STEP_MS} ms per step in MATLAB (2.6 GHz dual core) -- a "
                      "different machine and language.")
     return "\n".join(lines)
+
+
+def saturation_table(s: dict, config: TanConfig) -> list[str]:
+    """The fuzzy inputs beyond the rule table's domain (clipped there): per case and fuzzy variant the share of steps
+    with the gradient, the gradient rate, or either outside [-20, 20], mean over runs (min-max over runs)."""
+    header = ["case", "variant", "gradient", "rate", "either"]
+    body = []
+    for case, block in s.items():
+        for name in config.fuzzy:
+            e = block.get(name)
+            if e and "input_clipped" in e:
+                body.append([case, name, *(f"{e[m].mean:.2f} ({e[m].low:.2f}-{e[m].high:.2f})"
+                                           for m in ("gradient_clipped", "rate_clipped", "input_clipped"))])
+    if not body:
+        return []
+    return ["FUZZY INPUTS BEYOND [-20, 20] (clipped by the fuzzy system): share of steps, mean over runs (min-max)",
+            *aligned(header, body, left=2)]
 
 
 def aligned(header: list[str], rows: list[list[str]], left: int = 1) -> list[str]:
