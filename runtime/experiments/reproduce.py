@@ -1,8 +1,9 @@
-"""`abyssal reproduce {rov,cn,tan,tan-survey,remus,all}`: rerun the papers' experiments.
+"""`abyssal reproduce {rov,cn,cn-count,tan,tan-survey,remus,all}`: rerun the papers' experiments.
 
-rov (seed 000), cn (seed 002), tan (seed 003; tan-survey its track survey) and remus (seed 004) each live in experiments/<name>/ with the
-same shape: ``paper.py`` (the paper's printed numbers, quoted and labelled as the paper's), ``scenario.py``
-(the truth: the simulated world) and ``experiment.py``, which gives this module
+rov (seed 000), cn (seed 002; cn-count its MCUPF particle-count sweep), tan (seed 003; tan-survey its track
+survey) and remus (seed 004) each live in experiments/<name>/ with the same shape: ``paper.py`` (the paper's
+printed numbers, quoted and labelled as the paper's), ``scenario.py`` (the truth: the simulated world) and
+``experiment.py``, which gives this module
 
     Config                                    dataclass: Config() is the paper's set-up, .quick() the --quick one
                                               (its docstring is what `reproduce --help` says --quick does)
@@ -60,6 +61,8 @@ EXPERIMENTS: dict[str, Experiment] = {e.name: e for e in (
     Experiment("rov", ".rov.experiment", ("rov4dof",), runs=10, quick_runs=3, timings_apart=True,
                case="sea state"),
     Experiment("cn", ".cn.experiment", ("cn2d",), runs=10, quick_runs=2, timings_apart=True,
+               case="geometry x noise case"),
+    Experiment("cn-count", ".cn.count_sweep", ("cn2d",), runs=10, quick_runs=1, particles=False,
                case="geometry x noise case"),
     Experiment("tan", ".tan.experiment", ("tan3dof",), runs=8, quick_runs=1, case="map x track x current"),
     Experiment("tan-survey", ".tan.survey", ("tan3dof",), runs=3, quick_runs=1, case="map x track"),

@@ -176,3 +176,28 @@ def test_config_refuses_unknown_geometries_and_no_streams():
         experiment.CnConfig(geometries=("triangle",))
     with pytest.raises(ValueError, match="streams"):
         experiment.CnConfig(streams=0)
+
+
+def test_count_sweep_runs_the_cn_trials_with_each_floor_and_rule_set():
+    """cn-count: the same trials as the cn experiment (the UPF under our rules is the cn experiment's UPF there, with
+    its own streams), the KLD floor sets the steady count, both rule sets run, and the implied count interpolates."""
+    from abyssal.runtime.experiments.cn import count_sweep
+
+    base = replace(_short_config(), n_particles=120, kld_n_max=60)
+    config = count_sweep.CountConfig(base=base, geometries=("crossing90",), cases=("multipath",), floors=(10, 120),
+                                     streams=1)
+    rows = count_sweep.run_one(config, run_seeds(3, 1)[0])
+    value = {(r["filter"], r["metric"]): r["value"] for r in rows}
+    assert {r["filter"] for r in rows} == set(config.labels())
+    for rules in ("paper", "ours"):
+        assert value[(count_sweep.mcupf_label(120, rules), "steady_particles")] == 120  # the floor above N_max
+        assert 10 <= value[(count_sweep.mcupf_label(10, rules), "steady_particles")] <= 60
+        assert value[(count_sweep.upf_label(rules), "steady_particles")] == 120
+        assert all(math.isfinite(value[(label, "ape_m")]) for label in config.labels())
+    # the rule sets differ in their estimates on the same trial and streams
+    assert value[(count_sweep.upf_label("paper"), "ape_m")] != value[(count_sweep.upf_label("ours"), "ape_m")]
+    ratios = [(10, 10.0, 0.5), (100, 100.0, 1.0), (1000, 1000.0, 2.0)]
+    assert count_sweep.implied_count(ratios, 1.0) == pytest.approx(100.0)
+    assert count_sweep.implied_count(ratios, 1.5) == pytest.approx(math.sqrt(100 * 1000))  # log-linear
+    assert count_sweep.implied_count(ratios, 3.0) is None  # beyond the sweep
+    assert "paper's rules" in count_sweep.report(rows, config)

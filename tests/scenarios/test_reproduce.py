@@ -57,7 +57,7 @@ def test_all_runs_the_registry_in_order_and_exits_with_the_worst_status(monkeypa
     monkeypatch.setattr(reproduce, "_check_needs", lambda experiment, args: checked.append(experiment.name))
     monkeypatch.setattr(reproduce, "run", lambda name, args: ran.append(name) or (1 if name == "tan" else 0))
     assert reproduce.main(_args(experiment="all")) == 1
-    assert ran == checked == ["rov", "cn", "tan", "tan-survey", "remus"]
+    assert ran == checked == ["rov", "cn", "cn-count", "tan", "tan-survey", "remus"]
     ran.clear()
     assert reproduce.main(_args(experiment="cn")) == 0 and ran == ["cn"]
 
