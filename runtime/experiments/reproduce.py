@@ -51,6 +51,7 @@ class Experiment:
     prepare: bool = False       # module.prepare(config, out, say) runs before the campaign
     timings_apart: bool = False  # step times printed after the tables (module.timing_table), not in them
     case: str = "case"          # what one case of its tidy table is (the closing line says so)
+    page: str = ""              # its docs page, docs/experiments/<page>.md (`abyssal publish`; "": its name)
 
     def experiment_module(self):
         return importlib.import_module(self.module, __package__)
@@ -63,9 +64,9 @@ EXPERIMENTS: dict[str, Experiment] = {e.name: e for e in (
     Experiment("cn", ".cn.experiment", ("cn2d",), runs=10, quick_runs=2, timings_apart=True,
                case="geometry x noise case"),
     Experiment("cn-count", ".cn.count_sweep", ("cn2d",), runs=10, quick_runs=1, particles=False,
-               case="geometry x noise case"),
+               case="geometry x noise case", page="cn"),
     Experiment("tan", ".tan.experiment", ("tan3dof",), runs=8, quick_runs=1, case="map x track x current"),
-    Experiment("tan-survey", ".tan.survey", ("tan3dof",), runs=3, quick_runs=1, case="map x track"),
+    Experiment("tan-survey", ".tan.survey", ("tan3dof",), runs=3, quick_runs=1, case="map x track", page="tan"),
     Experiment("remus", ".remus.experiment", ("remus100",), runs=20, quick_runs=3,
                needs={"sklearn": "the GP process model"}, particles=False, prepare=True),
 )}

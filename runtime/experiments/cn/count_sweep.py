@@ -272,6 +272,56 @@ def report(rows, config: CountConfig) -> str:
     return "\n".join(L)
 
 
+def markdown(rows, config: CountConfig, document: dict | None = None) -> dict[str, str]:
+    """The sweep's tables for docs/experiments/cn.md (`abyssal publish cn-count`, publish.py)."""
+    from ..publish import markdown_table, number
+
+    s = summary(rows)
+    out = {}
+    for geometry in config.geometries:
+        body = []
+        for rules in config.rules:
+            for label in [mcupf_label(f, rules) for f in config.floors] + [upf_label(rules)]:
+                cells = []
+                for case in config.cases:
+                    e = s.get((geometry, case, label, "ape_m"))
+                    text = e.cell(".2f") if e else "-"
+                    if not label.startswith("UPF") and e:
+                        k, n = beats(rows, geometry, case, label, upf_label(rules))
+                        text += f" [{k}/{n}]"
+                    cells.append(text)
+                steady = [s[(geometry, c, label, "steady_particles")].mean for c in config.cases
+                          if (geometry, c, label, "steady_particles") in s]
+                under = [s[(geometry, c, label, "uninformative")].mean for c in config.cases
+                         if (geometry, c, label, "uninformative") in s]
+                body.append([label, *cells, number(float(np.mean(steady)) if steady else math.nan, ".0f"),
+                             number(float(np.mean(under)) if under else math.nan, ".3f")])
+        out[f"ape-{geometry}"] = markdown_table(
+            ["filter", *(f"{c}: APE m [runs beating the UPF]" for c in config.cases), "steady N",
+             "share of pings whose likelihood underflowed"], body)
+    body = []
+    for geometry in config.geometries:
+        for case in config.cases:
+            cells = []
+            for floor in config.floors:
+                k, n = beats(rows, geometry, case, mcupf_label(floor, "paper"), mcupf_label(floor, "ours"))
+                cells.append(f"{k}/{n}")
+            body.append([geometry, case, *cells])
+    out["rules"] = markdown_table(["geometry", "noise case", *(f"N_min = {f}" for f in config.floors)], body,
+                                  align="ll" + "r" * len(config.floors))
+    body = []
+    for rules in config.rules:
+        ratios = time_ratios(rows, rules)
+        implied = implied_count(ratios)
+        for floor, count, ratio in ratios:
+            body.append([RULE_NAMES[rules], str(floor), f"{count:.0f}", f"{ratio:.2f}"])
+        body.append([RULE_NAMES[rules], "the paper's ratio 1.25 reached at", "-",
+                     f"~{implied:.0f} particles" if implied is not None else "beyond the sweep"])
+    out["timing"] = markdown_table(["rules", "N_min", "steady N", f"CPU time per step / the UPF's (N = "
+                                    f"{config.base.n_particles})"], body, align="llrr")
+    return out
+
+
 def document(rows, config: CountConfig, prepared=None) -> dict:
     s = summary(rows)
     cases = {}

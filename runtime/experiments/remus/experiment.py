@@ -545,28 +545,101 @@ def report(rows, config: RemusConfig | None = None) -> str:
     return "\n".join(L)
 
 
+def fit_rows(fits: dict, hyper_max: int) -> list[list[str]]:
+    """[targets, N, draw, LML of x's GP, of y's, the kept starts (of 12 GPs), the warm start's largest shortfall]
+    per fitted training set; fits: {(targets, N, draw): (lml (12,), start_lml (12, starts))}."""
+    from .gp_model import START_NAMES
+
+    out = []
+    for (targets, n, draw), (lml, start) in sorted(fits.items()):
+        if n > hyper_max or lml is None:
+            continue
+        lml, start = np.asarray(lml, dtype=float), np.asarray(start, dtype=float)
+        kept = [START_NAMES[i] if i < len(START_NAMES) else "random" for i in np.nanargmax(start, axis=1)]
+        counts = ", ".join(f"{name} {kept.count(name)}" for name in dict.fromkeys(kept))
+        warm = start[:, 1] if start.shape[1] > 1 else np.full(12, np.nan)
+        gap = float(np.nanmax(lml - warm)) if np.isfinite(warm).any() else math.nan
+        out.append([targets, str(n), str(draw), f"{lml[6]:.1f}", f"{lml[7]:.1f}", counts,
+                    "-" if math.isnan(gap) else f"{gap:.1f}"])
+    return out
+
+
+def markdown(rows, config: RemusConfig, document: dict | None = None) -> dict[str, str]:
+    """The tables of docs/experiments/remus.md (`abyssal publish remus`, publish.py): from the rows, the GP fits
+    from the JSON document (its "gp" entries)."""
+    from ..publish import markdown_table
+
+    names = filter_names(rows)
+    ukfs = [n for n in names if not is_gp(n)]
+    gps = [n for n in names if is_gp(n)]
+    out = {}
+    out["ukf"] = markdown_table(
+        ["state", "unit", "paper UKF (Table 3)", *ukfs],
+        [[st, paper.UNITS[st], f"{paper.TABLE3['UKF'][st]:.4g}", *(cell(statistic(rows, n, f"rmse_{st}")) for n in ukfs)]
+         for st in STATE_NAMES], align="ll" + "r" * (1 + len(ukfs)))
+    if ukfs:
+        best, scores = closest_reading(rows)
+        body = []
+        for n in ukfs:
+            med, worst, within = scores[n]
+            ratio = ratio_to_paper(rows, n)
+            body.append([n + (" (closest)" if n == best else ""), f"{med:.2f}", f"{worst:.2f}", f"{within}/12",
+                         f"{ratio['x']:.3g}", f"{ratio['y']:.3g}"])
+        out["distance"] = markdown_table(["UKF reading", "median abs log10(ours / paper), 12 states", "max",
+                                          "states within a factor 2", "x: ours / paper", "y: ours / paper"], body)
+    cases = sorted({c for n in gps for c in draws_of(rows, n)}, key=lambda c: int(c.split()[-1]))
+    body = []
+    for n in gps:
+        d = per_draw(rows, n, "prediction")
+        b = over_draws(d)
+        body.append([n, *((cell(d[c]) + f" [{d[c].n}]") if c in d else "-" for c in cases),
+                     f"{cell(b)}; {b.low:.3g}-{b.high:.3g}"])
+    out["gp-sweep"] = markdown_table(["GP-UKF", *(f"{c}: m [runs]" for c in cases), "between draws: mean ± sd; range"],
+                                     body)
+    fits = {}
+    for key, entry in ((document or {}).get("gp") or {}).items():
+        parts = key.split("|")
+        if len(parts) == 3 and parts[2].startswith("draw") and entry.get("lml") is not None:
+            fits[(parts[0], int(parts[1].removeprefix("N=")), int(parts[2].split()[-1]))] = (
+                [np.nan if v is None else v for v in entry["lml"]],
+                [[np.nan if v is None else v for v in row] for row in entry["start_lml"]])
+    if fits:
+        out["gp-fits"] = markdown_table(["targets", "N", "draw", "LML x (nats)", "LML y (nats)", "kept start (of 12 GPs)",
+                                         "warm start alone short by (nats, max)"],
+                                        fit_rows(fits, config.hyper_max), align="lrrrrlr")
+    body = []
+    windows = sum(1 for t in PREDICTION_STARTS if t + PREDICTION_HORIZON < config.duration)
+    for n in names:
+        kind = "GP-UKF" if is_gp(n) else "UKF"
+        diverged = f"{sum(_values(rows, n, 'predict_10s_diverged')):g}/{windows * len(_values(rows, n, 'prediction'))}"
+        body.append([n, cell(statistic(rows, n, "correction")), f"{paper.TABLE4[(kind, 'correction')]}",
+                     cell(statistic(rows, n, "prediction")), f"{paper.TABLE4[(kind, 'prediction')]}",
+                     cell(statistic(rows, n, "predict_10s")), diverged])
+    out["table4"] = markdown_table(["filter", "correction (mixed units)", "paper", "prediction (m)", "paper (m)",
+                                    "predict_10s (m, ours)", "windows diverged"], body)
+    body = [[n, *(cell(statistic(rows, n, m)) for m in ("anees", "anees_measured", "anees_xy"))] for n in names]
+    out["consistency"] = markdown_table(["filter", "ANEES, 12 states (12)", "10 measured (10)", "x, y (2)"], body)
+    if gps:
+        out["gp-states"] = markdown_table(
+            ["state", "unit", "paper GP-UKF (Table 3)", *gps],
+            [[st, paper.UNITS[st], (f"{paper.TABLE3['GP-UKF'][st]:.4g}" if st in paper.TABLE3["GP-UKF"] else "-"),
+              *(cell(statistic(rows, n, f"rmse_{st}")) for n in gps)] for st in STATE_NAMES],
+            align="ll" + "r" * (1 + len(gps)))
+    return out
+
+
 def fit_table(config: RemusConfig) -> list[str]:
     """The GPs' hyperparameter fits (gp_model.fit_gp): per targets, size and draw, the log marginal likelihood (LML,
     nats, on the fitted points) of the x- and y-targets' GPs, which start each of the 12 GPs kept, and the largest
     shortfall of the warm start alone (the fit without restarts before this was added) below the kept fit."""
-    from .gp_model import START_NAMES
-
     lines = [f"GP hyperparameter fits ({2 + config.restarts} starts per GP: the default, the next smaller size's optimum "
              f"(warm), {config.restarts} random; the fit with the largest LML is kept; sizes above {config.hyper_max} "
              "reuse that size's hyperparameters)",
              f"{'targets':<12}{'N':>6}{'draw':>6}{'LML x':>11}{'LML y':>11}   {'kept start (of 12 GPs)':<34}"
              f"{'warm start short by (nats, max)':>32}"]
-    for g in sorted(config.gps, key=lambda g: (g.targets, g.n_train, g.draw)):
-        if not g.lml or g.n_train > config.hyper_max:
-            continue
-        start = np.array(g.start_lml, dtype=float)
-        kept = [START_NAMES[i] if i < len(START_NAMES) else "random" for i in np.nanargmax(start, axis=1)]
-        counts = ", ".join(f"{name} {kept.count(name)}" for name in dict.fromkeys(kept))
-        warm = start[:, 1] if start.shape[1] > 1 else np.full(12, np.nan)
-        gap = np.nanmax(np.array(g.lml) - warm) if np.isfinite(warm).any() else math.nan
-        lml = np.array(g.lml)
-        lines.append(f"{g.targets:<12}{g.n_train:>6}{g.draw:>6}{lml[6]:>11.1f}{lml[7]:>11.1f}   {counts:<34}"
-                     f"{('-' if math.isnan(gap) else f'{gap:.1f}'):>32}")
+    fits = {(g.targets, g.n_train, g.draw): (g.lml, g.start_lml) for g in config.gps if g.lml}
+    for targets, n, draw, x, y, counts, gap in fit_rows(fits, config.hyper_max):
+        lines.append(f"{targets:<12}{n:>6}{draw:>6}{x:>11}{y:>11}   {counts:<34}{gap:>32}")
     return lines
 
 

@@ -415,16 +415,26 @@ def rankings(rows: list[dict], reading: str = "plain") -> str:
     """The paper's pairwise orderings (by mean pose RMSE over x, y, z, psi per sea state), and in how many of
     our runs each holds (a consistency measure: an ordering that holds in 5 of 10 runs is not a finding).
     The paper's CKF is compared as both of ours: the matched-model oracle and the mismatched-Q CKF."""
+    lines = [f"The paper's orderings (mean RMSE over x, y, z, psi; truth '{reading}'): do ours agree, and in how many runs?"]
+    for sea, better, worse, la, lb, k, n in ordering_rows(rows, reading):
+        verdict = "holds" if k == n else ("reversed" if k == 0 else "mixed")
+        lines.append(f"  sea {sea:<9} paper: {better} < {worse}; ours: {la} < {lb}: {verdict} ({k}/{n} runs)")
+    return "\n".join(lines)
+
+
+def ordering_rows(rows: list[dict], reading: str = "plain") -> list[tuple[str, str, str, str, str, int, int]]:
+    """The paper's pairwise orderings and ours: (sea, the paper's better, worse, our better label, our worse label,
+    runs where ours agrees, runs) -- rankings() as data."""
     paper = table3_rmse()
     per_run: dict[tuple, dict[str, float]] = {}
     for row in rows:
-        if row["reading"] == reading and row["metric"].startswith("mse_") and row["filter"] in PAPER_COLUMN:
+        if row["reading"] == reading and row["metric"] in {f"mse_{a}" for a in POSE_AXES} and row["filter"] in PAPER_COLUMN:
             per_run.setdefault((row["case"], row["filter"], row["run"]), {})[row["metric"]] = row["value"]
 
     def pose_rmse(metrics):
         return np.mean([math.sqrt(metrics[f"mse_{x}"]) for x in POSE_AXES])
 
-    lines = [f"The paper's orderings (mean RMSE over x, y, z, psi; truth '{reading}'): do ours agree, and in how many runs?"]
+    out = []
     for sea in SEA_STATES:
         cols = [c for c in ("PF", "CKF", "CPF", "EM-MOGCPF") if c in paper.get(paper_sea(sea), {})]
         score = {c: np.mean(list(paper[paper_sea(sea)][c].values())) for c in cols}
@@ -437,10 +447,73 @@ def rankings(rows: list[dict], reading: str = "plain") -> str:
                         pairs = [(per_run.get((sea, la, r)), per_run.get((sea, lb, r))) for r in runs]
                         wins = [pose_rmse(ma) < pose_rmse(mb) for ma, mb in pairs if ma and mb]
                         if wins:
-                            verdict = "holds" if all(wins) else ("reversed" if not any(wins) else "mixed")
-                            lines.append(f"  sea {sea:<9} paper: {better} < {worse}; ours: {la} < {lb}: "
-                                         f"{verdict} ({sum(wins)}/{len(wins)} runs)")
-    return "\n".join(lines)
+                            out.append((sea, better, worse, la, lb, sum(wins), len(wins)))
+    return out
+
+
+def markdown(rows: list[dict], config: RovConfig | None = None, document: dict | None = None) -> dict[str, str]:
+    """The tables of docs/experiments/rov.md (`abyssal publish rov`, publish.py), from the rows (truth 'plain')."""
+    from ..publish import markdown_table, number
+
+    stats = summary(rows)
+    paper = table3_rmse()
+    reading = "plain"
+    labels = _labels(rows)
+    seas = [s for s in SEA_STATES if any(k[:2] == (reading, s) for k in stats)]
+    out = {"kurtosis": markdown_table(
+        ["sea state", "mixture (weights renormalised)", "x", "y", "z", "psi"],
+        [[name, sea.description, *(f"{v:.3f}" for v in sea.excess_kurtosis())] for name, sea in SEA_STATES.items()],
+        align="llrrrr")}
+
+    def cell(st, axis):
+        if st is None:
+            return "-"
+        mean, sd = st["rmse"][axis], st["rmse_sd"][axis]
+        return number(mean, ".2f") + (f" ± {sd:.2f}" if math.isfinite(mean) and math.isfinite(sd) else "")
+
+    shown = [label for label in labels if label in PAPER_COLUMN or label == "CKF (mismatched Q, gated)"]
+    header = ["sea", "axis", *shown]
+    body = []
+    for sea in seas:
+        for axis in POSE_AXES:
+            row = [sea, f"{axis} ({UNITS[axis]})"]
+            for label in shown:
+                theirs = paper.get(paper_sea(sea), {}).get(PAPER_COLUMN.get(label), {}).get(axis)
+                row.append(cell(stats.get((reading, sea, label)), axis) + (f" / {theirs:.2f}" if theirs is not None else ""))
+            body.append(row)
+    out["table3"] = markdown_table(header, body, align="ll" + "r" * len(shown))
+    body = [[sea, f"{b} < {w}", f"{la} < {lb}", "holds" if k == n else ("reversed" if k == 0 else "mixed"), f"{k}/{n}"]
+            for sea, b, w, la, lb, k, n in ordering_rows(rows, reading)]
+    out["orderings"] = markdown_table(["sea", "the paper", "ours", "verdict", "runs"], body, align="llllr")
+    body = []
+    for label in labels:
+        row = [label]
+        for sea in seas:
+            st = stats.get((reading, sea, label))
+            row.append("-" if st is None else f"{number(st['anees'], '.3g')} / {number(st['ess_mean'], '.0f')}")
+        body.append(row)
+    out["consistency"] = markdown_table(["filter", *(f"sea {s}: ANEES / ESS" for s in seas)], body)
+    body = [[label, *(cell(stats.get((reading, sea, label)), "x") for sea in seas)] for label in labels]
+    out["all-x"] = markdown_table(["filter", *(f"sea {s}" for s in seas)], body)
+    body = []
+    for sea in seas:
+        for label in [x for x in labels if x.startswith("CKF (mismatched Q")]:
+            st = stats.get((reading, sea, label))
+            if st:
+                low, high = st["gated_updates_range"]
+                body.append([sea, label, cell(st, "x"), cell(st, "psi"),
+                             f"{number(st['gated_updates'], '.0f')} ({number(low, '.0f')}-{number(high, '.0f')})"])
+    out["gate"] = markdown_table(["sea", "filter", "x RMSE (m)", "psi RMSE (rad)", "updates with an entry gated, mean "
+                                  "(min-max) of 2000"], body, align="llrrr")
+    body = [[sea, label, *(cell(stats.get((reading, sea, label)), a) for a in VELOCITY_AXES)]
+            for sea in seas for label in labels if label in PAPER_COLUMN and (reading, sea, label) in stats]
+    out["velocity"] = markdown_table(["sea", "filter", "u (m/s)", "v (m/s)", "w (m/s)", "r (rad/s)"], body, align="llrrrr")
+    readings = _order(rows, lambda r: r["reading"])
+    if "density" in readings:
+        body = [[label, *(cell(stats.get(("density", sea, label)), "x") for sea in seas)]
+                for label in labels if any(("density", sea, label) in stats for sea in seas)]
+        out["density-x"] = markdown_table(["filter (truth 'density')", *(f"sea {s}" for s in seas)], body)
+    return out
 
 
 def report(rows: list[dict], config: RovConfig | None = None) -> str:

@@ -483,6 +483,89 @@ def document(rows, config: TanConfig, prepared=None) -> dict:
     return doc
 
 
+# ------------------------------------------------------------------------------------- docs tables
+def _error_cell(entry, spec: str = ".0f") -> str:
+    """"k/n · mean ± sd" of one case's filter: runs lost, and the per-run time-mean error in m over every run."""
+    if not entry or "lost" not in entry:
+        return "-"
+    k, n = lost_count(entry)
+    return f"{k}/{n} · {entry['mean_error_m'].cell(spec)}"
+
+
+def markdown(rows, config: TanConfig, document: dict | None = None) -> dict[str, str]:
+    """The tables of docs/experiments/tan.md (`abyssal publish tan`, publish.py), from the rows (the tracks' terrain
+    from the JSON document when given, else computed from the maps)."""
+    from ..publish import markdown_table
+
+    s = summary(rows)
+    out = {}
+    # the tracks and their terrain (no filter)
+    terrain = (document or {}).get("tracks")
+    header = ["map", "track", "start, heading", "slope m/km", "drift vs contours deg", "weakest slope m/km",
+              "cell relief m", "flat share"]
+    body = []
+    for m in config.maps:
+        for t in config.tracks_of(m):
+            if terrain and t in terrain.get(m, {}):
+                by_current = terrain[m][t]["terrain"]
+                tt = by_current.get(MAIN_CURRENT) or next(iter(by_current.values()))
+            else:
+                tt = characterise(get_map(m, config.map_seed), TRACKS[m][t].start, CURRENTS[MAIN_CURRENT],
+                                  config.duration_s, config.speed, altimeter_sigma=config.altimeter_sigma).as_dict()
+            body.append([m, t, TRACKS[m][t].label(), f"{tt['slope_m_per_km']:.0f}", f"{tt['drift_contour_angle_deg']:.0f}",
+                         f"{tt['weakest_slope_m_per_km']:.1f}", f"{tt['cell_relief_m']:.1f}", f"{tt['flat_fraction']:.2f}"])
+    out["tracks"] = markdown_table(header, body, align="lllrrrrr")
+    # lost runs and errors per track and filter, per current
+    for current in config.currents:
+        names = config.filters(current)
+        header = ["map/track", *(DISPLAY.get(n, n) for n in names)]
+        body = [[f"{m}/{t}", *(_error_cell(s.get(case_name(m, t, current), {}).get(n)) for n in names)]
+                for m in config.maps for t in config.tracks_of(m) if case_name(m, t, current) in s]
+        out[f"lost-{current}"] = markdown_table(header, body)
+    # the statement at 0.1 m/s
+    if MAIN_CURRENT in config.currents:
+        body = []
+        for m, v in verdict(s, config).items():
+            good = "; ".join(f"{t}: sigma = {', '.join(f.removeprefix('sigma_') for f in fs)} m"
+                             for t, fs in v["tracking"].items()) or "no track"
+            body.append([m, good, ", ".join(v["none"]) or "-"])
+        out["verdict"] = markdown_table(["map", "tracks where a fixed sigma kept every run (the sigmas)",
+                                         "tracks where none did"], body, align="lll")
+        # consistency where a sigma kept every run: the filter's own spread and the truth outside its 99 % ellipse
+        body = []
+        for m in config.maps:
+            for t in config.tracks_of(m):
+                block = s.get(case_name(m, t, MAIN_CURRENT), {})
+                for n in [sigma_name(x) for x in config.sigmas] + list(config.fuzzy):
+                    e = block.get(n)
+                    if e and lost_count(e)[0] == 0:
+                        body.append([f"{m}/{t}", DISPLAY.get(n, n), e["mean_error_m"].cell(".0f"),
+                                     e["mean_std_m"].cell(".0f"), f"{e['outside_99'].mean:.2f}"])
+        out["kept-0.1"] = markdown_table(["map/track", "filter", "error m", "own spread m", "truth outside its 99 % "
+                                          "ellipse (share of steps)"], body, align="llrrr")
+    # the fuzzy inputs' saturation: per map, variant and current, over the tracks
+    body = []
+    for m in config.maps:
+        for variant in config.fuzzy:
+            for current in config.currents:
+                shares = {metric: [s[case_name(m, t, current)][variant][metric].mean for t in config.tracks_of(m)
+                                   if variant in s.get(case_name(m, t, current), {})
+                                   and metric in s[case_name(m, t, current)][variant]]
+                          for metric in ("gradient_clipped", "rate_clipped", "input_clipped")}
+                if shares["input_clipped"]:
+                    body.append([m, DISPLAY.get(variant, variant), f"{current} m/s", str(len(shares["input_clipped"])),
+                                 *(f"{np.median(v):.2f} ({min(v):.2f}-{max(v):.2f})" for v in shares.values())])
+    out["saturation"] = markdown_table(["map", "fuzzy variant", "current", "tracks", "gradient beyond ±20",
+                                        "gradient rate beyond ±20", "either"], body, align="lllrrrr")
+    step = [e["step_us"].median for block in s.values() for n, e in block.items() if n.startswith("sigma_") and "step_us" in e]
+    if step:
+        out["timing"] = markdown_table(["statistic", "value"], [
+            ["step time of the fixed-sigma filters, median over cases of the per-run median (this campaign's machine and "
+             "load)", f"{np.median(step):.1f} µs"], ["the paper: MATLAB, 2.6 GHz dual core (quoted)", f"{paper.PAPER_STEP_MS} ms"]],
+            align="lr")
+    return out
+
+
 # ------------------------------------------------------------------------------------- figures
 #: display names (the shared look: plots.filter_style with one ordered tuple in every tan figure)
 DISPLAY = {**{sigma_name(s): f"sigma = {s:g} m" for s in SIGMAS}, "fuzzy": "fuzzy",
