@@ -15,6 +15,7 @@ Your own vehicle, from equations to a verified filter:
     assert abyssal.verify(folder).ok                     # compiled C vs CasADi, Jacobians, steps, filters
     ckf = abyssal.CKF(vessel, x0, P0, Q, R)
     abyssal.export(folder, filter="ckf", out="myvessel_ckf")   # a C99 project of that filter for the vehicle
+    abyssal.replay("dive.mcap", folder, filter="ckf", sensors="map.toml", out="replayed", smooth=True)   # a recorded log
 """
 import importlib
 
@@ -24,6 +25,7 @@ from abyssal.generated.regenerate import generate
 from abyssal.runtime import CKF, EKF, MCUKF, UKF, FilterResult, HuberUKF
 from abyssal.runtime.filters.particle import CubatureParticleFilter, ParticleFilter
 from abyssal.runtime.noise import GaussianMixture
+from abyssal.runtime.replay import replay
 from abyssal.symbolic import Envelope, Model, Parameter, Quantity, Sensor, discretise, fossen, symbols
 
 # The package abyssal.verify is loaded before the function of the same name is defined below, so the
@@ -55,5 +57,5 @@ def verify(target, *, strict: bool = False):
 __all__ = [
     "CKF", "CubatureParticleFilter", "EKF", "Envelope", "FilterResult", "GaussianMixture", "HuberUKF", "MCUKF", "Model",
     "Parameter", "ParticleFilter", "Quantity", "Sensor", "UKF", "check_generated", "discretise", "export", "fossen", "generate", "load",
-    "symbols", "verify",
+    "replay", "symbols", "verify",
 ]

@@ -17,7 +17,7 @@ import time
 from pathlib import Path
 
 SECTIONS = ("bench_models", "bench_filters", "bench_particles", "bench_sir", "bench_soak", "bench_campaign", "bench_remus",
-            "bench_tan", "bench_cn")
+            "bench_tan", "bench_cn", "bench_scaling", "bench_sensors")
 
 
 def median_time(fn, repeat: int = 7, min_time: float = 0.05, clock=time.perf_counter) -> float:

@@ -2,24 +2,29 @@
 and from C, beside peers measured in the same run.
 
 Ours:   the EKF, UKF and CKF classes, ``step(u, dt, z)`` through a simulated trajectory (Python over the C runtime
-        of runtime/c: one call per step), and the same runtime called from a C loop (kalman_timing.c, linked with
-        the model's and the runtime's libraries from abyssal's compile cache: the code Python calls); the innovation gate's judgement
-        of one update alone (C); the bytes of each filter object.
+        of runtime/c: one call per step) and ``run(U, Z, dt)`` (one call for the whole trajectory), and the same
+        runtime called from a C loop (kalman_timing.c, linked with the model's and the runtime's libraries from
+        abyssal's compile cache: the code Python calls) per step and through abyssal_kalman_run; the innovation
+        gate's judgement of one update alone (C); the bytes of each filter object.
 Peers:  filterpy's UnscentedKalmanFilter with MerweScaledSigmaPoints(1, 0, 0) (the same CKF) on the independent
         NumPy model of rov4dof (verify/reference_models.py, written from the paper: a model as a user would write
-        it); the whole generated fused ``ckf_step`` / ``ekf_step`` in a C loop (kalman_timing.c), and bound from
-        Python without any checks (the core of the previous Python path, which added its checks and its NumPy gate).
-Times:  the minimum over repetitions of a whole trajectory (each from a fresh filter), in us per step, so that a
-        loaded machine's interruptions are left out as far as they can be; the ratios are what travels between
-        machines.
+        it).
+Floor:  instructions per CKF step of the C loop (valgrind --tool=callgrind, when valgrind is installed) beside the
+        model's own work: 2n evaluations of f through the SIMD kernel plus 2n evaluations of h, and the dense
+        algebra of the rule (the step's arithmetic with the model's functions counted by their generated
+        instruction counts).
+Times:  the minimum over repetitions of a whole trajectory (each from a fresh filter), in us per step, Python and C
+        alternating round by round, so that a loaded machine's interruptions are left out as far as they can be and
+        reach both sides alike; the ratios are what travels between machines.
 
-Targets: CKF step <= 2.5 us from C and <= 3 us from Python, and >= 300x faster than filterpy; EKF step <= 1 us from
-C and <= 1.2 us from Python; the gate <= 0.1 us.
+Targets (issue 34, ratios in one run): CKF.step from Python <= 1.15x the C runtime's step, EKF <= 1.25x; run() <= 1.05x
+the C step per row; the CKF >= 300x faster than filterpy.
 
     python benchmarks/bench_filters.py [--quick]     # this section alone, JSON on stdout
 """
 from __future__ import annotations
 
+import shutil
 import subprocess
 import tempfile
 import time
@@ -74,25 +79,59 @@ def best_per_step(make, step, steps: int, repeats: int) -> float:
     return best
 
 
-def c_runtime_times(bundle, U, Z, repeats: int) -> dict[str, float]:
-    """ns per step of the C runtime from a C loop, the gate's ns, and the filter objects' bytes (kalman_timing.c)."""
-    with tempfile.TemporaryDirectory(prefix="abyssal-bench-") as tmp:
-        tmp = Path(tmp)
-        data = tmp / "trajectory.txt"
-        with open(data, "w") as fh:
+class CTiming:
+    """The C timing driver (kalman_timing.c) built once against the model's and the runtime's libraries from
+    abyssal's compile cache (the code Python calls), run on a trajectory file; close() removes both."""
+
+    def __init__(self, bundle, U, Z):
+        self.tmp = tempfile.TemporaryDirectory(prefix="abyssal-bench-")
+        tmp = Path(self.tmp.name)
+        self.data = tmp / "trajectory.txt"
+        with open(self.data, "w") as fh:
             fh.write(f"{len(U)} {bundle.n_u} {bundle.n_y}\n")
             np.savetxt(fh, np.hstack([U, Z]), fmt="%.17g")
-        exe = tmp / "kalman_timing"
+        self.exe = tmp / "kalman_timing"
+        self.steps = len(U)
         library, runtime = Path(bundle.library), Path(kalman_runtime.KalmanRuntime.of(bundle).library)
-        cmd = [compiler(), *cflags(), f"-DDESCRIPTOR={bundle.name}_descriptor", f"-DCKF_STEP={bundle.name}_ckf_step",
-               f"-DEKF_STEP={bundle.name}_ekf_step", f"-I{C_DIR}", f"-I{MODEL_HEADER.parent}",
+        cmd = [compiler(), *cflags(), f"-DDESCRIPTOR={bundle.name}_descriptor", f"-I{C_DIR}", f"-I{MODEL_HEADER.parent}",
                str(HERE / "kalman_timing.c"), str(library), str(runtime), f"-Wl,-rpath,{library.parent}",
-               f"-Wl,-rpath,{runtime.parent}", "-o", str(exe), "-lm"]
+               f"-Wl,-rpath,{runtime.parent}", "-o", str(self.exe), "-lm"]
         res = subprocess.run(cmd, capture_output=True, text=True, check=False)
         if res.returncode != 0:
+            self.tmp.cleanup()
             raise BuildError(f"compiling the timing driver failed: {' '.join(cmd)}\n{res.stderr[-4000:]}")
-        out = subprocess.run([str(exe), str(data), str(repeats)], capture_output=True, text=True, check=True).stdout
-    return {label: float(value) for label, value in (line.split() for line in out.splitlines())}
+
+    def times(self, repeats: int) -> dict[str, float]:
+        """ns per step of each filter from a C loop and through abyssal_kalman_run, the gate's ns, the objects'
+        bytes: one run of the driver (the minimum over its `repeats`)."""
+        out = subprocess.run([str(self.exe), str(self.data), str(repeats)], capture_output=True, text=True, check=True,
+                             timeout=600).stdout
+        return {label: float(value) for label, value in (line.split() for line in out.splitlines())}
+
+    def instructions(self) -> dict[str, float] | None:
+        return _callgrind_instructions(self.exe, self.data, self.steps) if shutil.which("valgrind") else None
+
+    def close(self) -> None:
+        self.tmp.cleanup()
+
+
+def _callgrind_instructions(exe: Path, data: Path, steps: int) -> dict[str, float] | None:
+    """Instructions per step of each filter's C loop (one repetition under callgrind), by the loop's function."""
+    with tempfile.TemporaryDirectory(prefix="abyssal-callgrind-") as tmp:
+        outfile = Path(tmp) / "callgrind.out"
+        done = subprocess.run(["valgrind", "--tool=callgrind", f"--callgrind-out-file={outfile}", str(exe), str(data), "1"],
+                              capture_output=True, text=True, timeout=900)
+        if done.returncode != 0 or not outfile.exists():
+            return None
+        total = subprocess.run(["callgrind_annotate", "--inclusive=yes", str(outfile)], capture_output=True, text=True,
+                               timeout=300).stdout
+    # abyssal_kalman_step is called (steps - 1) times per filter and per repetition: 3 filters, 1 repetition, and the
+    # untimed first step of each; abyssal_kalman_run's rows call it too (another steps - 1)
+    for line in total.splitlines():
+        if "abyssal_kalman_step " in line or line.rstrip().endswith("abyssal_kalman_step"):
+            count = float(line.split()[0].replace(",", ""))
+            return {"all filters": count / (3 * 2 * (steps - 1) + 3)}
+    return None
 
 
 def filterpy_ckf(bundle, Q, R):
@@ -114,31 +153,37 @@ def filterpy_ckf(bundle, Q, R):
 def run(quick: bool = False, verbose: bool = True) -> dict:
     bundle = generated.load(MODEL)
     steps = 200 if quick else 400
-    repeats = 3 if quick else 15
+    rounds, repeats = (2, 2) if quick else (8, 3)
     x0, P0, Q, R, U, Z = trajectory(bundle, steps)
-    results: dict = {"model": MODEL, "steps": steps, "repeats": repeats, "per_step_us": {}, "from_c_us": {}}
+    results: dict = {"model": MODEL, "steps": steps, "rounds": rounds, "repeats": repeats, "per_step_us": {}, "from_c_us": {}}
     py, c = results["per_step_us"], results["from_c_us"]
 
-    for cls in (EKF, UKF, CKF):
-        py[cls.__name__] = 1e6 * best_per_step(lambda cls=cls: cls(bundle, x0, P0, Q, R),
-                                               lambda f, k: f.step(U[k], DT, Z[k]), steps, repeats)
-    timings = c_runtime_times(bundle, U, Z, repeats)
+    # Python and C alternate, round by round, and each keeps its minimum: a load that comes and goes during the run
+    # reaches both sides alike (a ratio of two minima measured minutes apart measures the load, not the code)
+    timing = CTiming(bundle, U, Z)
+    try:
+        timings: dict[str, float] = {}
+        for _ in range(rounds):
+            for cls in (EKF, UKF, CKF):
+                name = cls.__name__
+                us = 1e6 * best_per_step(lambda cls=cls: cls(bundle, x0, P0, Q, R),
+                                         lambda f, k: f.step(U[k], DT, Z[k]), steps, repeats)
+                py[name] = min(py.get(name, float("inf")), us)
+                us = 1e6 * best_run_per_row(lambda cls=cls: cls(bundle, x0, P0, Q, R), U, Z, repeats)
+                py[f"{name}.run per row"] = min(py.get(f"{name}.run per row", float("inf")), us)
+            for label, value in timing.times(repeats).items():
+                timings[label] = min(timings.get(label, float("inf")), value)
+        instructions = timing.instructions()
+    finally:
+        timing.close()
     for name in ("EKF", "UKF", "CKF"):
         c[name] = timings[name] / 1e3
+        c[f"{name} abyssal_kalman_run per row"] = timings[f"{name}_run"] / 1e3
     results["gate_us"] = timings["gate"] / 1e3
     results["filter_object_bytes"] = {name: int(timings[f"{name}_bytes"]) for name in ("EKF", "UKF", "CKF")}
-
-    # the previous path: the whole generated fused step, in C and bound from Python (no checks, no gate)
-    args = {"x": np.full(12, 0.3), "P": np.asfortranarray(0.1 * np.eye(12)), "u": U[1], "p": bundle.params(),
-            "dt": np.array([DT]), "Q": np.asfortranarray(Q), "z": Z[1], "R": np.asfortranarray(R), "mask": np.ones(4)}
-    for name in ("ckf_step", "ekf_step"):
-        c[f"generated {name} alone"] = timings[f"generated_{name}"] / 1e3
-        fn = bundle.functions[name]
-        outs = [np.zeros(s.shape, order="F") for s in fn.outputs]
-        ins = [args[s.name].copy(order="F") if args[s.name].ndim == 2 else args[s.name].copy() for s in fn.inputs]
-        evaluate = fn.bind(ins, outs).eval
-        py[f"generated {name} bound, no checks (previous path's core)"] = 1e6 * best_per_step(
-            lambda: None, lambda _, k: evaluate(), steps, repeats)
+    if instructions is not None:
+        results["instructions_per_step_callgrind"] = instructions
+    results["floor"] = floor(bundle)
 
     fp_steps = 20 if quick else 60
     try:
@@ -152,16 +197,18 @@ def run(quick: bool = False, verbose: bool = True) -> dict:
         py["filterpy UKF (cubature points), NumPy model"] = 1e6 * best_per_step(make, filterpy_step, fp_steps,
                                                                                  2 if quick else 5)
 
-    ratios = {"CKF from Python / from C": py["CKF"] / c["CKF"], "EKF from Python / from C": py["EKF"] / c["EKF"],
-              "generated ckf_step alone / CKF from C": c["generated ckf_step alone"] / c["CKF"],
-              "generated ekf_step alone / EKF from C": c["generated ekf_step alone"] / c["EKF"]}
+    ratios = {"CKF.step from Python / C step": py["CKF"] / c["CKF"], "EKF.step from Python / C step": py["EKF"] / c["EKF"],
+              "UKF.step from Python / C step": py["UKF"] / c["UKF"],
+              "CKF.run per row / C step": py["CKF.run per row"] / c["CKF"],
+              "EKF.run per row / C step": py["EKF.run per row"] / c["EKF"]}
     filterpy_us = py.get("filterpy UKF (cubature points), NumPy model")
     if filterpy_us is not None:
         ratios["filterpy / CKF"] = filterpy_us / py["CKF"]
     results["ratios"] = ratios
 
     if verbose:
-        print(f"per step (predict + update) on {MODEL}, minimum over {repeats} runs of {steps} steps:")
+        print(f"per step (predict + update) on {MODEL}, minimum over {rounds} alternating rounds of {repeats} runs of "
+              f"{steps} steps:")
         for name, us in py.items():
             print(f"  from Python  {name:<58} {us:9.3f} us")
         for name, us in c.items():
@@ -169,20 +216,48 @@ def run(quick: bool = False, verbose: bool = True) -> dict:
         print(f"  the gate's judgement of one update (C)                                   {results['gate_us']:9.3f} us")
         for name, b in results["filter_object_bytes"].items():
             print(f"  {name} filter object: {b} bytes")
+        for name, value in results["floor"].items():
+            print(f"  floor: {name:<58} {value:10.0f}")
+        if "instructions_per_step_callgrind" in results:
+            print(f"  instructions per step (callgrind, EKF/UKF/CKF averaged): {results['instructions_per_step_callgrind']}")
         for name, ratio in ratios.items():
-            print(f"  {name:<58} {ratio:10.1f} x")
+            print(f"  {name:<58} {ratio:10.2f} x")
 
     targets = [
-        target("CKF step from C (rov4dof)", c["CKF"], 2.5, "us"),
-        target("CKF step from Python (rov4dof)", py["CKF"], 3.0, "us"),
-        target("EKF step from C (rov4dof)", c["EKF"], 1.0, "us"),
-        target("EKF step from Python (rov4dof)", py["EKF"], 1.2, "us"),
-        target("innovation gate (one judgement, C)", results["gate_us"], 0.1, "us"),
+        target("CKF.step from Python / its C runtime step (rov4dof)", ratios["CKF.step from Python / C step"], 1.15, "x"),
+        target("EKF.step from Python / its C runtime step (rov4dof)", ratios["EKF.step from Python / C step"], 1.25, "x"),
+        target("CKF.run per row / the C runtime step (rov4dof)", ratios["CKF.run per row / C step"], 1.05, "x"),
     ]
     if "filterpy / CKF" in ratios:
         targets.append(target("CKF speed-up over filterpy", ratios["filterpy / CKF"], 300.0, "x", higher_is_better=True))
     return {"results": results, "targets": targets}
 
 
-if __name__ == "__main__":  # python benchmarks/bench_filters.py [--quick]: this section alone, as JSON
-    json_main(run, __doc__)
+def best_run_per_row(make, U, Z, repeats: int) -> float:
+    """Seconds per row of run(U, Z, DT) (the minimum over `repeats` fresh filters; row 0 run first, untimed, as
+    best_per_step leaves step 0 out)."""
+    best = float("inf")
+    for _ in range(repeats):
+        flt = make()
+        flt.step(U[0], DT, Z[0])
+        t0 = time.perf_counter()
+        flt.run(U[1:], Z[1:], DT)
+        best = min(best, (time.perf_counter() - t0) / (len(U) - 1))
+    return best
+
+
+def floor(bundle) -> dict[str, float]:
+    """The model's own work in one step, by the generated instruction counts (manifest): f over the 2n cubature
+    points, h over them, and the CKF's dense algebra (the Cholesky factor n^3/6, the moments 2n (n + n(n+1)/2), the
+    update's cross-covariance and gain ~ n m (2n + m), all as multiply-adds)."""
+    spec = bundle.manifest["functions"]
+    n, m = bundle.n_x, bundle.n_y
+    f, h = spec[f"{bundle.name}_f"]["instructions"], spec[f"{bundle.name}_h"]["instructions"]
+    points = 2 * n
+    algebra = 2 * n ** 3 / 6 + points * (n + n * (n + 1) / 2) + points * (m + m * (m + 1) / 2) + n * m * (2 * n + m) + n * n * m
+    return {"f over the points (generated instructions)": points * f, "h over the points": points * h,
+            "CKF algebra (multiply-adds)": algebra}
+
+
+if __name__ == "__main__":
+    json_main(run, __doc__.splitlines()[0])

@@ -1,30 +1,55 @@
-"""How generated code grows with the model: C bytes, seconds to generate, seconds to the
-first loaded bundle and µs per filter step, against the number of states n.
+"""Scaling section of `abyssal bench`: how the generated code and its first build grow with the model.
 
-    python benchmarks/bench_scaling.py                     # n = 6, 12, 18, 24, 30, 36, CKF family
-    python benchmarks/bench_scaling.py --quick             # n = 6, 12: a smoke run
-    python benchmarks/bench_scaling.py --families all      # every family (ekf, ukf, ckf, robust): EKF step too
-    python benchmarks/bench_scaling.py --bluerov2          # also examples/bluerov2 (12 states, 8 inputs)
-    python benchmarks/bench_scaling.py --timeout 600 --json scaling.json
+    python benchmarks/bench_scaling.py                  # chains n = 6, 12, 18, 24, 30, 36 and examples/bluerov2
+    python benchmarks/bench_scaling.py --quick          # n = 6, 12 only (a smoke run: no BlueROV2)
+    python benchmarks/bench_scaling.py --sizes 6,24 --no-bluerov2 --timeout 600 --json scaling.json
 
-The family of models: a chain of n/2 damped pendulums, neighbours coupled by torsion springs
-(free ends), a torque input and a torque-noise input per pendulum, the angles measured, RK4 with
-2 substeps. Every generated function of it is dense in the state (the springs couple every
-pendulum to every other through the RK4 stages), as a real vehicle's are.
+Generate the model, write the filters once: a model folder holds only the model's own functions (f with its RK4
+substeps, the variational Jacobian F, G, each sensor's h and H, the SoA kernels and the descriptor); every Kalman
+filter's algebra is the C runtime of runtime/c, compiled once per machine. So the generated C should grow with the
+model's own work, not with a filter's (the former fused and per-family filter steps grew as ~n^2.2).
 
-Each model runs in a child process of its own, with a fresh empty compile cache (ABYSSAL_CACHE_DIR
-in a temporary folder), so "build" is a first build on this machine: generate (abyssal.generate
-into a temporary folder), then abyssal.load of that folder (the compiler and the smoke test), then
-per step: the runtime's CKF.step (and EKF.step when the "ekf" family is generated) over a
-simulated run, and the generated ckf_step (ekf_step) alone through the bundle's fast path
-(``bundle.function("ckf_step").bind(...)``, the same number of calls on fixed buffers); medians
-over rounds that alternate between them, so a machine that gets busier slows all alike. A child that
-exceeds --timeout seconds (generate, build and the timed steps together) is killed with its
-compiler processes and its row says where it stopped ("did not build in S s"); what it measured
-before stays.
+The family of models: a chain of n/2 damped pendulums, neighbours coupled by torsion springs (free ends), a torque
+input and a torque-noise input per pendulum, the angles measured, RK4 with 2 substeps. Every generated function of
+it is dense in the state (the springs couple every pendulum to every other through the RK4 stages), as a real
+vehicle's are. Beside it (not fitted), a user's 12-state model: examples/bluerov2/bluerov2.py (8 inputs), loaded as
+`abyssal regenerate --model FILE.py:FUNCTION` does (generated.regenerate.load_model_spec).
 
-The growth exponent is the slope of a least-squares line through log(value) against log(n) over
-the chain sizes that finished (the BlueROV2 row is reported beside them, not fitted).
+Each model runs in a child process of its own with a fresh, empty compile cache (ABYSSAL_CACHE_DIR in a temporary
+folder), so everything is a first build on this machine, as a user's first run is:
+
+* generate: abyssal.generate into a temporary folder; wall seconds and CPU seconds (the process's own and any
+  children's); the bytes of each generated .c file and their total; the model's own op count, the manifest's
+  per-function "instructions" of f and F (CasADi's count of the SX operations each evaluation runs);
+* build: abyssal.load of that folder (gcc on the model's files, the smoke test): wall seconds, and gcc's CPU
+  seconds as the child's resource.getrusage(RUSAGE_CHILDREN) user + system delta around the call (the compilers
+  run as the child's children and are waited for, so their whole CPU time lands there, whatever the load);
+* the Kalman runtime's own one-time compile, which a cold cache pays once per machine too
+  (abyssal.runtime.compiled.kalman.KalmanRuntime.of(bundle)): measured the same way, separately;
+* per step: EKF.step and CKF.step from Python over a simulated 300-step run (each pass from the same x0, P0 after
+  reset), rounds alternating EKF / CKF, the minimum per filter of the process CPU time per step (and of the wall
+  time, reported beside it): a load that comes and goes reaches both alike, and a minimum leaves it out.
+
+A child that exceeds --timeout seconds (generate, build and the timed steps together) is killed with its compiler
+processes (its own process group) and its row says where it stopped ("did not build in S s"); what it measured
+before stays. Every row records the 1/5/15-minute load averages before and after and the CPU model.
+
+Growth exponents: the slope of a least-squares line through log(value) against log(n) over the chain sizes that
+finished (``growth``), for the generated C bytes, the model's gcc CPU (the runtime's compile is a constant and is
+left out of the fit) and the f + F op count.
+
+Targets (issue 34, deliverable 4):
+* the generated C of the chain grows no faster than the model's own f + F op count: C-bytes exponent <= op-count
+  exponent + 0.1 (the tolerance: two fits over six points of the same family differ by a few hundredths from the
+  constant files alone -- the descriptor and the SoA kernels' fixed parts);
+* n = 36: C <= 2 MB, and <= 30 s of gcc CPU for a cold cache (the model's build plus the Kalman runtime's);
+* rov4dof's generated folder <= 40 % of its size at commit 708d1a3 (the last commit with the generated filter
+  families; the sum of `git ls-tree -r -l 708d1a3 generated/rov4dof` against the files of generated/rov4dof now;
+  skipped with a note when git or that commit is not available);
+* a 12-state user model (BlueROV2) from generate to loaded <= 15 s of CPU with a cold cache: generate CPU + all
+  gcc CPU of the build and of the runtime's compile (the child's own CPU during load is reported beside it); built
+  twice, each in its own child with an empty cache, and the smaller taken (gcc's CPU time on this shared machine
+  varies by ~20 % from one build to the next).
 """
 from __future__ import annotations
 
@@ -32,6 +57,7 @@ import argparse
 import json
 import math
 import os
+import resource
 import signal
 import subprocess
 import sys
@@ -39,12 +65,17 @@ import tempfile
 import time
 from pathlib import Path
 
+from bench import target
+
 HERE = Path(__file__).resolve().parent
-BLUEROV2 = HERE.parent / "examples" / "bluerov2" / "bluerov2.py"
+REPO = HERE.parent
+BLUEROV2 = REPO / "examples" / "bluerov2" / "bluerov2.py"
 SIZES, QUICK_SIZES = (6, 12, 18, 24, 30, 36), (6, 12)
-ALL_FAMILIES = ("ekf", "ukf", "ckf", "robust")
 DT = 0.1
 SUBSTEPS = 2
+BASELINE_COMMIT = "708d1a3"  # the last commit with the generated filter families (ekf, sigma_points, fused steps)
+GROWTH_TOLERANCE = 0.1
+BUILDS = 2  # cold builds of BlueROV2 (each in its own child with its own empty cache)
 
 
 # --------------------------------------------------------------------------- the model family
@@ -85,126 +116,121 @@ def pendulum_chain(n: int):
                  discretisation="rk4", substeps=SUBSTEPS)
 
 
+# --------------------------------------------------------------------------- the machine
+def machine() -> dict:
+    """The CPU model and the 1/5/15-minute load averages now (the machine is shared: every number is read beside
+    them)."""
+    cpu, info = None, {}
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            key, _, value = line.partition(":")
+            info.setdefault(key.strip(), value.strip())
+    except OSError:
+        pass
+    if "model name" in info:  # a KVM guest may say only "AMD EPYC": the family and model tell Zen 2 from Zen 4
+        simd = next((s for s in ("avx512f", "avx2") if s in info.get("flags", "").split()), "no avx2")
+        cpu = f"{info['model name']} (family {info.get('cpu family')}, model {info.get('model')}, {simd})"
+    import platform
+
+    return {"cpu": cpu or platform.processor() or platform.machine(), "cores": os.cpu_count(),
+            "load_average": [round(v, 2) for v in os.getloadavg()] if hasattr(os, "getloadavg") else None}
+
+
 # --------------------------------------------------------------------------- one model, in a child
-def _families(text: str) -> tuple[str, ...]:
-    return ALL_FAMILIES if text == "all" else tuple(f for f in text.split(",") if f)
-
-
 def _progress(path: Path, **record) -> None:
     with open(path, "a") as out:
         out.write(json.dumps(record) + "\n")
 
 
-def _noise(bundle):
-    """Q (additive on the discrete state) and R of the simulated run: torque or force noise through G."""
+def _children_cpu() -> float:
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+
+
+def _self_cpu() -> float:
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+
+
+def _trajectory(bundle, steps: int, rng):
+    """x0, P0, Q, R, U (steps, n_u), Z (steps, n_y) of a simulated run on the compiled model (Q: the noise inputs
+    through G, additive on the discrete state)."""
     import numpy as np
 
     n, m = bundle.n_x, bundle.n_y
     G = bundle.G(np.zeros(n), np.zeros(bundle.n_u), None, DT)
     Q = G @ G.T * 0.05 + 1e-8 * np.eye(n)
     R = np.eye(m) * 1e-4
-    return Q, R
-
-
-def _trajectory(bundle, steps: int, rng):
-    """x0, P0, Q, R, U (steps, n_u), Z (steps, n_y) of a simulated run on the compiled model."""
-    import numpy as np
-
-    n = bundle.n_x
-    Q, R = _noise(bundle)
     t = DT * np.arange(steps)
     phase = np.linspace(0.0, np.pi, bundle.n_u)
     U = 0.5 * np.sin(0.3 * t[:, None] + phase[None, :]) + 0.1 * rng.standard_normal((steps, bundle.n_u))
     x = 0.05 * rng.standard_normal(n)
     x0 = x.copy()
-    Z = np.empty((steps, bundle.n_y))
+    Z = np.empty((steps, m))
     for k in range(steps):
         x = bundle.f(x, U[k], None, DT) + rng.multivariate_normal(np.zeros(n), Q)
-        Z[k] = bundle.h(x) + rng.multivariate_normal(np.zeros(bundle.n_y), R)
+        Z[k] = bundle.h(x) + rng.multivariate_normal(np.zeros(m), R)
     return x0, 0.01 * np.eye(n), Q, R, U, Z
 
 
-def _pass_us(flt, U, Z, x0, P0) -> float:
-    """Mean µs per flt.step over one pass of the run (from x0, P0)."""
+def _pass(flt, U, Z, x0, P0) -> tuple[float, float]:
+    """(CPU, wall) seconds per flt.step over one pass of the run (from x0, P0)."""
     flt.reset(x0, P0)
-    t0 = time.perf_counter()
+    c0, t0 = time.process_time(), time.perf_counter()
     for k in range(len(U)):
         flt.step(U[k], DT, Z[k])
-    return 1e6 * (time.perf_counter() - t0) / len(U)
+    return (time.process_time() - c0) / len(U), (time.perf_counter() - t0) / len(U)
 
 
-def _bound_call(bundle, name: str, x0, P0, Q, R, u, z):
-    """The generated `name` (ckf_step / ekf_step) bound to fixed buffers through the fast path: a no-argument call."""
-    import numpy as np
-
-    fn = bundle.function(name)
-    values = {"x": x0, "P": P0, "u": u, "p": bundle.p_default, "dt": np.array([DT]), "Q": Q, "z": z, "R": R,
-              "mask": np.ones(bundle.n_y)}
-    inputs = [np.asfortranarray(np.array(values[s.name], dtype=np.float64).reshape(s.shape, order="F"))
-              for s in fn.inputs]
-    outputs = [np.zeros(s.shape, order="F") for s in fn.outputs]
-    return fn.bind(inputs, outputs).eval
-
-
-def _calls_us(call, calls: int) -> float:
-    t0 = time.perf_counter()
-    for _ in range(calls):
-        call()
-    return 1e6 * (time.perf_counter() - t0) / calls
-
-
-def _median(samples) -> float:
-    samples = sorted(samples)
-    return samples[len(samples) // 2]
-
-
-def child(spec: str, families: tuple[str, ...], folder: Path, progress: Path, steps: int, repeat: int) -> None:
+def child(spec: str, folder: Path, progress: Path, steps: int, rounds: int) -> None:
     """Generate, load and time one model, appending one JSON line per finished phase to `progress`."""
     import numpy as np
 
     import abyssal
     from abyssal.generated.regenerate import load_model_spec
+    from abyssal.runtime.compiled.kalman import KalmanRuntime
 
-    t0 = time.perf_counter()
+    cpu0, kids0, t0 = _self_cpu(), _children_cpu(), time.perf_counter()
     model = pendulum_chain(int(spec.removeprefix("chain:"))) if spec.startswith("chain:") else load_model_spec(spec)[0]
-    out = abyssal.generate(model, folder, families)
+    out = abyssal.generate(model, folder)
     generate_s = time.perf_counter() - t0
+    generate_cpu = (_self_cpu() - cpu0) + (_children_cpu() - kids0)
     manifest = json.loads((out / "manifest.json").read_text())
-    files = {p.name: p.stat().st_size for p in sorted(out.glob("*.c"))}
+    files = {p.name: p.stat().st_size for p in sorted(out.iterdir()) if p.is_file()}
+    c_files = {name: size for name, size in files.items() if name.endswith(".c")}
     instructions = {name.removeprefix(model.name + "_"): spec_.get("instructions")
                     for name, spec_ in manifest["functions"].items()}
     _progress(progress, phase="generated", model=model.name, n_x=model.n_x, n_u=model.n_u, n_p=model.n_p,
-              n_y=model.n_y, generate_s=generate_s, files=files, c_bytes=sum(files.values()), instructions=instructions)
+              n_y=model.n_y, generate_s=generate_s, generate_cpu_s=generate_cpu, files=files,
+              c_bytes=sum(c_files.values()), folder_bytes=sum(files.values()), instructions=instructions,
+              ops_f_F=(instructions.get("f") or 0) + (instructions.get("F") or 0))
 
-    t0 = time.perf_counter()
+    cpu0, kids0, t0 = _self_cpu(), _children_cpu(), time.perf_counter()
     bundle = abyssal.load(out)
-    _progress(progress, phase="loaded", load_s=time.perf_counter() - t0)
+    _progress(progress, phase="loaded", load_s=time.perf_counter() - t0, gcc_cpu_s=_children_cpu() - kids0,
+              load_self_cpu_s=_self_cpu() - cpu0)
 
-    rng = np.random.default_rng(0)
-    x0, P0, Q, R, U, Z = _trajectory(bundle, steps, rng)
-    # what is timed: the runtime's step() over the run, and the bare generated call on fixed buffers;
-    # rounds alternate between them so a machine that gets busier mid-way slows both alike
-    timed = {}
-    for label, cls, fused in (("CKF.step", abyssal.CKF, "ckf_step"), ("EKF.step", abyssal.EKF, "ekf_step")):
-        if fused.removesuffix("_step") + "_predict" not in bundle.functions:
-            continue
-        flt = cls(bundle, x0, P0, Q, R)
-        timed[label] = lambda flt=flt: _pass_us(flt, U, Z, x0, P0)
-        if fused in bundle.functions:
-            call = _bound_call(bundle, fused, x0, P0, Q, R, U[0], Z[0])
-            timed[f"{fused} bound"] = lambda call=call: _calls_us(call, len(U))
-    samples = {label: [] for label in timed}
-    for round_ in range(repeat + 1):  # round 0 warms caches (a step's code can be megabytes) and is dropped
-        for label, measure_once in timed.items():
-            value = measure_once()
+    cpu0, kids0, t0 = _self_cpu(), _children_cpu(), time.perf_counter()
+    KalmanRuntime.of(bundle)
+    _progress(progress, phase="runtime", runtime_s=time.perf_counter() - t0, runtime_gcc_cpu_s=_children_cpu() - kids0,
+              runtime_self_cpu_s=_self_cpu() - cpu0)
+
+    x0, P0, Q, R, U, Z = _trajectory(bundle, steps, np.random.default_rng(0))
+    filters = {"EKF.step": abyssal.EKF(bundle, x0, P0, Q, R), "CKF.step": abyssal.CKF(bundle, x0, P0, Q, R)}
+    cpu = {label: math.inf for label in filters}
+    wall = dict(cpu)
+    for round_ in range(rounds + 1):  # round 0 warms the caches and is dropped; the order alternates per round
+        order = list(filters) if round_ % 2 else list(filters)[::-1]
+        for label in order:
+            c, w = _pass(filters[label], U, Z, x0, P0)
             if round_:
-                samples[label].append(value)
-    step_us = {label: _median(values) for label, values in samples.items()}
-    _progress(progress, phase="timed", steps=steps, step_us=step_us)
+                cpu[label], wall[label] = min(cpu[label], c), min(wall[label], w)
+    _progress(progress, phase="timed", steps=steps, rounds=rounds, step_cpu_us={k: 1e6 * v for k, v in cpu.items()},
+              step_wall_us={k: 1e6 * v for k, v in wall.items()})
 
 
 # --------------------------------------------------------------------------- the parent
-def measure(label: str, spec: str, families, timeout: float, steps: int, repeat: int, verbose: bool) -> dict:
+def measure(label: str, spec: str, timeout: float, steps: int, rounds: int, verbose: bool) -> dict:
     """Run the child for one model under a deadline; the row of what it measured."""
     with tempfile.TemporaryDirectory(prefix="abyssal-scaling-") as tmp:
         tmp = Path(tmp)
@@ -212,10 +238,9 @@ def measure(label: str, spec: str, families, timeout: float, steps: int, repeat:
         progress = tmp / "progress.jsonl"
         env = dict(os.environ, ABYSSAL_CACHE_DIR=str(tmp / "cache"),
                    ABYSSAL_BUILD_TIMEOUT=str(timeout + 60))  # the deadline below governs, not the cache's
-        command = [sys.executable, str(Path(__file__).resolve()), "--child", spec, "--families", ",".join(families),
-                   "--folder", str(tmp / "gen"), "--progress", str(progress), "--steps", str(steps),
-                   "--repeat", str(repeat)]
-        load_before = os.getloadavg()[0]
+        command = [sys.executable, str(Path(__file__).resolve()), "--child", spec, "--folder", str(tmp / "gen"),
+                   "--progress", str(progress), "--steps", str(steps), "--rounds", str(rounds)]
+        before = machine()
         t0 = time.perf_counter()
         proc = subprocess.Popen(command, env=env, cwd=tmp, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                 text=True, start_new_session=True)  # own process group: the compilers die with it
@@ -233,8 +258,9 @@ def measure(label: str, spec: str, families, timeout: float, steps: int, repeat:
                 output, _ = proc.communicate()
             status = None
         wall = time.perf_counter() - t0
-        row = {"label": label, "spec": spec, "families": list(families), "wall_s": wall,
-               "load_average": [load_before, os.getloadavg()[0]]}  # 1-min load before / after: was the machine idle?
+        after = machine()
+        row = {"label": label, "spec": spec, "wall_s": wall, "cpu": before["cpu"],
+               "load_average": {"before": before["load_average"], "after": after["load_average"]}}
         if spec.startswith("chain:"):
             row["n_x"] = int(spec.removeprefix("chain:"))  # known before the child reports it
         phases = [json.loads(line) for line in progress.read_text().splitlines()] if progress.exists() else []
@@ -242,83 +268,145 @@ def measure(label: str, spec: str, families, timeout: float, steps: int, repeat:
             row.update({k: v for k, v in record.items() if k != "phase"})
         done = [r["phase"] for r in phases]
         if status is None:
-            where = "generate" if "generated" not in done else "build" if "loaded" not in done else "time the steps"
+            where = ("generate" if "generated" not in done else "build" if "loaded" not in done
+                     else "compile the runtime" if "runtime" not in done else "time the steps")
             status = f"did not {where} in {timeout:g} s"
         row["status"] = status
+        if "runtime_gcc_cpu_s" in row:
+            row["cold_gcc_cpu_s"] = row["gcc_cpu_s"] + row["runtime_gcc_cpu_s"]
+            # the brief's measure: generate CPU + every gcc CPU second a cold cache pays
+            row["cold_cpu_s"] = row["generate_cpu_s"] + row["cold_gcc_cpu_s"]
+            row["cold_cpu_with_python_s"] = row["cold_cpu_s"] + row["load_self_cpu_s"] + row["runtime_self_cpu_s"]
         if status.startswith("failed"):
             row["output_tail"] = output[-2000:]
         if verbose:
             tail = f"\n{output[-2000:]}" if status.startswith("failed") else ""
-            print(f"  {label}: {status} ({wall:.1f} s, load average {load_before:.1f} -> {row['load_average'][1]:.1f})"
-                  + tail, flush=True)
+            print(f"  {label}: {status} ({wall:.1f} s, load average {before['load_average']} -> "
+                  f"{after['load_average']})" + tail, flush=True)
         return row
 
 
-def growth(rows: list[dict], key) -> float | None:
-    """Least-squares slope of log(value) against log(n) over the rows that have the value."""
-    points = [(r["n_x"], key(r)) for r in rows if r.get("n_x") and key(r)]
-    if len(points) < 2:
+def growth(points) -> float | None:
+    """Least-squares slope of log(value) against log(n) over (n, value) pairs with a positive value (None with
+    fewer than two distinct n): value ~ n^slope."""
+    points = [(n, v) for n, v in points if n and v is not None and v > 0]
+    if len({n for n, _ in points}) < 2:
         return None
     xs = [math.log(n) for n, _ in points]
     ys = [math.log(v) for _, v in points]
     mx, my = sum(xs) / len(xs), sum(ys) / len(ys)
     sxx = sum((x - mx) ** 2 for x in xs)
-    return sum((x - mx) * (y - my) for x, y in zip(xs, ys)) / sxx if sxx else None
+    return sum((x - mx) * (y - my) for x, y in zip(xs, ys)) / sxx
 
 
-COLUMNS = (  # header, value of a row, format
-    ("C bytes", lambda r: r.get("c_bytes"), lambda v: f"{v / 1e6:.2f} MB"),
-    ("generate s", lambda r: r.get("generate_s"), lambda v: f"{v:.1f}"),
-    ("build + load s", lambda r: r.get("load_s"), lambda v: f"{v:.1f}"),
-    ("CKF.step µs", lambda r: r.get("step_us", {}).get("CKF.step"), lambda v: f"{v:.1f}"),
-    ("ckf_step bound µs", lambda r: r.get("step_us", {}).get("ckf_step bound"), lambda v: f"{v:.2f}"),
-    ("EKF.step µs", lambda r: r.get("step_us", {}).get("EKF.step"), lambda v: f"{v:.1f}"),
-    ("ekf_step bound µs", lambda r: r.get("step_us", {}).get("ekf_step bound"), lambda v: f"{v:.2f}"),
+COLUMNS = (  # key, header, value of a row, format; the fitted ones are FITTED
+    ("c_bytes", "C", lambda r: r.get("c_bytes"), lambda v: f"{v / 1e3:.0f} kB"),
+    ("ops_f_F", "f+F ops", lambda r: r.get("ops_f_F"), lambda v: f"{v:.0f}"),
+    ("generate_cpu_s", "generate CPU s", lambda r: r.get("generate_cpu_s"), lambda v: f"{v:.2f}"),
+    ("gcc_cpu_s", "gcc CPU s (model)", lambda r: r.get("gcc_cpu_s"), lambda v: f"{v:.2f}"),
+    ("runtime_gcc_cpu_s", "gcc CPU s (runtime)", lambda r: r.get("runtime_gcc_cpu_s"), lambda v: f"{v:.2f}"),
+    ("load_s", "load wall s", lambda r: r.get("load_s"), lambda v: f"{v:.2f}"),
+    ("cold_cpu_s", "cold CPU s", lambda r: r.get("cold_cpu_s"), lambda v: f"{v:.2f}"),
+    ("ekf_us", "EKF.step µs", lambda r: r.get("step_cpu_us", {}).get("EKF.step"), lambda v: f"{v:.2f}"),
+    ("ckf_us", "CKF.step µs", lambda r: r.get("step_cpu_us", {}).get("CKF.step"), lambda v: f"{v:.2f}"),
 )
+FITTED = ("c_bytes", "ops_f_F", "gcc_cpu_s", "generate_cpu_s", "ekf_us", "ckf_us")
 
 
-def table(rows: list[dict], fitted: list[dict]) -> str:
-    lines = ["| model | n | " + " | ".join(h for h, _, _ in COLUMNS) + " | status |",
+def exponents(chain: list[dict]) -> dict:
+    return {key: growth([(r["n_x"], value(r)) for r in chain]) for key, _, value, _ in COLUMNS if key in FITTED}
+
+
+def table(rows: list[dict], fitted: dict) -> str:
+    lines = ["| model | n | " + " | ".join(h for _, h, _, _ in COLUMNS) + " | status, load before/after |",
              "|---|---|" + "---|" * len(COLUMNS) + "---|"]
     for r in rows:
-        cells = [fmt(key(r)) if key(r) is not None else "–" for _, key, fmt in COLUMNS]
-        load = "load {:.1f} / {:.1f}".format(*r["load_average"])
+        cells = [fmt(value(r)) if value(r) is not None else "–" for _, _, value, fmt in COLUMNS]
+        load = "{} / {}".format(*(",".join(f"{v:.1f}" for v in r["load_average"][k] or []) for k in ("before", "after")))
         lines.append(f"| {r.get('model', r['label'])} | {r.get('n_x', '?')} | " + " | ".join(cells)
                      + f" | {r['status']} ({load}) |")
-    exponents = [growth(fitted, key) for _, key, _ in COLUMNS]
-    lines.append("| growth exponent (chain) | | " + " | ".join("–" if e is None else f"n^{e:.2f}" for e in exponents)
-                 + " | |")
+    cells = ["–" if fitted.get(key) is None else f"n^{fitted[key]:.2f}" for key, _, _, _ in COLUMNS]
+    lines.append("| growth exponent (chain) | | " + " | ".join(cells) + " | |")
     return "\n".join(lines)
 
 
 def file_table(rows: list[dict]) -> str:
     """Bytes per generated file (by its suffix after the model name), one column per model."""
-    measured = [r for r in rows if r.get("files")]
+    measured = list({r["model"]: r for r in rows[::-1] if r.get("files")}.values())[::-1]  # one column per model
     if not measured:
         return ""
-    suffix = {}
+    suffix: dict = {}
     for r in measured:
         for fname, size in r["files"].items():
             suffix.setdefault(fname.removeprefix(r["model"] + "_"), {})[r["model"]] = size
     lines = ["| file | " + " | ".join(r["model"] for r in measured) + " |", "|---|" + "---|" * len(measured)]
     for name in sorted(suffix):
         sizes = suffix[name]
-        lines.append(f"| {name} | " + " | ".join(f"{sizes[r['model']] / 1e3:.0f} kB" if r["model"] in sizes else "–"
+        lines.append(f"| {name} | " + " | ".join(f"{sizes[r['model']] / 1e3:.1f} kB" if r["model"] in sizes else "–"
                                                   for r in measured) + " |")
     return "\n".join(lines)
 
 
-def run(sizes, families, timeout: float, bluerov2: bool, quick: bool, verbose: bool = True) -> dict:
-    steps, repeat = (100, 3) if quick else (300, 7)
-    rows = []
-    for n in sizes:
-        rows.append(measure(f"chain{n}", f"chain:{n}", families, timeout, steps, repeat, verbose))
-    if bluerov2:
-        rows.append(measure("bluerov2", f"{BLUEROV2}:bluerov2", families, timeout, steps, repeat, verbose))
+def rov4dof_folder(commit: str = BASELINE_COMMIT) -> dict:
+    """Bytes of generated/rov4dof now (its files) and at `commit` (git ls-tree), or a note saying why not."""
+    folder = REPO / "generated" / "rov4dof"
+    now = sum(p.stat().st_size for p in folder.iterdir() if p.is_file())
+    try:
+        listing = subprocess.run(["git", "-C", str(REPO), "ls-tree", "-r", "-l", commit, "generated/rov4dof"],
+                                 capture_output=True, text=True, timeout=60)
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        return {"now_bytes": now, "note": f"skipped: git is not available ({exc})"}
+    if listing.returncode != 0 or not listing.stdout.strip():
+        return {"now_bytes": now, "note": f"skipped: commit {commit} is not in this checkout "
+                                          f"({listing.stderr.strip() or 'no generated/rov4dof there'})"}
+    before = sum(int(line.split()[3]) for line in listing.stdout.splitlines() if line.split()[3].isdigit())
+    return {"now_bytes": now, "commit": commit, "commit_bytes": before, "ratio": now / before}
+
+
+def run(quick: bool = False, verbose: bool = True, sizes=None, bluerov2: bool | None = None,
+        timeout: float = 300.0) -> dict:
+    """The section: every chain size (QUICK_SIZES when quick) and BlueROV2 (unless bluerov2=False), each in its
+    own child with a fresh compile cache; {"results", "targets"}."""
+    sizes = (QUICK_SIZES if quick else SIZES) if sizes is None else tuple(sizes)
+    bluerov2 = not quick if bluerov2 is None else bluerov2  # ~15 s of CPU: not a smoke run's
+    steps, rounds = (100, 3) if quick else (300, 9)
+    say = print if verbose else (lambda *a, **k: None)
+    say(f"scaling: fresh compile cache per model, timeout {timeout:g} s per model, {machine()}", flush=True)
+    rows = [measure(f"chain{n}", f"chain:{n}", timeout, steps, rounds, verbose) for n in sizes]
+    if bluerov2:  # twice: the target is the smaller (gcc's CPU time on a shared machine varies by ~20 % run to run)
+        rows += [measure("bluerov2", f"{BLUEROV2}:bluerov2", timeout, steps, rounds, verbose) for _ in range(BUILDS)]
     chain = [r for r in rows if r["spec"].startswith("chain:")]
-    exponents = {header: growth(chain, key) for header, key, _ in COLUMNS}
-    return {"families": list(families), "timeout_s": timeout, "steps": steps, "repeat": repeat,
-            "rows": rows, "growth_exponents": exponents}
+    fitted = exponents(chain)
+    folder = rov4dof_folder()
+    results = {"machine": machine(), "timeout_s": timeout, "steps": steps, "rounds": rounds, "rows": rows,
+               "growth_exponents": fitted, "rov4dof_folder": folder}
+    say(table(rows, fitted))
+    say(file_table(rows))
+    if "ratio" in folder:
+        say(f"rov4dof folder: {folder['now_bytes']} B now, {folder['commit_bytes']} B at {folder['commit']}: "
+            f"{100 * folder['ratio']:.1f} %")
+    else:
+        say(f"rov4dof folder: {folder['note']}")
+
+    targets = []
+    c_exp, ops_exp = fitted.get("c_bytes"), fitted.get("ops_f_F")
+    if c_exp is not None and ops_exp is not None:
+        span = f"n = {min(r['n_x'] for r in chain)}..{max(r['n_x'] for r in chain)}"
+        targets.append(target(f"chain ({span}): growth exponent of the generated C <= f+F op-count exponent "
+                              f"(n^{ops_exp:.2f}) + {GROWTH_TOLERANCE}", c_exp, ops_exp + GROWTH_TOLERANCE, ""))
+    big = next((r for r in chain if r.get("n_x") == 36), None)
+    if big is not None:
+        targets.append(target("chain36: generated C", big.get("c_bytes", math.inf) / 1e6, 2.0, "MB"))
+        targets.append(target("chain36: gcc CPU of a cold cache (model + Kalman runtime)",
+                              big.get("cold_gcc_cpu_s", math.inf), 30.0, "s"))
+    if "ratio" in folder:
+        targets.append(target(f"rov4dof generated folder / its size at {folder['commit']}", 100 * folder["ratio"],
+                              40.0, "%"))
+    blue = [r.get("cold_cpu_s", math.inf) for r in rows if r["label"] == "bluerov2"]
+    if blue:
+        targets.append(target(f"BlueROV2 (12 states), generate to loaded with a cold cache: generate + gcc CPU "
+                              f"(model + runtime), the smaller of {len(blue)}", min(blue), 15.0, "s CPU"))
+    return {"results": results, "targets": targets}
 
 
 def main(argv=None) -> int:
@@ -326,9 +414,10 @@ def main(argv=None) -> int:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="n = 6, 12 only, fewer timed steps")
     parser.add_argument("--sizes", help="comma-separated state counts (even), instead of 6..36 ('' for none)")
-    parser.add_argument("--families", default="ckf", help="filter families to generate: ckf (default: the CKF "
-                        "alone), a comma list (ekf,ckf), or all")
-    parser.add_argument("--bluerov2", action="store_true", help="also measure examples/bluerov2/bluerov2.py")
+    parser.add_argument("--bluerov2", dest="bluerov2", action="store_true", default=None,
+                        help="measure examples/bluerov2/bluerov2.py (the default unless --quick)")
+    parser.add_argument("--no-bluerov2", dest="bluerov2", action="store_false",
+                        help="leave out examples/bluerov2/bluerov2.py")
     parser.add_argument("--timeout", type=float, default=300.0,
                         help="seconds per model: generate, build and timing (default 300)")
     parser.add_argument("--json", metavar="FILE", help="write the results as JSON")
@@ -336,27 +425,18 @@ def main(argv=None) -> int:
     parser.add_argument("--folder", help=argparse.SUPPRESS)
     parser.add_argument("--progress", help=argparse.SUPPRESS)
     parser.add_argument("--steps", type=int, default=300, help=argparse.SUPPRESS)
-    parser.add_argument("--repeat", type=int, default=7, help=argparse.SUPPRESS)
+    parser.add_argument("--rounds", type=int, default=9, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
-    families = _families(args.families)
     if args.child:
         signal.signal(signal.SIGTERM, lambda *_: sys.exit(128 + signal.SIGTERM))  # unwind: compilers are stopped
-        child(args.child, families, Path(args.folder), Path(args.progress), args.steps, args.repeat)
+        child(args.child, Path(args.folder), Path(args.progress), args.steps, args.rounds)
         return 0
-    if args.sizes is not None:
-        sizes = tuple(int(s) for s in args.sizes.split(",") if s.strip())
-    else:
-        sizes = QUICK_SIZES if args.quick else SIZES
-    print(f"families {','.join(families)}, timeout {args.timeout:g} s per model, fresh compile cache per model",
-          flush=True)
-    report = run(sizes, families, args.timeout, args.bluerov2, args.quick)
-    rows = report["rows"]
-    print()
-    print(table(rows, [r for r in rows if r["spec"].startswith("chain:")]))
-    files = file_table(rows)
-    if files:
-        print()
-        print(files)
+    sizes = None if args.sizes is None else tuple(int(s) for s in args.sizes.split(",") if s.strip())
+    report = run(quick=args.quick, verbose=True, sizes=sizes, bluerov2=args.bluerov2, timeout=args.timeout)
+    print("\ntargets:")
+    for t in report["targets"]:
+        print(f"  {'met ' if t['met'] else 'MISS'}  {t['name']}: {t['value']:.4g} {t['unit']} "
+              f"(target {t['direction']} {t['limit']:.4g})")
     if args.json:
         Path(args.json).write_text(json.dumps(report, indent=1))
         print(f"\nwrote {args.json}")

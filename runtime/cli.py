@@ -1,4 +1,4 @@
-"""The `abyssal` command: regenerate, verify, export, reproduce, bench, cache."""
+"""The `abyssal` command: regenerate, verify, export, reproduce, publish, replay, bench, cache."""
 from __future__ import annotations
 
 import argparse
@@ -146,7 +146,8 @@ def _export(args) -> int:
     import importlib
 
     export = importlib.import_module("abyssal.export")  # the module (the package exports a function `export`)
-    folder = export.export(args.target, filter=args.filter, out=args.out, steps=args.steps, seed=args.seed)
+    folder = export.export(args.target, filter=args.filter, out=args.out, steps=args.steps, seed=args.seed,
+                           history_seconds=args.history, force=args.force)
     print(f"wrote {folder}: cmake -S {folder} -B {folder}/build && cmake --build {folder}/build && "
           f"(cd {folder}/build && ctest)")
     return 0
@@ -162,6 +163,20 @@ def _publish(args) -> int:
     from abyssal.runtime.experiments import publish
 
     return publish.main(args)
+
+
+def _replay(args) -> int:
+    """`abyssal replay LOG --model NAME|DIR --filter F --sensors MAP.toml --out DIR [--smooth]` (runtime/replay)."""
+    from abyssal.runtime.replay import replay
+
+    result = replay(args.log, args.model, filter=args.filter, sensors=args.sensors, out=args.out, smooth=args.smooth,
+                    progress=not args.no_progress)
+    counts = ", ".join(f"{name} {c['used']}/{c['received']} used" for name, c in result.counts.items())
+    smoothed = " and smoothed.csv" if result.smoothed is not None else ""
+    print(f"replayed {args.log} through {result.filter_name} ({len(result.track.t)} events; {counts}): wrote "
+          f"{args.out}/track.csv{smoothed}, measurements.csv, report.md, figures/"
+          + (", odometry/ (nav_msgs/Odometry, ENU)" if result.log.kind == "bag" else ""))
+    return 0
 
 
 def _size_text(n: int) -> str:
@@ -235,10 +250,28 @@ def build_parser() -> argparse.ArgumentParser:
                                    "and test vectors recorded from the Python filter (ctest runs them).")
     p.add_argument("target", metavar="NAME|DIR", help="a built-in model name or a model folder written by abyssal.generate")
     p.add_argument("--filter", required=True, choices=["ekf", "ukf", "ckf", "mcukf", "huber"])
-    p.add_argument("--out", required=True, metavar="DIR", help="a new or empty folder (or an earlier export)")
+    p.add_argument("--out", required=True, metavar="DIR", help="a new or empty folder")
+    p.add_argument("--force", action="store_true", help="replace an earlier export in --out")
+    p.add_argument("--history", type=float, default=None, metavar="SECONDS",
+                   help="the filter's history for late measurements (default: twice the longest latency a sensor "
+                        "declares, at least 2 s)")
     p.add_argument("--steps", type=int, default=10_000, help="steps of the recorded test vectors (default: %(default)s)")
     p.add_argument("--seed", type=int, default=0, help="seed of the recorded run (default: %(default)s)")
     p.set_defaults(run=_export)
+
+    p = sub.add_parser("replay", help="a recorded log (CSV tables, rosbag2/MCAP) through a filter: track, report, figures",
+                       description="Reads LOG (a folder of CSV tables or a rosbag2/MCAP bag) as MAP.toml maps its "
+                                   "streams to the model's input and sensors, runs the filter over it in the order the "
+                                   "measurements arrived, and writes track.csv, measurements.csv, report.md/json, "
+                                   "figures/ (and for a bag an Odometry bag in ENU) into DIR, all or nothing.")
+    p.add_argument("log", metavar="LOG", help="a folder of CSV tables, a rosbag2 folder or an .mcap file")
+    p.add_argument("--model", required=True, metavar="NAME|DIR", help="a built-in model or a generated model folder")
+    p.add_argument("--filter", required=True, choices=["ekf", "ukf", "ckf", "pf"])
+    p.add_argument("--sensors", required=True, metavar="MAP.toml", help="the sensor map (streams, filter settings)")
+    p.add_argument("--out", required=True, metavar="DIR", help="a new or empty folder (or an earlier replay's)")
+    p.add_argument("--smooth", action="store_true", help="also write the Rauch-Tung-Striebel smoothed track")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(run=_replay)
 
     from .experiments.reproduce import EXPERIMENTS, quick_help  # the registry (light: the experiments load when run)
 

@@ -7,6 +7,17 @@ nu = [u v w p q r], pose eta = [x y z phi theta psi]; equations of motion
 definite, C(nu) skew-symmetric and derived from M (never typed in), D(nu) positive definite.
 Hydrodynamic derivatives keep Fossen's signs: added-mass and damping derivatives are
 negative numbers (X_udot < 0, X_u < 0), so M_A = -diag(X_udot, ...) and D = -diag(X_u, ...).
+
+Ocean currents (Fossen 2011, Sec. 8.3): the hydrodynamic terms act on the velocity relative to the
+water, nu_r = nu - nu_c. For a current that is irrotational and constant in NED, the rigid-body terms
+may be written in nu_r too (M_RB nu_dot + C_RB(nu) nu = M_RB nu_r_dot + C_RB(nu_r) nu_r, Fossen's
+Property 8.1), so the whole equation of motion is M nu_r_dot + C(nu_r) nu_r + D(nu_r) nu_r + g(eta)
+= tau, and nu_dot = nu_r_dot + nu_c_dot, where nu_c_dot is the current's rate as seen from the
+turning body. ``relative_velocity`` gives nu_r and nu_c_dot; a model file then reads
+
+    nu_r, nu_c_dot = fossen.relative_velocity(eta, nu, current, dofs)
+    nu_dot = fossen.rigid_body_equations(M, nu_r, tau, damping(nu_r), restoring, dofs) + nu_c_dot
+    eta_dot = fossen.kinematics(eta, nu, dofs)        # the pose moves with nu, not nu_r
 """
 from __future__ import annotations
 
@@ -197,6 +208,31 @@ def rigid_body_equations(M, nu, tau, damping, restoring=0, dofs=SIX_DOF) -> ca.S
     """nu_dot = M^-1 (tau - C(nu) nu - D(nu) nu - g(eta)) on a DOF subset (Fossen eq. 7.1/3.1).
 
     M: the total mass matrix M_RB + M_A (k x k, symmetric); damping: the vector D(nu) nu (k,);
-    restoring: g(eta) (k,) or 0. C(nu) is derived from M on the subset (``coriolis``).
+    restoring: g(eta) (k,) or 0. C(nu) is derived from M on the subset (``coriolis``). In a current,
+    pass nu_r and D(nu_r) nu_r: the result is nu_r_dot, and nu_dot = nu_r_dot + nu_c_dot (module
+    docstring, ``relative_velocity``).
     """
     return solve_mass(M, tau - ca.mtimes(coriolis(M, nu, dofs), nu) - damping - restoring)
+
+
+def relative_velocity(eta, nu, current, dofs=SIX_DOF) -> tuple[ca.SX, ca.SX]:
+    """(nu_r, nu_c_dot) in an ocean current that is irrotational and constant in NED (Fossen 2011, Sec. 8.3).
+
+    current: the water's velocity in NED, [V_north, V_east] or [V_north, V_east, V_down] in m/s (numbers, or
+    CasADi symbols such as a model's parameters; for a current of speed V_c towards direction beta_c,
+    [V_c cos(beta_c), V_c sin(beta_c)]). In body axes it is v_c = R_b^n(Theta)^T current, so
+    nu_c = [v_c, 0, 0, 0] and nu_r = nu - nu_c; since R_dot = R S(omega), the current seen from the turning
+    body changes at nu_c_dot = [-omega x v_c, 0, 0, 0] (for a vessel in the horizontal plane:
+    [r v_c, -r u_c, 0]). eta and nu are on `dofs`, as in ``kinematics``; both results are too.
+    """
+    current = ca.vertcat(*current) if isinstance(current, (list, tuple)) else ca.SX(current)
+    if current.numel() not in (2, 3):
+        raise ValueError(f"current must be the water's NED velocity [V_north, V_east(, V_down)], got {current.numel()} "
+                         "entries")
+    if current.numel() == 2:
+        current = ca.vertcat(current, 0)
+    eta6, nu6 = embed(eta, dofs), embed(nu, dofs)
+    v_c = ca.mtimes(rotation_zyx(eta6[3], eta6[4], eta6[5]).T, current)
+    nu_c = ca.vertcat(v_c, ca.SX.zeros(3, 1))
+    nu_c_dot = ca.vertcat(-ca.cross(nu6[3:6], v_c), ca.SX.zeros(3, 1))
+    return restrict(nu6 - nu_c, dofs), restrict(nu_c_dot, dofs)

@@ -104,7 +104,7 @@ abyssal_kalman_options abyssal_kalman_default_options(abyssal_filter filter) {
   o.gate_probability = 1e-10;
   o.gate_patience = 5;
   o.gate_inflation = 4.0;
-  o.gate_max_inflations = 20;
+  o.gate_max_inflations = 10;
   o.growth_limit = 1e3;
   o.max_substeps = 64;
   o.repair_floor = 1e-10;
@@ -339,19 +339,21 @@ static int predict_piece(abyssal_kalman* f, const abyssal_model* model, int src,
                                   p, piece, Qk, XS(f, dst), PS(f, dst), cross, DOUBLES(f, f->steps));
 }
 
-/* G = C P_pred^-1 (the smoother's gain of one piece) into out; 0 when P_pred is not positive definite. */
+/* G = C P_pred^-1 (the smoother's gain of one piece) into out; 0 when it is not finite. A singular P_pred (a state
+ * known exactly: zero P0 and Q along it) is not a failure: the guarded factor's tiny pivots meet zero entries of C
+ * along those directions (C = P F^T is zero there too), so the gain is zero along them: nothing to smooth. */
 static int smoother_gain(abyssal_kalman* f, const double* C, const double* P_pred, double* out) {
-  int n = f->n, i, j, ok;
+  int n = f->n, i, j;
   double* L = DOUBLES(f, f->scratch);
   double* B = L + n * n;
-  ok = abyssal_cholesky(n, P_pred, L);
+  (void)abyssal_cholesky(n, P_pred, L);
   for (j = 0; j < n; ++j) /* B = C^T, then G^T = P^-1 C^T */
     for (i = 0; i < n; ++i) AT(B, n, i, j) = AT(C, n, j, i);
   abyssal_solve_lower(n, L, n, B);
   abyssal_solve_lower_transposed(n, L, n, B);
   for (j = 0; j < n; ++j)
     for (i = 0; i < n; ++i) AT(out, n, i, j) = AT(B, n, j, i);
-  return ok && abyssal_all_finite(n * n, out);
+  return abyssal_all_finite(n * n, out);
 }
 
 /* G_acc <- G_acc G_piece (the gain over several pieces is the product of the pieces' gains). */

@@ -76,7 +76,10 @@ typedef struct {
   double gate_probability;    /* tail probability of the innovation gate; default 1e-10; 0: no gate */
   int gate_patience;          /* consecutive gated updates of an entry before P is inflated; default 5 */
   double gate_inflation;      /* factor on P along the gated entries' directions per further gate; default 4 */
-  int gate_max_inflations;    /* inflations per streak before the sensor is held as rejected; default 20 */
+  int gate_max_inflations;    /* inflations per streak before the sensor is held as rejected; default 10: P may
+                                 grow gate_inflation^10 (4^10 ~ 1e6, 1000x in std) along a sensor, enough to
+                                 re-acquire a real jump of ~1000 gate widths; a value further out (a gauge
+                                 stuck at +1e6 m) is rejected rather than re-acquired */
   double growth_limit;        /* a predict growing P more than this many times is subdivided; default 1e3 */
   int max_substeps;           /* at most this many pieces of one dt; default 64 */
   double repair_floor;        /* eigenvalue floor of the repair, relative to the largest; default 1e-10 */

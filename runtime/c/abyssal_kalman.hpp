@@ -6,7 +6,7 @@
 //     Filter ckf(rov4dof_descriptor, abyssal_kalman_default_options(ABYSSAL_CKF), x0, P0, Q, R);
 //     int code = ckf.step(u, 0.1, z);    // std::array arguments; z optional; >= 0 success, < 0 refused
 //     ckf.predict_to(t, u);              // time-stamped: integrate to t with u held
-//     ckf.update(0, t_fix, z_fix);       // sensor 0's measurement stamped t_fix (late: fused from the history)
+//     ckf.update(0, z_fix, t_fix);       // sensor 0's measurement stamped t_fix (late: fused from the history)
 //     double north = ckf.x()[0];         // views into the filter object, valid until its next call
 //
 // RAII: the constructor allocates the filter object once (the only allocation; none per step) and checks
@@ -140,11 +140,13 @@ class KalmanFilter {
   int predict_to(double t, const Input& u, const Parameters& p) {
     return abyssal_kalman_predict_to(filter_, model_, t, u.data(), p.data());
   }
-  int update(int sensor, double t, const double* z, const double* R = nullptr, const double* q = nullptr) {
+  // as Python's update(sensor, z, t, R, p): z its n_y_k outputs (NaN: missing), R its own n_y_k x n_y_k covariance
+  // (column-major; nullptr: the filter's), q its own parameters (nullptr: those held)
+  int update(int sensor, const double* z, double t, const double* R = nullptr, const double* q = nullptr) {
     return abyssal_kalman_update_sensor(filter_, model_, sensor, t, z, nullptr, R, q);
   }
-  int update(const char* sensor, double t, const double* z, const double* R = nullptr, const double* q = nullptr) {
-    return update(abyssal_kalman_sensor_index(model_, sensor), t, z, R, q);
+  int update(const char* sensor, const double* z, double t, const double* R = nullptr, const double* q = nullptr) {
+    return update(abyssal_kalman_sensor_index(model_, sensor), z, t, R, q);
   }
   int reset(const State& x, const Covariance& P) { return abyssal_kalman_reset(filter_, x.data(), P.data()); }
 

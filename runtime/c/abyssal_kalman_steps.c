@@ -202,28 +202,16 @@ int abyssal_predict_gaussian(const abyssal_model* model, const abyssal_algebra* 
                              const double* Q, double* x_pred, double* P_pred, double* cross, void* memory) {
   const int n = model->n_x;
   scratch_t s;
-  double *Ps, *Qs;
+  const double *Ps = P, *Qs = Q;
   int ok = 1, i, j;
   bind(model, memory, &s);
-  Ps = take(&s, (size_t)n * n);
-  Qs = take(&s, (size_t)n * n);
-  symmetrised(n, P, Ps);
-  symmetrised(n, Q, Qs);
   if (!abyssal_is_sigma_point(a->filter)) {
     double* F = take(&s, (size_t)n * n);
-    double* FP = take(&s, (size_t)n * n);
+    double* PFt = cross ? cross : take(&s, (size_t)n * n); /* P F^T: what smoothing needs */
     evaluate(&s, &model->f, x, u, p, &dt, x_pred);
     evaluate(&s, &model->F, x, u, p, &dt, F);
-    abyssal_congruence(n, n, F, Ps, FP, P_pred);
-    for (j = 0; j < n; ++j)
-      for (i = 0; i <= j; ++i) {
-        double v = AT(P_pred, n, i, j) + AT(Qs, n, i, j);
-        AT(P_pred, n, i, j) = v;
-        AT(P_pred, n, j, i) = v;
-      }
-    if (cross) /* P F^T = (F P)^T */
-      for (j = 0; j < n; ++j)
-        for (i = 0; i < n; ++i) AT(cross, n, i, j) = AT(FP, n, j, i);
+    abyssal_congruence(n, n, F, Ps, PFt, P_pred);
+    for (i = 0; i < n * n; ++i) P_pred[i] += Qs[i]; /* both exactly symmetric: so is the sum */
   } else {
     const int N = abyssal_sigma_points(a->filter, n), n_u = model->n_u;
     double* L = take(&s, (size_t)n * n);
@@ -339,7 +327,8 @@ int abyssal_update_gaussian(const abyssal_model* model, const abyssal_algebra* a
   const int n = model->n_x, rows = abyssal_selection_rows(model, first, count);
   int *idx, *angle_row, *row_sensor_offset; /* the present rows, each row's angle flag, each sensor's first row */
   scratch_t s;
-  double *Ps, *nu, *Rp, *Rt, *Czz, *C, *Sp, *LS, *W, *e;
+  const double* Ps;
+  double *nu, *Rp, *Rt, *Czz, *C, *Sp, *LS, *W, *e;
   int m = 0, ok, i, j, k, r, sel;
   if (rows < 0) return 0;
   bind(model, memory, &s);
@@ -353,7 +342,7 @@ int abyssal_update_gaussian(const abyssal_model* model, const abyssal_algebra* a
   }
   for (r = 0; r < rows; ++r)
     if (present[r]) idx[m++] = r;
-  Ps = take(&s, (size_t)n * n);
+  Ps = P;
   nu = take(&s, (size_t)(m > 0 ? m : 1));
   Rp = take(&s, (size_t)m * m + 1);
   Rt = take(&s, (size_t)m * m + 1);
@@ -363,18 +352,12 @@ int abyssal_update_gaussian(const abyssal_model* model, const abyssal_algebra* a
   LS = take(&s, (size_t)m * m + 1);
   W = take(&s, (size_t)n * (m > 0 ? m : 1));
   e = take(&s, (size_t)(m > 0 ? m : 1));
-  symmetrised(n, P, Ps);
-  for (j = 0; j < m; ++j) /* R on the present entries, symmetrised */
-    for (i = 0; i <= j; ++i) {
-      double v = i == j ? AT(R, rows, idx[i], idx[i]) : (AT(R, rows, idx[i], idx[j]) + AT(R, rows, idx[j], idx[i])) / 2;
-      AT(Rp, m, i, j) = v;
-      AT(Rp, m, j, i) = v;
-    }
+  for (j = 0; j < m; ++j) /* R on the present entries */
+    for (i = 0; i < m; ++i) AT(Rp, m, i, j) = AT(R, rows, idx[i], idx[j]);
   if (!abyssal_is_sigma_point(a->filter)) {
     double* y = take(&s, (size_t)rows);
     double* H = take(&s, (size_t)rows * n);
     double* Hs = take(&s, (size_t)(m > 0 ? m : 1) * n);
-    double* HP = take(&s, (size_t)(m > 0 ? m : 1) * n);
     double* K = take(&s, (size_t)n * (m > 0 ? m : 1));
     double* V = take(&s, (size_t)n * (m > 0 ? m : 1));
     for (sel = 0; sel < count; ++sel) {
@@ -392,9 +375,7 @@ int abyssal_update_gaussian(const abyssal_model* model, const abyssal_algebra* a
       double d = z[idx[i]] - y[idx[i]];
       nu[i] = angle_row[idx[i]] ? abyssal_wrap_angle(d) : d;
     }
-    abyssal_congruence(m, n, Hs, Ps, HP, Czz); /* H P H^T; HP = H P, so P H^T = HP^T */
-    for (j = 0; j < m; ++j)
-      for (i = 0; i < n; ++i) AT(C, n, i, j) = AT(HP, m, j, i);
+    abyssal_congruence(m, n, Hs, Ps, C, Czz); /* H P H^T, C = P H^T */
     for (j = 0; j < m; ++j)
       for (i = 0; i <= j; ++i) {
         double v = AT(Czz, m, i, j) + AT(Rp, m, i, j);
@@ -402,34 +383,29 @@ int abyssal_update_gaussian(const abyssal_model* model, const abyssal_algebra* a
         AT(Sp, m, j, i) = v;
       }
     ok = abyssal_cholesky(m, Sp, LS);
-    for (j = 0; j < n; ++j) /* K^T = S^-1 (P H^T)^T, in W */
-      for (i = 0; i < m; ++i) AT(W, m, i, j) = AT(C, n, j, i);
-    abyssal_solve_lower(m, LS, n, W);
-    abyssal_solve_lower_transposed(m, LS, n, W);
-    for (j = 0; j < m; ++j)
-      for (i = 0; i < n; ++i) AT(K, n, i, j) = AT(W, m, j, i);
-    for (i = 0; i < n; ++i) {
-      double v = 0.0;
-      for (j = 0; j < m; ++j) v += AT(K, n, i, j) * nu[j];
-      x_post[i] = x[i] + v;
+    memcpy(K, C, sizeof(double) * (size_t)n * m); /* K = P H^T S^-1 = ((P H^T) L^-T) L^-1 */
+    abyssal_solve_right_lower_transposed(n, m, LS, K);
+    abyssal_solve_right_lower(n, m, LS, K);
+    abyssal_gemv(n, m, K, n, nu, 1, x, x_post);
+    for (j = 0; j < m; ++j) { /* V = K S - P H^T, by columns */
+      for (i = 0; i < n; ++i) AT(V, n, i, j) = -AT(C, n, i, j);
+      abyssal_gemv(n, m, K, n, Sp + (size_t)j * m, 1, V + (size_t)j * n, V + (size_t)j * n);
     }
-    for (j = 0; j < m; ++j) /* V = K S - P H^T */
-      for (i = 0; i < n; ++i) {
-        double v = 0.0;
-        for (k = 0; k < m; ++k) v += AT(K, n, i, k) * AT(Sp, m, k, j);
-        AT(V, n, i, j) = v - AT(C, n, i, j);
-      }
-    for (j = 0; j < n; ++j) /* Joseph: P - K (P H^T)^T - (P H^T) K^T + K S K^T = P - K_i . PHt_j + V_i . K_j */
-      for (i = 0; i <= j; ++i) {
-        double kc = 0.0, vk = 0.0, v;
+    { /* Joseph: P - K (P H^T)^T - (P H^T) K^T + K S K^T = P - K C^T + V K^T: [K V] [-C^T; K^T], by columns */
+      double* KV = take(&s, (size_t)n * 2 * (m > 0 ? m : 1));
+      double* w2 = take(&s, (size_t)2 * (m > 0 ? m : 1));
+      memcpy(KV, K, sizeof(double) * (size_t)n * m);
+      memcpy(KV + (size_t)n * m, V, sizeof(double) * (size_t)n * m);
+      for (j = 0; j < n; ++j) {
         for (k = 0; k < m; ++k) {
-          kc += AT(K, n, i, k) * AT(C, n, j, k);
-          vk += AT(V, n, i, k) * AT(K, n, j, k);
+          w2[k] = -AT(C, n, j, k);
+          w2[m + k] = AT(K, n, j, k);
         }
-        v = AT(Ps, n, i, j) - kc + vk;
-        AT(P_post, n, i, j) = v;
-        AT(P_post, n, j, i) = v;
+        abyssal_gemv(n, 2 * m, KV, n, w2, 1, Ps + (size_t)j * n, P_post + (size_t)j * n);
       }
+      for (j = 0; j < n; ++j) /* exactly symmetric: the upper triangle mirrored */
+        for (i = j + 1; i < n; ++i) AT(P_post, n, i, j) = AT(P_post, n, j, i);
+    }
   } else {
     const int N = abyssal_sigma_points(a->filter, n);
     double* L = take(&s, (size_t)n * n);
@@ -482,18 +458,20 @@ int abyssal_update_gaussian(const abyssal_model* model, const abyssal_algebra* a
         AT(Sp, m, j, i) = v;
       }
     ok = abyssal_cholesky(m, Sp, LS) && ok_points && ok_noise;
-    for (j = 0; j < n; ++j) /* W = L_S^-1 Pxz^T */
-      for (i = 0; i < m; ++i) AT(W, m, i, j) = AT(C, n, j, i);
-    abyssal_solve_lower(m, LS, n, W);
-    memcpy(e, nu, sizeof(double) * (size_t)m);
-    abyssal_solve_lower(m, LS, 1, e);
-    for (i = 0; i < n; ++i) x_post[i] = x[i] + abyssal_dot(m, W + (size_t)i * m, e);
-    for (j = 0; j < n; ++j) /* P - W^T W */
-      for (i = 0; i <= j; ++i) {
-        double v = AT(Ps, n, i, j) - abyssal_dot(m, W + (size_t)i * m, W + (size_t)j * m);
-        AT(P_post, n, i, j) = v;
-        AT(P_post, n, j, i) = v;
-      }
+    { /* Y = Pxz L_S^-T (n x m), e = L_S^-1 nu: x + Y e, P - Y Y^T */
+      double* Y = W;
+      double* Yn = take(&s, (size_t)n * (m > 0 ? m : 1)); /* -Y */
+      memcpy(Y, C, sizeof(double) * (size_t)n * m);
+      abyssal_solve_right_lower_transposed(n, m, LS, Y);
+      memcpy(e, nu, sizeof(double) * (size_t)m);
+      abyssal_solve_lower(m, LS, 1, e);
+      abyssal_gemv(n, m, Y, n, e, 1, x, x_post);
+      for (i = 0; i < n * m; ++i) Yn[i] = -Y[i];
+      for (j = 0; j < n; ++j) /* column j of P - Y Y^T = P[:, j] + (-Y) (row j of Y), rows 0..j */
+        abyssal_gemv(j + 1, m, Yn, n, Y + j, n, Ps + (size_t)j * n, P_post + (size_t)j * n);
+      for (j = 0; j < n; ++j) /* exactly symmetric: the upper triangle mirrored */
+        for (i = j + 1; i < n; ++i) AT(P_post, n, i, j) = AT(P_post, n, j, i);
+    }
   }
   /* the report in the selection's layout: 0 / identity on absent entries */
   for (r = 0; r < rows; ++r) innovation[r] = 0.0;
@@ -522,8 +500,9 @@ size_t abyssal_steps_batch_scratch_bytes(const abyssal_model* model, abyssal_fil
   memset(&a, 0, sizeof a);
   a.filter = filter;
   /* the steps' scratch, the weights, a predicted (x, P) for a fused step, the present flags */
-  return abyssal_steps_scratch_bytes(model, &a, model->n_y) + sizeof(double) * (size_t)(2 * N + n + n * n + 2) +
-         ROUND8((size_t)model->n_y + 1);
+  /* + the inputs symmetrised: P, Q (n x n) and R (n_y x n_y) */
+  return abyssal_steps_scratch_bytes(model, &a, model->n_y) +
+         sizeof(double) * (size_t)(2 * N + n + n * n + 2 + 2 * n * n + model->n_y * model->n_y) + ROUND8((size_t)model->n_y + 1);
 }
 
 int abyssal_steps_batch(const abyssal_model* model, int filter, int op, void* scratch, long long N, const double** arg,
@@ -531,7 +510,7 @@ int abyssal_steps_batch(const abyssal_model* model, int filter, int op, void* sc
   const int n = model->n_x, m = model->n_y, points = abyssal_sigma_points((abyssal_filter)filter, n);
   abyssal_algebra a;
   char* at = (char*)scratch;
-  double *wm, *wc, *x_mid, *P_mid;
+  double *wm, *wc, *x_mid, *P_mid, *Ps, *Qs, *Rs;
   unsigned char* present;
   void* steps;
   const int unscented = abyssal_is_sigma_point((abyssal_filter)filter) && filter != ABYSSAL_CKF;
@@ -553,7 +532,10 @@ int abyssal_steps_batch(const abyssal_model* model, int filter, int op, void* sc
   wc = wm + points;
   x_mid = wc + points;
   P_mid = x_mid + n;
-  present = (unsigned char*)(void*)(P_mid + n * n + 2);
+  Ps = P_mid + n * n + 2;
+  Qs = Ps + n * n;
+  Rs = Qs + n * n;
+  present = (unsigned char*)(void*)(Rs + m * m);
   for (j = 0; j < N; ++j) {
     const double* s[11];
     double* r[5];
@@ -571,19 +553,24 @@ int abyssal_steps_batch(const abyssal_model* model, int filter, int op, void* sc
       }
     }
     if (points && !abyssal_sigma_weights(&a, n, wm, wc)) ok = 0;
+    symmetrised(n, s[1], Ps); /* (the generated steps these replace symmetrised their inputs too) */
     if (op == ABYSSAL_BATCH_PREDICT) {
-      ok = ok && abyssal_predict_gaussian(model, &a, wm, wc, s[0], s[1], s[2], s[3], s[4][0], s[5], r[0], r[1], 0, steps);
+      symmetrised(n, s[5], Qs);
+      ok = ok && abyssal_predict_gaussian(model, &a, wm, wc, s[0], Ps, s[2], s[3], s[4][0], Qs, r[0], r[1], 0, steps);
       r[2][0] = ok ? 1.0 : 0.0;
       continue;
     }
     if (op == ABYSSAL_BATCH_STEP) {
-      ok = ok && abyssal_predict_gaussian(model, &a, wm, wc, s[0], s[1], s[2], s[3], s[4][0], s[5], x_mid, P_mid, 0, steps);
+      symmetrised(n, s[5], Qs);
+      symmetrised(m, s[7], Rs);
+      ok = ok && abyssal_predict_gaussian(model, &a, wm, wc, s[0], Ps, s[2], s[3], s[4][0], Qs, x_mid, P_mid, 0, steps);
       for (i = 0; i < m; ++i) present[i] = s[8][i] != 0.0;
-      ok = abyssal_update_gaussian(model, &a, wm, wc, 0, model->n_sensors, x_mid, P_mid, s[6], present, s[3], s[7], r[0],
+      ok = abyssal_update_gaussian(model, &a, wm, wc, 0, model->n_sensors, x_mid, P_mid, s[6], present, s[3], Rs, r[0],
                                    r[1], r[2], r[3], 0, 0, steps) && ok;
     } else {
+      symmetrised(m, s[4], Rs);
       for (i = 0; i < m; ++i) present[i] = s[5][i] != 0.0;
-      ok = abyssal_update_gaussian(model, &a, wm, wc, 0, model->n_sensors, s[0], s[1], s[2], present, s[3], s[4], r[0],
+      ok = abyssal_update_gaussian(model, &a, wm, wc, 0, model->n_sensors, s[0], Ps, s[2], present, s[3], Rs, r[0],
                                    r[1], r[2], r[3], 0, 0, steps) && ok;
     }
     r[4][0] = ok ? 1.0 : 0.0;

@@ -66,7 +66,8 @@ int abyssal_sigma_weights(const abyssal_algebra* algebra, int n, double* wm, dou
 /* Bytes of scratch one call needs, for updates of up to max_rows stacked outputs (8-byte multiple). */
 size_t abyssal_steps_scratch_bytes(const abyssal_model* model, const abyssal_algebra* algebra, int max_rows);
 
-/* The prediction over dt with input u, parameters p and additive noise Q (n x n, symmetrised here). When cross is
+/* The prediction over dt with input u, parameters p and additive noise Q (n x n). P and Q must be exactly symmetric
+ * (the filter object keeps them so; the batched steps symmetrise what they are given). When cross is
  * not NULL it receives C = E[(x_k - x)(x_k+1 - x')^T] (n x n): P F^T for the EKF, sum wc_k (X_k - x)(Y_k - x')^T
  * for the sigma-point rules: what Rauch-Tung-Striebel smoothing needs (its gain is C P'^-1). wm, wc: the rule's
  * weights (NULL for the EKF). */
@@ -76,7 +77,7 @@ int abyssal_predict_gaussian(const abyssal_model* model, const abyssal_algebra* 
 
 /* The update of (x, P) with the selection's measurement: the sensors first .. first + count - 1 of the model
  * (one sensor, or all of them: the stacked measurement), rows = the sum of their outputs; z (rows; read only where present), present (rows flags), R (rows x rows,
- * symmetrised here), p the model's parameters (each sensor's own among them). Outputs: x_post, P_post (n x n,
+ * exactly symmetric, as P), p the model's parameters (each sensor's own among them). Outputs: x_post, P_post (n x n,
  * exactly symmetric), innovation (rows) and S (rows x rows) in the reporting convention above; when not NULL,
  * Pxz (n x rows, zero columns where absent) and Pzz (rows x rows, the predicted measurement covariance without R,
  * zero where absent): what the gate's inflation along the measured directions uses. */

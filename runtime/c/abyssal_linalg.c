@@ -9,23 +9,22 @@
 #define PI 3.141592653589793
 
 int abyssal_cholesky(int n, const double* A, double* L) {
-  int ok = 1, i, j, k;
+  int ok = 1, i, j;
   memset(L, 0, sizeof(double) * (size_t)n * (size_t)n);
   for (j = 0; j < n; ++j) {
-    double d = AT(A, n, j, j), threshold, inverse;
-    for (k = 0; k < j; ++k) d -= AT(L, n, j, k) * AT(L, n, j, k);
+    double* l = L + (size_t)j * n;
+    double d, threshold, inverse;
+    /* column j below the diagonal: A's, less L[j:, :j] L[j, :j]^T, each entry's sum in the order k = 0, 1, ... */
+    abyssal_gemv_signed(n - j, j, L + j, n, L + j, n, -1.0, A + j + (size_t)j * n, l + j);
+    d = l[j];
     threshold = ABYSSAL_PIVOT_RELATIVE * fabs(AT(A, n, j, j)) + ABYSSAL_PIVOT_ABSOLUTE;
     if (!(d > threshold)) {
       ok = 0;
-      if (!(d > threshold)) d = threshold; /* NaN too: the factor stays finite for finite A */
+      d = threshold; /* NaN too: the factor stays finite for finite A */
     }
-    AT(L, n, j, j) = sqrt(d);
-    inverse = 1.0 / AT(L, n, j, j); /* one division per column */
-    for (i = j + 1; i < n; ++i) {
-      double v = AT(A, n, i, j);
-      for (k = 0; k < j; ++k) v -= AT(L, n, i, k) * AT(L, n, j, k);
-      AT(L, n, i, j) = v * inverse;
-    }
+    l[j] = sqrt(d);
+    inverse = 1.0 / l[j]; /* one division per column */
+    for (i = j + 1; i < n; ++i) l[i] *= inverse;
   }
   return ok;
 }
@@ -54,13 +53,30 @@ void abyssal_solve_lower_transposed(int n, const double* L, int m, double* B) {
   }
 }
 
-double abyssal_dot(int count, const double* a, const double* b) {
-  double s[4] = {0.0, 0.0, 0.0, 0.0};
-  int k = 0, lane;
-  for (; k + 4 <= count; k += 4)
-    for (lane = 0; lane < 4; ++lane) s[lane] += a[k + lane] * b[k + lane];
-  for (; k < count; ++k) s[0] += a[k] * b[k];
-  return (s[0] + s[1]) + (s[2] + s[3]);
+void abyssal_solve_right_lower_transposed(int r, int n, const double* L, double* B) {
+  int i, j, k;
+  for (j = 0; j < n; ++j) { /* Y L^T = B, column j: Y[:, j] L_jj = B[:, j] - sum_{k < j} Y[:, k] L_jk */
+    double* b = B + (size_t)j * r;
+    const double d = AT(L, n, j, j);
+    for (k = 0; k < j; ++k) {
+      const double ljk = AT(L, n, j, k), *y = B + (size_t)k * r;
+      for (i = 0; i < r; ++i) b[i] -= y[i] * ljk;
+    }
+    for (i = 0; i < r; ++i) b[i] /= d;
+  }
+}
+
+void abyssal_solve_right_lower(int r, int n, const double* L, double* B) {
+  int i, j, k;
+  for (j = n - 1; j >= 0; --j) { /* K L = B, column j: K[:, j] L_jj = B[:, j] - sum_{k > j} K[:, k] L_kj */
+    double* b = B + (size_t)j * r;
+    const double d = AT(L, n, j, j);
+    for (k = j + 1; k < n; ++k) {
+      const double lkj = AT(L, n, k, j), *y = B + (size_t)k * r;
+      for (i = 0; i < r; ++i) b[i] -= y[i] * lkj;
+    }
+    for (i = 0; i < r; ++i) b[i] /= d;
+  }
 }
 
 double abyssal_wrap_angle(double d) {
@@ -79,21 +95,14 @@ void abyssal_multiply_transposed(int r, int c, int k, const double* A, int lda, 
     }
 }
 
-void abyssal_congruence(int r, int n, const double* A, const double* P, double* AP, double* out) {
-  int i, j, l;
-  for (j = 0; j < n; ++j) /* AP = A P */
-    for (i = 0; i < r; ++i) {
-      double v = 0.0;
-      for (l = 0; l < n; ++l) v += AT(A, r, i, l) * AT(P, n, l, j);
-      AT(AP, r, i, j) = v;
-    }
-  for (j = 0; j < r; ++j) /* out_ij = (A P)_i . A_j */
-    for (i = 0; i <= j; ++i) {
-      double v = 0.0;
-      for (l = 0; l < n; ++l) v += AT(AP, r, i, l) * AT(A, r, j, l);
-      AT(out, r, i, j) = v;
-      AT(out, r, j, i) = v;
-    }
+void abyssal_congruence(int r, int n, const double* A, const double* P, double* PAt, double* out) {
+  int i, j;
+  for (j = 0; j < r; ++j) /* column j of P A^T = P (row j of A), P symmetric; the row's zeros skipped */
+    abyssal_gemv(n, n, P, n, A + j, r, 0, PAt + (size_t)j * n);
+  for (j = 0; j < r; ++j) /* column j of A (P A^T) */
+    abyssal_gemv(r, n, A, r, PAt + (size_t)j * n, 1, 0, out + (size_t)j * r);
+  for (j = 0; j < r; ++j) /* exactly symmetric: the upper triangle mirrored */
+    for (i = j + 1; i < r; ++i) AT(out, r, i, j) = AT(out, r, j, i);
 }
 
 double abyssal_largest(int count, const double* a) {

@@ -42,10 +42,10 @@ def rows(path: Path) -> dict[int, np.ndarray]:
     return {int(line.split(",", 1)[0]): np.array([float(v) for v in line.split(",")[1:]]) for line in lines}
 
 
-def differences(folder: Path, output: Path) -> tuple[float, float]:
+def differences(folder: Path, output: Path, recorded: str = "expected.csv") -> tuple[float, float]:
     """(largest relative difference of x and P, of the NIS) of run_csv's output against the recorded rows; the codes
     (refusals included) must be equal."""
-    expected, actual = rows(folder / "tests/vectors/expected.csv"), rows(output)
+    expected, actual = rows(folder / "tests/vectors" / recorded), rows(output)
     worst = worst_nis = 0.0
     for k, e in expected.items():
         a = actual[k]
@@ -66,6 +66,24 @@ def run_csv(folder: Path, exe: Path, prefix=()) -> Path:
     return out
 
 
+def run_events(folder: Path, exe: Path, prefix=()) -> Path:
+    """run_csv over the time-stamped calls (events.csv)."""
+    out = exe.with_name(exe.name + "_events.csv")
+    vectors = folder / "tests/vectors"
+    result = run([*prefix, exe, vectors / "setup.txt", vectors / "events.csv", out])
+    assert " calls" in result.stdout and "runtime error" not in result.stderr
+    return out
+
+
+def assert_reproduces(folder: Path, exe: Path, prefix=()) -> None:
+    """Both recorded runs: the steps to 1e-12 (the NIS to 1e-9), the time-stamped calls to 1e-8 (a stuck sensor's
+    inflation makes P ill-conditioned, and late fixes replay the history: CMakeLists.txt says why)."""
+    worst, worst_nis = differences(folder, run_csv(folder, exe, prefix))
+    assert worst <= 1e-12 and worst_nis <= 1e-9
+    worst, worst_nis = differences(folder, run_events(folder, exe, prefix), "events_expected.csv")
+    assert worst <= 1e-8 and worst_nis <= 1e-8
+
+
 def sources(folder: Path) -> list[Path]:
     return sorted((folder / "src").glob("*.c")) + [folder / "examples/run_csv.c"]
 
@@ -83,9 +101,18 @@ def test_the_project_is_self_contained_and_documents_the_model(exported):
     assert vectors["steps"] == STEPS and vectors["missing_entries"] > 1000 and vectors["gated"] >= 10
     assert vectors["substeps"] == 1 and vectors["long_dt"] >= 5.0
     assert {"-12", "-13", "-14"} <= set(vectors["codes"])  # u, dt, z refused
+    events = marker["events"]  # asynchronous, late (fused from the history), dropped, stuck; refused calls
+    assert events["late"] > 100 and events["own_R"] > 10 and events["too_late"] >= 1
+    assert {"-12", "-21", "-22", "0", "1"} <= set(events["codes"])  # u, time going back, too late refused
+    assert events["sensors"]["measurement"]["inflations"] >= 1  # the stuck stretch was gated and inflated along
     header = (exported / "include/rov4dof_filter.h").read_text()
-    for text in ("[ 3] psi", "rad", "tau_X", "N m", "T_b", "ROV4DOF_CKF_BYTES", "bytes", "rov4dof_descriptor"):
+    for text in ("[ 3] psi", "rad", "tau_X", "N m", "T_b", "ROV4DOF_CKF_BYTES", "bytes", "rov4dof_descriptor",
+                 "Sensors (1)", "#define ROV4DOF_SENSOR_MEASUREMENT 0", "abyssal_kalman_update_sensor", "history of 2 s"):
         assert text in header, text
+    for path in exported.rglob("*"):  # no path of the exporting machine in any file
+        if path.is_file() and "build" not in path.parts:
+            text = path.read_text(errors="replace")
+            assert str(exported.parent) not in text and str(ROOT) not in text, path
     includes = {line.split()[1] for path in exported.rglob("*.[ch]") for line in path.read_text().splitlines()
                 if line.startswith("#include")}
     assert not any("Python" in i or "numpy" in i.lower() for i in includes)
@@ -100,12 +127,12 @@ def test_cmake_builds_it_and_ctest_reproduces_the_python_filter(exported):
     run(["cmake", "-S", exported, "-B", build_dir, "-DABYSSAL_WERROR=ON"])
     run(["cmake", "--build", build_dir, "-j", "2"])
     result = run(["ctest", "--output-on-failure"], cwd=build_dir)
-    assert "vectors_equal_python" in result.stdout and "tests passed" in result.stdout
+    assert "vectors_equal_python" in result.stdout and "events_equal_python" in result.stdout
+    assert "tests passed" in result.stdout
     if shutil.which("c++") or shutil.which("g++"):
-        assert "cpp_wrapper" in result.stdout  # the C++17 wrapper, compiled and run over the vectors
+        assert "cpp_wrapper_events" in result.stdout  # the C++17 wrapper, compiled and run over both
     assert (build_dir / "librov4dof_filter.a").is_file() and (build_dir / "librov4dof_filter.so").is_file()
-    worst, worst_nis = differences(exported, run_csv(exported, build_dir / "run_csv"))
-    assert worst <= 1e-12 and worst_nis <= 1e-9
+    assert_reproduces(exported, build_dir / "run_csv")
 
 
 def test_a_strict_c99_build_under_the_sanitizers_runs_clean(exported, tmp_path):
@@ -113,8 +140,7 @@ def test_a_strict_c99_build_under_the_sanitizers_runs_clean(exported, tmp_path):
     exe = tmp_path / "run_csv_sanitized"
     run([cc, *STRICT, "-O1", "-g", "-fsanitize=address,undefined", "-fno-sanitize-recover=all", "-fno-omit-frame-pointer",
          f"-I{exported / 'include'}", *sources(exported), "-o", exe, "-lm"])
-    worst, worst_nis = differences(exported, run_csv(exported, exe))
-    assert worst <= 1e-12 and worst_nis <= 1e-9
+    assert_reproduces(exported, exe)
 
 
 def test_with_abyssals_own_flags_the_results_are_bit_identical(exported, tmp_path):
@@ -128,10 +154,10 @@ def test_with_abyssals_own_flags_the_results_are_bit_identical(exported, tmp_pat
         objects.append(obj)
     exe = tmp_path / "run_csv_same_flags"
     run([cc, *flags, *objects, "-o", exe, *build._libraries()])
-    out = run_csv(exported, exe)
-    expected, actual = rows(exported / "tests/vectors/expected.csv"), rows(out)
-    for k, e in expected.items():
-        assert np.array_equal(actual[k], e, equal_nan=True), f"step {k} differs"
+    for out, recorded in ((run_csv(exported, exe), "expected.csv"), (run_events(exported, exe), "events_expected.csv")):
+        expected, actual = rows(exported / "tests/vectors" / recorded), rows(out)
+        for k, e in expected.items():
+            assert np.array_equal(actual[k], e, equal_nan=True), f"{recorded}: row {k} differs"
 
 
 def test_cppcheck_finds_nothing_in_the_runtime_and_examples(exported):
@@ -149,8 +175,7 @@ def test_cross_compiled_for_aarch64_it_reproduces_the_vectors_under_qemu(exporte
     exe = tmp_path / "run_csv_aarch64"
     run([cc, *STRICT, "-O2", "-static", f"-I{exported / 'include'}", *sources(exported), "-o", exe, "-lm"])
     assert exe.read_bytes()[18] == 0xB7  # ELF e_machine: AArch64
-    worst, worst_nis = differences(exported, run_csv(exported, exe, prefix=[qemu]))
-    assert worst <= 1e-12 and worst_nis <= 1e-9
+    assert_reproduces(exported, exe, prefix=[qemu])
 
 
 def test_a_users_model_regenerated_outside_the_clone_exports_and_builds(tmp_path):
@@ -182,5 +207,36 @@ def test_refusals_name_what_is_wrong(tmp_path):
                              "--out", str(tmp_path / "y")], capture_output=True, text=True, timeout=300)
     assert result.returncode == 2 and "no_such_model" in result.stderr
     folder = abyssal.export("linear_cv", filter="ekf", out=tmp_path / "again", steps=200)
-    assert abyssal.export("linear_cv", filter="ukf", out=folder, steps=200) == folder  # an earlier export is replaced
+    with pytest.raises(FileExistsError, match="--force"):  # an earlier export is kept unless asked
+        abyssal.export("linear_cv", filter="ukf", out=folder, steps=200)
+    assert abyssal.export("linear_cv", filter="ukf", out=folder, steps=200, force=True) == folder
     assert json.loads((folder / ".abyssal-export.json").read_text())["filter"] == "ukf"
+    result = subprocess.run([sys.executable, "-m", "abyssal.runtime.cli", "export", "linear_cv", "--filter", "ekf",
+                             "--out", str(folder), "--steps", "200"], capture_output=True, text=True, timeout=300)
+    assert result.returncode != 0 and "--force" in result.stderr and "Traceback" not in result.stderr
+    with pytest.raises(ValueError, match="--history"):
+        abyssal.export("linear_cv", filter="ekf", out=tmp_path / "z", steps=200, history_seconds=-1.0)
+
+
+def test_a_model_with_sensors_of_its_own_exports_its_time_stamped_calls(tmp_path):
+    """A user's model with three sensors (a GNSS fix, a DVL, a range to a beacon that declares 0.3-1 s of latency
+    and its own parameters): the header lays the sensors out, the stamped calls include its late ranges, and the
+    exported C reproduces the Python filter on them (CMake, ctest, both vectors, the C++ wrapper)."""
+    tool("cmake", "the exported project's build")
+    sys.path.insert(0, str(ROOT / "tests/runtime"))
+    try:
+        from test_sensors_time import sensor_vehicle
+    finally:
+        sys.path.pop(0)
+    model = abyssal.generate(sensor_vehicle(), tmp_path / "gen")
+    out = abyssal.export(model, filter="ekf", out=tmp_path / "cv_ekf", steps=2000)
+    marker = json.loads((out / ".abyssal-export.json").read_text())
+    assert marker["history_seconds"] == 2.0  # twice the beacon's longest latency, at least 2 s
+    assert marker["events"]["sensors"]["beacon"]["late"] > 10 and marker["events"]["sensors"]["dvl"]["used"] > 100
+    header = (out / "include/cv_sensors_filter.h").read_text()
+    for text in ("Sensors (3)", "[2] beacon: z entries 4..4", "latency 0.3-1 s", "own parameters: p entries 0..1",
+                 "#define CV_SENSORS_SENSOR_DVL 1", "#define CV_SENSORS_SENSOR_BEACON_P_OFFSET 0"):
+        assert text in header, text
+    run(["cmake", "-S", out, "-B", out / "build", "-DABYSSAL_WERROR=ON"])
+    run(["cmake", "--build", out / "build", "-j", "2"])
+    assert "tests passed" in run(["ctest", "--output-on-failure"], cwd=out / "build").stdout

@@ -111,7 +111,7 @@ def test_the_option_struct_mirrors_the_c_one(runtime):
     assert (ckf.gate_probability, ckf.gate_patience, ckf.gate_inflation) == (1e-10, 5, 4.0)
     assert (ckf.growth_limit, ckf.max_substeps, ckf.repair_floor) == (1e3, 64, 1e-10)
     assert (ckf.huber_iterations, ckf.gate_max_inflations, ckf.noise, ckf.history_entries, ckf.history_seconds,
-            ckf.smoothing) == (3, 20, kr.NOISE["step"], 0, 2.0, 0)
+            ckf.smoothing) == (3, 10, kr.NOISE["step"], 0, 2.0, 0)
     header = kr.GateHeader()
     assert ctypes.sizeof(header) == 80  # abyssal_gate: 1 + 2 * 4 / 8 + 8 eight-byte fields
 

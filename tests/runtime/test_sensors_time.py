@@ -241,6 +241,36 @@ def test_smoothing_over_the_history_equals_the_exact_rts_smoother(vehicle, cls):
                                                                        axis1=1, axis2=2) + 1e-12)
 
 
+def test_smoothing_a_state_known_exactly_is_no_failure(vehicle):
+    """y and vy known exactly (zero P0 and noise along them): P_pred is singular. Smoothing keeps the filter as it
+    is without smoothing (bit for bit) and smooths the rest as the exact RTS smoother does (its gain by the
+    pseudo-inverse: zero along the exact directions)."""
+    P0_exact, QW_exact = np.diag([4.0, 0.0, 1.0, 0.0]), np.diag([0.04, 0.0])
+    smoothed = EKF(vehicle, X0, P0_exact, QW_exact, None, smoothing=True, history_entries=1000, history_seconds=1e9,
+                   repair_floor=1e-15, **FILTER)
+    plain = EKF(vehicle, X0, P0_exact, QW_exact, None, repair_floor=1e-15, **FILTER)
+    ref = ExactKF(X0, P0_exact, QW_exact, R_EXACT)
+    for t, sensor, z in events(5, T=10.0):
+        for flt in (smoothed, plain):
+            flt.predict_to(t, np.zeros(0))
+            flt.update(sensor, z, t)
+        ref.predict_to(t)
+        ref.update(sensor, z)
+        assert np.array_equal(smoothed.x, plain.x) and np.array_equal(smoothed.P, plain.P)
+    t, xs, Ps = smoothed.smooth()
+    x_ref, P_ref = [ref.x], [ref.P]
+    for x, P, x_pred, P_pred, F in reversed(ref.steps):
+        G = P @ F.T @ np.linalg.pinv(P_pred)
+        x_ref.append(x + G @ (x_ref[-1] - x_pred))
+        P_ref.append(P + G @ (P_ref[-1] - P_pred) @ G.T)
+    x_ref, P_ref = np.array(x_ref[::-1]), np.array(P_ref[::-1])
+    starts = [0] + [k for k in range(1, len(t)) if t[k] > t[k - 1]]
+    # (the runtime's posterior repair keeps P at least repair_floor x its largest eigenvalue along y, vy: so "known
+    # exactly" is to that floor, and the smoothed y, vy move by as little)
+    assert np.abs(xs[starts] - x_ref).max() <= 1e-6 * max(1.0, np.abs(x_ref).max())
+    assert np.abs(Ps[starts] - P_ref).max() <= 1e-6 * np.abs(P_ref).max()
+
+
 def test_a_stuck_sensor_is_dropped_and_the_others_carry_the_filter(vehicle):
     """The DVL reads +1e6 m/s from 10 s on; the GNSS keeps the position within 3x the error of an untouched twin,
     and the DVL is reported as rejected (gated, inflations bounded), never blamed on u."""

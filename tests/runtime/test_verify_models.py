@@ -330,7 +330,7 @@ def test_every_section_file_is_listed():
     assert {f"abyssal.verify.{f.stem}" for f in here.glob("*.py")} - set(verify.SECTIONS) == {
         "abyssal.verify.__init__", "abyssal.verify.driver", "abyssal.verify.report", "abyssal.verify.reference_models"}
     bench_files = {f.stem for f in cli.benchmarks_folder().glob("bench*.py")}
-    assert bench_files - set(bench.SECTIONS) == {"bench", "bench_folder", "bench_scaling"}
+    assert bench_files - set(bench.SECTIONS) == {"bench", "bench_folder"}
     assert set(bench.SECTIONS) <= bench_files
 
 

@@ -264,7 +264,8 @@ def test_reproduce_remus_prepares_the_gps_then_runs_the_campaign(tmp_path, capsy
     assert "ORACLE" in printed and "BETWEEN training draws" in printed
     document = json.loads((tmp_path / "remus.json").read_text())
     assert document["duration_s"] == 60.0 and document["runs"] == 2
-    assert set(document["summary"]) == {"UKF (oracle)", "UKF (Euler, 1 step)", "GP-UKF N=20", "GP-UKF (state) N=20"}
+    assert set(document["summary"]) == {"UKF (oracle)", "UKF (Euler, 1 step)", "GP-UKF N=20", "GP-UKF (state) N=20",
+                                        "UKF (oracle, measured feedback)", "UKF (Euler, 1 step, measured feedback)"}
     assert set(document["gp_per_draw"]["GP-UKF N=20"]["prediction"]) == {"draw 4", "draw 5"}   # run r: draw r mod 2
     assert np.isfinite(document["summary"]["GP-UKF N=20"]["prediction"]["mean"])
     assert document["paper"]["table4"]["GP-UKF|prediction"] == 2.86

@@ -169,3 +169,56 @@ def test_equations_hash_changes_with_the_maths():
     u, p = symbols("u", INPUTS), symbols("p", PARAMS)
     changed = make_model(x=x, u=u, p=p, xdot=ca.vertcat(x[1], -2 * p[0] * x[0] + u[0]), y=x[0])
     assert changed.equations_hash() != make_model().equations_hash()
+
+
+# --------------------------------------------------------------------------- ocean current
+def test_relative_velocity_in_the_plane_is_the_simulators_current(rng):
+    """Horizontal vessel: nu_c = V_c [cos(beta_c - psi), sin(beta_c - psi), 0] and its rate [r v_c, -r u_c, 0], as
+    Fossen's PythonVehicleSimulator writes them (otter.py), at random states and currents."""
+    for _ in range(20):
+        psi, V_c, beta_c = rng.uniform(-np.pi, np.pi), rng.uniform(0, 2), rng.uniform(-np.pi, np.pi)
+        nu = rng.normal(size=3)
+        eta = np.array([rng.normal(), rng.normal(), psi])
+        nu_r, nu_c_dot = fossen.relative_velocity(eta, nu, [V_c * np.cos(beta_c), V_c * np.sin(beta_c)],
+                                                  fossen.HORIZONTAL)
+        u_c, v_c = V_c * np.cos(beta_c - psi), V_c * np.sin(beta_c - psi)
+        np.testing.assert_allclose(evaluate(nu_r).ravel(), nu - [u_c, v_c, 0], atol=1e-14)
+        np.testing.assert_allclose(evaluate(nu_c_dot).ravel(), [nu[2] * v_c, -nu[2] * u_c, 0], atol=1e-14)
+
+
+def test_relative_velocity_6dof_is_the_water_velocity_in_body_axes(rng):
+    eta, nu, current = rng.normal(size=6), rng.normal(size=6), rng.normal(size=3)
+    nu_r, nu_c_dot = fossen.relative_velocity(eta, nu, current)
+    R = evaluate(fossen.rotation_zyx(*eta[3:6]))
+    v_c = R.T @ current
+    np.testing.assert_allclose(evaluate(nu_r).ravel(), nu - np.r_[v_c, 0, 0, 0], atol=1e-13)
+    np.testing.assert_allclose(evaluate(nu_c_dot).ravel(), np.r_[-np.cross(nu[3:6], v_c), 0, 0, 0], atol=1e-13)
+    with pytest.raises(ValueError, match="current"):
+        fossen.relative_velocity(eta, nu, [1.0])
+
+
+def test_a_turning_vessel_at_rest_in_the_water_drifts_with_the_current():
+    """A vessel moving with the water (nu_r = 0 in surge and sway) while it yaws keeps drifting at exactly the
+    current's NED velocity, integrated over 20 s of turning: the current's rate as seen from the turning body
+    (nu_c_dot) is what keeps it so (without it the vessel would be flung off the current)."""
+    M = fossen.rigid_body_mass_horizontal(25.0, 0.0, 3.0) + fossen.added_mass_horizontal(-2.0, -10.0, 0.0, 0.0, -1.0)
+    D = fossen.linear_damping_horizontal(-5.0, -20.0, 0.0, 0.0, -0.5)
+    current = [0.4, -0.3]
+    x = ca.SX.sym("x", 6)
+    eta, nu = x[0:3], x[3:6]
+    nu_r, nu_c_dot = fossen.relative_velocity(eta, nu, current, fossen.HORIZONTAL)
+    nu_dot = fossen.rigid_body_equations(M, nu_r, 0, ca.mtimes(D, nu_r), dofs=fossen.HORIZONTAL) + nu_c_dot
+    xdot = ca.Function("xdot", [x], [ca.vertcat(fossen.kinematics_horizontal(eta[2], nu), nu_dot)])
+    psi0 = 0.3
+    u_c, v_c = np.array([[np.cos(psi0), np.sin(psi0)], [-np.sin(psi0), np.cos(psi0)]]) @ current
+    state, dt = np.array([0.0, 0.0, psi0, u_c, v_c, 0.8]), 0.01
+    for _ in range(2000):  # RK4
+        k1 = np.array(xdot(state)).ravel()
+        k2 = np.array(xdot(state + dt / 2 * k1)).ravel()
+        k3 = np.array(xdot(state + dt / 2 * k2)).ravel()
+        k4 = np.array(xdot(state + dt * k3)).ravel()
+        state = state + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        ned_velocity = np.array(xdot(state)).ravel()[0:2]
+        np.testing.assert_allclose(ned_velocity, current, atol=1e-9)
+    assert abs(state[2] - psi0) > 0.5  # it did turn
+    np.testing.assert_allclose(state[0:2], 20.0 * np.array(current), atol=1e-8)

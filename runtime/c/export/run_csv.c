@@ -6,8 +6,12 @@
  *        any option of abyssal_kalman_options by its field name (e.g. "gate_probability 1e-10"). Missing options
  *        keep the defaults of the exported filter (ABYSSAL_EXPORTED_FILTER).
  * INPUT  a header line, then one row per step: dt, u_0 ... u_{n_u - 1}, z_0 ... z_{n_y - 1} (comma-separated;
- *        "nan" marks a missing entry: a row with every z entry nan only predicts).
- * OUTPUT a header line, then one row per step: k, code, nis, x_0 ... x_{n_x - 1}, and the upper triangle of P
+ *        "nan" marks a missing entry: a row with every z entry nan only predicts); or, when the header begins with
+ *        "t,", one row per time-stamped call: "t, -1, u_0 ... u_{n_u - 1}" is abyssal_kalman_predict_to(t, u) (u held
+ *        over the interval that ends at t), "t, k, z_0 ... z_{n_y_k - 1}" is abyssal_kalman_update_sensor(k, t, z)
+ *        for sensor k's outputs (a late one is fused at its stamp from the history), optionally followed by the
+ *        n_y_k * n_y_k entries of that measurement's own R (column-major).
+ * OUTPUT a header line, then one row per step (or call): k, code, nis, x_0 ... x_{n_x - 1}, and the upper triangle of P
  *        row by row (P_0_0, P_0_1, ..., P_{n-1}_{n-1}). code is abyssal_kalman_step's return: 1 a measurement
  *        was used, 0 predicted only, < 0 the step was refused and the state is the previous row's.
  *
@@ -29,7 +33,9 @@
 #define N_Y ABYSSAL_EXPORTED_N_Y
 
 static double memory[(ABYSSAL_EXPORTED_BYTES + 7) / 8];
-static double x0[N_X], P0[N_X * N_X], Q[N_X * N_X], R[N_Y * N_Y], row[1 + N_U + N_Y];
+/* a row: dt, u, z; or t, the call, and up to max(n_u, n_y + n_y^2) values */
+#define ROW (2 + N_U + N_Y + N_Y * N_Y)
+static double x0[N_X], P0[N_X * N_X], Q[N_X * N_X], R[N_Y * N_Y], row[ROW];
 static char line[LINE];
 
 static int fail(const char* what, const char* detail) {
@@ -49,6 +55,44 @@ static int numbers(char* text, double* out, int n) {
     text = end;
   }
   return 0;
+}
+
+/* Every number of a comma-separated row into out (at most capacity); their count, or -1 past capacity. */
+static int all_numbers(const char* text, double* out, int capacity) {
+  int count = 0;
+  for (;;) {
+    char* end;
+    while (*text == ' ' || *text == ',' || *text == '\t') ++text;
+    if (*text == '\0' || *text == '\n' || *text == '\r') return count;
+    if (count == capacity) return -1;
+    out[count] = strtod(text, &end);
+    if (end == text) return -1;
+    ++count;
+    text = end;
+  }
+}
+
+/* 1 when a row "t, call, values" (count numbers) has the values its call takes: n_u for a predict_to (call -1),
+ * n_y_k or n_y_k + n_y_k^2 for sensor k's update; any for another call number (the runtime refuses it). */
+static int row_fits(const abyssal_model* model, const double* values, int count) {
+  const int call = (int)values[1], given = count - 2;
+  if (count < 2 || values[1] != (double)call) return 0;
+  if (call == -1) return given == model->n_u;
+  if (call >= 0 && call < model->n_sensors) {
+    const int m = model->sensors[call].n_y;
+    return given == m || given == m + m * m;
+  }
+  return 1;
+}
+
+/* The time-stamped call of a row that fits: the runtime's return code. */
+static int stamped_call(abyssal_kalman* filter, const abyssal_model* model, const double* values, int count) {
+  const double t = values[0];
+  const int call = (int)values[1];
+  if (call == -1) return abyssal_kalman_predict_to(filter, model, t, values + 2, 0);
+  if (call >= 0 && call < model->n_sensors && count - 2 > model->sensors[call].n_y)
+    return abyssal_kalman_update_sensor(filter, model, call, t, values + 2, 0, values + 2 + model->sensors[call].n_y, 0);
+  return abyssal_kalman_update_sensor(filter, model, call, t, values + 2, 0, 0, 0);
 }
 
 static int set_option(abyssal_kalman_options* o, const char* name, double value) {
@@ -79,7 +123,7 @@ int main(int argc, char** argv) {
   abyssal_kalman* filter;
   abyssal_kalman_report report;
   const int n = N_X, n_u = N_U, m = N_Y;
-  int k, i, j, code, status, found = 0;
+  int k, i, j, code = 0, status, found = 0, stamped;
   FILE *setup, *in, *out;
   if (argc != 4) return fail("usage: run_csv SETUP INPUT OUTPUT", 0);
   if (model->n_x != N_X || model->n_u != N_U || model->n_y != N_Y) return fail("the model's sizes differ", model->name);
@@ -119,16 +163,28 @@ int main(int argc, char** argv) {
     for (j = i; j < n; ++j) fprintf(out, ",P_%d_%d", i, j);
   fprintf(out, "\n");
   status = fgets(line, LINE, in) ? 0 : fail("empty input", argv[2]); /* the header */
+  stamped = status == 0 && strncmp(line, "t,", 2) == 0;
   for (k = 0; status == 0 && fgets(line, LINE, in); ++k) {
     const double *x, *P;
     int any = 0;
-    if (numbers(line, row, 1 + n_u + m)) {
-      fprintf(stderr, "run_csv: row %d of %s has fewer than %d numbers\n", k + 1, argv[2], 1 + n_u + m);
-      status = 2;
-      break;
+    if (stamped) {
+      const int count = all_numbers(line, row, ROW);
+      if (count < 0 || !row_fits(model, row, count)) {
+        fprintf(stderr, "run_csv: row %d of %s is not \"t, -1, u\" (n_u values) or \"t, k, z[, R]\" (sensor k's n_y "
+                "values, and optionally its n_y * n_y R)\n", k + 1, argv[2]);
+        status = 2;
+        break;
+      }
+      code = stamped_call(filter, model, row, count);
+    } else {
+      if (numbers(line, row, 1 + n_u + m)) {
+        fprintf(stderr, "run_csv: row %d of %s has fewer than %d numbers\n", k + 1, argv[2], 1 + n_u + m);
+        status = 2;
+        break;
+      }
+      for (i = 0; i < m; ++i) any |= !isnan(row[1 + n_u + i]);
+      code = abyssal_kalman_step(filter, model, row + 1, row[0], any ? row + 1 + n_u : 0, 0, 0);
     }
-    for (i = 0; i < m; ++i) any |= !isnan(row[1 + n_u + i]);
-    code = abyssal_kalman_step(filter, model, row + 1, row[0], any ? row + 1 + n_u : 0, 0, 0);
     abyssal_kalman_get_report(filter, &report);
     x = abyssal_kalman_x(filter);
     P = abyssal_kalman_P(filter);
@@ -142,7 +198,7 @@ int main(int argc, char** argv) {
   if (fclose(out) != 0) return fail("cannot write", argv[3]);
   if (status != 0) return status;
   abyssal_kalman_get_report(filter, &report);
-  printf("%d steps; gated %lld entries, %lld inflations, %lld repairs, %lld subdivided predicts\n", k, report.gated,
+  printf("%d %s; gated %lld entries, %lld inflations, %lld repairs, %lld subdivided predicts\n", k, stamped ? "calls" : "steps", report.gated,
          report.inflations, report.repairs, report.substeps);
   return 0;
 }

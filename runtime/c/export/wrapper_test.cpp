@@ -2,9 +2,10 @@
 //
 //     wrapper_test SETUP INPUT EXPECTED TOLERANCE NIS_TOLERANCE
 //
-// Runs the exported filter through abyssal::KalmanFilter on INPUT (run_csv's formats), compares x, P and the codes
-// with EXPECTED (compare_csv's tolerances), checks that a copy of the filter is an exact checkpoint (copy, run both on the same rows:
-// bit-identical) and that a refused call changes nothing. Exit 0 when all pass.
+// Runs the exported filter through abyssal::KalmanFilter on INPUT (run_csv's formats: dt/u/z rows through step(), or
+// time-stamped rows "t,-1,u" / "t,k,z[,R]" through predict_to() and update(sensor, z, t, R)), compares x, P and the
+// codes with EXPECTED (compare_csv's tolerances), checks that a copy of the filter is an exact checkpoint (copy, run
+// both on the same rows: bit-identical) and that a refused call changes nothing. Exit 0 when all pass.
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
@@ -46,11 +47,20 @@ void fill(Array& out, const std::vector<double>& values) {
 }
 
 struct Row {
-  double dt;
+  double dt;  // or the time stamp t of a time-stamped call
   Filter::Input u;
   Filter::Measurement z;
   bool measured;
+  int call;               // time-stamped rows: -1 predict_to, k >= 0 sensor k's update
+  std::vector<double> R;  // a time-stamped update's own R (empty: the filter's)
 };
+
+// One row through the wrapper: step(), or the time-stamped call.
+int apply(Filter& filter, const Row& row, bool stamped) {
+  if (!stamped) return row.measured ? filter.step(row.u, row.dt, row.z) : filter.step(row.u, row.dt);
+  if (row.call == -1) return filter.predict_to(row.dt, row.u);
+  return filter.update(row.call, row.z.data(), row.dt, row.R.empty() ? nullptr : row.R.data());
+}
 
 }  // namespace
 
@@ -87,20 +97,44 @@ int main(int argc, char** argv) {
     else if (name == "kappa") options.kappa = values.at(0);
     else if (name == "sigma") options.sigma = values.at(0);
     else if (name == "gamma") options.gamma = values.at(0);
+    else if (name == "huber_iterations") options.huber_iterations = static_cast<int>(values.at(0));
+    else if (name == "gate_max_inflations") options.gate_max_inflations = static_cast<int>(values.at(0));
+    else if (name == "noise") options.noise = static_cast<int>(values.at(0));
+    else if (name == "history_entries") options.history_entries = static_cast<int>(values.at(0));
+    else if (name == "history_seconds") options.history_seconds = values.at(0);
+    else if (name == "smoothing") options.smoothing = static_cast<int>(values.at(0));
+    else {
+      std::cerr << "wrapper_test: unknown setup line " << name << "\n";
+      return 2;
+    }
   }
   std::vector<Row> rows;
   std::ifstream input(argv[2]);
   std::string line;
   std::getline(input, line);  // header
+  const bool stamped = line.rfind("t,", 0) == 0;
+  const abyssal_model& model = *ABYSSAL_EXPORTED_MODEL;
   while (std::getline(input, line)) {
     const std::vector<double> v = numbers(line);
     Row row{};
     row.dt = v.at(0);
-    for (std::size_t i = 0; i < row.u.size(); ++i) row.u[i] = v.at(1 + i);
     row.measured = false;
-    for (std::size_t i = 0; i < row.z.size(); ++i) {
-      row.z[i] = v.at(1 + row.u.size() + i);
-      row.measured = row.measured || !std::isnan(row.z[i]);
+    if (stamped) {
+      row.call = static_cast<int>(v.at(1));
+      const std::size_t given = v.size() - 2;
+      if (row.call == -1) {
+        for (std::size_t i = 0; i < row.u.size(); ++i) row.u[i] = v.at(2 + i);
+      } else {
+        const std::size_t m = row.call >= 0 && row.call < model.n_sensors ? model.sensors[row.call].n_y : given;
+        for (std::size_t i = 0; i < m && i < row.z.size(); ++i) row.z[i] = v.at(2 + i);
+        if (given > m) row.R.assign(v.begin() + 2 + static_cast<long>(m), v.end());
+      }
+    } else {
+      for (std::size_t i = 0; i < row.u.size(); ++i) row.u[i] = v.at(1 + i);
+      for (std::size_t i = 0; i < row.z.size(); ++i) {
+        row.z[i] = v.at(1 + row.u.size() + i);
+        row.measured = row.measured || !std::isnan(row.z[i]);
+      }
     }
     rows.push_back(row);
   }
@@ -119,7 +153,7 @@ int main(int argc, char** argv) {
   for (std::size_t k = 0; k < rows.size(); ++k) {
     const Row& row = rows[k];
     const std::array<double, n> before = filter.x().array();
-    const int code = row.measured ? filter.step(row.u, row.dt, row.z) : filter.step(row.u, row.dt);
+    const int code = apply(filter, row, stamped);
     if (code < 0) {  // refused: nothing changed
       ++refused;
       if (filter.x().array() != before) {
@@ -157,15 +191,25 @@ int main(int argc, char** argv) {
   }
   // A copy is a checkpoint: both filters go on bit-identically.
   Filter copy = filter;
-  for (std::size_t k = 0; k < 50 && k < rows.size(); ++k) {
-    filter.step(rows[k].u, rows[k].dt, rows[k].z);
-    copy.step(rows[k].u, rows[k].dt, rows[k].z);
+  if (stamped) {  // the stamps go on from the end of the run
+    const double t0 = filter.t();
+    for (std::size_t k = 0; k < 50 && k < rows.size(); ++k) {
+      Row row = rows[k];
+      row.dt += t0;
+      apply(filter, row, true);
+      apply(copy, row, true);
+    }
+  } else {
+    for (std::size_t k = 0; k < 50 && k < rows.size(); ++k) {
+      apply(filter, rows[k], false);
+      apply(copy, rows[k], false);
+    }
   }
   if (filter.x().array() != copy.x().array() || filter.P().array() != copy.P().array()) {
     std::cerr << "a copied filter diverged from its original\n";
     ++failures;
   }
-  std::cout << rows.size() << " steps through abyssal::KalmanFilter (" << filter.bytes() << " bytes, " << refused
+  std::cout << rows.size() << (stamped ? " time-stamped calls" : " steps") << " through abyssal::KalmanFilter (" << filter.bytes() << " bytes, " << refused
             << " refused); largest relative difference from the recorded vectors " << worst << " (tolerance "
             << tolerance << "): " << (failures ? "FAILED" : "passed") << "\n";
   return failures ? 1 : 0;

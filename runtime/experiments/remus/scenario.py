@@ -99,15 +99,15 @@ def rotation(phi, theta, psi) -> np.ndarray:
                      [-st, ct * sf, ct * cf]])
 
 
-def los_guidance(t: float, nu, pos, euler, s: HelixSetup) -> tuple[float, float, float, float, float]:
-    """(u_d, chi_d, upsilon_d, chi, upsilon) of spec 6."""
+def los_guidance(t: float, nu, pos, euler, s: HelixSetup, path=helix_point) -> tuple[float, float, float, float, float]:
+    """(u_d, chi_d, upsilon_d, chi, upsilon) of spec 6, along path(t, s) -> (P, dP/dt) (the helix by default)."""
     if t == 0.0:
         return 1.0 * nu[0] / max(math.sqrt(nu[0] ** 2 + nu[1] ** 2 + nu[2] ** 2), 1e-12), 0.0, 0.0, 0.0, 0.0
     pdot = rotation(*euler) @ nu[0:3]
     chi = math.atan2(pdot[1], pdot[0])
     horizontal = math.hypot(pdot[0], pdot[1])
     upsilon = math.atan(-pdot[2] / horizontal) if horizontal > 0 else 0.0
-    P, dP = helix_point(t, s)
+    P, dP = path(t, s)
     psi_p = math.atan2(dP[1], dP[0])
     theta_p = math.atan(-dP[2] / math.hypot(dP[0], dP[1]))
     d = pos - P
@@ -144,6 +144,39 @@ class DiscretePID:
         return y
 
 
+class Autopilot:
+    """The vehicle's controllers (spec 6-7): LOS guidance along path(t, s) and the three discrete PIDs, updated every
+    pid_period and held, with the feedback-linearising terms and the EWMA of the rpm evaluated every base step.
+
+        autopilot = Autopilot(setup)              # the helix; Autopilot(setup, path) for another path
+        autopilot(k, nu, pos, euler, u)           # base step k: writes the input held over [k, k + 1) base steps into u
+    """
+
+    def __init__(self, s: HelixSetup, path=helix_point):
+        self.s, self.path = s, path
+        self.pid_every = int(round(s.pid_period / s.base_dt))
+        self.speed_pid = DiscretePID(s.speed_pid, s.pid_period)
+        self.elevator_pid = DiscretePID(s.elevator_pid, s.pid_period)
+        self.rudder_pid = DiscretePID(s.rudder_pid, s.pid_period)
+        self.y_u = self.y_ups = self.y_chi = 0.0
+        self.ewma_w = self.ewma_s = 0.0
+
+    def __call__(self, k: int, nu, pos, euler, u: np.ndarray) -> None:
+        s = self.s
+        if k % self.pid_every == 0:
+            u_d, chi_d, ups_d, chi, ups = los_guidance(k * s.base_dt, nu, pos, euler, s, self.path)
+            self.y_u = self.speed_pid(u_d - nu[0])
+            self.y_ups = self.elevator_pid(ups_d - ups)
+            self.y_chi = self.rudder_pid(math.atan2(math.sin(chi_d - chi), math.cos(chi_d - chi)))
+        vu, vv, vw, vq, vr = nu[0], nu[1], nu[2], nu[4], nu[5]
+        a = 31.40 * self.y_u - 65.97 * vv * vr + 65.97 * vw * vq
+        self.ewma_w = s.ewma_lambda * self.ewma_w + 1.0
+        self.ewma_s = (1.0 - 1.0 / self.ewma_w) * self.ewma_s + a / self.ewma_w
+        u[0] = self.ewma_s
+        u[1] = 8.33 * self.y_ups - 34.57 * vu * vw + 9.81 * 0.0196 * math.sin(euler[1])
+        u[2] = 8.33 * self.y_chi + 34.57 * vu * vv
+
+
 def sensor_noise(seed: int, s: HelixSetup) -> np.ndarray:
     """Held Gaussian noise samples, one row per 0.1 s (spec 8); seed = run index."""
     n_hold = int(math.ceil(s.duration / s.noise_hold)) + 2
@@ -172,18 +205,12 @@ def simulate(seed: int, setup: HelixSetup | None = None, bundle=None) -> HelixLo
     noise = sensor_noise(seed, s)
     n_base = int(round(s.duration / s.base_dt))
     hold_every = int(round(s.noise_hold / s.base_dt))
-    pid_every = int(round(s.pid_period / s.base_dt))
 
     x = np.array(s.x0, dtype=float)
     x_next = np.zeros(12)
     u = np.zeros(3)
     step = bundle.functions["f"].bind([x, u, params, np.array([s.base_dt])], [x_next]).eval
-
-    speed_pid = DiscretePID(s.speed_pid, s.pid_period)
-    elevator_pid = DiscretePID(s.elevator_pid, s.pid_period)
-    rudder_pid = DiscretePID(s.rudder_pid, s.pid_period)
-    y_u = y_ups = y_chi = 0.0
-    ewma_w = ewma_s = 0.0
+    autopilot = Autopilot(s)
 
     n_log = n_base // s.log_every + 1
     T, X, Uo, Z, Ref = np.empty(n_log), np.empty((n_log, 12)), np.empty((n_log, 3)), np.empty((n_log, 10)), np.empty((n_log, 3))
@@ -198,19 +225,7 @@ def simulate(seed: int, setup: HelixSetup | None = None, bundle=None) -> HelixLo
             nu, depth, euler = x[0:6], x[8], x[9:12]
         else:
             nu, depth, euler = y[0:6], y[6], y[7:10]
-        pos = np.array([x[6], x[7], depth])
-        if k % pid_every == 0:
-            u_d, chi_d, ups_d, chi, ups = los_guidance(t, nu, pos, euler, s)
-            y_u = speed_pid(u_d - nu[0])
-            y_ups = elevator_pid(ups_d - ups)
-            y_chi = rudder_pid(math.atan2(math.sin(chi_d - chi), math.cos(chi_d - chi)))
-        vu, vv, vw, vq, vr = nu[0], nu[1], nu[2], nu[4], nu[5]
-        a = 31.40 * y_u - 65.97 * vv * vr + 65.97 * vw * vq
-        ewma_w = s.ewma_lambda * ewma_w + 1.0
-        ewma_s = (1.0 - 1.0 / ewma_w) * ewma_s + a / ewma_w
-        u[0] = ewma_s
-        u[1] = 8.33 * y_ups - 34.57 * vu * vw + 9.81 * 0.0196 * math.sin(euler[1])
-        u[2] = 8.33 * y_chi + 34.57 * vu * vv
+        autopilot(k, nu, np.array([x[6], x[7], depth]), euler, u)
         if logged:
             i = k // s.log_every
             T[i], X[i], Uo[i], Z[i] = t, x, u, y

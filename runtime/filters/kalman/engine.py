@@ -31,9 +31,12 @@ Contract
   |eigenvalue| (default 1e-10); P0 = 0 becomes ``repair_floor`` x max(max |Q|, 1) x I, the Dirac's nearest
   Gaussian. Counted in ``repairs``; a failed retry is refused ("the filter diverged").
 * Innovation gate (on by default; gate.py describes the rule): options ``gate_probability`` (default 1e-10;
-  0 turns it off), ``gate_patience`` (5) and ``gate_inflation`` (4); an update with every entry gated returns
-  False (the predict stands). Counted in ``gated`` and ``inflations``. (rov4dof, CKF, a permanent 25 m jump
-  of the x fix: re-acquired within 5 + 5 updates; tests/runtime/test_kalman.py.)
+  0 turns it off), ``gate_patience`` (5), ``gate_inflation`` (4) and ``gate_max_inflations`` (10 per streak, so P
+  grows at most 4^10 along a sensor: a real jump of up to ~1000 gate widths is re-acquired, a sensor stuck
+  further out is held as rejected); an update with every entry gated returns False (the predict stands). Counted
+  in ``gated`` and ``inflations``. (rov4dof, CKF, a permanent 25 m jump of the x fix: re-acquired within 5 + 5
+  updates; tests/runtime/test_kalman.py. A depth gauge stuck at +1e6 m from the first step: rejected after 10
+  inflations, the filter carried on by the others; tests/runtime/test_unit_slip.py.)
 * dt beyond the model's stable range: every predict is checked for a covariance that grows more than
   ``growth_limit`` (default 1e3) times (max diag P + max diag Q) in one step, or an integration that stops
   being finite (sigma points at high speed make explicit RK4 unstable: rov4dof at dt = 1 s). Such a step is
@@ -68,6 +71,7 @@ from abyssal.runtime.compiled import kalman as kr
 from ...contract import (FilterBase, FilterResult, _nonfinite_message, _vector, check_covariance, check_dt,
                          check_run_arguments, check_state, check_time, register, result_nees)
 from ...numerics import REPAIR_FLOOR, repair_covariance
+from .units import UnitWatch
 
 __all__ = [
     "CKF", "EKF", "FilterResult", "HuberUKF", "KalmanFilter", "MCUKF", "UKF", "process_noise", "repair_covariance",
@@ -75,6 +79,7 @@ __all__ = [
 
 #: dt types the hot path hands to the C runtime as they are (anything else, a bool included, is checked first)
 _PLAIN_NUMBERS = frozenset({float, int, np.float64})
+_BLOCK_TIME = kr.BLOCK_TIME
 #: the history's events when a filter keeps one (history_seconds > 0 or smoothing) and history_entries is not given
 DEFAULT_HISTORY_ENTRIES = 256
 
@@ -97,7 +102,7 @@ class KalmanFilter(FilterBase):
     def __init__(self, model, x0, P0, Q, R=None, *, t0: float = 0.0, noise: str = "step", history_seconds: float = 0.0,
                  history_entries: int | None = None, smoothing: bool = False, repair_floor: float = REPAIR_FLOOR,
                  gate_probability: float = 1e-10, gate_patience: int = 5, gate_inflation: float = 4.0,
-                 gate_max_inflations: int = 20, growth_limit: float = 1e3, max_substeps: int = 64, **rule):
+                 gate_max_inflations: int = 10, growth_limit: float = 1e3, max_substeps: int = 64, **rule):
         if not (hasattr(model, "functions") and hasattr(model, "library")):
             raise TypeError(f"{type(self).__name__} needs a model bundle from abyssal.generated.load(); got {model!r}")
         runtime = kr.KalmanRuntime.of(model)
@@ -165,8 +170,15 @@ class KalmanFilter(FilterBase):
         self._u_view, self._z_view = memoryview(self._u), memoryview(self._z)
         self._io_view, self._code_view = memoryview(self._io), memoryview(self._code)
         self._gate = None
+        self._acquire, self._release = self._lock.acquire, self._lock.release  # (bound once: the hot path's lock)
         self._sensor_index = {name: k for k, name in enumerate(model.sensor_names)}
+        # each sensor's outputs, own parameters, and a view of its outputs' place in the call block
+        self._sensor_views = [(len(s["outputs"]), len(s["parameters"]), memoryview(self._z[:len(s["outputs"])]))
+                              for s in model.sensors]
         self._warned_max_dt = False
+        envelope = model.envelope  # the declared max_dt (its envelope), inf when none is declared
+        self._max_dt = float(envelope["max_dt"]) if envelope and envelope.get("declared") else math.inf
+        self._unit_watch = UnitWatch(model, type(self).__name__)  # the first updates, for values in another unit
 
     def _view(self, runtime, n: int, m: int, q_rows: int, n_sensors: int) -> None:
         """NumPy views of the filter object's parts (abyssal_kalman_offset)."""
@@ -418,11 +430,14 @@ class KalmanFilter(FilterBase):
             raise self._busy()
         try:
             k = self._sensor(sensor)
-            spec = self.model.sensors[k]
-            rows, n_q = len(spec["outputs"]), len(spec["parameters"])
-            t = check_time(t, "t")
-            z = _vector(z, rows, "z")
-            self._z[:rows] = z
+            rows, n_q, z_view = self._sensor_views[k]
+            if type(t) not in _PLAIN_NUMBERS:  # (a plain number's finiteness is the C runtime's check)
+                t = check_time(t, "t")
+            try:  # an exact float64 vector of the sensor's outputs goes straight in, as in step()
+                z_view[:] = z
+            except (TypeError, ValueError):
+                z = _vector(z, rows, "z")
+                self._z[:rows] = z
             self._io_view[kr.BLOCK_TIME] = t
             self._io_view[kr.BLOCK_SENSOR] = k
             if R is None:
@@ -435,6 +450,12 @@ class KalmanFilter(FilterBase):
             else:
                 self._q_call[:n_q] = check_state(p, n_q, "p")
                 self._io_view[kr.BLOCK_HAS_Q] = 1.0
+            if self._unit_watch is not None:
+                spec = self.model.sensors[k]
+                offset = spec["offset"]
+                R_k = self._R[offset:offset + rows, offset:offset + rows] if R is None else self._R_call[:rows * rows]
+                self._watch_units(k, self._z[:rows], np.reshape(R_k, (rows, rows)),
+                                  None if p is None else (spec["p_offset"], self._q_call[:n_q]))
             self._call_update_sensor()
             code = self._code_view[0]
             if code < 0.0:
@@ -478,7 +499,7 @@ class KalmanFilter(FilterBase):
         given = [p for p in a.rows_p if p is not None]
         P_rows = None if not given else np.ascontiguousarray([model.p_default if p is None else p for p in a.rows_p])
         if dts.size and dts.max() > 0:
-            self._warn_beyond_max_dt(float(dts.max()))
+            self._warn_beyond_max_dt(float(dts.max()), stacklevel=3)
         xs, Ps = np.empty((T, n)), np.empty((T, n, n))
         nis, dof, row = np.full(T, np.nan), np.zeros(T, dtype=np.int32), ctypes.c_longlong(-1)
         if not self._lock.acquire(False):
@@ -511,34 +532,49 @@ class KalmanFilter(FilterBase):
                             step_time=np.full(T, elapsed / max(T, 1)))
 
     # -------------------------------------------------------------- the contract's calls (FilterBase holds the lock)
-    def _step_call(self, u, dt, z, p) -> bool:
-        try:  # exact float64 vectors of the right length only (see __init__), else the checked path
-            self._u_view[:] = u
-            if z is not None:
-                self._z_view[:] = z
-        except (TypeError, ValueError):
-            self._u[:] = _vector(u, self.model.n_u, "u")
-            if z is not None:
-                self._z[:] = _vector(z, self.model.n_y, "z")
-        self._io_view[kr.BLOCK_TIME] = dt if type(dt) in _PLAIN_NUMBERS else check_dt(dt)
-        self._warn_beyond_max_dt(self._io_view[kr.BLOCK_TIME])
-        saved = None if p is None and self._p_is_default else self._use_p(p)
-        if z is None:
-            self._call_predict()
-        else:
-            self._call_step()
-        code = self._code_view[0]
-        if code >= 0.0:
-            return code == 1.0
-        raise self._refusal(code, saved, "step")
+    def step(self, u, dt, z=None, p=None) -> bool:
+        """predict(u, dt, p) then update(z, p) as one transaction; returns whether an update happened. (The
+        contract's step in one frame: the C step is itself the transaction, and this is the hot path.)"""
+        if not self._acquire(False):
+            raise self._busy()
+        try:
+            try:  # exact float64 vectors of the right length only (see __init__), else the checked path
+                self._u_view[:] = u
+                if z is not None:
+                    self._z_view[:] = z
+            except (TypeError, ValueError):
+                self._u[:] = _vector(u, self.model.n_u, "u")
+                if z is not None:
+                    self._z[:] = _vector(z, self.model.n_y, "z")
+            if type(dt) not in _PLAIN_NUMBERS:
+                dt = check_dt(dt)
+            self._io_view[_BLOCK_TIME] = dt
+            if dt > self._max_dt:
+                self._warn_beyond_max_dt(dt)
+            saved = None if p is None and self._p_is_default else self._use_p(p)
+            if z is None:
+                self._call_predict()
+            else:
+                if self._unit_watch is not None:
+                    self._watch_units(None, self._z, self._R, None)
+                self._call_step()
+            code = self._code_view[0]
+            if code >= 0.0:
+                return code == 1.0
+            raise self._refusal(code, saved, "step")
+        finally:
+            self._release()
 
     def _predict_call(self, u, dt, p) -> None:
         try:
             self._u_view[:] = u
         except (TypeError, ValueError):
             self._u[:] = _vector(u, self.model.n_u, "u")
-        self._io_view[kr.BLOCK_TIME] = dt if type(dt) in _PLAIN_NUMBERS else check_dt(dt)
-        self._warn_beyond_max_dt(self._io_view[kr.BLOCK_TIME])
+        if type(dt) not in _PLAIN_NUMBERS:
+            dt = check_dt(dt)
+        self._io_view[kr.BLOCK_TIME] = dt
+        if dt > self._max_dt:
+            self._warn_beyond_max_dt(dt)
         saved = None if p is None and self._p_is_default else self._use_p(p)
         self._call_predict()
         if self._code_view[0] < 0.0:
@@ -551,6 +587,8 @@ class KalmanFilter(FilterBase):
             except (TypeError, ValueError):
                 self._z[:] = _vector(z, self.model.n_y, "z")
         saved = None if p is None and self._p_is_default else self._use_p(p)
+        if z is not None and self._unit_watch is not None:
+            self._watch_units(None, self._z, self._R, None)
         if z is None:
             self._call_check_p()
         else:
@@ -562,17 +600,36 @@ class KalmanFilter(FilterBase):
             self._p[:], self._p_is_default = saved
         return code == 1.0
 
-    def _warn_beyond_max_dt(self, dt: float) -> None:
+    def _watch_units(self, sensor, z, R, sensor_p) -> None:
+        """Hand the unit watch (units.py) sensor k's values z (None: every sensor, z stacked) with the prediction h(x)
+        from the filter's estimate (sensor_p: (its offset in p, the sensor's own parameters of this call) or None)."""
+        watch = self._unit_watch
+        if not (any(watch.watching) if sensor is None else watch.watching[sensor]):
+            return
+        p = self._p.copy()
+        if sensor_p is not None:
+            p[sensor_p[0]:sensor_p[0] + len(sensor_p[1])] = sensor_p[1]
+        with np.errstate(all="ignore"):
+            y = self.model.h(self.x, p)
+        z = np.asarray(z, dtype=float)
+        for k in range(len(watch.sensors)) if sensor is None else (sensor,):
+            first, end = watch.sensors[k]
+            values = z[first:end] if sensor is None else z
+            if watch.watching[k] and not np.isnan(values).all():
+                block = R[first:end, first:end] if sensor is None else R
+                watch.observe_sensor(k, values, y[first:end], block)
+        if watch.done:
+            self._unit_watch = None
+
+    def _warn_beyond_max_dt(self, dt: float, stacklevel: int = 4) -> None:
         """Once per filter: a step longer than the model's declared max_dt (its envelope) is outside what the model
         was verified for (the runtime still subdivides a step that blows up)."""
-        if self._warned_max_dt:
+        if self._warned_max_dt or not dt > self._max_dt:
             return
-        envelope = self.model.envelope
-        if envelope and envelope.get("declared") and dt > envelope["max_dt"]:
-            self._warned_max_dt = True
-            warnings.warn(f"{type(self).__name__}: dt = {dt!r} s is beyond model {self.model.name!r}'s declared max_dt = "
-                          f"{envelope['max_dt']!r} s (its envelope); the filter runs it, outside what the model was "
-                          "verified for", RuntimeWarning, stacklevel=4)
+        self._warned_max_dt = True
+        warnings.warn(f"{type(self).__name__}: dt = {dt!r} s is beyond model {self.model.name!r}'s declared max_dt = "
+                      f"{self._max_dt!r} s (its envelope); the filter runs it, outside what the model was verified "
+                      "for", RuntimeWarning, stacklevel=stacklevel)
 
     def _use_p(self, p):
         """p into the call block (None: the model's defaults); returns what to put back if the call is refused.
@@ -636,6 +693,8 @@ class KalmanFilter(FilterBase):
         name = f"{type(self).__name__}.update({sensor!r})"
         report = self.sensor_report(sensor)
         if code == kr.E_TIME:
+            if not math.isfinite(t):
+                return ValueError(f"{name}: t must be a finite time stamp in seconds, got {t!r}")
             return ValueError(f"{name}: t = {t!r} s is not after this sensor's previous stamp {report['last_t']!r} s (each "
                               "sensor's stamps must increase)")
         if code == kr.E_TOO_LATE:
@@ -674,7 +733,8 @@ class UKF(KalmanFilter):
 
     kind = "ukf"
 
-    def __init__(self, model, x0, P0, Q, R, *, alpha: float = 1.0, beta: float = 2.0, kappa: float = 0.0, **options):
+    def __init__(self, model, x0, P0, Q, R=None, *, alpha: float = 1.0, beta: float = 2.0, kappa: float = 0.0,
+                 **options):
         super().__init__(model, x0, P0, Q, R, alpha=alpha, beta=beta, kappa=kappa, **options)
 
 
@@ -684,7 +744,7 @@ class MCUKF(UKF):
 
     kind = "mcukf"
 
-    def __init__(self, model, x0, P0, Q, R, *, sigma: float = 15.0, **options):
+    def __init__(self, model, x0, P0, Q, R=None, *, sigma: float = 15.0, **options):
         super().__init__(model, x0, P0, Q, R, sigma=sigma, **options)
 
 
@@ -694,5 +754,5 @@ class HuberUKF(UKF):
 
     kind = "huber"
 
-    def __init__(self, model, x0, P0, Q, R, *, gamma: float = 1.345, **options):
+    def __init__(self, model, x0, P0, Q, R=None, *, gamma: float = 1.345, **options):
         super().__init__(model, x0, P0, Q, R, gamma=gamma, **options)
