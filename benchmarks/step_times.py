@@ -51,10 +51,10 @@ def main():
         "CPF N=100": per_step(lambda: CubatureParticleFilter(rov, x0, P0, Qm, Rm, 100, np.random.default_rng(0)), U, Z, 60),
         "UPF N=100": per_step(lambda: UnscentedParticleFilter(rov, x0, P0, Q, R, 100, np.random.default_rng(0)), U, Z, 60),
     }
-    # the cooperative-navigation UPF of seed 002 at its N_start = 5000 (cn2d, one range per 5 s step)
+    # the cooperative-navigation UPF of seed 002 at its N_start = 5000 (cn2d, one leader sensor's range per 5 s step)
     cn = abyssal.generated.load("cn2d")
     trial = scenario.simulate(scenario.CnScenario(), "gaussian", np.random.default_rng(11))
-    Qc, Rc = np.diag([100.0, 100.0]), np.array([[0.1]])
+    Qc, Rc = np.diag([100.0, 100.0]), np.eye(2) * 0.1  # each leader sensor's R
     out["UPF cn N=5000"] = per_step(lambda: UnscentedParticleFilter(cn, trial.x0, trial.P0, Qc, Rc, 5000,
                                                                     np.random.default_rng(0)),
                                     trial.U, trial.Z, 20, trial.dt, trial.params)

@@ -16,10 +16,17 @@ SC = scenario.CnScenario()
 def test_trial_shapes_leaders_alternate_and_p_is_the_broadcast_leader():
     tr = scenario.simulate(SC, "gaussian", np.random.default_rng(0))
     K = int(SC.duration // SC.ping_period)
-    assert tr.Z.shape == (K, 1) and tr.U.shape == (K, 3) and tr.params.shape == (K, 2) and tr.truth.shape == (K, 2)
+    assert tr.Z.shape == (K, 2) and tr.U.shape == (K, 3) and tr.params.shape == (K, 4) and tr.truth.shape == (K, 2)
     np.testing.assert_array_equal(tr.leader, np.arange(K) % 2)
+    # one range sensor per leader: the ping's range in its leader's column, NaN in the other's; the pinging
+    # leader's broadcast in its own parameter slots
+    rows = np.arange(K)
+    np.testing.assert_array_equal(tr.Z[rows, tr.leader], tr.ranges)
+    assert np.isnan(tr.Z[rows, 1 - tr.leader]).all()
+    np.testing.assert_array_equal(tr.params.reshape(K, 2, 2)[rows, tr.leader], tr.gps)
+    assert [scenario.ping(tr, k)[0] for k in range(3)] == ["leader0", "leader1", "leader0"]
     true_leader = tr.leaders_true[tr.leader, np.arange(K)]
-    gps_error = tr.params - true_leader
+    gps_error = tr.gps - true_leader
     assert 1.0 < gps_error.std() < 2.2  # 1.8 m CEP
     # the AUV is between the leaders (Fig. 6)
     assert np.all((tr.truth[:, 1] < tr.leaders_true[0, :, 1]) & (tr.truth[:, 1] > tr.leaders_true[1, :, 1]))
@@ -104,8 +111,20 @@ def test_printed_tuning_beats_a_quarter_of_dead_reckoning_when_the_lines_cross_w
         dr = scenario.ape(trial.dr, trial.truth)
         for name in ("CKF", "MCUKF"):
             filt = experiment.make_filter(name, cn, trial, config, np.random.default_rng(0))
-            result = filt.run(trial.U, trial.Z, trial.dt, params=trial.params)
+            result = experiment.run_kalman_by_sensor(filt, trial)
             assert (scenario.ape(result.x, trial.truth) < dr / 4) == better, (geometry, name)
+
+
+@pytest.mark.parametrize("name", ["CKF", "MCUKF"])
+def test_each_leader_as_its_own_sensor_update_equals_the_stacked_run(cn, name):
+    """update(leader_k, z, t, p=gps) per ping gives the estimates of run() on the stacked form (the silent leader's
+    entry NaN) to rounding, and the NEES the filter reports."""
+    config, trial = experiment.CnConfig(), _trial("crossing60", "multipath")
+    by_sensor = experiment.run_kalman_by_sensor(experiment.make_filter(name, cn, trial, config, None), trial)
+    stacked = experiment.make_filter(name, cn, trial, config, None).run(trial.U, trial.Z, trial.dt,
+                                                                       params=trial.params, truth=trial.truth)
+    np.testing.assert_allclose(by_sensor.x, stacked.x, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(by_sensor.nees, stacked.nees, rtol=1e-7)
 
 
 def _short_config(**changes):

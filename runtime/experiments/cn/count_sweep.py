@@ -111,7 +111,7 @@ def make_filter(label: str, model, trial, config: CountConfig, rng):
     from ...resampling import KLDResampling
 
     base = config.base
-    Q, R = np.eye(2) * base.q_std**2, np.array([[base.r]])
+    Q, R = np.eye(2) * base.q_std**2, np.eye(model.n_y) * base.r  # each leader sensor's R (the stacked form)
     rules = RULES[rules_of(label)]
     if label.startswith("UPF"):
         return UnscentedParticleFilter(model, trial.x0, trial.P0, Q, R, base.n_particles, rng, gate_probability=0.0,
