@@ -565,7 +565,7 @@ Written by `{command}`. Needs a C99 compiler (and CMake >= 3.13 for the project;
 wrapper's test); no Python, NumPy or CasADi.
 
 ```bash
-cmake -S . -B build && cmake --build build && (cd build && ctest --output-on-failure)
+cmake -S . -B build && cmake --build build --parallel && (cd build && ctest --output-on-failure)   # --parallel: every core, a line per file
 build/run_csv tests/vectors/setup.txt tests/vectors/input.csv out.csv      # the example: dt/u/z rows in, x/P rows out
 build/run_csv tests/vectors/setup.txt tests/vectors/events.csv out.csv     # time-stamped rows: t, sensor, values
 cc -std=c99 -Wall -Wextra -Werror -pedantic -O2 -ffp-contract=off -Iinclude src/*.c examples/run_csv.c -o run_csv -lm  # no CMake

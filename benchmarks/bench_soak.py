@@ -164,24 +164,26 @@ def ranges(steps: int, seed: int = 0, offset: float = 0.0) -> Scenario:
     heading = 0.4 * np.sin(2 * np.pi * np.arange(steps) / 120) + 2 * np.pi * np.arange(steps) / 400
     U = np.column_stack([np.full(steps, 1.5), np.zeros(steps), heading])
     leaders = np.array([[400.0, 250.0], [-300.0, 150.0]]) + offset
-    params = leaders[np.arange(steps) % 2]
+    which = np.arange(steps) % 2  # the sensor (leader0, leader1) that pings at step k
+    params = np.tile(leaders.reshape(-1), (steps, 1))
     X, x = np.empty((steps, 2)), np.full(2, offset)
     for k in range(steps):
         X[k] = x = bundle.f(x, U[k], params[k], dt) + rng.normal(0.0, 0.5, 2)
     # DVL and compass as the filter sees them: small noise on the inputs
     U_measured = U + np.column_stack([rng.normal(0, 0.02, steps), rng.normal(0, 0.02, steps), rng.normal(0, 0.01, steps)])
-    Z_clean = np.linalg.norm(X - params, axis=1)[:, None] + rng.normal(0.0, 1.0, (steps, 1))
+    Z_clean = np.full((steps, 2), np.nan)
+    Z_clean[np.arange(steps), which] = np.linalg.norm(X - leaders[which], axis=1) + rng.normal(0.0, 1.0, steps)
     Z = Z_clean.copy()
     bad = _drop(Z, steps, int(0.8 * steps), min(20, steps // 20))
     faults = []
     for share, size in ((0.1, 1e4), (0.2, 1e6), (0.3, 1e100), (0.4, 1e300)):
         k = _fault_step(int(share * steps), bad)
-        Z[k, 0] += size
+        Z[k, which[k]] += size
         faults.append((k, f"range +{size:g} m"))
     faults.append((int(0.8 * steps) + min(20, steps // 20), "end of a 20-ping outage"))
     return Scenario("ranges" if not offset else "ranges far from origin", bundle, U_measured, np.full(steps, dt), X, Z,
                     Z_clean, slice(0, 2), params=params, faults=sorted(faults),
-                    noise={"x0": np.full(2, offset), "P0": 9.0 * np.eye(2), "Q": np.eye(2), "R": np.eye(1)})
+                    noise={"x0": np.full(2, offset), "P0": 9.0 * np.eye(2), "Q": np.eye(2), "R": np.eye(2)})
 
 
 def terrain(steps: int, seed: int = 0) -> Scenario:

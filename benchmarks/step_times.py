@@ -67,11 +67,12 @@ def filters():
         "UPF N=100": (lambda: UnscentedParticleFilter(rov, x0, P0, Q, R, 100, np.random.default_rng(0)), U, Z, 60, 0.1,
                       None, 0),
     }
-    # the cooperative-navigation filters of seed 002 (cn2d, one range per 5 s step): the UPF at its N_start = 5000,
+    # the cooperative-navigation filters of seed 002 (cn2d, one leader sensor's range per 5 s step; n_y = 1 at
+    # 1dd3f6b): the UPF at its N_start = 5000,
     # and the MCUPF in its KLD-resampling regime (N_start = 5000, N_max = 2000; timed after 20 steps)
     cn = abyssal.generated.load("cn2d")
     trial = scenario.simulate(scenario.CnScenario(), "gaussian", np.random.default_rng(11))
-    Qc, Rc = np.diag([100.0, 100.0]), np.array([[0.1]])
+    Qc, Rc = np.diag([100.0, 100.0]), np.eye(cn.n_y) * 0.1  # each leader sensor's R
     rows["UPF cn N=5000"] = (lambda: UnscentedParticleFilter(cn, trial.x0, trial.P0, Qc, Rc, 5000, np.random.default_rng(0)),
                              trial.U, trial.Z, 20, trial.dt, trial.params, 0)
     rows["MCUPF cn"] = (lambda: UnscentedParticleFilter(cn, trial.x0, trial.P0, Qc, Rc, 5000, np.random.default_rng(0),

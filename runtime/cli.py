@@ -1,4 +1,4 @@
-"""The `abyssal` command: regenerate, verify, export, reproduce, replay, bench, cache."""
+"""The `abyssal` command: regenerate, verify, export, reproduce, publish, replay, bench, cache."""
 from __future__ import annotations
 
 import argparse
@@ -160,6 +160,12 @@ def _reproduce(args) -> int:
     return reproduce.main(args)
 
 
+def _publish(args) -> int:
+    from abyssal.runtime.experiments import publish
+
+    return publish.main(args)
+
+
 def _replay(args) -> int:
     """`abyssal replay LOG --model NAME|DIR --filter F --sensors MAP.toml --out DIR [--smooth]` (runtime/replay)."""
     from abyssal.runtime.replay import replay
@@ -287,6 +293,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="out", help="folder for the tidy CSV, JSON and figures (default: %(default)s)")
     p.add_argument("--json", action="store_true")
     p.set_defaults(run=_reproduce)
+
+    p = sub.add_parser("publish", help="write a campaign's tables into the generated blocks of its docs page",
+                       description="Rewrites the blocks '<!-- BEGIN GENERATED: NAME/... -->' of FILE (default: "
+                                   "docs/experiments/<page>.md of the experiment) from DIR/NAME.csv and DIR/NAME.json, "
+                                   "each naming the command, commit, CPU and load that made the campaign.")
+    p.add_argument("experiment", choices=list(EXPERIMENTS))
+    p.add_argument("--from", dest="source", required=True, metavar="DIR", help="the campaign's --out folder")
+    p.add_argument("--into", default=None, metavar="FILE", help="the Markdown page (default: the experiment's)")
+    p.set_defaults(run=_publish)
 
     p = sub.add_parser("cache", help="the compile cache: where it is, what it holds; clear it",
                        description="info: folder, entries (most recently used first), total size and cap. "

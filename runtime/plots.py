@@ -14,51 +14,74 @@ plt = require("matplotlib.pyplot", "the experiment figures")
 # ---------------------------------------------------------------------------------------------
 # one look per filter, shared by every figure of every experiment
 
-#: colour-blind-safe colours (Okabe & Ito 2008, then Tol's "muted" set), in the order they are handed out
-PALETTE = ("#0072B2", "#D55E00", "#009E73", "#CC79A7", "#E69F00", "#56B4E9", "#882255", "#117733", "#332288",
-           "#999933", "#AA4499", "#44AA99", "#DDCC77", "#661100")
+#: colour-blind-safe colours: Okabe & Ito (2008) and Tol's "muted" set (15), in the order they are handed out to
+#: names no table lists
+PALETTE = ("#0072B2", "#E69F00", "#44AA99", "#CC6677", "#117733", "#88CCEE", "#56B4E9", "#CC79A7", "#DDCC77",
+           "#332288", "#D55E00", "#009E73", "#882255", "#999933", "#AA4499")
 #: line styles and markers that tell filters apart where colours alone would not (print, many lines)
 LINESTYLES = ("-", "--", "-.", ":")
 MARKERS = ("o", "s", "^", "v", "P", "X", "<", ">", "h", "*")
 
-#: the fixed look of every filter named in the four experiments; a name not listed (a variant such as
-#: "CKF (matched model)" or "EM-MOGCPF N=1000") takes its family's colour with the next line style
+#: the filters of each experiment's figures (families: a variant such as "CKF (matched model)" takes its family's
+#: colour). Within one experiment every two colours differ by a CIEDE2000 distance of at least 15 in normal vision
+#: and 10 as a protanope, deuteranope or tritanope sees them (Machado et al. 2009, severity 1), no two filters of
+#: the four experiments share a colour (the old palette gave CPF, MCUPF, GP-UKF and fuzzy one vermillion and the PF
+#: an orange beside it), and every filter keeps
+#: its colour in every experiment: tests/scenarios/test_reproduce.py checks both.
+FAMILIES_BY_EXPERIMENT = {
+    "rov": ("PF", "CKF", "CPF", "MOGCPF", "EM-MOGCPF", "GS-CKF", "DR"),
+    "cn": ("DR", "CKF", "MCUKF", "PF", "UPF", "HRUPF", "IVBCKF", "MCUPF", "MCC-UPF"),
+    "tan": ("fuzzy", "oracle", "DR"),
+    "remus": ("UKF", "GP-UKF", "oracle"),
+}
+
+#: the fixed look of every filter named in the four experiments: one colour per filter, never two alike (the
+#: assignment maximises the smallest colour distance inside each experiment, FAMILIES_BY_EXPERIMENT); a name not
+#: listed (a variant such as "CKF (matched model)" or "EM-MOGCPF N=1000") takes its family's colour with the next
+#: line style
 FILTER_STYLES = {
-    # baselines and oracles: greys and black, dotted or dashed, so the methods stand out
+    # baselines and oracles: grey and black, dotted or dashed, so the methods stand out
     "DR": {"color": "#555555", "linestyle": ":", "marker": "x"},
     "dead reckoning": {"color": "#555555", "linestyle": ":", "marker": "x"},
     "oracle": {"color": "black", "linestyle": "--", "marker": "*"},
     # Kalman family
-    "EKF": {"color": PALETTE[8], "linestyle": "-", "marker": "o"},
-    "UKF": {"color": PALETTE[5], "linestyle": "-", "marker": "o"},
-    "CKF": {"color": PALETTE[0], "linestyle": "-", "marker": "o"},
-    "MCUKF": {"color": PALETTE[2], "linestyle": "-", "marker": "s"},
-    "HuberUKF": {"color": PALETTE[9], "linestyle": "-", "marker": "s"},
-    "IVBCKF": {"color": PALETTE[6], "linestyle": "-", "marker": "^"},
-    "GS-CKF": {"color": PALETTE[7], "linestyle": "-", "marker": "v"},
-    "GP-UKF": {"color": PALETTE[1], "linestyle": "-", "marker": "D"},
+    "CKF": {"color": "#0072B2", "linestyle": "-", "marker": "o"},
+    "UKF": {"color": "#882255", "linestyle": "-", "marker": "o"},
+    "MCUKF": {"color": "#56B4E9", "linestyle": "-", "marker": "s"},
+    "IVBCKF": {"color": "#332288", "linestyle": "-", "marker": "^"},
+    "GS-CKF": {"color": "#88CCEE", "linestyle": "-", "marker": "v"},
+    "GP-UKF": {"color": "#999933", "linestyle": "-", "marker": "D"},
+    "EKF": {"color": "#77AADD", "linestyle": "-", "marker": "o"},       # in no experiment's figures
+    "HuberUKF": {"color": "#BBCC33", "linestyle": "-", "marker": "s"},  # in no experiment's figures
     # particle family
-    "PF": {"color": PALETTE[4], "linestyle": "--", "marker": "P"},
-    "CPF": {"color": PALETTE[1], "linestyle": "--", "marker": "X"},
-    "UPF": {"color": PALETTE[3], "linestyle": "--", "marker": "<"},
-    "HRUPF": {"color": PALETTE[9], "linestyle": "--", "marker": ">"},  # the Huber family's olive (not UPF's pink)
-    "MCUPF": {"color": PALETTE[1], "linestyle": "-", "marker": "D"},
-    "MCC-UPF": {"color": PALETTE[11], "linestyle": "--", "marker": "h"},
-    "MOGCPF": {"color": PALETTE[3], "linestyle": "-.", "marker": "h"},
-    "EM-MOGCPF": {"color": PALETTE[13], "linestyle": "-", "marker": "D"},
-    "fuzzy": {"color": PALETTE[1], "linestyle": "-", "marker": "D"},
+    "PF": {"color": "#E69F00", "linestyle": "--", "marker": "P"},
+    "CPF": {"color": "#44AA99", "linestyle": "--", "marker": "X"},
+    "UPF": {"color": "#CC79A7", "linestyle": "--", "marker": "<"},
+    "HRUPF": {"color": "#DDCC77", "linestyle": "--", "marker": ">"},
+    "MCUPF": {"color": "#D55E00", "linestyle": "-", "marker": "D"},
+    "MCC-UPF": {"color": "#009E73", "linestyle": "--", "marker": "h"},
+    "MOGCPF": {"color": "#CC6677", "linestyle": "-.", "marker": "h"},
+    "EM-MOGCPF": {"color": "#117733", "linestyle": "-", "marker": "D"},
+    "fuzzy": {"color": "#AA4499", "linestyle": "-", "marker": "D"},
 }
 
 #: the paper's own values in a figure: black, hollow, drawn above everything (never hidden by our lines)
 PAPER_STYLE = {"color": "black", "marker": "D", "markerfacecolor": "none", "markersize": 7, "linestyle": "none",
                "markeredgewidth": 1.4, "zorder": 10}
 
-# hatches that tell apart the variants of one filter ("CKF (matched model)", "EM-MOGCPF N=1000") in its colour
+# hatches that tell apart the variants of one filter ("CKF (matched model)", "EM-MOGCPF N=1000") in its colour, drawn
+# with a near-black outline (VARIANT_EDGE) that stands out on every colour (a tint or shade of the family's colour
+# would come near another filter's colour for a colour-blind reader)
+VARIANT_EDGE = "#222222"
 VARIANT_HATCHES = ("", "//", "..", "xx", "\\\\", "++")
 
 
 #: suffixes that name a variant of a filter ("MCUPF tuned": the same filter with other noise matrices)
 VARIANT_SUFFIXES = (" tuned",)
+#: a swept parameter drawn as an ordered colour ramp (viridis: ordered in lightness, readable in every colour vision)
+#: rather than as filters:
+#: TAN's fixed process-noise sigma, "sigma = 2 m" (SEQUENTIAL_RANGE: its smallest and largest value)
+SEQUENTIAL_PREFIX, SEQUENTIAL_RANGE = "sigma = ", (1.0, 6.0)
 
 
 def _family(name: str) -> str:
@@ -70,17 +93,39 @@ def _family(name: str) -> str:
     return name
 
 
+def sequential_style(name: str) -> dict | None:
+    """The look of a value of a swept parameter ("sigma = 3 m"): its place on the viridis ramp, a marker by value;
+    None for any other name."""
+    if not name.startswith(SEQUENTIAL_PREFIX):
+        return None
+    try:
+        value = float(name.removeprefix(SEQUENTIAL_PREFIX).split()[0])
+    except ValueError:
+        return None
+    low, high = SEQUENTIAL_RANGE
+    position = 0.12 + 0.76 * min(max((value - low) / (high - low), 0.0), 1.0)  # the ends: neither near black nor pale
+    from matplotlib import colormaps
+    from matplotlib.colors import to_hex
+
+    return {"color": to_hex(colormaps["viridis"](position)), "linestyle": "-",
+            "marker": MARKERS[int(round(value - low)) % len(MARKERS)]}
+
+
 def filter_style(name: str, ordered: tuple[str, ...] = ()) -> dict:
     """The look of a filter in every figure: {"color", "linestyle", "marker"} (matplotlib keywords).
 
     A name in FILTER_STYLES keeps its look; a variant of a listed family ("CKF (matched model)", "MCUPF tuned")
     keeps the family's colour and marker with a line style chosen by its place among the family's variants in
-    ``ordered``; a fixed-sigma family ("sigma=1 m" ... "sigma=6 m") or any other unlisted name gets a colour of
-    PALETTE by its place among the unlisted names of ``ordered``, skipping the colours the listed names of
-    ``ordered`` already have (give every figure of one experiment the same ``ordered`` list, so a filter looks the
-    same in all of them and no two filters of it share a colour while the palette lasts)."""
+    ``ordered``; a value of a swept parameter ("sigma = 3 m") its place on a colour ramp (sequential_style); any
+    other unlisted name gets a colour of PALETTE by its place among the unlisted names of ``ordered``, skipping the
+    colours the listed names of ``ordered`` already have (give every figure of one experiment the same ``ordered``
+    list, so a filter looks the same in all of them and no two filters of it share a colour while the palette
+    lasts)."""
     if name in FILTER_STYLES:
         return dict(FILTER_STYLES[name])
+    sequential = sequential_style(name)
+    if sequential is not None:
+        return sequential
     family = _family(name)
     if family in FILTER_STYLES:
         style = dict(FILTER_STYLES[family])
@@ -91,7 +136,7 @@ def filter_style(name: str, ordered: tuple[str, ...] = ()) -> dict:
         return style
     taken = {FILTER_STYLES[_family(n)]["color"] for n in ordered if _family(n) in FILTER_STYLES}
     free = [c for c in PALETTE if c not in taken] or list(PALETTE)
-    unlisted = [n for n in ordered if _family(n) not in FILTER_STYLES]
+    unlisted = [n for n in ordered if _family(n) not in FILTER_STYLES and sequential_style(n) is None]
     k = unlisted.index(name) if name in unlisted else zlib.crc32(name.encode()) % len(PALETTE)
     return {"color": free[k % len(free)], "linestyle": LINESTYLES[(k // len(free)) % len(LINESTYLES)],
             "marker": MARKERS[k % len(MARKERS)]}
@@ -184,10 +229,12 @@ def rmse_bars(metrics: dict[str, dict], paper: dict[str, dict[str, float]] | Non
 
     metrics: {filter: {"rmse": {axis: value}, "rmse_sd": {axis: sd over runs} (optional: drawn as error bars)}};
     panels: ((axes, y label with its unit), ...): axes of one unit share a panel, so no axis shows two units.
-    paper: {filter: {axis: value}}, drawn as PAPER_STYLE markers on the filter's own bar, above every bar and
-    kept out of the legend's way (the legend sits below the panels), on the axes of ``paper_axes`` only
-    (default: all; leave an axis out where the paper's unit is not known). notes: {panel index: text} written
-    inside that panel. Log scale: the filters differ by decades. ordered: the experiment's filter list (styles).
+    paper: {filter: {axis: value}}, drawn as PAPER_STYLE markers (hollow, black) in the shape of the filter's own
+    marker on the filter's own bar, one legend entry per filter ("<paper_label>: CKF"), above every bar and kept
+    out of the legend's way (the legend sits below the panels), on the axes of ``paper_axes`` only (default: all;
+    leave an axis out where the paper's unit is not known). A variant of a filter (the second "CKF ...") keeps the
+    family's colour, outlined and hatched in near-black (VARIANT_EDGE), one hatch per variant. notes: {panel index: text} written inside that
+    panel. Log scale: the filters differ by decades. ordered: the experiment's filter list (styles).
     """
     filters = list(metrics)
     ordered = tuple(ordered) or tuple(filters)
@@ -208,15 +255,16 @@ def rmse_bars(metrics: dict[str, dict], paper: dict[str, dict[str, float]] | Non
             errors = [sd.get(a, np.nan) for a in axes_names]
             k = variants[_family(name)] = variants.get(_family(name), -1) + 1
             bars = ax.bar(offsets, values, width, color=filter_style(name, ordered)["color"],
-                          hatch=VARIANT_HATCHES[k % len(VARIANT_HATCHES)], edgecolor="white", linewidth=0.4,
-                          yerr=[e if np.isfinite(e) else 0.0 for e in errors], ecolor="#333333",
-                          error_kw={"elinewidth": 0.8, "capsize": 1.5})
+                          hatch=VARIANT_HATCHES[k % len(VARIANT_HATCHES)], edgecolor=VARIANT_EDGE if k else "white",
+                          linewidth=0.9 if k else 0.4, yerr=[e if np.isfinite(e) else 0.0 for e in errors],
+                          ecolor="#333333", error_kw={"elinewidth": 0.8, "capsize": 1.5})
             handles.setdefault(f"{name} (ours)", bars)
             if paper and name in paper:
                 shown = [(o, paper[name][a]) for o, a in zip(offsets, axes_names) if a in paper_axes and a in paper[name]]
                 if shown:
-                    (line,) = ax.plot([o for o, _ in shown], [v for _, v in shown], **PAPER_STYLE)
-                    handles.setdefault(paper_label, line)
+                    look = {**PAPER_STYLE, "marker": filter_style(_family(name))["marker"]}
+                    (line,) = ax.plot([o for o, _ in shown], [v for _, v in shown], **look)
+                    handles.setdefault(f"{paper_label}: {_family(name)}", line)
         ax.set_xticks(centres, list(axes_names))
         ax.set_yscale("log")
         plain_log_labels(ax)

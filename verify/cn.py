@@ -45,9 +45,10 @@ def batch_checks(bundle) -> list[Check]:
     rng = np.random.default_rng(0)
     N = 257
     x, P = _particle_cloud(rng, N)
-    u, p, dt = np.array([1.5, 0.1, 0.3]), np.array([400.0, 300.0]), np.array([5.0])
-    Q, R = np.diag([100.0, 100.0]), np.array([[0.1]])
-    abk, z, mask = np.array([1.0, 0.0, 1.0]), np.array([480.0]), np.ones(1)
+    # a ping of sensor leader0 (leader1 silent: its entry missing, mask 0)
+    u, p, dt = np.array([1.5, 0.1, 0.3]), np.array([400.0, 300.0, -200.0, 100.0]), np.array([5.0])
+    Q, R = np.diag([100.0, 100.0]), np.eye(2) * 0.1
+    abk, z, mask = np.array([1.0, 0.0, 1.0]), np.array([480.0, 0.0]), np.array([1.0, 0.0])
     out = []
     xp, Pp, ok = np.zeros((2, N), order="F"), np.zeros((2, 2, N), order="F"), np.zeros((1, N), order="F")
     ParallelBatch(BatchStep(bundle, "ukf_predict"), [x, P, u, p, dt, Q.reshape(-1, order="F"), abk],
@@ -58,7 +59,7 @@ def batch_checks(bundle) -> list[Check]:
     out.append(Check(MODEL, "ukf_predict_batch over 257 particles", "ukf_predict per particle", err, 1e-12))
     for name, extra in (("ukf_update", []), ("mcukf_update", [np.array([15.0])]), ("huber_ukf_update", [np.array([1.345])])):
         xo, Po = np.zeros((2, N), order="F"), np.zeros((2, 2, N), order="F")
-        nu, S, ok = np.zeros((1, N), order="F"), np.zeros((1, N), order="F"), np.zeros((1, N), order="F")
+        nu, S, ok = np.zeros((2, N), order="F"), np.zeros((2, 2, N), order="F"), np.zeros((1, N), order="F")
         ParallelBatch(BatchStep(bundle, name), [xp, Pp, z, p, R.reshape(-1, order="F"), mask, abk, *extra],
                       [True, True] + [False] * (5 + len(extra)), [xo, Po, nu, S, ok], N)(N)
         single = BatchStep(bundle, name)
@@ -70,15 +71,16 @@ def batch_checks(bundle) -> list[Check]:
 
 def limit_checks(bundle) -> list[Check]:
     x, P = np.array([100.0, -50.0]), np.array([[30.0, 5.0], [5.0, 20.0]])
-    p, R, mask, abk = np.array([400.0, 300.0]), np.array([[0.1]]), np.ones(1), np.array([1.0, 0.0, 1.0])
+    # a ping of sensor leader0 (leader1 silent: its entry missing, mask 0)
+    p, R, mask, abk = np.array([400.0, 300.0, -200.0, 100.0]), np.eye(2) * 0.1, np.array([1.0, 0.0]), np.array([1.0, 0.0, 1.0])
     from abyssal.runtime.compiled.kalman import BatchStep
 
     ukf = BatchStep(bundle, "ukf_update")
     mcc, huber = BatchStep(bundle, "mcukf_update"), BatchStep(bundle, "huber_ukf_update")
     out = []
-    z_pred = float(np.ravel(ukf(x, P, np.zeros(1), p, R, mask, abk)[2])[0]) * -1.0  # innovation of z = 0 is -z_pred
+    z_pred = float(np.ravel(ukf(x, P, np.zeros(2), p, R, mask, abk)[2])[0]) * -1.0  # innovation of z = 0 is -z_pred
     for dz in (0.5, 5.0, 40.0):
-        z = np.array([z_pred + dz])
+        z = np.array([z_pred + dz, 0.0])
         plain = ukf(x, P, z, p, R, mask, abk)
         lim_m = mcc(x, P, z, p, R, mask, abk, np.array([1e12]))  # the call API refuses inf; C = 1 in double
         lim_h = huber(x, P, z, p, R, mask, abk, np.array([1e12]))

@@ -74,7 +74,7 @@ def scenario(bundle, steps: int = STEPS, seed: int = 7) -> Scenario:
     n, m = bundle.n_x, bundle.n_y
     p = bundle.params()
     if bundle.name == "cn2d":
-        p = np.array([40.0, -25.0])  # leader away from the follower: the range is smooth
+        p = np.array([40.0, -25.0, -30.0, 35.0])  # leaders away from the follower: the ranges are smooth
     x0 = rng.uniform(0.5, 2.0, n)
     A = rng.normal(size=(n, n)) * 0.05
     P0 = 0.2 * np.eye(n) + A @ A.T

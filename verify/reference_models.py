@@ -128,8 +128,8 @@ def cn2d_xdot(x, u, p, w=None):
 
 
 def cn2d_h(x, p):
-    """Acoustic range to the leader at p = [x_r, y_r] (eq. 3)."""
-    return _stack([np.hypot(x[0] - p[0], x[1] - p[1])])
+    """Acoustic ranges to the two leaders at p = [x_r0, y_r0, x_r1, y_r1] (eq. 3; sensors leader0 and leader1)."""
+    return _stack([np.hypot(x[0] - p[0], x[1] - p[1]), np.hypot(x[0] - p[2], x[1] - p[3])])
 
 
 def cn2d_state(rng: np.random.Generator, n: int | None = None) -> np.ndarray:
@@ -296,7 +296,8 @@ REFERENCES: dict[str, ReferenceModel] = {
     "rov4dof": ReferenceModel("rov4dof", ROV4DOF_PARAMETERS, rov4dof_xdot, rov4dof_h, rov4dof_state, rov4dof_input,
                               cruise=ROV4DOF_CRUISE),
     # x_dot does not depend on x: explicit Euler is exact for a held input.
-    "cn2d": ReferenceModel("cn2d", ("x_r", "y_r"), cn2d_xdot, cn2d_h, cn2d_state, cn2d_input, exact_flow=True),
+    "cn2d": ReferenceModel("cn2d", ("leader0_x_r", "leader0_y_r", "leader1_x_r", "leader1_y_r"), cn2d_xdot, cn2d_h,
+                           cn2d_state, cn2d_input, exact_flow=True),
     # quadratic in time: RK4 is exact for a held input.
     "linear_cv": ReferenceModel("linear_cv", ("s_x", "s_y"), linear_cv_xdot, linear_cv_h, linear_cv_state,
                                 linear_cv_input, exact_flow=True),

@@ -1,8 +1,9 @@
-"""`abyssal reproduce {rov,cn,tan,tan-survey,remus,all}`: rerun the papers' experiments.
+"""`abyssal reproduce {rov,cn,cn-count,tan,tan-survey,remus,all}`: rerun the papers' experiments.
 
-rov (seed 000), cn (seed 002), tan (seed 003; tan-survey its track survey) and remus (seed 004) each live in experiments/<name>/ with the
-same shape: ``paper.py`` (the paper's printed numbers, quoted and labelled as the paper's), ``scenario.py``
-(the truth: the simulated world) and ``experiment.py``, which gives this module
+rov (seed 000), cn (seed 002; cn-count its MCUPF particle-count sweep), tan (seed 003; tan-survey its track
+survey) and remus (seed 004) each live in experiments/<name>/ with the same shape: ``paper.py`` (the paper's
+printed numbers, quoted and labelled as the paper's), ``scenario.py`` (the truth: the simulated world) and
+``experiment.py``, which gives this module
 
     Config                                    dataclass: Config() is the paper's set-up, .quick() the --quick one
                                               (its docstring is what `reproduce --help` says --quick does)
@@ -30,6 +31,7 @@ import inspect
 import json
 import math
 import sys
+import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -49,6 +51,7 @@ class Experiment:
     prepare: bool = False       # module.prepare(config, out, say) runs before the campaign
     timings_apart: bool = False  # step times printed after the tables (module.timing_table), not in them
     case: str = "case"          # what one case of its tidy table is (the closing line says so)
+    page: str = ""              # its docs page, docs/experiments/<page>.md (`abyssal publish`; "": its name)
 
     def experiment_module(self):
         return importlib.import_module(self.module, __package__)
@@ -60,8 +63,10 @@ EXPERIMENTS: dict[str, Experiment] = {e.name: e for e in (
                case="sea state"),
     Experiment("cn", ".cn.experiment", ("cn2d",), runs=10, quick_runs=2, timings_apart=True,
                case="geometry x noise case"),
+    Experiment("cn-count", ".cn.count_sweep", ("cn2d",), runs=10, quick_runs=1, particles=False,
+               case="geometry x noise case", page="cn"),
     Experiment("tan", ".tan.experiment", ("tan3dof",), runs=8, quick_runs=1, case="map x track x current"),
-    Experiment("tan-survey", ".tan.survey", ("tan3dof",), runs=3, quick_runs=1, case="map x track"),
+    Experiment("tan-survey", ".tan.survey", ("tan3dof",), runs=3, quick_runs=1, case="map x track", page="tan"),
     Experiment("remus", ".remus.experiment", ("remus100",), runs=20, quick_runs=3,
                needs={"sklearn": "the GP process model"}, particles=False, prepare=True),
 )}
@@ -128,8 +133,9 @@ def _check_needs(experiment: Experiment, args) -> None:
 
 def run(name: str, args, config=None) -> int:
     """`abyssal reproduce NAME` on the campaign harness; `config` overrides the paper's set-up (tests use a
-    short one). Rows go to <out>/NAME.csv, the summary to <out>/NAME.json, the figures beside them."""
-    from . import campaign
+    short one). Rows go to <out>/NAME.csv, the summary to <out>/NAME.json (with its provenance: the command, commit,
+    CPU, load and wall time, provenance.py), the figures beside them."""
+    from . import campaign, provenance
 
     experiment = EXPERIMENTS[name]
     module = experiment.experiment_module()
@@ -148,6 +154,11 @@ def run(name: str, args, config=None) -> int:
     if out:
         out.mkdir(parents=True, exist_ok=True)
     say = lambda message: print(f"[{name}] {message}", file=sys.stderr, flush=True)  # noqa: E731
+    record = provenance.started(
+        provenance.reproduce_command(name, runs=runs, seed=args.seed, quick=quick,
+                                     particles=getattr(args, "particles", None) if experiment.particles else None),
+        getattr(args, "workers", None), getattr(args, "scheduler", None))
+    t0 = time.perf_counter()
     prepared = None
     if experiment.prepare:
         if getattr(args, "resume", False) and out:  # a table resume would refuse, refused before the preparation
@@ -164,7 +175,8 @@ def run(name: str, args, config=None) -> int:
     document = {"experiment": name, "runs": runs, "runs_in_table": len(result.runs),
                 "seed": args.seed, "quick": quick, "config": repr(config), **module.document(rows, config, prepared),
                 "failures": [f.describe() for f in result.failures], "wall_seconds": result.wall_seconds,
-                "where": result.where, "rows_csv": str(out / f"{name}.csv") if out else None}
+                "where": result.where, "rows_csv": str(out / f"{name}.csv") if out else None,
+                "provenance": provenance.finished(record, time.perf_counter() - t0)}
     report = module.report(rows, config) if rows else f"{name}: no rows (every run failed)"
     if experiment.timings_apart and rows:
         report += "\n\n" + module.timing_table(rows)

@@ -29,8 +29,8 @@ def test_shapes_and_names(rov, cn):
     assert rov.h(x).shape == (4,)
     assert rov.H(x).shape == (4, 12)
     assert rov.xdot(x, u).shape == (12,)
-    assert cn.h(np.array([3.0, 4.0])).shape == (1,)  # scalar output is still a vector
-    assert cn.H(np.array([3.0, 4.0])).shape == (1, 2)
+    assert cn.h(np.array([3.0, 4.0])).shape == (2,)  # one range per leader sensor
+    assert cn.H(np.array([3.0, 4.0])).shape == (2, 2)
 
 
 def test_p_none_means_defaults(rov, rov_point):
@@ -45,8 +45,8 @@ def test_p_none_means_defaults(rov, rov_point):
 
 def test_matrix_outputs_are_column_major_correct(cn):
     """H of the range is the unit vector from the leader: catches a transposed/reshaped output."""
-    H = cn.H(np.array([3.0, 4.0]), np.array([0.0, 0.0]))
-    np.testing.assert_allclose(H, [[0.6, 0.8]], rtol=1e-15)
+    H = cn.H(np.array([3.0, 4.0]), np.array([0.0, 0.0, 6.0, 8.0]))
+    np.testing.assert_allclose(H, [[0.6, 0.8], [-0.6, -0.8]], rtol=1e-15)
     F = cn.F(np.array([1.0, 2.0]), np.array([1.0, 0.0, 0.3]), None, 0.5)
     np.testing.assert_array_equal(F, np.eye(2))
 
@@ -217,13 +217,14 @@ def test_batch_outputs_are_checked_like_single_calls(rov, rng):
 
 def test_h_batch_output_check_names_columns(cn):
     """cn2d's range Jacobian divides by the range: the leader's own position gives NaN in H."""
-    leader = np.array([3.0, 4.0])
+    leader = np.array([3.0, 4.0, 10.0, 10.0])  # leader0 at (3, 4), leader1 at (10, 10)
     X = np.array([[0.0, 3.0, 1.0], [0.0, 4.0, 1.0]])
     with pytest.raises(FloatingPointError, match=r"output .* not finite in column\(s\) 1 of 3"):
         cn.functions["H"].batch(3, X, leader)
     with pytest.raises(FloatingPointError, match="not finite at the given arguments"):
         cn.H(X[:, 1], leader)
-    np.testing.assert_allclose(cn.h_batch(X, leader), [[5.0, 0.0, np.hypot(2.0, 3.0)]])  # h itself is finite there
+    np.testing.assert_allclose(cn.h_batch(X, leader), [[5.0, 0.0, np.hypot(2.0, 3.0)],  # h itself is finite there
+                                                       [np.hypot(10.0, 10.0), np.hypot(7.0, 6.0), np.hypot(9.0, 9.0)]])
 
 
 def test_an_overflowing_sum_of_finite_outputs_is_not_an_error(rov):

@@ -289,7 +289,7 @@ def _edit_manifest(folder, change):
 
 
 @pytest.mark.parametrize("change, field", [
-    (lambda m: m["parameters"][0].update(default=123.0), r"parameters\[0\] \(x_r\)"),
+    (lambda m: m["parameters"][0].update(default=123.0), r"parameters\[0\] \(leader0_x_r\)"),
     (lambda m: m["states"].append({"name": "z", "unit": "m", "description": "depth"}),
      r"states: 3 entries, 2 when written; states\[2\] \(z\) \(added\)"),
     (lambda m: m["functions"]["cn2d_f"]["inputs"][0].update(shape=[3, 1]), r"functions\['cn2d_f'\]"),
@@ -349,10 +349,12 @@ def _cn2d_run(filt, steps, jump_step=None, jump=0.0):
     for k in range(steps):
         u = np.array([1.0, 0.0, 0.3 * k / 50])
         x = x + 5.0 * np.array([math.cos(u[2]), math.sin(u[2])])
-        p = np.array([300.0, 200.0]) if k % 2 else np.array([-300.0, 100.0])
+        p = np.array([-300.0, 100.0, 300.0, 200.0])  # sensors leader0, leader1: one pings per step, in turn
         if k == jump_step:
             u[0] = jump
-        filt.step(u, 5.0, bundle.h(x, p) + rng.normal(0.0, 0.3), p)
+        z = np.full(2, np.nan)
+        z[k % 2] = bundle.h(x, p)[k % 2] + rng.normal(0.0, 0.3)
+        filt.step(u, 5.0, z, p)
         errors.append(float(np.linalg.norm(filt.x - x)))
     return np.array(errors)
 
@@ -362,7 +364,7 @@ def _ivbckf_cn2d_errors(jump):
     from abyssal.runtime.filters.kalman.ivbckf import IVBCKF
 
     cn2d = abyssal.generated.load("cn2d")
-    filt = IVBCKF(cn2d, np.zeros(2), 10.0 * np.eye(2), np.eye(2), np.array([[0.1]]), gate_probability=0.0)
+    filt = IVBCKF(cn2d, np.zeros(2), 10.0 * np.eye(2), np.eye(2), 0.1 * np.eye(2), u=8.0, t=5.0, gate_probability=0.0)
     return _cn2d_run(filt, 300, jump_step=None if jump is None else 50, jump=jump or 0.0), filt
 
 
@@ -473,15 +475,17 @@ def _ivbckf_gated_cn2d_errors(seed, jump):
     from abyssal.runtime.filters.kalman.ivbckf import IVBCKF
 
     cn2d = abyssal.generated.load("cn2d")
-    filt = IVBCKF(cn2d, np.zeros(2), 10.0 * np.eye(2), np.eye(2), np.array([[0.1]]))  # the gate on (the default)
+    filt = IVBCKF(cn2d, np.zeros(2), 10.0 * np.eye(2), np.eye(2), 0.1 * np.eye(2), u=8.0, t=5.0)  # the gate on (default)
     rng, x, errors = np.random.default_rng(seed), np.zeros(2), []
     for k in range(300):
         u = np.array([1.0, 0.0, 0.3 * k / 50])
         x = x + 5.0 * np.array([math.cos(u[2]), math.sin(u[2])])
-        p = np.array([300.0, 200.0]) if k % 2 else np.array([-300.0, 100.0])
+        p = np.array([-300.0, 100.0, 300.0, 200.0])  # sensors leader0, leader1: one pings per step, in turn
         if k == 50 and jump is not None:
             u[0] = jump
-        filt.step(u, 5.0, cn2d.h(x, p) + rng.normal(0.0, 0.3), p)
+        z = np.full(2, np.nan)
+        z[k % 2] = cn2d.h(x, p)[k % 2] + rng.normal(0.0, 0.3)
+        filt.step(u, 5.0, z, p)
         errors.append(float(np.linalg.norm(filt.x - x)))
     return np.array(errors), filt.recoveries
 

@@ -18,7 +18,7 @@ def _batch(n=300):
     x = np.asfortranarray(rng.normal([100.0, -50.0], 20.0, (n, 2)).T)
     A = rng.normal(0, 3.0, (n, 2, 2))
     P = np.asfortranarray(np.moveaxis(A @ np.swapaxes(A, 1, 2) + np.eye(2), 0, -1))
-    inputs = [x, P, np.array([1.5, 0.1, 0.3]), np.array([400.0, 300.0]), np.array([5.0]),
+    inputs = [x, P, np.array([1.5, 0.1, 0.3]), np.array([400.0, 300.0, -200.0, 100.0]), np.array([5.0]),
               np.diag([100.0, 100.0]).reshape(-1, order="F"), np.array([1.0, 0.0, 1.0])]
     outputs = [np.zeros((s.shape[0], n) if s.shape[1] == 1 else (*s.shape, n), order="F") for s in fn.outputs]
     return ParallelBatch(fn, inputs, [True, True] + [False] * 5, outputs, n), outputs

@@ -227,3 +227,35 @@ def test_refused_cpf_predict_leaves_the_next_step_bit_identical(rov, refused):
         f.step(u, 0.1, z)
     for a, b in zip(filt.checkpoint().values(), twin.checkpoint().values()):
         assert repr(a) == repr(b) if isinstance(a, dict) else np.array_equal(np.asarray(a), np.asarray(b))
+
+
+def test_the_papers_underflow_and_estimate_rules_are_options_beside_the_engines(linear):
+    """underflow="normalise" normalises an update whose likelihood underflows at every particle (the weight goes to
+    the particles nearest the measurement, ESS ~ 1) where the default keeps the weights (ESS stays N); estimate="after"
+    reports the moments of the resampled particles, the default the weighted moments before resampling."""
+    Q = np.diag([0.02, 0.02, 0.05, 0.05])
+    R = GaussianMixture.gaussian(np.zeros(2), np.diag([0.5, 0.8]))
+    x0, P0 = np.zeros(4), np.eye(4)
+
+    def make(**rules):
+        return pf.ParticleFilter(linear, x0, P0, Q, R, 400, 3, policy=ResamplingPolicy("multinomial", 1.0),
+                                 gate_probability=0.0, **rules)
+
+    far = np.array([1e3, -1e3])  # ~1400 sigma of R from every particle: every likelihood underflows
+    kept, normalised = make(), make(underflow="normalise")
+    for filt in (kept, normalised):
+        filt.step(np.zeros(2), DT, far)
+        assert filt.uninformative == 1
+    assert kept.ess == pytest.approx(400.0)
+    assert normalised.ess < 2.0
+    # the normalised estimate jumps to the particle nearest the measurement; the kept one stays near the prior
+    assert np.linalg.norm(normalised.x[:2]) > np.linalg.norm(kept.x[:2]) + 1.0
+
+    before, after = make(), make(estimate="after")
+    z = np.array([0.8, -0.4])
+    for filt in (before, after):
+        filt.step(np.zeros(2), DT, z)
+    np.testing.assert_allclose(after.x, after.particles.mean(axis=1), rtol=0, atol=1e-12)  # the resampled cloud
+    assert not np.allclose(before.x, before.particles.mean(axis=1), rtol=0, atol=1e-6)  # the weighted cloud
+    with pytest.raises(ValueError, match="underflow must be one of"):
+        make(underflow="ignore")

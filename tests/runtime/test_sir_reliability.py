@@ -252,8 +252,8 @@ def test_kld_bins_are_relative_to_the_cloud():
 def test_mcupf_far_from_the_origin_is_never_refused(cn):
     trial = scenario.simulate(scenario.CnScenario(), "gaussian", np.random.default_rng(11))
     shift = np.array([1e7, -1e7])
-    params = trial.params[:30] + shift
-    filt = UnscentedParticleFilter(cn, trial.x0 + shift, trial.P0, np.diag([100.0, 100.0]), np.array([[0.1]]), 500, 2,
+    params = trial.params[:30] + np.tile(shift, 2)  # both leader sensors' positions
+    filt = UnscentedParticleFilter(cn, trial.x0 + shift, trial.P0, np.diag([100.0, 100.0]), np.eye(2) * 0.1, 500, 2,
                                    update="mcc", resampling=KLDResampling(bin_size=(0.01, 0.01), n_min=20, n_max=500))
     result = filt.run(trial.U[:30], trial.Z[:30], trial.dt, params=params)  # all-or-nothing: no step refused
     assert np.all((result.particles[1:] >= 20) & (result.particles[1:] <= 500))
@@ -288,7 +288,7 @@ def test_singular_process_noise_for_the_unscented_family(cn):
     never = ResamplingPolicy(threshold=0.0)
     trial = scenario.simulate(scenario.CnScenario(), "gaussian", np.random.default_rng(11))
     for update in ("ukf", "huber", "mcc"):
-        filt = UnscentedParticleFilter(cn, trial.x0, trial.P0, np.diag([0.0, 100.0]), np.array([[0.1]]), 100, 1,
+        filt = UnscentedParticleFilter(cn, trial.x0, trial.P0, np.diag([0.0, 100.0]), np.eye(2) * 0.1, 100, 1,
                                        update=update, resampling=never)
         before = filt.particles.copy()
         expected = cn.f_batch(before, trial.U[0], trial.params[0], trial.dt)
@@ -374,10 +374,12 @@ def test_merged_upf_equals_an_independent_numpy_upf_given_the_same_draws(cn, upd
     T, N = 25, 200
     Z = trial.Z[:T].copy()
     Z[[4, 11]] = np.nan  # steps without a range: the transition and P^j's prediction
-    Q, R = np.diag([100.0, 100.0]), np.array([[0.1]])
+    ranges = trial.ranges[:T, None].copy()  # the reference: the ping's one range to the pinging leader's broadcast
+    ranges[[4, 11]] = np.nan
+    Q, R = np.diag([100.0, 100.0]), np.eye(2) * 0.1  # each leader sensor's R
     filt = UnscentedParticleFilter(cn, trial.x0, trial.P0, Q, R, N, np.random.default_rng(8), update=update,
                                    **({} if sigma is None else {"sigma": sigma}))
     got = filt.run(trial.U[:T], Z, trial.dt, params=trial.params[:T]).x
-    want = _numpy_upf(trial.x0, trial.P0, Q, R, trial.U[:T], Z, trial.params[:T], trial.dt, N, np.random.default_rng(8),
-                      sigma)
+    want = _numpy_upf(trial.x0, trial.P0, Q, R[:1, :1], trial.U[:T], ranges, trial.gps[:T], trial.dt, N,
+                      np.random.default_rng(8), sigma)
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-7)

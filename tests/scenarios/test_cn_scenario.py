@@ -16,10 +16,17 @@ SC = scenario.CnScenario()
 def test_trial_shapes_leaders_alternate_and_p_is_the_broadcast_leader():
     tr = scenario.simulate(SC, "gaussian", np.random.default_rng(0))
     K = int(SC.duration // SC.ping_period)
-    assert tr.Z.shape == (K, 1) and tr.U.shape == (K, 3) and tr.params.shape == (K, 2) and tr.truth.shape == (K, 2)
+    assert tr.Z.shape == (K, 2) and tr.U.shape == (K, 3) and tr.params.shape == (K, 4) and tr.truth.shape == (K, 2)
     np.testing.assert_array_equal(tr.leader, np.arange(K) % 2)
+    # one range sensor per leader: the ping's range in its leader's column, NaN in the other's; the pinging
+    # leader's broadcast in its own parameter slots
+    rows = np.arange(K)
+    np.testing.assert_array_equal(tr.Z[rows, tr.leader], tr.ranges)
+    assert np.isnan(tr.Z[rows, 1 - tr.leader]).all()
+    np.testing.assert_array_equal(tr.params.reshape(K, 2, 2)[rows, tr.leader], tr.gps)
+    assert [scenario.ping(tr, k)[0] for k in range(3)] == ["leader0", "leader1", "leader0"]
     true_leader = tr.leaders_true[tr.leader, np.arange(K)]
-    gps_error = tr.params - true_leader
+    gps_error = tr.gps - true_leader
     assert 1.0 < gps_error.std() < 2.2  # 1.8 m CEP
     # the AUV is between the leaders (Fig. 6)
     assert np.all((tr.truth[:, 1] < tr.leaders_true[0, :, 1]) & (tr.truth[:, 1] > tr.leaders_true[1, :, 1]))
@@ -104,8 +111,20 @@ def test_printed_tuning_beats_a_quarter_of_dead_reckoning_when_the_lines_cross_w
         dr = scenario.ape(trial.dr, trial.truth)
         for name in ("CKF", "MCUKF"):
             filt = experiment.make_filter(name, cn, trial, config, np.random.default_rng(0))
-            result = filt.run(trial.U, trial.Z, trial.dt, params=trial.params)
+            result = experiment.run_kalman_by_sensor(filt, trial)
             assert (scenario.ape(result.x, trial.truth) < dr / 4) == better, (geometry, name)
+
+
+@pytest.mark.parametrize("name", ["CKF", "MCUKF"])
+def test_each_leader_as_its_own_sensor_update_equals_the_stacked_run(cn, name):
+    """update(leader_k, z, t, p=gps) per ping gives the estimates of run() on the stacked form (the silent leader's
+    entry NaN) to rounding, and the NEES the filter reports."""
+    config, trial = experiment.CnConfig(), _trial("crossing60", "multipath")
+    by_sensor = experiment.run_kalman_by_sensor(experiment.make_filter(name, cn, trial, config, None), trial)
+    stacked = experiment.make_filter(name, cn, trial, config, None).run(trial.U, trial.Z, trial.dt,
+                                                                       params=trial.params, truth=trial.truth)
+    np.testing.assert_allclose(by_sensor.x, stacked.x, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(by_sensor.nees, stacked.nees, rtol=1e-7)
 
 
 def _short_config(**changes):
@@ -176,3 +195,28 @@ def test_config_refuses_unknown_geometries_and_no_streams():
         experiment.CnConfig(geometries=("triangle",))
     with pytest.raises(ValueError, match="streams"):
         experiment.CnConfig(streams=0)
+
+
+def test_count_sweep_runs_the_cn_trials_with_each_floor_and_rule_set():
+    """cn-count: the same trials as the cn experiment (the UPF under our rules is the cn experiment's UPF there, with
+    its own streams), the KLD floor sets the steady count, both rule sets run, and the implied count interpolates."""
+    from abyssal.runtime.experiments.cn import count_sweep
+
+    base = replace(_short_config(), n_particles=120, kld_n_max=60)
+    config = count_sweep.CountConfig(base=base, geometries=("crossing90",), cases=("multipath",), floors=(10, 120),
+                                     streams=1)
+    rows = count_sweep.run_one(config, run_seeds(3, 1)[0])
+    value = {(r["filter"], r["metric"]): r["value"] for r in rows}
+    assert {r["filter"] for r in rows} == set(config.labels())
+    for rules in ("paper", "ours"):
+        assert value[(count_sweep.mcupf_label(120, rules), "steady_particles")] == 120  # the floor above N_max
+        assert 10 <= value[(count_sweep.mcupf_label(10, rules), "steady_particles")] <= 60
+        assert value[(count_sweep.upf_label(rules), "steady_particles")] == 120
+        assert all(math.isfinite(value[(label, "ape_m")]) for label in config.labels())
+    # the rule sets differ in their estimates on the same trial and streams
+    assert value[(count_sweep.upf_label("paper"), "ape_m")] != value[(count_sweep.upf_label("ours"), "ape_m")]
+    ratios = [(10, 10.0, 0.5), (100, 100.0, 1.0), (1000, 1000.0, 2.0)]
+    assert count_sweep.implied_count(ratios, 1.0) == pytest.approx(100.0)
+    assert count_sweep.implied_count(ratios, 1.5) == pytest.approx(math.sqrt(100 * 1000))  # log-linear
+    assert count_sweep.implied_count(ratios, 3.0) is None  # beyond the sweep
+    assert "paper's rules" in count_sweep.report(rows, config)

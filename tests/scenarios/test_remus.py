@@ -307,3 +307,31 @@ def test_resume_refuses_a_bad_table_before_the_gps_are_trained(tmp_path, monkeyp
     args.resume = False                                                     # a fresh start needs no check: prepare runs
     with pytest.raises(AssertionError, match="prepare ran"):
         reproduce.run("remus", args)
+
+
+def test_a_hyperparameter_fit_keeps_the_best_of_its_starts_and_escapes_a_noise_only_start():
+    """fit_gp: from a start at the noise-only optimum (length scales at their bound, everything noise) L-BFGS-B stays
+    there; the fit keeps the start whose optimum has the largest log marginal likelihood, and that LML is the GP's."""
+    from sklearn.gaussian_process import GaussianProcessRegressor
+
+    rng = np.random.default_rng(0)
+    X = rng.uniform(-2.0, 2.0, (60, 2))
+    y = np.sin(2.0 * X[:, 0]) + 0.05 * rng.standard_normal(60)
+    noise_only = np.log([1.0, 1e4, 1e4, 1.0])  # signal, two length scales at their upper bound, noise
+    fit = gp_model.fit_gp(X, y, [noise_only, None, gp_model.kernel(2).theta], seed=0)
+    assert math.isnan(fit.start_lml[1]) and fit.chosen == 2
+    assert fit.lml == np.nanmax(fit.start_lml) and fit.lml > fit.start_lml[0] + 100.0  # far above the stalled start
+    refit = GaussianProcessRegressor(gp_model.kernel(2).clone_with_theta(fit.theta), normalize_y=True,
+                                     optimizer=None).fit(X, y)
+    assert refit.log_marginal_likelihood_value_ == pytest.approx(fit.lml, rel=1e-9)
+
+
+def test_every_gp_of_a_draw_records_the_best_of_its_starts(training_sets):
+    """fit_draw's starts: the default, the smaller size's optimum (none at the smallest size) and the random ones;
+    each GP keeps the largest LML of them and records it."""
+    for (targets, n, draw), (s, path) in training_sets.items():
+        assert s.start_lml.shape == (12, 2 + gp_model.RESTARTS)
+        np.testing.assert_array_equal(s.lml, np.nanmax(s.start_lml, axis=1))
+        assert np.isnan(s.start_lml[:, 1]).all()  # the smallest fitted size has no warm start
+        loaded = gp_model.TrainingSet.load(path)
+        np.testing.assert_array_equal(loaded.lml, s.lml)

@@ -4,6 +4,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import importlib
+import itertools
 import json
 import warnings
 from dataclasses import replace
@@ -57,7 +58,7 @@ def test_all_runs_the_registry_in_order_and_exits_with_the_worst_status(monkeypa
     monkeypatch.setattr(reproduce, "_check_needs", lambda experiment, args: checked.append(experiment.name))
     monkeypatch.setattr(reproduce, "run", lambda name, args: ran.append(name) or (1 if name == "tan" else 0))
     assert reproduce.main(_args(experiment="all")) == 1
-    assert ran == checked == ["rov", "cn", "tan", "tan-survey", "remus"]
+    assert ran == checked == ["rov", "cn", "cn-count", "tan", "tan-survey", "remus"]
     ran.clear()
     assert reproduce.main(_args(experiment="cn")) == 0 and ran == ["cn"]
 
@@ -178,10 +179,74 @@ def test_every_filter_of_an_experiment_has_its_own_colour_and_variants_keep_thei
     rov_names = tuple(f.label for f in rov.MAIN_FILTERS + rov.N_SWEEP)
     rov_colours = {plots._family(n): plots.filter_style(n, rov_names)["color"] for n in rov_names}
     assert len(set(rov_colours.values())) == len(rov_colours)  # one colour per family, variants hatched
-    # names no table lists (a fixed-sigma family) skip the colours the listed filters of the figure already have
-    tan = ("fuzzy", "sigma=1 m", "sigma=2 m", "sigma=3 m")
-    tan_colours = [plots.filter_style(n, tan)["color"] for n in tan]
-    assert len(set(tan_colours)) == len(tan_colours)
+    # names no table lists skip the colours the listed filters of the figure already have
+    other = ("fuzzy", "filter A", "filter B", "filter C")
+    other_colours = [plots.filter_style(n, other)["color"] for n in other]
+    assert len(set(other_colours)) == len(other_colours)
+    # a swept parameter (TAN's fixed sigma) is an ordered ramp: darker to lighter, one colour per value
+    ramp = [plots.filter_style(f"sigma = {v} m")["color"] for v in range(1, 7)]
+    lightness = [_lab(c, "normal")[0] for c in ramp]
+    assert len(set(ramp)) == 6 and lightness == sorted(lightness)
+
+
+# colour vision: sRGB -> CIELAB, dichromat simulation (Machado, Oliveira & Fernandes 2009, severity 1), CIEDE2000
+_DICHROMATS = {
+    "normal": np.eye(3),
+    "protan": np.array([[0.152286, 1.052583, -0.204868], [0.114503, 0.786281, 0.099216], [-0.003882, -0.048116, 1.051998]]),
+    "deutan": np.array([[0.367322, 0.860646, -0.227968], [0.280085, 0.672501, 0.047413], [-0.011820, 0.042940, 0.968881]]),
+    "tritan": np.array([[1.255528, -0.076749, -0.178779], [-0.078411, 0.930809, 0.147602], [0.004733, 0.691367, 0.303900]]),
+}
+
+
+def _lab(colour: str, vision: str) -> np.ndarray:
+    from matplotlib.colors import to_rgb
+
+    c = np.array(to_rgb(colour))
+    linear = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+    linear = np.clip(_DICHROMATS[vision] @ linear, 0.0, 1.0)
+    xyz = np.array([[0.4124564, 0.3575761, 0.1804375], [0.2126729, 0.7151522, 0.0721750],
+                    [0.0193339, 0.1191920, 0.9503041]]) @ linear / np.array([0.95047, 1.0, 1.08883])
+    f = np.where(xyz > (6 / 29) ** 3, np.cbrt(xyz), xyz / (3 * (6 / 29) ** 2) + 4 / 29)
+    return np.array([116 * f[1] - 16, 500 * (f[0] - f[1]), 200 * (f[1] - f[2])])
+
+
+def _delta_e2000(lab1: np.ndarray, lab2: np.ndarray) -> float:
+    (L1, a1, b1), (L2, a2, b2) = lab1, lab2
+    c_bar = (np.hypot(a1, b1) + np.hypot(a2, b2)) / 2
+    g = 0.5 * (1 - np.sqrt(c_bar**7 / (c_bar**7 + 25**7)))
+    a1, a2 = (1 + g) * a1, (1 + g) * a2
+    c1, c2 = np.hypot(a1, b1), np.hypot(a2, b2)
+    h1, h2 = np.degrees(np.arctan2(b1, a1)) % 360, np.degrees(np.arctan2(b2, a2)) % 360
+    dh = 0.0 if c1 * c2 == 0 else (h2 - h1 + 180) % 360 - 180
+    dH = 2 * np.sqrt(c1 * c2) * np.sin(np.radians(dh / 2))
+    L_bar, C_bar = (L1 + L2) / 2, (c1 + c2) / 2
+    h_bar = h1 + h2 if c1 * c2 == 0 else ((h1 + h2) / 2 if abs(h1 - h2) <= 180 else (h1 + h2 + 360 * (1 if h1 + h2 < 360 else -1)) / 2)
+    t = (1 - 0.17 * np.cos(np.radians(h_bar - 30)) + 0.24 * np.cos(np.radians(2 * h_bar))
+         + 0.32 * np.cos(np.radians(3 * h_bar + 6)) - 0.20 * np.cos(np.radians(4 * h_bar - 63)))
+    sl = 1 + 0.015 * (L_bar - 50) ** 2 / np.sqrt(20 + (L_bar - 50) ** 2)
+    sc, sh = 1 + 0.045 * C_bar, 1 + 0.015 * C_bar * t
+    rt = -np.sin(np.radians(60 * np.exp(-(((h_bar - 275) / 25) ** 2)))) * 2 * np.sqrt(C_bar**7 / (C_bar**7 + 25**7))
+    return float(np.sqrt(((L2 - L1) / sl) ** 2 + ((c2 - c1) / sc) ** 2 + (dH / sh) ** 2 + rt * ((c2 - c1) / sc) * (dH / sh)))
+
+
+def test_the_palette_is_colour_blind_safe_inside_every_experiment_and_one_colour_per_filter_across_them():
+    """Every two filters of one experiment differ by a CIEDE2000 distance of at least 15 in normal vision and 10 as a
+    protanope, deuteranope and tritanope sees them (dichromacy, the severest case); no two filters of the four
+    experiments share a colour (one colour per filter everywhere); a reference value pair checks the formula."""
+    from abyssal.runtime import plots
+
+    # Sharma, Wu & Dalal (2005), Table 1, pair 1: Delta E00 = 2.0425
+    assert _delta_e2000(np.array([50.0, 2.6772, -79.7751]), np.array([50.0, 0.0, -82.7485])) == pytest.approx(2.0425, abs=1e-4)
+    colours = {}
+    for experiment, families in plots.FAMILIES_BY_EXPERIMENT.items():
+        looks = {f: plots.filter_style(f)["color"] for f in families}
+        for (f1, c1), (f2, c2) in itertools.combinations(looks.items(), 2):
+            for vision in _DICHROMATS:
+                distance = _delta_e2000(_lab(c1, vision), _lab(c2, vision))
+                assert distance >= (15.0 if vision == "normal" else 10.0), (experiment, f1, f2, vision, round(distance, 1))
+        colours.update(looks)
+    methods = {f: c for f, c in colours.items() if f not in ("DR", "oracle")}
+    assert len(set(methods.values())) == len(methods)
 
 
 def test_reproduce_remus_prepares_the_gps_then_runs_the_campaign(tmp_path, capsys, monkeypatch):
@@ -199,7 +264,8 @@ def test_reproduce_remus_prepares_the_gps_then_runs_the_campaign(tmp_path, capsy
     assert "ORACLE" in printed and "BETWEEN training draws" in printed
     document = json.loads((tmp_path / "remus.json").read_text())
     assert document["duration_s"] == 60.0 and document["runs"] == 2
-    assert set(document["summary"]) == {"UKF (oracle)", "UKF (Euler, 1 step)", "GP-UKF N=20", "GP-UKF (state) N=20"}
+    assert set(document["summary"]) == {"UKF (oracle)", "UKF (Euler, 1 step)", "GP-UKF N=20", "GP-UKF (state) N=20",
+                                        "UKF (oracle, measured feedback)", "UKF (Euler, 1 step, measured feedback)"}
     assert set(document["gp_per_draw"]["GP-UKF N=20"]["prediction"]) == {"draw 4", "draw 5"}   # run r: draw r mod 2
     assert np.isfinite(document["summary"]["GP-UKF N=20"]["prediction"]["mean"])
     assert document["paper"]["table4"]["GP-UKF|prediction"] == 2.86

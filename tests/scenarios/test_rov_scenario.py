@@ -45,6 +45,41 @@ def test_sea_states_are_data_with_renormalised_weights():
         assert np.all(np.abs(draws.mean(axis=1)) < 4 * np.sqrt(np.diag(noise.covariance()) / 200_000))  # zero mean
 
 
+def test_sea_state_kurtosis_is_the_mixtures_and_the_wide_reading_keeps_the_paper_non_gaussian():
+    """The excess kurtosis the report prints per sea state is the mixture's (checked against 400 000 draws), and
+    the two readings of the misprinted sea 1-2 mixture differ in the direction the case is about: narrow second
+    component (ours) Gaussian in effect, wide second component heavier-tailed."""
+    rng = np.random.default_rng(5)
+    for sea in SEA_STATES.values():
+        draws = sea.measurement_noise().sample(rng, 400_000)[0]
+        sample = np.mean(draws**4, axis=1) / np.mean(draws**2, axis=1) ** 2 - 3.0
+        np.testing.assert_allclose(sample, sea.excess_kurtosis(), atol=0.05)
+    narrow, wide = SEA_STATES["1-2"], SEA_STATES["1-2 wide"]
+    np.testing.assert_array_equal(narrow.weights, wide.weights)  # the same renormalised weights
+    c = wide.measurement_noise().covariances
+    np.testing.assert_allclose(c[1], c[0] / 0.357, rtol=1e-15)  # R / 0.357: the rare component wider
+    assert np.all(narrow.excess_kurtosis() < 0.05) and np.all(wide.excess_kurtosis() > 0.15)
+    assert SEA_STATES["0"].excess_kurtosis() == pytest.approx(0.0, abs=1e-12)
+
+
+def test_the_papers_ckf_is_ungated_and_the_gated_one_is_a_labelled_variant(rov):
+    """The paper's CKF has no innovation gate: both CKF rows are built ungated; the gated CKF is a row of its own."""
+    from abyssal.runtime.experiments.rov.scenario import make_filter
+
+    sea, scenario = SEA_STATES["0"], RovScenario()
+    specs = {spec.label: spec for spec in experiment.MAIN_FILTERS}
+    outlier = np.array([50.0, -50.0, 50.0, 0.0])  # ~90 sigma of R on x, y, z: any gate leaves them out
+
+    def gated(label):
+        filt = make_filter("CKF", rov, scenario, sea, 10, 0, **dict(specs[label].options))
+        filt.step(np.zeros(4), scenario.dt, outlier)
+        return filt.gated
+
+    assert gated("CKF (matched model)") == 0 and gated("CKF (mismatched Q)") == 0
+    assert gated("CKF (mismatched Q, gated)") == 3
+    assert "CKF (mismatched Q, gated)" not in experiment.PAPER_COLUMN  # never printed as the paper's CKF
+
+
 def test_process_noise_readings_give_q_k_as_documented(rov):
     printed = np.array([0, 0, 0, 0, 3, 4, 5, 0.02, 2, 2, 2, 0.5])
     plain = RovScenario(process_noise_reading="plain")
@@ -172,11 +207,15 @@ def test_reproduce_rov_json_csv_and_figures_on_the_campaign(tmp_path, capsys):
     assert report["experiment"] == "rov" and report["runs"] == 2 and not report["failures"]
     assert {"plain|3|CPF", "density|0|CKF (matched model)", "plain|1-2|EM-MOGCPF"} <= set(report["summary"])
     assert set(report["summary"]["plain|3|CPF"]) == {"rmse", "rmse_sd", "rmse_ci95", "rmse_pooled", "anees", "anees_sd",
-                                                     "ess_mean", "step_ms", "runs", "refused_runs"}
+                                                     "ess_mean", "gated_updates", "gated_updates_range", "step_ms",
+                                                     "runs", "refused_runs"}
     rows = campaign.read_csv(tmp_path / "rov.csv", campaign.TIDY_COLUMNS[:-1] + experiment.EXTRA_COLUMNS + ("value",))
     assert {r["run"] for r in rows} == {0, 1}
-    assert report["summary"]["plain|3|CPF"] == experiment.summary(rows)[("plain", "3", "CPF")]  # made from the rows
-    assert len(list(tmp_path.glob("rov_rmse_sea_*.png"))) == 3 and len(list(tmp_path.glob("rov_errors_sea_*.png"))) == 3
+    made = reproduce._strict_json(experiment.summary(rows)[("plain", "3", "CPF")])  # NaN (no gate count) as null
+    assert report["summary"]["plain|3|CPF"] == made  # made from the rows
+    seas = len(SEA_STATES)
+    assert len(list(tmp_path.glob("rov_rmse_sea_*.png"))) == seas and len(list(tmp_path.glob("rov_errors_sea_*.png"))) == seas
+    assert len(list(tmp_path.glob("rov_velocity_errors_sea_*.png"))) == seas  # the paper's Figs. 6, 8, 10
     # the text tables: the paper's Table 3 beside ours, the sensitivity table and the rankings
     args.json = False
     args.resume = True  # nothing left to run: the tables come from the CSV alone
@@ -205,7 +244,7 @@ def test_table3_prints_each_paper_number_in_its_own_cell():
             for sea in SEA_STATES for label in ("PF", "CKF (matched model)", "CPF", "EM-MOGCPF") for m, v in values.items()]
     lines = experiment.table3(rows).splitlines()
     for sea, filters in paper.table3_rmse().items():
-        start = next(i for i, line in enumerate(lines) if line.startswith(f"{sea:<5}x "))
+        start = next(i for i, line in enumerate(lines) if line.startswith(f"{sea:<10}x "))
         for offset, axis in enumerate(paper.AXES):
             cells = lines[start + offset].split()[-8:]  # ours, paper for PF, CKF, CPF, EM-MOGCPF
             quoted = [float(c) for c in cells[1::2]]

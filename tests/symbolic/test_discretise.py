@@ -52,7 +52,7 @@ def test_discrete_step_uses_the_models_scheme_and_holds_inputs():
     step = discretise.discrete_step(model, model.x, model.u, model.p, model.w, dt)
     fn = ca.Function("f", [model.x, model.u, model.p, model.w, dt], [step])
     rhs = ca.Function("rhs", [model.x, model.u, model.p, model.w], [model.xdot])
-    x, u, p, w = np.array([3.0, -2.0]), np.array([1.5, 0.2, 0.4]), np.array([0.0, 0.0]), np.array([0.01, -0.02])
+    x, u, p, w = np.array([3.0, -2.0]), np.array([1.5, 0.2, 0.4]), np.zeros(4), np.array([0.01, -0.02])
     for h in (0.1, 1.0):
         np.testing.assert_allclose(np.array(fn(x, u, p, w, h)).ravel(), x + h * np.array(rhs(x, u, p, w)).ravel(), rtol=1e-15)
 

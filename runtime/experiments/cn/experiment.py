@@ -21,6 +21,17 @@ leader's broadcast GPS error along the line of sight (1.53^2 m^2), everything el
 printed Q, R cost under each geometry (with R = 1 m^2, the range noise alone, a CKF's ANEES on the crossing60
 layout was ~2 and 79 % of its NEES inside the 95 % bound; with the GPS term, 0.6 and 99 %, on 6 trials).
 
+Leaders as sensors. cn2d declares one range sensor per leader (``leader0``, ``leader1``: each its own range, its own
+parameters p_k = the leader's broadcast position, its own R). The CKF and the MCUKF fuse each ping as that leader's
+sensor update (``predict_to(t, u)`` then ``update(sensor, z, t, p=gps)``: ``run_kalman_by_sensor``); the IVBCKF and
+the particle filters have no per-sensor update and consume the stacked form, both sensors' entries with the silent
+leader's NaN (a missing entry: its rows are left out of the update, the likelihood, the proposal's update and
+the gate) and both leaders' positions as p. Both forms fuse the same range with the same h, p and R at the same
+time: against the former one-range model (p = the pinging leader's position, ``run()``), every filter's estimates
+were bit-identical on run 0 of seed 0 (both geometries crossing60 and collinear, the four noise cases), once the
+IVBCKF is given the paper's u = 8, t = 5 (its default t = n_y + 4 counts both sensors). Timing: the per-sensor loop is two Python calls per ping,
+against one C loop for the whole trial before, so the CKF's and MCUKF's ``step_ms`` now include the Python calls.
+
 Random streams: a particle filter's error on one trial depends on its random numbers (on the collinear
 geometry MCUPF's APE on one trial differs by metres between streams), so every particle filter runs
 ``streams`` times per trial on independent streams ``derive(seed, case, 1, crc32(label), stream)`` (a filter's
@@ -49,7 +60,8 @@ from ...extras import require
 from ..campaign import TIMING_METRICS, derive, run_index, run_seeds
 from ..tables import MEAN_SD, fraction, over_runs
 from . import paper
-from .scenario import GEOMETRIES, GPS_SIGMA, NOISE_CASES, CnScenario, crossing_angles, gdop, position_errors, simulate
+from .scenario import (GEOMETRIES, GPS_SIGMA, NOISE_CASES, CnScenario, crossing_angles, gdop, ping, position_errors,
+                       simulate)
 
 FILTERS = ("DR", "CKF", "MCUKF", "PF", "UPF", "HRUPF", "IVBCKF", "MCUPF", "MCC-UPF")
 PARTICLE_FILTERS = frozenset({"PF", "UPF", "HRUPF", "MCUPF", "MCC-UPF"})
@@ -110,17 +122,21 @@ def make_filter(name: str, model, trial, config: CnConfig, rng: np.random.Genera
     tuned = name.endswith(" tuned")
     name = name.removesuffix(" tuned")
     Q = np.eye(2) * (config.q_std_tuned if tuned else config.q_std) ** 2
-    R = np.array([[config.r_tuned if tuned else config.r]])
+    R = np.eye(model.n_y) * (config.r_tuned if tuned else config.r)  # each leader sensor its own block
     x0, P0 = trial.x0, trial.P0
     lam = 3.0 - model.n_x
     if name == "CKF":
-        return CKF(model, x0, P0, Q, R, gate_probability=0.0)
+        return CKF(model, x0, P0, Q, R, gate_probability=0.0, t0=trial.t[0] - trial.dt)
     if name == "MCUKF":
-        return MCUKF(model, x0, P0, Q, R, sigma=config.sigma, alpha=1.0, beta=0.0, kappa=lam, gate_probability=0.0)
+        return MCUKF(model, x0, P0, Q, R, sigma=config.sigma, alpha=1.0, beta=0.0, kappa=lam, gate_probability=0.0,
+                     t0=trial.t[0] - trial.dt)
     if name == "IVBCKF":
-        return IVBCKF(model, x0, P0, Q, R, iterations=config.ivb_iterations, gate_probability=0.0)  # as the paper's
+        # the paper's printed u = 8, t = 5 (tau_R = t - m - 1 = 3 for the one range of a ping; the class's default
+        # t = n_y + 4 would count both leader sensors, m = 2, and give tau_R = 4)
+        return IVBCKF(model, x0, P0, Q, R, u=8.0, t=5.0, iterations=config.ivb_iterations,
+                      gate_probability=0.0)  # as the paper's
     if name == "PF":
-        noise = GaussianMixture(np.ones(1), np.zeros((1, 1)), R[None])
+        noise = GaussianMixture(np.ones(1), np.zeros((1, model.n_y)), R[None])
         return ParticleFilter(model, x0, P0, Q, noise, config.n_particles, rng,
                               policy=ResamplingPolicy("multinomial", 1.0), gate_probability=0.0)
     if name == "UPF":
@@ -179,12 +195,35 @@ def run_filters(config: CnConfig, seed: np.random.SeedSequence, geometry: str, c
             filt = make_filter(label, model, trial, config, rng)
             try:
                 with np.errstate(over="ignore"):  # the NEES of a cloud collapsed to one point (P = 0) is inf
+                    if hasattr(filt, "update_sensor"):
+                        out[(label, stream)] = run_kalman_by_sensor(filt, trial)
+                        continue
                     result = filt.run(trial.U, trial.Z, trial.dt, params=trial.params, truth=trial.truth)
             except (ValueError, ArithmeticError, np.linalg.LinAlgError):
                 out[(label, stream)] = None  # the filter refused a step: an outcome of this filter on this trial
                 continue
             out[(label, stream)] = FilterTrace(result.x, result.nees, result.particles, result.step_time)
     return trial, out
+
+
+def run_kalman_by_sensor(filt, trial) -> FilterTrace:
+    """A Kalman filter of the C runtime over the trial, each ping fused as its leader's own sensor update: predicted
+    to the ping's time with the input held (``predict_to``), then ``update(sensor, z, t, p=gps)`` with that sensor's
+    R; the NEES of each ping from the filter's own P. Refusals raise ValueError (as ``run``)."""
+    import time
+
+    K = len(trial.t)
+    x, nees, step_time = np.empty((K, 2)), np.empty(K), np.empty(K)
+    for k in range(K):
+        sensor, z, p = ping(trial, k)
+        start = time.perf_counter()
+        filt.predict_to(trial.t[k], trial.U[k])
+        filt.update(sensor, z, trial.t[k], p=p)
+        step_time[k] = time.perf_counter() - start
+        x[k] = filt.x
+        e = x[k] - trial.truth[k]
+        nees[k] = float(e @ np.linalg.solve(filt.P, e))
+    return FilterTrace(x, nees, np.full(K, np.nan), step_time)
 
 
 def trial_geometry(trial) -> dict:
@@ -419,6 +458,65 @@ def timing_table(rows) -> str:
             "load; `abyssal bench` measures them side by side):\n  " + "; ".join(parts))
 
 
+def markdown(rows, config: CnConfig, document: dict | None = None) -> dict[str, str]:
+    """The tables of docs/experiments/cn.md (`abyssal publish cn`, publish.py), from the rows."""
+    from ..publish import markdown_table, number
+
+    s, geo = summary(rows), geometry_summary(rows)
+    labels = [f for f in filter_names(config) if any(k[2] == f for k in s)]
+    cases = [c for c in config.cases if any(k[1] == c for k in s)]
+    printed = [f for f in labels if f in paper.TABLE7]
+    out = {"geometry": markdown_table(
+        ["geometry", "leaders (east, north) m", "crossing angle deg: median", "10th percentile", "2-range GDOP: median",
+         "90th percentile"],
+        [[g, _leaders_text(g), f"{geo[g]['crossing_median_deg']:.1f}", f"{geo[g]['crossing_p10_deg']:.1f}",
+          f"{geo[g]['gdop_median']:.2f}", f"{geo[g]['gdop_p90']:.3g}"] for g in config.geometries if g in geo],
+        align="llrrrr")}
+    for geometry in config.geometries:
+        if geometry not in geo:
+            continue
+        body = []
+        for f in labels:
+            cells = [s[(geometry, c, f)]["ape_m"].cell(".2f") if (geometry, c, f) in s else "-" for c in cases]
+            body.append([f, *cells, number(paper.TABLE7[f][0], ".1f") if f in paper.TABLE7 else "-"])
+        out[f"ape-{geometry}"] = markdown_table(["filter", *cases, "paper (Table 7, real lake data)"], body)
+        body = [[f, *(_vs_dr_cell(f, s[(geometry, c, f)]) if (geometry, c, f) in s else "-" for c in cases)]
+                for f in labels if f != "DR"]
+        out[f"vs-dr-{geometry}"] = markdown_table(["filter", *cases], body)
+        body = [[f, *(_consistency_cell(f, s[(geometry, c, f)]) if (geometry, c, f) in s else "-" for c in cases)]
+                for f in labels if f != "DR"]
+        out[f"consistency-{geometry}"] = markdown_table(["filter", *cases], body)
+    body = []
+    wins = best_counts(rows, printed)
+    for geometry in config.geometries:
+        for c in cases:
+            if (geometry, c) in wins:
+                w, n = wins[(geometry, c)]
+                best = max(w, key=w.get) if w else "-"
+                body.append([geometry, c, f"{w.get('MCUPF', 0)}/{n}", f"{best} ({w.get(best, 0)}/{n})"])
+    out["best"] = markdown_table(["geometry", "noise case", "runs where MCUPF has the lowest APE of the printed-tuning "
+                                  "filters", "most often lowest"], body, align="llrl")
+    body = []
+    for f in [f for f in labels if f.removesuffix(" tuned") == "MCUPF"]:
+        for geometry in config.geometries:
+            cells = []
+            for c in cases:
+                e = s.get((geometry, c, f))
+                cells.append(f"{e['steady_particles'].mean:.0f} ({e['mean_particles'].mean:.0f})"
+                             if e and e["steady_particles"].n else "-")
+            body.append([f, geometry, *cells])
+    out["kld"] = markdown_table(["filter", "geometry", *cases], body, align="ll" + "r" * len(cases))
+    values: dict = {}
+    for r in rows:
+        if r["metric"] in TIMING_METRICS and r["filter"] not in ("DR", TRIAL):
+            values.setdefault(r["filter"], []).append(r["value"])
+    out["timing"] = markdown_table(["filter", "wall time per step, ms (this campaign's machine and load)",
+                                    "paper (Table 7, MATLAB), ms"],
+                                   [[f, f"{np.mean(v):.3f}", number(1e3 * paper.TABLE7[f][1], ".3g") if f in paper.TABLE7
+                                     else "-"] for f, v in values.items()])
+    return out
+
+
 def document(rows, config: CnConfig, prepared=None) -> dict:
     """The JSON summary's entries: what the data is, the geometries (leaders, crossing angle, GDOP) and the
     cases {geometry: {noise case: {filter: {...}}}}."""
@@ -537,29 +635,67 @@ def figures(rows, out, config: CnConfig, seed: int = 0, prepared=None, settings:
 
     paths.append(_ape_figure(rows, config, out, stamp, labels, plots, plt))
 
-    # KLD particle count
+    # KLD particle count: one panel per geometry, the count each MCUPF ran with and what KLD-resampling asked for
     kld = [f for f in labels if f.removesuffix(" tuned") == "MCUPF"]
     if kld:
-        fig, ax = plt.subplots(figsize=(8, 4.2))
-        styles = ("-", "--", ":", "-.")
-        for g_index, geometry in enumerate(config.geometries):
-            trial, traces = runs0[geometry]
-            for f in (f for f in kld if f in traces):
-                count = traces[f].particles
-                style = plots.filter_style(f, tuple(labels))
-                ax.step(trial.t, count, where="post", color=style["color"], ls=styles[g_index % len(styles)],
-                        lw=1.2 if f == "MCUPF" else 0.8,
-                        label=f"{f}, {geometry} (steady {np.mean(count[1:]):.0f})")
-        ax.axhline(config.kld_n_min, color="#777777", lw=0.8, ls=":", label=f"floor n_min = {config.kld_n_min}")
-        ax.set(yscale="log", xlabel="time (s)", ylabel="particles",
-               title=f"MCUPF particle number under KLD-resampling (N_start = {config.n_particles}, "
-                     f"N_max = {config.kld_n_max}); run 0, {case0}")
-        ax.title.set_fontsize(9)
-        plots.plain_log_labels(ax)
-        ax.grid(alpha=0.3, which="both")
-        ax.legend(fontsize=7, ncol=2)
-        paths.append(_save(fig, out / "cn_kld.png", stamp, plots))
+        paths.append(_kld_figure(config, seed, kld, labels, stamp, out, plots, plt))
     return paths
+
+
+def kld_trace(config: CnConfig, trial, label: str, rng) -> tuple[np.ndarray, np.ndarray]:
+    """(particle count each step ran with, the KLD bound N(k) unclamped) of one MCUPF run, k = the 10 m bins the
+    resampled cloud occupies after the step (what KLD-resampling's stopping rule saw), stepped here by hand."""
+    import abyssal.generated
+
+    from ...resampling.kld import kld_sample_size
+
+    model = abyssal.generated.load("cn2d")
+    filt = make_filter(label, model, trial, config, rng)
+    policy = filt.policy
+    counts, bounds = np.empty(len(trial.t)), np.empty(len(trial.t))
+    for k in range(len(trial.t)):
+        counts[k] = filt.N
+        filt.step(trial.U[k], trial.dt, trial.Z[k], trial.params[k])
+        cells = np.floor(filt.particles[list(policy.coordinates)] / np.asarray(policy.bin_size)[:, None])
+        occupied = len(np.unique(cells, axis=1).T)
+        bounds[k] = kld_sample_size(occupied, policy.epsilon, policy.delta)
+    return counts, bounds
+
+
+def _kld_figure(config: CnConfig, seed: int, kld: list[str], labels, stamp: str, out, plots, plt):
+    """cn_kld.png: one row per MCUPF row (printed tuning, tuned), one column per geometry: the particle count it ran
+    with (run 0, first noise case, stream 0) and the KLD bound N(k) it came from before the clamp to [N_min, N_max]:
+    where the bound lies below the floor, the floor decides the count."""
+    s0 = run_seeds(seed, 1)[0]
+    case0 = config.cases[0]
+    n = len(config.geometries)
+    fig, axes = plt.subplots(len(kld), n, figsize=(4.6 * n + 0.6, 3.3 * len(kld) + 1.2), squeeze=False, sharey=True,
+                             sharex=True)
+    trials = {g: simulate(config.scenario_for(g), case0, np.random.default_rng(derive(s0, 0))) for g in config.geometries}
+    for row, f in enumerate(kld):
+        style = plots.filter_style(f, tuple(labels))
+        for col, geometry in enumerate(config.geometries):
+            ax, trial = axes[row, col], trials[geometry]
+            rng = np.random.default_rng(derive(s0, 0, 1, zlib.crc32(f.encode()), 0))  # run_filters' stream 0
+            counts, bounds = kld_trace(config, trial, f, rng)
+            ax.step(trial.t, counts, where="post", color=style["color"], lw=1.8,
+                    label=f"particles the step ran with (steady {np.mean(counts[1:]):.0f})")
+            ax.plot(trial.t, bounds, color="#333333", ls=":", lw=0.9,
+                    label=f"KLD bound N(k) before the clamp (median {np.median(bounds[1:]):.0f})")
+            for level, text, ls in ((config.kld_n_min, f"floor N_min = {config.kld_n_min} (ours)", "-."),
+                                    (config.kld_n_max, f"N_max = {config.kld_n_max} (Table 6)", "--")):
+                ax.axhline(level, color="black", lw=0.8, ls=ls, zorder=1)
+                ax.text(0.02, level * 1.15, text, transform=ax.get_yaxis_transform(), fontsize=7,
+                        bbox={"facecolor": "white", "edgecolor": "none", "pad": 0.5, "alpha": 0.8})
+            ax.set(yscale="log", title=f"{f}, {geometry}", xlabel="time (s)" if row == len(kld) - 1 else None)
+            ax.title.set_fontsize(9)
+            plots.plain_log_labels(ax)
+            ax.grid(alpha=0.3, which="both")
+            ax.legend(fontsize=7, loc="center right")
+        axes[row, 0].set_ylabel("particles")
+    fig.suptitle(f"MCUPF under KLD-resampling (eps 0.15, delta 0.01, 10 m bins, N_start = {config.n_particles}): the "
+                 f"count and the bound it came from; run 0, {case0}, stream 0", fontsize=10)
+    return _save(fig, out / "cn_kld.png", stamp, plots, rect=(0, 0.02, 1, 1))
 
 
 def _line(style: dict, every: int | None = None) -> dict:

@@ -20,8 +20,11 @@ modems, DS-99 DVL, HZ001 compass) was never published, so every number abyssal r
   "crossing60" and "crossing90" put both leaders ahead of the AUV, one north and one south: the lines cross
   at a median 62 deg (55-68) and 88 deg (85-90), GDOP 1.6 and 1.4.
 * Acoustic channel: one range every 5 s, the two leaders alternating (time-division: leader 0 at
-  t = 5, 15, 25 ... s, leader 1 at t = 10, 20, ...), so each leader pings every 10 s. The
-  broadcast leader position is the runtime parameter p of the cn2d model at that step.
+  t = 5, 15, 25 ... s, leader 1 at t = 10, 20, ...), so each leader pings every 10 s. Each leader is a
+  sensor of its own in cn2d (``leader0``, ``leader1``: one range each, the leader's broadcast position its own
+  parameters p_k): a ping is that sensor's update alone (``Trial.ping``). The stacked form (``Trial.Z``: both
+  sensors' entries, NaN for the leader that did not ping; ``Trial.params``: both leaders' positions, the silent
+  one's last broadcast held) is what the filters without a per-sensor update consume.
 * Dead reckoning from the DVL and compass at 1 Hz (Table 4): DVL forward/starboard speed with a
   per-run scale-factor error drawn uniformly in 0.1-0.3 % (random sign) and 0.3 % white noise;
   compass white noise 0.3 deg plus -- our assumption for a "realistic DR drift" -- a per-run
@@ -86,9 +89,11 @@ class Trial:
     t: np.ndarray        # (K,) ping times, s
     truth: np.ndarray    # (K, 2) true AUV position
     U: np.ndarray        # (K, 3) filter input [c, s, theta] reproducing the DR displacement
-    Z: np.ndarray        # (K, 1) measured range
-    params: np.ndarray   # (K, 2) broadcast (GPS) leader position
+    Z: np.ndarray        # (K, 2) the sensors leader0, leader1 stacked: the ping's range, NaN for the silent leader
+    params: np.ndarray   # (K, 4) both leaders' broadcast (GPS) positions: the pinging one's, the other's last held
     leader: np.ndarray   # (K,) which leader pinged
+    ranges: np.ndarray   # (K,) the ping's measured range (to leader[k])
+    gps: np.ndarray      # (K, 2) the pinging leader's broadcast position (its sensor's own p at that ping)
     dr: np.ndarray       # (K, 2) dead-reckoned position
     x0: np.ndarray
     P0: np.ndarray
@@ -155,13 +160,25 @@ def simulate(sc: CnScenario, case: str, rng: np.random.Generator) -> Trial:
     elif case == "multipath":
         late = rng.random(K) < sc.multipath_rate
         noise = noise + np.where(late, rng.uniform(*sc.multipath_delay, K), 0.0)
-    Z = (true_range + noise)[:, None]
+    ranges = true_range + noise
     gps = lead_true + sc.gps_sigma * rng.standard_normal((K, 2))
+    Z = np.full((K, 2), np.nan)
+    Z[np.arange(K), which] = ranges
+    params = np.empty((K, 4))
+    for j in range(2):  # each leader's broadcast, held between its pings (and its first one before it)
+        mine = np.flatnonzero(which == j)
+        held = mine[np.clip(np.searchsorted(mine, np.arange(K), side="right") - 1, 0, None)]
+        params[:, 2 * j:2 * j + 2] = gps[held]
     d = dr[idx] - dr[idx - step]
     dt = float(step)
     U = np.stack([np.linalg.norm(d, axis=1) / dt, np.zeros(K), np.arctan2(d[:, 1], d[:, 0])], axis=1)
-    return Trial(t=t[idx], truth=truth[idx], U=U, Z=Z, params=gps, leader=which, dr=dr[idx], x0=x0,
+    return Trial(t=t[idx], truth=truth[idx], U=U, Z=Z, params=params, leader=which, ranges=ranges, gps=gps, dr=dr[idx], x0=x0,
                  P0=np.eye(2) * sc.initial_sigma**2, dt=dt, leaders_true=leaders[:, idx], range_error=noise)
+
+
+def ping(trial: Trial, k: int) -> tuple[str, np.ndarray, np.ndarray]:
+    """(sensor, z, p) of ping k: the cn2d sensor of the leader that pinged, its range and its broadcast position."""
+    return f"leader{int(trial.leader[k])}", trial.ranges[k:k + 1], trial.gps[k]
 
 
 def position_errors(estimate: np.ndarray, truth: np.ndarray) -> np.ndarray:

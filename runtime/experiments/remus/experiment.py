@@ -13,6 +13,11 @@ over 0.2 s) and updates with every sensor sample; R = the sensors' held noise + 
 No filter has an innovation gate (the paper's have none).
 
 Cases: the choices the paper leaves open.
+* The controllers' feedback (spec D7): "true" (the default, as the paper's Simulink model runs: its measured-depth
+  port is unconnected, so the controllers see the true state) and "measured" (the paper's text: the controllers
+  use the corrupted measurements, the sensors' noisy, quantised values of nu, z and the angles). Each UKF reading
+  runs on the truths of both, with Q from that feedback's run 1 ("UKF (oracle, measured feedback)": the paper-like
+  reading beside the oracle); the GP-UKFs run on the true-feedback truths they were trained on.
 * The UKF's reading (case "true model"). "UKF (oracle)": the true remus100 model (2 RK4 substeps per 0.2 s)
   with Q = the covariance of its one-step residuals on run 1 (x_{k+1} - f(x_k, u_k) with the logged inputs:
   the truth's only "process noise" is the input held over 0.2 s while the simulator's changes every 0.01 s).
@@ -51,6 +56,7 @@ import numpy as np
 
 from . import paper, scenario
 from ..tables import OverRuns, over_runs
+from .gp_model import RESTARTS
 
 STATE_NAMES = scenario.STATE_NAMES
 MEASURED = ("u", "v", "w", "p", "q", "r", "z", "phi", "theta", "psi")
@@ -69,11 +75,12 @@ EXTRA_COLUMNS: tuple[str, ...] = ()
 
 @dataclass(frozen=True)
 class UKFSetup:
-    """One UKF reading, prepared: its model (a bundle name or generated folder) and Q."""
+    """One UKF reading on one feedback's truths, prepared: its model (a bundle name or generated folder) and Q."""
 
     name: str
     model: str
     Q: tuple          # (12, 12) nested tuples
+    feedback: str = "true"
 
 
 @dataclass(frozen=True)
@@ -87,6 +94,8 @@ class GPSetup:
     digest: str        # its sha256 (the workers' cache key)
     library: str
     function: str
+    lml: tuple = ()        # per GP (12): the chosen hyperparameters' log marginal likelihood on the fitted points
+    start_lml: tuple = ()  # per GP: each start's optimum (gp_model.START_NAMES, then the random starts)
 
     @property
     def name(self) -> str:
@@ -101,6 +110,20 @@ def draw_case(draw: int) -> str:
     return f"draw {draw}"
 
 
+#: the controllers' feedback (spec D7): the Simulink model's (the default) and the paper's text
+FEEDBACKS = ("true", "measured")
+
+
+def ukf_name(reading: str, feedback: str = "true") -> str:
+    """"UKF (oracle)" on the true-feedback truths; "UKF (oracle, measured feedback)" on the measured-feedback ones."""
+    name = READINGS[reading][0]
+    return name if feedback == "true" else f"{name[:-1]}, measured feedback)"
+
+
+def ukf_case(feedback: str) -> str:
+    return TRUE_MODEL if feedback == "true" else f"{TRUE_MODEL}, measured feedback"
+
+
 @dataclass(frozen=True)
 class RemusConfig:
     """What a run needs. The fields up to ``readings`` are the set-up (defaults: `abyssal reproduce remus`);
@@ -113,6 +136,8 @@ class RemusConfig:
     full_state_sizes: tuple[int, ...] = (100, 400)  # sizes also run with next-state targets (gpukf.m)
     hyper_max: int = 400                       # hyperparameters from at most this many regressors (gp_model)
     readings: tuple[str, ...] = tuple(READINGS)  # UKF readings (READINGS)
+    feedbacks: tuple[str, ...] = FEEDBACKS     # the truths' controller feedback the UKF readings run on (D7)
+    restarts: int = RESTARTS                   # random starts of every GP hyperparameter fit (gp_model.fit_gp)
     features: str = "paper"                    # GP inputs: "paper" or "trig" (gp_model)
     density_at_end: float | None = None        # the pool's sampling density at the end vs the start (None: gp_model's)
     ukfs: tuple = ()                           # UKFSetup per reading (prepare)
@@ -133,8 +158,8 @@ class RemusConfig:
         return self.draws[run % len(self.draws)]
 
 
-def _setup(duration: float) -> scenario.HelixSetup:
-    return scenario.HelixSetup(duration=duration)
+def _setup(duration: float, feedback: str = "true") -> scenario.HelixSetup:
+    return scenario.HelixSetup(duration=duration, feedback=feedback)
 
 
 # ------------------------------------------------------------------------------------------ preparation
@@ -171,11 +196,14 @@ def prepare(config: RemusConfig, out_dir: Path | None = None, progress=None):
     out = Path(out_dir) if out_dir else Path("out")
     bundle = generated.load("remus100")
     training = scenario.simulate(1, _setup(config.duration), bundle)
+    runs1 = {f: training if f == "true" else scenario.simulate(1, _setup(config.duration, f), bundle)
+             for f in config.feedbacks}
     ukfs = []
     for reading in config.readings:
         model = reading_model(reading, out)
-        Q = process_noise(training, bundle if model == "remus100" else generated.load(model))
-        ukfs.append(UKFSetup(READINGS[reading][0], model, tuple(map(tuple, Q))))
+        for feedback, log in runs1.items():
+            Q = process_noise(log, bundle if model == "remus100" else generated.load(model))
+            ukfs.append(UKFSetup(ukf_name(reading, feedback), model, tuple(map(tuple, Q)), feedback))
     pool = gp_model.pool_size(config.duration, LOG_DT)
     gps, sets, compiled = [], {}, {}
     density = gp_model.DENSITY_AT_END if config.density_at_end is None else config.density_at_end
@@ -187,7 +215,8 @@ def prepare(config: RemusConfig, out_dir: Path | None = None, progress=None):
             found = _cached_sets(out, training, targets, draw, sizes, config, density)
             if found is None:
                 found = gp_model.fit_draw(training, draw, sizes, targets=targets, features=config.features,
-                                          hyper_max=config.hyper_max, density_at_end=density, say=say)
+                                          hyper_max=config.hyper_max, density_at_end=density,
+                                          restarts=config.restarts, say=say)
                 _save_sets(out, training, targets, draw, sizes, config, density, found)
             else:
                 say(f"draw {draw}, {targets}: training sets read from {_gp_folder(out)} (fitted earlier)")
@@ -202,7 +231,9 @@ def prepare(config: RemusConfig, out_dir: Path | None = None, progress=None):
             for draw in config.draws:
                 path = _set_path(out, targets, draw, n)
                 c = compiled[(targets, n)]
-                gps.append(GPSetup(targets, n, draw, str(path), gp_model.file_digest(path), str(c.library), c.name))
+                fitted = sets[(targets, n, draw)]
+                gps.append(GPSetup(targets, n, draw, str(path), gp_model.file_digest(path), str(c.library), c.name,
+                                   tuple(map(float, fitted.lml)), tuple(map(tuple, fitted.start_lml.tolist()))))
     config = replace(config, ukfs=tuple(ukfs), gps=tuple(gps))
     return config, {"training": training, "sets": sets, "compiled": compiled}
 
@@ -228,7 +259,7 @@ def _fit_key(training: scenario.HelixLog, targets, draw, sizes, config: RemusCon
         h.update(np.ascontiguousarray(array).tobytes())
     h.update(repr((targets, draw, sizes, config.features, config.hyper_max, density, gp_model.POOL_FRACTION,
                    gp_model.LENGTH_SCALE, gp_model.LENGTH_BOUNDS, gp_model.SIGNAL, gp_model.SIGNAL_BOUNDS, gp_model.NOISE,
-                   gp_model.NOISE_BOUNDS, sklearn.__version__)).encode())
+                   gp_model.NOISE_BOUNDS, config.restarts, gp_model.START_NAMES, sklearn.__version__)).encode())
     return h.hexdigest()
 
 
@@ -257,7 +288,7 @@ def _save_sets(out, training, targets, draw, sizes, config, density, sets) -> No
 
 # ------------------------------------------------------------------------------------------ one run
 def _filters(config: RemusConfig, run: int):
-    """{filter name: (case, factory (x0, P0) -> filter)} of one run."""
+    """{filter name: (case, feedback of the truths it runs on, factory (x0, P0) -> filter)} of one run."""
     from abyssal import generated
 
     from ...filters.kalman import UKF
@@ -268,14 +299,14 @@ def _filters(config: RemusConfig, run: int):
     out = {}
     for u in config.ukfs:
         model = bundle if u.model == "remus100" else generated.load(u.model)
-        out[u.name] = (TRUE_MODEL, lambda x, P, model=model, Q=np.array(u.Q):
+        out[u.name] = (ukf_case(u.feedback), u.feedback, lambda x, P, model=model, Q=np.array(u.Q):
                        UKF(model, x, P, Q, scenario.SENSOR_R, gate_probability=0.0))
     draw = config.draw_of_run(run)
     for g in config.gps:
         if g.draw != draw:
             continue
         _, data = gp_model.runtime_data(g.data, g.digest)
-        out[g.name] = (draw_case(draw), lambda x, P, g=g, data=data:
+        out[g.name] = (draw_case(draw), "true", lambda x, P, g=g, data=data:
                        GPUKF(bundle, g.library, g.function, x, P, scenario.SENSOR_R, gp_dt=LOG_DT, gp_data=data,
                              gate_probability=0.0))
     return out
@@ -293,7 +324,8 @@ def run_one(config: RemusConfig, seed: np.random.SeedSequence) -> list[dict]:
 
 
 def filter_run(config: RemusConfig, seed: np.random.SeedSequence):
-    """(rows, log, traces) of one run; traces[filter] = (estimates (T, 12), covariances (T, 12, 12))."""
+    """(rows, log, traces) of one run; traces[filter] = (estimates (T, 12), covariances (T, 12, 12)) of the filters
+    on the true-feedback truth ``log`` (the measured-feedback UKFs run on their own truth: rows only)."""
     from abyssal import generated
 
     from ...numerics import nees
@@ -303,13 +335,16 @@ def filter_run(config: RemusConfig, seed: np.random.SeedSequence):
         raise ValueError("RemusConfig is not prepared: call prepare(config, out) first (it trains the GPs)")
     run = run_index(seed)                                   # 0-based row key of the campaign table
     sensor_seed = run + 1 + 100_000 * int(seed.entropy)     # spec 9: run r uses seed r (r = 1..M) for --seed 0
-    log = scenario.simulate(sensor_seed, _setup(config.duration), generated.load("remus100"))
-    T = len(log.t)
+    filters = _filters(config, run)
+    logs = {f: scenario.simulate(sensor_seed, _setup(config.duration, f), generated.load("remus100"))
+            for f in dict.fromkeys(feedback for _, feedback, _ in filters.values())}
+    T = len(next(iter(logs.values())).t)
     P0 = np.diag(P0_DIAG)
     horizon = int(round(PREDICTION_HORIZON / LOG_DT))
     measured = [STATE_NAMES.index(s) for s in MEASURED]
     rows, traces = [], {}
-    for name, (case, make) in _filters(config, run).items():
+    for name, (case, feedback, make) in filters.items():
+        log = logs[feedback]
         flt = make(log.x[0].copy(), P0)
         X, Ps = np.empty((T, 12)), np.empty((T, 12, 12))
         X[0], Ps[0] = flt.x, flt.P
@@ -340,8 +375,9 @@ def filter_run(config: RemusConfig, seed: np.random.SeedSequence):
         values["predict_10s_diverged"] = diverged
         values["step_ms"] = float(np.mean(result.step_time)) * 1e3
         rows += [{"run": run, "case": case, "filter": name, "metric": m, "value": float(v)} for m, v in values.items()]
-        traces[name] = (X, Ps)
-    return rows, log, traces
+        if feedback == "true":
+            traces[name] = (X, Ps)
+    return rows, logs.get("true", log), traces
 
 
 # ------------------------------------------------------------------------------------------ statistics
@@ -350,9 +386,10 @@ def _values(rows, name: str, metric: str, case: str | None = None) -> list[float
 
 
 def filter_names(rows) -> list[str]:
-    """UKF readings first (in READINGS order), then the GP-UKFs by targets and size."""
+    """UKF readings first (in READINGS order, the true-feedback truths, then the measured ones), then the GP-UKFs by
+    targets and size."""
     names = sorted({r["filter"] for r in rows})
-    ukfs = [v[0] for v in READINGS.values() if v[0] in names]
+    ukfs = [ukf_name(k, f) for f in FEEDBACKS for k in READINGS if ukf_name(k, f) in names]
     gps = sorted((n for n in names if n.startswith("GP-UKF")), key=lambda n: ("(state)" in n, int(n.split("N=")[1])))
     return ukfs + gps + [n for n in names if n not in ukfs and n not in gps]
 
@@ -441,11 +478,13 @@ def report(rows, config: RemusConfig | None = None) -> str:
          "OURS: a UKF reading = mean ± sample sd (ddof 1) over its runs; a GP-UKF = mean ± sample sd (ddof 1) BETWEEN "
          "training draws of the per-draw means over runs. THEIRS: the paper's tables, quoted ('-' where illegible).", ""]
 
+    w = max([24] + [len(n) + 2 for n in names])  # the width of a column or row named by a filter
     L += ["Table 3, UKF readings: RMSE per state (UKF (oracle) knows the true model and the truth's residual "
-          "covariance: an ORACLE)", f"{'state':<6}{'unit':<6}{'paper UKF':>11}" + "".join(f"{n:>24}" for n in ukfs)]
+          "covariance: an ORACLE; 'measured feedback': the controllers see the sensors, spec D7, the paper-like "
+          "reading)", f"{'state':<6}{'unit':<6}{'paper UKF':>11}" + "".join(f"{n:>{w}}" for n in ukfs)]
     for s in STATE_NAMES:
         L.append(f"{s:<6}{paper.UNITS[s]:<6}{paper.TABLE3['UKF'][s]:>11.4g}"
-                 + "".join(f"{cell(statistic(rows, n, f'rmse_{s}')):>24}" for n in ukfs))
+                 + "".join(f"{cell(statistic(rows, n, f'rmse_{s}')):>{w}}" for n in ukfs))
     if ukfs:
         best, scores = closest_reading(rows)
         L += ["distance to the paper's UKF row: median |log10(ours/paper)| over the 12 states [max]; states within "
@@ -453,7 +492,7 @@ def report(rows, config: RemusConfig | None = None) -> str:
         for n in ukfs:
             med, worst, within = scores[n]
             ratio = ratio_to_paper(rows, n)
-            L.append(f"  {n:<22} {med:.2f} [{worst:.2f}]  {within:>2}/12   x: {ratio['x']:.3g}x the paper's, "
+            L.append(f"  {n:<{w}} {med:.2f} [{worst:.2f}]  {within:>2}/12   x: {ratio['x']:.3g}x the paper's, "
                      f"y: {ratio['y']:.3g}x")
         L.append(f"  closest: {best}" + ("" if scores[best][2] == 12 else
                                          "; no reading is within a factor 2 of the paper in every state"))
@@ -470,12 +509,12 @@ def report(rows, config: RemusConfig | None = None) -> str:
     L += ["", "Table 4: correction (mean of the 10 measured states' RMSEs, mixed units) and prediction (horizontal "
           "position RMSE of the filtered estimate, m: x, y are never measured); predict_10s (m) is OURS "
           "(predict-only windows; 'diverged': windows whose predict failed, of all), the paper has no such number",
-          f"{'filter':<24}{'correction':>20}{'paper':>8}{'prediction (m)':>20}{'paper (m)':>10}{'predict_10s (m)':>20}"
+          f"{'filter':<{w}}{'correction':>20}{'paper':>8}{'prediction (m)':>20}{'paper (m)':>10}{'predict_10s (m)':>20}"
           f"{'diverged':>10}"]
     for n in names:
         kind = "GP-UKF" if is_gp(n) else "UKF"
         diverged = f"{sum(_values(rows, n, 'predict_10s_diverged')):g}/{windows * len(_values(rows, n, 'prediction'))}"
-        L.append(f"{n:<24}{cell(statistic(rows, n, 'correction')):>20}{paper.TABLE4[(kind, 'correction')]:>8}"
+        L.append(f"{n:<{w}}{cell(statistic(rows, n, 'correction')):>20}{paper.TABLE4[(kind, 'correction')]:>8}"
                  f"{cell(statistic(rows, n, 'prediction')):>20}{paper.TABLE4[(kind, 'prediction')]:>10}"
                  f"{cell(statistic(rows, n, 'predict_10s')):>20}{diverged:>10}")
 
@@ -483,18 +522,20 @@ def report(rows, config: RemusConfig | None = None) -> str:
         cases = sorted({c for n in gps for c in draws_of(rows, n)}, key=lambda c: int(c.split()[-1]))
         L += ["", "GP-UKF per training draw: prediction (horizontal position RMSE, m), mean ± sd (ddof 1) over that "
               "draw's runs [runs]; between draws: mean, sd (ddof 1), min-max of the per-draw means",
-              f"{'filter':<24}" + "".join(f"{c:>22}" for c in cases) + f"{'between draws':>30}"]
+              f"{'filter':<{w}}" + "".join(f"{c:>22}" for c in cases) + f"{'between draws':>30}"]
         for n in gps:
             d = per_draw(rows, n, "prediction")
             cells = "".join(f"{(cell(d[c]) + f' [{d[c].n}]') if c in d else '-':>22}" for c in cases)
             b = over_draws(d)
-            L.append(f"{n:<24}{cells}{f'{cell(b)}, {b.low:.3g}-{b.high:.3g}':>30}")
+            L.append(f"{n:<{w}}{cells}{f'{cell(b)}, {b.low:.3g}-{b.high:.3g}':>30}")
 
     L += ["", "Consistency: ANEES from the filter's own P of the 12 states, the 10 measured ones and (x, y) (a consistent "
           "filter: 12, 10, 2; x, y start exact with P0 = 1 m^2 and are never measured); statistic as above",
-          f"{'filter':<24}{'ANEES (12)':>20}{'measured (10)':>20}{'x, y (2)':>20}"]
+          f"{'filter':<{w}}{'ANEES (12)':>20}{'measured (10)':>20}{'x, y (2)':>20}"]
     for n in names:
-        L.append(f"{n:<24}" + "".join(f"{cell(statistic(rows, n, m)):>20}" for m in ("anees", "anees_measured", "anees_xy")))
+        L.append(f"{n:<{w}}" + "".join(f"{cell(statistic(rows, n, m)):>20}" for m in ("anees", "anees_measured", "anees_xy")))
+    if config is not None and any(g.lml for g in config.gps):
+        L += ["", *fit_table(config)]
 
     L += ["", f"The paper's Table 3 sigma of the UKF (quoted; paper.py) cannot be a standard deviation over its "
           f"{paper.RUNS} runs: the sample sd of n values >= 0 is at most sqrt(n) x their mean.", *paper_sigma_check(),
@@ -502,6 +543,104 @@ def report(rows, config: RemusConfig | None = None) -> str:
           "step ms (mean wall time of one predict + update, this machine and its load; not compared across runs): "
           + ", ".join(f"{n} {statistic(rows, n, 'step_ms').mean:.3g}" for n in names)]
     return "\n".join(L)
+
+
+def fit_rows(fits: dict, hyper_max: int) -> list[list[str]]:
+    """[targets, N, draw, LML of x's GP, of y's, the kept starts (of 12 GPs), the warm start's largest shortfall]
+    per fitted training set; fits: {(targets, N, draw): (lml (12,), start_lml (12, starts))}."""
+    from .gp_model import START_NAMES
+
+    out = []
+    for (targets, n, draw), (lml, start) in sorted(fits.items()):
+        if n > hyper_max or lml is None:
+            continue
+        lml, start = np.asarray(lml, dtype=float), np.asarray(start, dtype=float)
+        kept = [START_NAMES[i] if i < len(START_NAMES) else "random" for i in np.nanargmax(start, axis=1)]
+        counts = ", ".join(f"{name} {kept.count(name)}" for name in dict.fromkeys(kept))
+        warm = start[:, 1] if start.shape[1] > 1 else np.full(12, np.nan)
+        gap = float(np.nanmax(lml - warm)) if np.isfinite(warm).any() else math.nan
+        out.append([targets, str(n), str(draw), f"{lml[6]:.1f}", f"{lml[7]:.1f}", counts,
+                    "-" if math.isnan(gap) else f"{gap:.1f}"])
+    return out
+
+
+def markdown(rows, config: RemusConfig, document: dict | None = None) -> dict[str, str]:
+    """The tables of docs/experiments/remus.md (`abyssal publish remus`, publish.py): from the rows, the GP fits
+    from the JSON document (its "gp" entries)."""
+    from ..publish import markdown_table
+
+    names = filter_names(rows)
+    ukfs = [n for n in names if not is_gp(n)]
+    gps = [n for n in names if is_gp(n)]
+    out = {}
+    out["ukf"] = markdown_table(
+        ["state", "unit", "paper UKF (Table 3)", *ukfs],
+        [[st, paper.UNITS[st], f"{paper.TABLE3['UKF'][st]:.4g}", *(cell(statistic(rows, n, f"rmse_{st}")) for n in ukfs)]
+         for st in STATE_NAMES], align="ll" + "r" * (1 + len(ukfs)))
+    if ukfs:
+        best, scores = closest_reading(rows)
+        body = []
+        for n in ukfs:
+            med, worst, within = scores[n]
+            ratio = ratio_to_paper(rows, n)
+            body.append([n + (" (closest)" if n == best else ""), f"{med:.2f}", f"{worst:.2f}", f"{within}/12",
+                         f"{ratio['x']:.3g}", f"{ratio['y']:.3g}"])
+        out["distance"] = markdown_table(["UKF reading", "median abs log10(ours / paper), 12 states", "max",
+                                          "states within a factor 2", "x: ours / paper", "y: ours / paper"], body)
+    cases = sorted({c for n in gps for c in draws_of(rows, n)}, key=lambda c: int(c.split()[-1]))
+    body = []
+    for n in gps:
+        d = per_draw(rows, n, "prediction")
+        b = over_draws(d)
+        body.append([n, *((cell(d[c]) + f" [{d[c].n}]") if c in d else "-" for c in cases),
+                     f"{cell(b)}; {b.low:.3g}-{b.high:.3g}"])
+    out["gp-sweep"] = markdown_table(["GP-UKF", *(f"{c}: m [runs]" for c in cases), "between draws: mean ± sd; range"],
+                                     body)
+    fits = {}
+    for key, entry in ((document or {}).get("gp") or {}).items():
+        parts = key.split("|")
+        if len(parts) == 3 and parts[2].startswith("draw") and entry.get("lml") is not None:
+            fits[(parts[0], int(parts[1].removeprefix("N=")), int(parts[2].split()[-1]))] = (
+                [np.nan if v is None else v for v in entry["lml"]],
+                [[np.nan if v is None else v for v in row] for row in entry["start_lml"]])
+    if fits:
+        out["gp-fits"] = markdown_table(["targets", "N", "draw", "LML x (nats)", "LML y (nats)", "kept start (of 12 GPs)",
+                                         "warm start alone short by (nats, max)"],
+                                        fit_rows(fits, config.hyper_max), align="lrrrrlr")
+    body = []
+    windows = sum(1 for t in PREDICTION_STARTS if t + PREDICTION_HORIZON < config.duration)
+    for n in names:
+        kind = "GP-UKF" if is_gp(n) else "UKF"
+        diverged = f"{sum(_values(rows, n, 'predict_10s_diverged')):g}/{windows * len(_values(rows, n, 'prediction'))}"
+        body.append([n, cell(statistic(rows, n, "correction")), f"{paper.TABLE4[(kind, 'correction')]}",
+                     cell(statistic(rows, n, "prediction")), f"{paper.TABLE4[(kind, 'prediction')]}",
+                     cell(statistic(rows, n, "predict_10s")), diverged])
+    out["table4"] = markdown_table(["filter", "correction (mixed units)", "paper", "prediction (m)", "paper (m)",
+                                    "predict_10s (m, ours)", "windows diverged"], body)
+    body = [[n, *(cell(statistic(rows, n, m)) for m in ("anees", "anees_measured", "anees_xy"))] for n in names]
+    out["consistency"] = markdown_table(["filter", "ANEES, 12 states (12)", "10 measured (10)", "x, y (2)"], body)
+    if gps:
+        out["gp-states"] = markdown_table(
+            ["state", "unit", "paper GP-UKF (Table 3)", *gps],
+            [[st, paper.UNITS[st], (f"{paper.TABLE3['GP-UKF'][st]:.4g}" if st in paper.TABLE3["GP-UKF"] else "-"),
+              *(cell(statistic(rows, n, f"rmse_{st}")) for n in gps)] for st in STATE_NAMES],
+            align="ll" + "r" * (1 + len(gps)))
+    return out
+
+
+def fit_table(config: RemusConfig) -> list[str]:
+    """The GPs' hyperparameter fits (gp_model.fit_gp): per targets, size and draw, the log marginal likelihood (LML,
+    nats, on the fitted points) of the x- and y-targets' GPs, which start each of the 12 GPs kept, and the largest
+    shortfall of the warm start alone (the fit without restarts before this was added) below the kept fit."""
+    lines = [f"GP hyperparameter fits ({2 + config.restarts} starts per GP: the default, the next smaller size's optimum "
+             f"(warm), {config.restarts} random; the fit with the largest LML is kept; sizes above {config.hyper_max} "
+             "reuse that size's hyperparameters)",
+             f"{'targets':<12}{'N':>6}{'draw':>6}{'LML x':>11}{'LML y':>11}   {'kept start (of 12 GPs)':<34}"
+             f"{'warm start short by (nats, max)':>32}"]
+    fits = {(g.targets, g.n_train, g.draw): (g.lml, g.start_lml) for g in config.gps if g.lml}
+    for targets, n, draw, x, y, counts, gap in fit_rows(fits, config.hyper_max):
+        lines.append(f"{targets:<12}{n:>6}{draw:>6}{x:>11}{y:>11}   {counts:<34}{gap:>32}")
+    return lines
 
 
 def document(rows, config: RemusConfig, prepared: dict) -> dict:
@@ -514,7 +653,10 @@ def document(rows, config: RemusConfig, prepared: dict) -> dict:
     gp = {}
     if prepared:
         for (targets, n, draw), s in prepared["sets"].items():
-            gp[f"{targets}|N={n}|draw {draw}"] = {"regressors": s.n_train, "hyperparameter_seconds": s.train_seconds}
+            gp[f"{targets}|N={n}|draw {draw}"] = {
+                "regressors": s.n_train, "hyperparameter_seconds": s.train_seconds,
+                "lml": None if s.lml is None else s.lml.tolist(),
+                "start_lml": None if s.start_lml is None else s.start_lml.tolist()}
         for (targets, n), c in prepared["compiled"].items():
             gp[f"{targets}|N={n}|predict"] = {"c_bytes": c.c_bytes, "generate_seconds": c.generate_seconds,
                                                "compile_seconds": c.compile_seconds}

@@ -8,8 +8,11 @@
 
 Every figure uses one look per filter (``style``: runtime/plots.filter_style with the same ``ordered`` tuple
 everywhere; the oracle in the shared oracle look; the UKF readings and the GP sizes in their family's colour
-with a line style and a marker each (VARIANT_MARKERS), next-state targets dotted with the size's marker hollow: a
-local rule until plots.py has one for sizes), and says which run made it (stamp_settings: the command, --quick).
+with a line style and a marker each (VARIANT_MARKERS), next-state targets dotted with the size's marker hollow, a
+UKF reading on measured-feedback truths with its reading's marker hollow: a local rule until plots.py has one for
+sizes), and says which run made it (stamp_settings: the command, --quick). The paper's values are black: in the
+per-state figure short horizontal lines across a state's whole group (solid: its UKF, dashed: its GP-UKF), each
+named beside it, so no marker of ours can be taken for one of the paper's.
 """
 from __future__ import annotations
 
@@ -31,21 +34,29 @@ plt = plots.plt
 VARIANT_MARKERS = ("o", "s", "^", "P", "X")
 
 
+MEASURED = ", measured feedback"
+
+
 def style(name: str, ordered: tuple[str, ...]) -> dict:
     """The look of a filter in every remus figure (module docstring)."""
-    if name == ORACLE:
-        return plots.filter_style("oracle")
-    s = plots.filter_style(name, ordered)
+    reading = name.replace(MEASURED, "")  # the UKF reading, whichever feedback its truths had
+    if reading == ORACLE:
+        s = plots.filter_style("oracle")
+    else:
+        s = plots.filter_style(reading if not is_gp(name) else name, ordered)
     if is_gp(name):
         sizes = sorted({int(n.split("N=")[1]) for n in ordered if is_gp(n)})
         k = sizes.index(int(name.split("N=")[1]))
         s.update(linestyle=plots.LINESTYLES[k % len(plots.LINESTYLES)], marker=VARIANT_MARKERS[k % len(VARIANT_MARKERS)])
         if "(state)" in name:
             s.update(markerfacecolor="none", linestyle=":")
-    else:
-        readings = [n for n in ordered if not is_gp(n) and n != ORACLE]
-        k = readings.index(name) if name in readings else 0
-        s["marker"] = VARIANT_MARKERS[k % len(VARIANT_MARKERS)]
+    elif reading != ORACLE:
+        readings = [READINGS[key][0] for key in READINGS if READINGS[key][0] != ORACLE]
+        k = readings.index(reading) if reading in readings else 0
+        s.update(marker=VARIANT_MARKERS[k % len(VARIANT_MARKERS)],
+                 linestyle=plots.LINESTYLES[(k + 1) % len(plots.LINESTYLES)])
+    if MEASURED in name:
+        s.update(markerfacecolor="white", linestyle=(0, (5, 2, 1, 2)))
     return s
 
 
@@ -190,12 +201,14 @@ def state_rmse(rows, ordered, path: Path, stamp: str, written: list) -> None:
             lower = np.where(means - sds > 0, sds, 0.9 * means)
             ax.errorbar(centres - 0.4 + width * (j + 0.5), means, yerr=[lower, sds], fmt=s["marker"], color=s["color"],
                         mfc=s.get("markerfacecolor", s["color"]), ms=5, capsize=2, lw=0.8, label=name)
-        for row, marker in (("UKF", "D"), ("GP-UKF", "s")):
-            pts = [(c, paper.TABLE3[row].get(st)) for c, st in zip(centres, states)]
-            pts = [(c, v) for c, v in pts if v is not None]
-            if pts:
-                ax.plot([c for c, _ in pts], [v for _, v in pts], **dict(plots.PAPER_STYLE, marker=marker),
-                        label=f"paper {row} (Table 3)")
+        for row, ls in (("UKF", "-"), ("GP-UKF", "--")):  # the paper's: a black line across the group, named
+            for c, st in zip(centres, states):
+                v = paper.TABLE3[row].get(st)
+                if v is None:
+                    continue
+                ax.hlines(v, c - 0.44, c + 0.44, colors="black", linestyles=ls, lw=1.8, zorder=10,
+                          label=f"THE PAPER's {row} (Table 3; quoted)" if c == centres[0] else None)
+                ax.text(c + 0.45, v, f"paper {row}", fontsize=6, va="center", ha="left", zorder=10)
         ax.set_xticks(centres, states)
         ax.set_yscale("log")
         ax.set_ylabel(f"RMSE ({unit})")
@@ -203,8 +216,9 @@ def state_rmse(rows, ordered, path: Path, stamp: str, written: list) -> None:
         ax.grid(axis="y", alpha=0.3, which="both")
     handles, labels = axes[0, 0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="lower center", ncol=4, fontsize=7, frameon=False, bbox_to_anchor=(0.5, 0.02))
-    fig.suptitle("RMSE per state (Table 3): UKF readings mean ± sd over runs, GP-UKF mean ± sd between training "
-                 "draws\n(log axis: where mean − sd ≤ 0 the lower bar stops at a tenth of the mean)", fontsize=10)
+    fig.suptitle("RMSE per state (Table 3): ours as coloured markers, the paper's as black lines\nUKF readings: mean ± "
+                 "sd over runs; GP-UKF: mean ± sd between training draws (log axis: where mean − sd ≤ 0 the lower bar "
+                 "stops at a tenth of the mean)", fontsize=9.5)
     _save(fig, path, stamp, written, rect=(0, 0.1, 1, 0.97))
 
 

@@ -17,11 +17,16 @@ of the run, then a random order of the pool; the GPs of size N use the first N p
 The draw's seed names it (the seed of numpy's default_rng).
 
 Hyperparameters (ConstantKernel * RBF (ARD, one length scale per input) + WhiteKernel, normalize_y)
-maximise the log marginal likelihood (scikit-learn, L-BFGS-B, no restarts) on the first
-min(N, hyper_max) points of the draw, each size starting from the optimum of the next smaller one (the
-smallest from length scales 3, signal 1, noise 1e-2); a GP of more than hyper_max regressors is then
-conditioned on all N with those hyperparameters. This is ours: scikit-learn's gradient holds an
-N x N x (d + 2) array (350 MB at N = 1600) and its optimisation of 12 GPs at N = 1600 takes hours.
+maximise the log marginal likelihood (LML; scikit-learn, L-BFGS-B) on the first min(N, hyper_max) points of the
+draw, from several starts (``fit_gp``), keeping the fit of the largest LML: the default start (length scales 3,
+signal 1, noise 1e-2), the optimum of the next smaller size (a warm start, when there is one) and ``restarts``
+random starts drawn log-uniformly inside the bounds (scikit-learn's rule for its n_restarts_optimizer, from a
+generator seeded by the draw, the size and the GP). One start is not enough: a GP can stall at the noise-only
+optimum (length scales at their upper bound, the targets explained as noise), seen on draw 5's y increments at
+N = 400 from the warm start, 3600 nats below the default start's fit on the same points. Every GP's chosen LML and
+each start's are kept in the TrainingSet (``lml``, ``start_lml``). A GP of more than hyper_max regressors is then
+conditioned on all N with those hyperparameters. This is ours: scikit-learn's gradient holds an N x N x (d + 2)
+array (350 MB at N = 1600) and its optimisation of 12 GPs at N = 1600 takes hours.
 
 Features are standardised with the mean/std of the pool (part of the GP's run-time data).
 
@@ -55,6 +60,10 @@ FEATURES = ("paper", "trig")
 LENGTH_SCALE, LENGTH_BOUNDS = 3.0, (1e-2, 1e4)
 SIGNAL, SIGNAL_BOUNDS = 1.0, (1e-3, 1e3)
 NOISE, NOISE_BOUNDS = 1e-2, (1e-8, 1e1)
+#: random starts of every hyperparameter fit, besides the default start and the warm start (fit_gp)
+RESTARTS = 1
+#: the starts' names, in the order of TrainingSet.start_lml's columns (random starts are "random 1", ...)
+START_NAMES = ("default", "warm")
 
 
 def narx_state(log: HelixLog) -> np.ndarray:
@@ -125,6 +134,8 @@ class TrainingSet:
     targets: str = "increments"
     features: str = "paper"
     draw: int = 0
+    lml: np.ndarray | None = None        # (12,) the chosen fit's log marginal likelihood per GP (on the fit's points)
+    start_lml: np.ndarray | None = None  # (12, starts) each start's optimum (NaN: no warm start), START_NAMES order
 
     @property
     def n_train(self) -> int:
@@ -136,7 +147,9 @@ class TrainingSet:
         tmp = path.with_name(path.stem + ".tmp.npz")
         np.savez(tmp, X=self.X, Y=self.Y, theta=self.theta, feature_mean=self.feature_mean,
                  feature_std=self.feature_std, times=self.times, pool_times=self.pool_times,
-                 scalars=np.array([self.dt, self.train_seconds, self.draw]), labels=np.array([self.targets, self.features]))
+                 scalars=np.array([self.dt, self.train_seconds, self.draw]), labels=np.array([self.targets, self.features]),
+                 lml=np.full(12, np.nan) if self.lml is None else self.lml,
+                 start_lml=np.full((12, 0), np.nan) if self.start_lml is None else self.start_lml)
         tmp.replace(path)
         return path
 
@@ -146,7 +159,8 @@ class TrainingSet:
             dt, seconds, draw = f["scalars"]
             targets, features = (str(v) for v in f["labels"])
             return cls(f["X"], f["Y"], f["theta"], f["feature_mean"], f["feature_std"], f["times"], f["pool_times"],
-                       float(dt), float(seconds), targets, features, int(draw))
+                       float(dt), float(seconds), targets, features, int(draw),
+                       f["lml"] if "lml" in f else None, f["start_lml"] if "start_lml" in f else None)
 
 
 def kernel(d: int):
@@ -162,10 +176,44 @@ def _regressor(theta: np.ndarray | None, d: int, optimise: bool, seed: int):
     return GaussianProcessRegressor(k, normalize_y=True, random_state=seed, optimizer="fmin_l_bfgs_b" if optimise else None)
 
 
-def fit_draw(log: HelixLog, draw: int, sizes, *, targets: str = "increments", features: str = "paper",
-             hyper_max: int = HYPER_MAX, density_at_end: float = DENSITY_AT_END, say=None) -> dict[int, TrainingSet]:
-    """The TrainingSets of one draw at each size in `sizes` (each at most the pool's size), run 1 = `log`."""
+@dataclass(frozen=True)
+class GPFit:
+    """One GP's hyperparameter fit from several starts: the chosen theta (the largest LML) and every start's LML."""
+
+    theta: np.ndarray        # (d + 2,) log hyperparameters (scikit-learn's kernel.theta)
+    lml: float               # its log marginal likelihood
+    start_lml: np.ndarray    # (starts,) each start's optimum, in the order of the starts given
+    chosen: int              # the index of the start whose optimum was kept
+
+
+def random_starts(d: int, count: int, rng: np.random.Generator) -> list[np.ndarray]:
+    """``count`` log-hyperparameter vectors drawn uniformly in the log of the kernel's bounds (scikit-learn's rule)."""
+    bounds = kernel(d).bounds  # (d + 2, 2), log
+    return [rng.uniform(bounds[:, 0], bounds[:, 1]) for _ in range(count)]
+
+
+def fit_gp(X: np.ndarray, y: np.ndarray, starts, seed: int = 0) -> GPFit:
+    """Maximise the LML from each start (None: skipped, its LML NaN) and keep the best (module docstring)."""
     ConvergenceWarning = require("sklearn.exceptions", "the GP process model").ConvergenceWarning
+    d = X.shape[1]
+    lmls, thetas = [], []
+    for start in starts:
+        if start is None:
+            lmls.append(np.nan), thetas.append(None)
+            continue
+        with warnings.catch_warnings():  # noise-only targets (u..r) drive length scales to their bounds
+            warnings.simplefilter("ignore", ConvergenceWarning)
+            gp = _regressor(np.asarray(start, dtype=float), d, True, seed).fit(X, y)
+        lmls.append(float(gp.log_marginal_likelihood_value_)), thetas.append(gp.kernel_.theta)
+    lml = np.array(lmls)
+    chosen = int(np.nanargmax(lml))
+    return GPFit(thetas[chosen], float(lml[chosen]), lml, chosen)
+
+
+def fit_draw(log: HelixLog, draw: int, sizes, *, targets: str = "increments", features: str = "paper",
+             hyper_max: int = HYPER_MAX, density_at_end: float = DENSITY_AT_END, restarts: int = RESTARTS,
+             say=None) -> dict[int, TrainingSet]:
+    """The TrainingSets of one draw at each size in `sizes` (each at most the pool's size), run 1 = `log`."""
     say = say or (lambda message: None)
     inputs, outputs, times = narx_data(log, features, targets)
     pool, order = draw_order(times, draw, density_at_end)
@@ -174,25 +222,28 @@ def fit_draw(log: HelixLog, draw: int, sizes, *, targets: str = "increments", fe
     standardised = (inputs - mu) / sd
     sizes = sorted({min(int(n), len(pool)) for n in sizes})
     d = inputs.shape[1]
-    thetas, seconds, theta = {}, {}, None
+    default = kernel(d).theta
+    fits, seconds, theta = {}, {}, None
     for n in sorted({min(n, hyper_max) for n in sizes}):
         idx = order[:n]
         t0 = time.perf_counter()
         fitted = []
         for i in range(12):
-            with warnings.catch_warnings():  # noise-only targets (u..r) drive length scales to their bounds
-                warnings.simplefilter("ignore", ConvergenceWarning)
-                start = None if theta is None else theta[i]
-                fitted.append(_regressor(start, d, True, draw).fit(standardised[idx], outputs[idx, i]).kernel_.theta)
-        theta = np.array(fitted)
-        thetas[n], seconds[n] = theta, time.perf_counter() - t0
-        say(f"draw {draw}, {targets}: hyperparameters of 12 GPs on {n} regressors in {seconds[n]:.1f} s")
+            rng = np.random.default_rng([draw, n, i, TARGETS.index(targets)])
+            starts = [default, None if theta is None else theta[i], *random_starts(d, restarts, rng)]
+            fitted.append(fit_gp(standardised[idx], outputs[idx, i], starts, draw))
+        theta = np.array([f.theta for f in fitted])
+        fits[n], seconds[n] = fitted, time.perf_counter() - t0
+        won = [START_NAMES[f.chosen] if f.chosen < len(START_NAMES) else "random" for f in fitted]
+        say(f"draw {draw}, {targets}: hyperparameters of 12 GPs on {n} regressors, {2 + restarts} starts each, in "
+            f"{seconds[n]:.1f} s (the chosen start: {', '.join(f'{w} {won.count(w)}' for w in dict.fromkeys(won))})")
     out = {}
     for n in sizes:
         m = min(n, hyper_max)
         idx = np.sort(order[:n])
-        out[n] = TrainingSet(standardised[idx], outputs[idx], thetas[m], mu, sd, times[idx], times[pool], log.dt,
-                             seconds[m] if n == m else 0.0, targets, features, draw)
+        out[n] = TrainingSet(standardised[idx], outputs[idx], np.array([f.theta for f in fits[m]]), mu, sd, times[idx],
+                             times[pool], log.dt, seconds[m] if n == m else 0.0, targets, features, draw,
+                             np.array([f.lml for f in fits[m]]), np.array([f.start_lml for f in fits[m]]))
     return out
 
 

@@ -6,26 +6,31 @@
 (sea states, process-noise readings, the catenary run) is scenario.py.
 
 Rows: ``{"run", "case" (sea state), "filter" (label), "metric", "reading" (the truth's process-noise
-reading), "value"}`` with metrics ``mse_x, mse_y, mse_z, mse_psi`` (mean over the run's steps: a run's RMSE is
-their square root; the tables print the mean of the per-run RMSE ± its sample sd over runs, tables.MEAN_SD, and the
-JSON adds the RMSE pooled over runs, tables.POOLED; psi in rad, the state's unit), ``anees``
+reading), "value"}`` with metrics ``mse_x, mse_y, mse_z, mse_psi`` and the body velocities' ``mse_u, mse_v, mse_w,
+mse_r`` (mean over the run's steps: a run's RMSE is their square root; the tables print the mean of the per-run
+RMSE ± its sample sd over runs, tables.MEAN_SD, and the JSON adds the RMSE pooled over runs, tables.POOLED; psi in rad, the state's unit), ``anees``
 (mean over steps of NEES / n_x, the NEES of ``FilterResult.nees``), ``ess_mean`` (mean effective
-sample size per step; NaN for a Kalman filter), ``step_ms`` (wall time, kept out of the compared
-tables) and ``refused`` (1 when the filter refused a step of this run, its other metrics then NaN).
+sample size per step; NaN for a Kalman filter), ``gated_updates`` (updates in which the innovation gate left
+out at least one entry: 0 for the ungated filters), ``step_ms`` (wall time, kept out of the compared tables)
+and ``refused`` (1 when the filter refused a step of this run, its other metrics then NaN).
 
 Decisions:
 
 * Filters are labelled for what they are: "CKF (matched model)" knows the truth's Q, R and bias
   dynamics (an oracle); "CKF (mismatched Q)" uses the other process-noise reading than the truth
   (with the plain truth: the density reading), which is what a CKF tuned without the simulator's
-  noise does. The paper's CKF column is printed beside both.
+  noise does. The paper's CKF column is printed beside both. Both run without the innovation gate, as the
+  paper's CKF; "CKF (mismatched Q, gated)" is the mismatched CKF with the Kalman filters' default gate
+  (gate_probability 1e-10), a labelled variant, not the paper's filter.
 * "CPF" is the cubature particle filter with the locally optimal proposal (each particle's
   cubature step from P^i = 0); "CPF (carried P^i)" is the form printed in the paper (van der
   Merwe's UPF), kept to show its weight collapse (mean ESS ~ 1). The paper's CPF column is printed
   beside "CPF".
 * EM-MOGCPF variants: "EM-MOGCPF (analytic cov.)" (EM weights and means, Rao-Blackwellised
   component covariances) and the N sweep "EM-MOGCPF N=1000" / "N=3000" (N = 300 is the main row).
-* Cases: the paper's three sea states under each process-noise reading of the truth; each filter
+* Cases: the paper's three sea states, and sea state "1-2 wide" (the reading of the misprinted sea 1-2 mixture
+  with its second component wide, scenario.py; compared with the paper's sea 1-2 column), under each
+  process-noise reading of the truth; each filter
   spec names the readings and sea states where it runs, so the costly variants run only where
   they answer a question: the N sweep and the analytic-covariance ablation in sea state 3 (where
   the sample covariances were overconfident), MOGCPF, GS-CKF and the carried CPF under the
@@ -52,7 +57,9 @@ from ..tables import MEAN_SD, over_runs, pooled_rms
 from .paper import table3_rmse
 from .scenario import POSE_AXES, PROCESS_NOISE_READINGS, SEA_STATES, RovScenario, make_filter, simulate
 
-METRICS = tuple(f"mse_{a}" for a in POSE_AXES) + ("anees", "ess_mean", "step_ms")
+#: the body velocities (u, v, w in m/s, r in rad/s): the paper's Figs. 6, 8, 10 draw their errors, no table
+VELOCITY_AXES = ("u", "v", "w", "r")
+METRICS = tuple(f"mse_{a}" for a in POSE_AXES + VELOCITY_AXES) + ("anees", "ess_mean", "gated_updates", "step_ms")
 EXTRA_COLUMNS = ("reading",)
 
 
@@ -88,6 +95,7 @@ MAIN_FILTERS = (
     FilterSpec("PF", "PF"),
     FilterSpec("CKF (matched model)", "CKF"),
     FilterSpec("CKF (mismatched Q)", "CKF", reading="other"),
+    FilterSpec("CKF (mismatched Q, gated)", "CKF", reading="other", options=(("gate_probability", 1e-10),)),
     FilterSpec("CPF", "CPF", options=(("proposal", "optimal"),)),
     FilterSpec("CPF (carried P^i)", "CPF", options=(("proposal", "carried"),), readings=("plain",)),
     FilterSpec("MOGCPF", "MOGCPF", readings=("plain",)),
@@ -100,6 +108,14 @@ N_SWEEP = (
     FilterSpec("EM-MOGCPF N=1000", "EM-MOGCPF", n_particles=1000, readings=("plain",), sea_states=("3",)),
     FilterSpec("EM-MOGCPF N=3000", "EM-MOGCPF", n_particles=3000, readings=("plain",), sea_states=("3",)),
 )
+#: the Table 3 sea-state column a case is compared with: its own, or the printed case it is a reading of
+PAPER_SEA = {"1-2 wide": "1-2"}
+
+
+def paper_sea(sea: str) -> str:
+    return PAPER_SEA.get(sea, sea)
+
+
 #: labels whose paper counterpart is the Table 3 column of that name
 PAPER_COLUMN = {"PF": "PF", "CKF (matched model)": "CKF", "CKF (mismatched Q)": "CKF", "CPF": "CPF", "EM-MOGCPF": "EM-MOGCPF"}
 
@@ -122,12 +138,17 @@ class RovConfig:
                        filters=tuple(f for f in self.filters if f.label not in sweep))
 
     def cases(self) -> list[tuple[int, str, str]]:
-        """(case number, sea state, truth reading); numbers fixed by the full lists, for stable seeds."""
+        """(case number, sea state, truth reading); numbers fixed by the full lists, for stable seeds: the paper's
+        three sea states keep the numbers they had before "1-2 wide" was added (reading x 3 + sea), the sea states
+        after them are numbered after every reading's three."""
+        paper_seas, extra = list(SEA_STATES)[:3], list(SEA_STATES)[3:]
         out = []
         for r_index, reading in enumerate(PROCESS_NOISE_READINGS):
-            for s_index, sea in enumerate(SEA_STATES):
+            for sea in SEA_STATES:
                 if reading in self.readings and sea in self.sea_states:
-                    out.append((r_index * len(SEA_STATES) + s_index, sea, reading))
+                    number = (r_index * len(paper_seas) + paper_seas.index(sea) if sea in paper_seas else
+                              len(PROCESS_NOISE_READINGS) * len(paper_seas) + r_index * len(extra) + extra.index(sea))
+                    out.append((number, sea, reading))
         return out
 
 
@@ -174,6 +195,7 @@ def run_one(config: RovConfig, seed: np.random.SeedSequence) -> list[dict]:
 
     bundle = load("rov4dof")
     run = run_index(seed)
+    kinds = {spec.label: spec.kind for spec in config.filters}
     rows = []
     for case, sea_name, reading in config.cases():
         truth, results = run_case(config, seed, case, sea_name, reading)
@@ -184,9 +206,11 @@ def run_one(config: RovConfig, seed: np.random.SeedSequence) -> list[dict]:
                 errors = pose_errors(bundle, result.x, truth.states)
                 finite = np.all(np.isfinite(errors)) and np.all(np.isfinite(result.P))
                 metrics = {f"mse_{axis}": float(np.mean(errors[:, i] ** 2)) if finite else math.inf
-                           for i, axis in enumerate(POSE_AXES)}
+                           for i, axis in enumerate(POSE_AXES + VELOCITY_AXES)}  # states 0-3 pose, 4-7 u v w r
                 metrics["anees"] = float(np.mean(result.nees) / bundle.n_x) if finite else math.inf
                 metrics["ess_mean"] = float(np.mean(np.asarray(result.ess, dtype=np.float64)))
+                metrics["gated_updates"] = (float(np.sum(result.nis_dof < bundle.n_y)) if kinds[label] == "CKF"
+                                            else math.nan)  # a Kalman filter's NIS counts the entries it used
                 metrics["step_ms"] = 1e3 * float(np.mean(result.step_time))
                 metrics["refused"] = 0.0
             rows += [{"run": run, "case": sea_name, "filter": label, "metric": m, "reading": reading, "value": v}
@@ -213,12 +237,14 @@ def summary(rows: list[dict]) -> dict:
         def values(m):
             return [metrics[m][i] for i in kept] if m in metrics else []
 
-        rmse = {a: over_runs(math.sqrt(v) for v in values(f"mse_{a}")) for a in POSE_AXES}
+        rmse = {a: over_runs(math.sqrt(v) for v in values(f"mse_{a}")) for a in POSE_AXES + VELOCITY_AXES}
         anees = over_runs(values("anees"))
         out[key] = {"rmse": {a: r.mean for a, r in rmse.items()}, "rmse_sd": {a: r.sd for a, r in rmse.items()},
                     "rmse_ci95": {a: r.ci95 for a, r in rmse.items()},
                     "rmse_pooled": {a: pooled_rms(values(f"mse_{a}")) for a in POSE_AXES},
                     "anees": anees.mean, "anees_sd": anees.sd, "ess_mean": over_runs(values("ess_mean")).mean,
+                    "gated_updates": over_runs(values("gated_updates")).mean,
+                    "gated_updates_range": [over_runs(values("gated_updates")).low, over_runs(values("gated_updates")).high],
                     "step_ms": over_runs(values("step_ms")).mean, "runs": len(kept),
                     "refused_runs": len(metrics.get("mse_x", [])) - len(kept)}
     return out
@@ -270,18 +296,18 @@ def table3(rows: list[dict], reading: str = "plain") -> str:
     lines = [f"Table 3 (seed 000): RMSE, truth under the '{reading}' process-noise reading, {runs} run(s)",
              f"ours: {MEAN_SD}; paper: Table 3 as printed (how many runs it averages is not stated; its CKF is one "
              f"column: compare both of ours). {PSI_READING}", ""]
-    head = f"{'sea':<5}{'axis':<8}" + "".join(f"{label[:27]:>28}" for label in labels)
-    lines += [head, f"{'':<13}" + "".join(f"{'ours':>19}{'paper':>9}" for _ in labels), "-" * len(head)]
+    head = f"{'sea':<10}{'axis':<8}" + "".join(f"{label[:27]:>28}" for label in labels)
+    lines += [head, f"{'':<18}" + "".join(f"{'ours':>19}{'paper':>9}" for _ in labels), "-" * len(head)]
     for sea in seas:
         for i, axis in enumerate(POSE_AXES):
             cells = []
             for label in labels:
-                theirs = paper.get(sea, {}).get(PAPER_COLUMN[label], {}).get(axis)
+                theirs = paper.get(paper_sea(sea), {}).get(PAPER_COLUMN[label], {}).get(axis)
                 cells.append(_cell(stats.get((reading, sea, label)), axis, 19) + _fmt(theirs, 9))
-            lines.append(f"{(sea if i == 0 else ''):<5}{axis + ' ' + UNITS[axis]:<8}" + "".join(cells))
+            lines.append(f"{(sea if i == 0 else ''):<10}{axis + ' ' + UNITS[axis]:<8}" + "".join(cells))
         for metric, spec in (("anees", ".3g"), ("ess_mean", ".1f")):
             cells = [_fmt(stats.get((reading, sea, label), {}).get(metric), 19, spec) + f"{'':>9}" for label in labels]
-            lines.append(f"{'':<5}{('ANEES' if metric == 'anees' else 'ESS'):<8}" + "".join(cells))
+            lines.append(f"{'':<10}{('ANEES' if metric == 'anees' else 'ESS'):<8}" + "".join(cells))
         lines.append("")
     return "\n".join(lines)
 
@@ -293,7 +319,7 @@ def variants_table(rows: list[dict], reading: str = "plain") -> str:
     lines = [f"All filters, truth under the '{reading}' reading: RMSE of x, y, z (m) and psi (rad), {MEAN_SD}; ANEES "
              "and ESS: mean over runs; over the runs where the filter ran to the end (refused: runs where it refused "
              "a step, left out of its averages)", ""]
-    head = (f"{'sea':<5}{'filter':<26}" + "".join(f"{a + ' ' + UNITS[a]:>17}" for a in POSE_AXES)
+    head = (f"{'sea':<10}{'filter':<26}" + "".join(f"{a + ' ' + UNITS[a]:>17}" for a in POSE_AXES)
             + f"{'ANEES':>10}{'ESS':>8}{'refused':>9}")
     lines += [head, "-" * len(head)]
     for sea in SEA_STATES:
@@ -301,7 +327,7 @@ def variants_table(rows: list[dict], reading: str = "plain") -> str:
             s = stats.get((reading, sea, label))
             if s is None:
                 continue
-            lines.append(f"{sea:<5}{label[:25]:<26}" + "".join(_cell(s, a, 17) for a in POSE_AXES)
+            lines.append(f"{sea:<10}{label[:25]:<26}" + "".join(_cell(s, a, 17) for a in POSE_AXES)
                          + _fmt(s["anees"], 10, ".3g") + _fmt(s["ess_mean"], 8, ".1f") + f"{s['refused_runs']:>9d}")
         lines.append("")
     return "\n".join(lines)
@@ -316,7 +342,7 @@ def sensitivity_table(rows: list[dict]) -> str:
     seas = [s for s in SEA_STATES if any(k[1] == s for k in stats)]
     lines = ["Sensitivity to the process-noise reading of the truth (filters matched unless labelled):",
              "x RMSE (m, mean of the per-run RMSE) / ANEES / ESS (means over runs) per sea state", ""]
-    head = f"{'reading':<9}{'filter':<22}" + "".join(f"{'sea ' + s:>26}" for s in seas)
+    head = f"{'reading':<9}{'filter':<27}" + "".join(f"{'sea ' + s:>26}" for s in seas)
     lines += [head, "-" * len(head)]
     for reading in readings:
         for label in labels:
@@ -325,8 +351,51 @@ def sensitivity_table(rows: list[dict]) -> str:
                 s = stats.get((reading, sea, label))
                 cells.append(f"{'-':>26}" if s is None else
                              f"{_fmt(s['rmse']['x'], 9, '.3f')} /{_fmt(s['anees'], 7, '.3g')} /{_fmt(s['ess_mean'], 6, '.0f')}")
-            lines.append(f"{reading:<9}{label[:21]:<22}" + "".join(cells))
+            lines.append(f"{reading:<9}{label[:26]:<27}" + "".join(cells))
         lines.append("")
+    return "\n".join(lines)
+
+
+def kurtosis_table() -> str:
+    """Each sea state's measurement noise: its mixture and the excess kurtosis per axis (0: Gaussian)."""
+    lines = ["Measurement noise per sea state: excess kurtosis E[v^4] / E[v^2]^2 - 3 per axis (0 for a Gaussian; "
+             "exact, from the mixture)", f"{'sea':<10}{'x':>7}{'y':>7}{'z':>7}{'psi':>7}   mixture (weights renormalised)"]
+    for name, sea in SEA_STATES.items():
+        k = sea.excess_kurtosis()
+        lines.append(f"{name:<10}" + "".join(f"{v:>7.3f}" for v in k) + f"   {sea.description}")
+    return "\n".join(lines)
+
+
+def velocity_table(rows: list[dict], reading: str = "plain") -> str:
+    """The body velocities' RMSE (the paper draws their errors, Figs. 6, 8, 10, and prints no number)."""
+    stats = summary(rows)
+    lines = [f"Body velocities, truth '{reading}': RMSE of u, v, w (m/s) and r (rad/s), {MEAN_SD} (the paper prints "
+             "no velocity table; its Figs. 6, 8, 10 draw the errors over time)", ""]
+    head = f"{'sea':<10}{'filter':<26}" + "".join(f"{a + (' rad/s' if a == 'r' else ' m/s'):>17}" for a in VELOCITY_AXES)
+    lines += [head, "-" * len(head)]
+    for sea in SEA_STATES:
+        for label in _labels(rows):
+            st = stats.get((reading, sea, label))
+            if st is not None:
+                lines.append(f"{sea:<10}{label[:25]:<26}" + "".join(_cell(st, a, 17) for a in VELOCITY_AXES))
+    return "\n".join(lines)
+
+
+def gate_table(rows: list[dict], reading: str = "plain") -> str:
+    """The CKFs' innovation gate: updates with an entry left out per run (0 for the paper's ungated CKF)."""
+    stats = summary(rows)
+    labels = [label for label in _labels(rows) if any(k[0] == reading and k[2] == label and
+                                                      math.isfinite(v["gated_updates"]) for k, v in stats.items())]
+    lines = [f"Innovation gate of the CKFs, truth '{reading}': updates (of {RovScenario().n_steps} per run at the "
+             "default duration) in which the gate left out an entry, mean over runs (min-max)"]
+    for label in labels:
+        cells = []
+        for sea in SEA_STATES:
+            st = stats.get((reading, sea, label))
+            if st is not None and math.isfinite(st["gated_updates"]):
+                low, high = st["gated_updates_range"]
+                cells.append(f"sea {sea} {st['gated_updates']:.0f} ({low:.0f}-{high:.0f})")
+        lines.append(f"  {label:<26}" + "; ".join(cells))
     return "\n".join(lines)
 
 
@@ -346,19 +415,29 @@ def rankings(rows: list[dict], reading: str = "plain") -> str:
     """The paper's pairwise orderings (by mean pose RMSE over x, y, z, psi per sea state), and in how many of
     our runs each holds (a consistency measure: an ordering that holds in 5 of 10 runs is not a finding).
     The paper's CKF is compared as both of ours: the matched-model oracle and the mismatched-Q CKF."""
+    lines = [f"The paper's orderings (mean RMSE over x, y, z, psi; truth '{reading}'): do ours agree, and in how many runs?"]
+    for sea, better, worse, la, lb, k, n in ordering_rows(rows, reading):
+        verdict = "holds" if k == n else ("reversed" if k == 0 else "mixed")
+        lines.append(f"  sea {sea:<9} paper: {better} < {worse}; ours: {la} < {lb}: {verdict} ({k}/{n} runs)")
+    return "\n".join(lines)
+
+
+def ordering_rows(rows: list[dict], reading: str = "plain") -> list[tuple[str, str, str, str, str, int, int]]:
+    """The paper's pairwise orderings and ours: (sea, the paper's better, worse, our better label, our worse label,
+    runs where ours agrees, runs) -- rankings() as data."""
     paper = table3_rmse()
     per_run: dict[tuple, dict[str, float]] = {}
     for row in rows:
-        if row["reading"] == reading and row["metric"].startswith("mse_") and row["filter"] in PAPER_COLUMN:
+        if row["reading"] == reading and row["metric"] in {f"mse_{a}" for a in POSE_AXES} and row["filter"] in PAPER_COLUMN:
             per_run.setdefault((row["case"], row["filter"], row["run"]), {})[row["metric"]] = row["value"]
 
     def pose_rmse(metrics):
         return np.mean([math.sqrt(metrics[f"mse_{x}"]) for x in POSE_AXES])
 
-    lines = [f"The paper's orderings (mean RMSE over x, y, z, psi; truth '{reading}'): do ours agree, and in how many runs?"]
+    out = []
     for sea in SEA_STATES:
-        cols = [c for c in ("PF", "CKF", "CPF", "EM-MOGCPF") if c in paper.get(sea, {})]
-        score = {c: np.mean(list(paper[sea][c].values())) for c in cols}
+        cols = [c for c in ("PF", "CKF", "CPF", "EM-MOGCPF") if c in paper.get(paper_sea(sea), {})]
+        score = {c: np.mean(list(paper[paper_sea(sea)][c].values())) for c in cols}
         for i, a in enumerate(cols):
             for b in cols[i + 1:]:
                 better, worse = (a, b) if score[a] < score[b] else (b, a)
@@ -368,10 +447,73 @@ def rankings(rows: list[dict], reading: str = "plain") -> str:
                         pairs = [(per_run.get((sea, la, r)), per_run.get((sea, lb, r))) for r in runs]
                         wins = [pose_rmse(ma) < pose_rmse(mb) for ma, mb in pairs if ma and mb]
                         if wins:
-                            verdict = "holds" if all(wins) else ("reversed" if not any(wins) else "mixed")
-                            lines.append(f"  sea {sea:<4} paper: {better} < {worse}; ours: {la} < {lb}: "
-                                         f"{verdict} ({sum(wins)}/{len(wins)} runs)")
-    return "\n".join(lines)
+                            out.append((sea, better, worse, la, lb, sum(wins), len(wins)))
+    return out
+
+
+def markdown(rows: list[dict], config: RovConfig | None = None, document: dict | None = None) -> dict[str, str]:
+    """The tables of docs/experiments/rov.md (`abyssal publish rov`, publish.py), from the rows (truth 'plain')."""
+    from ..publish import markdown_table, number
+
+    stats = summary(rows)
+    paper = table3_rmse()
+    reading = "plain"
+    labels = _labels(rows)
+    seas = [s for s in SEA_STATES if any(k[:2] == (reading, s) for k in stats)]
+    out = {"kurtosis": markdown_table(
+        ["sea state", "mixture (weights renormalised)", "x", "y", "z", "psi"],
+        [[name, sea.description, *(f"{v:.3f}" for v in sea.excess_kurtosis())] for name, sea in SEA_STATES.items()],
+        align="llrrrr")}
+
+    def cell(st, axis):
+        if st is None:
+            return "-"
+        mean, sd = st["rmse"][axis], st["rmse_sd"][axis]
+        return number(mean, ".2f") + (f" ± {sd:.2f}" if math.isfinite(mean) and math.isfinite(sd) else "")
+
+    shown = [label for label in labels if label in PAPER_COLUMN or label == "CKF (mismatched Q, gated)"]
+    header = ["sea", "axis", *shown]
+    body = []
+    for sea in seas:
+        for axis in POSE_AXES:
+            row = [sea, f"{axis} ({UNITS[axis]})"]
+            for label in shown:
+                theirs = paper.get(paper_sea(sea), {}).get(PAPER_COLUMN.get(label), {}).get(axis)
+                row.append(cell(stats.get((reading, sea, label)), axis) + (f" / {theirs:.2f}" if theirs is not None else ""))
+            body.append(row)
+    out["table3"] = markdown_table(header, body, align="ll" + "r" * len(shown))
+    body = [[sea, f"{b} < {w}", f"{la} < {lb}", "holds" if k == n else ("reversed" if k == 0 else "mixed"), f"{k}/{n}"]
+            for sea, b, w, la, lb, k, n in ordering_rows(rows, reading)]
+    out["orderings"] = markdown_table(["sea", "the paper", "ours", "verdict", "runs"], body, align="llllr")
+    body = []
+    for label in labels:
+        row = [label]
+        for sea in seas:
+            st = stats.get((reading, sea, label))
+            row.append("-" if st is None else f"{number(st['anees'], '.3g')} / {number(st['ess_mean'], '.0f')}")
+        body.append(row)
+    out["consistency"] = markdown_table(["filter", *(f"sea {s}: ANEES / ESS" for s in seas)], body)
+    body = [[label, *(cell(stats.get((reading, sea, label)), "x") for sea in seas)] for label in labels]
+    out["all-x"] = markdown_table(["filter", *(f"sea {s}" for s in seas)], body)
+    body = []
+    for sea in seas:
+        for label in [x for x in labels if x.startswith("CKF (mismatched Q")]:
+            st = stats.get((reading, sea, label))
+            if st:
+                low, high = st["gated_updates_range"]
+                body.append([sea, label, cell(st, "x"), cell(st, "psi"),
+                             f"{number(st['gated_updates'], '.0f')} ({number(low, '.0f')}-{number(high, '.0f')})"])
+    out["gate"] = markdown_table(["sea", "filter", "x RMSE (m)", "psi RMSE (rad)", "updates with an entry gated, mean "
+                                  "(min-max) of 2000"], body, align="llrrr")
+    body = [[sea, label, *(cell(stats.get((reading, sea, label)), a) for a in VELOCITY_AXES)]
+            for sea in seas for label in labels if label in PAPER_COLUMN and (reading, sea, label) in stats]
+    out["velocity"] = markdown_table(["sea", "filter", "u (m/s)", "v (m/s)", "w (m/s)", "r (rad/s)"], body, align="llrrrr")
+    readings = _order(rows, lambda r: r["reading"])
+    if "density" in readings:
+        body = [[label, *(cell(stats.get(("density", sea, label)), "x") for sea in seas)]
+                for label in labels if any(("density", sea, label) in stats for sea in seas)]
+        out["density-x"] = markdown_table(["filter (truth 'density')", *(f"sea {s}" for s in seas)], body)
+    return out
 
 
 def report(rows: list[dict], config: RovConfig | None = None) -> str:
@@ -381,7 +523,8 @@ def report(rows: list[dict], config: RovConfig | None = None) -> str:
         return "no rows: every run failed"
     parts = []
     main = "plain" if "plain" in readings else readings[0]
-    parts += [table3(rows, main), variants_table(rows, main)]
+    parts += [kurtosis_table(), table3(rows, main), variants_table(rows, main), velocity_table(rows, main),
+              gate_table(rows, main)]
     if len(readings) > 1:
         parts.append(sensitivity_table(rows))
     parts.append(rankings(rows, main))
@@ -399,7 +542,9 @@ def figures(rows: list[dict], out: Path, config: RovConfig | None = None, seed: 
     """Per sea state: ``rov_rmse_sea_<s>.png``, RMSE bars (the paper's Figs. 11-12) from the rows, x, y, z (m) and
     psi (rad) in panels of their own, the paper's Table 3 values as markers (its psi read as rad: PSI_READING);
     ``rov_errors_sea_<s>.png``, the pose error over time of the paper's filters in run 0 (its Figs. 5, 7,
-    9), re-run here from the same seed, so it shows a run that is in the table."""
+    9), re-run here from the same seed, so it shows a run that is in the table; ``rov_velocity_errors_sea_<s>.png``,
+    the body velocities' error (u, v, w, r) of the same run (its Figs. 6, 8, 10: it says "XYZ-axis velocity"; our
+    states are the body-frame velocities, drawn as such)."""
     from abyssal.generated import load
 
     from ... import plots
@@ -422,10 +567,11 @@ def figures(rows: list[dict], out: Path, config: RovConfig | None = None, seed: 
         if not metrics:
             continue
         metrics = {label: metrics[label] for label in labels if label in metrics}
-        theirs = {label: paper[sea][col] for label, col in PAPER_COLUMN.items() if label in metrics and col in paper.get(sea, {})}
+        theirs = {label: paper[paper_sea(sea)][col] for label, col in PAPER_COLUMN.items()
+                  if label in metrics and col in paper.get(paper_sea(sea), {})}
         written.append(plots.rmse_bars(
             metrics, theirs, f"RMSE, sea state {sea}, '{main}' reading: mean of the per-run RMSE ± sd over runs "
-            "(cf. the paper's Figs. 11-12)", out / f"rov_rmse_sea_{sea.replace('-', '_')}.png",
+            "(cf. the paper's Figs. 11-12)", out / f"rov_rmse_sea_{sea.replace('-', '_').replace(' ', '_')}.png",
             paper_label="paper, Table 3 (quoted)", notes=note, ordered=labels, settings=stamp))
     shown = tuple(spec for spec in config.filters if spec.label in PAPER_COLUMN)
     seed0 = run_seeds(seed, 1)[0]
@@ -434,11 +580,18 @@ def figures(rows: list[dict], out: Path, config: RovConfig | None = None, seed: 
             continue
         truth, results = run_case(config, seed0, case, sea, reading, shown)
         bundle = load("rov4dof")
-        errors = {label: pose_errors(bundle, r.x, truth.states)[:, :4] for label, r in results.items() if r is not None}
+        errors = {label: pose_errors(bundle, r.x, truth.states) for label, r in results.items() if r is not None}
+        name = sea.replace("-", "_").replace(" ", "_")
         written.append(plots.error_vs_time(
-            truth.times, errors, ("x error (m)", "y error (m)", "z error (m)", "psi error (rad)"),
+            truth.times, {label: e[:, :4] for label, e in errors.items()},
+            ("x error (m)", "y error (m)", "z error (m)", "psi error (rad)"),
             f"Pose error, sea state {sea}, '{main}' reading, run 0 (cf. the paper's Figs. 5, 7, 9)",
-            out / f"rov_errors_sea_{sea.replace('-', '_')}.png", wrapped_panels=(3,), ordered=labels, settings=stamp))
+            out / f"rov_errors_sea_{name}.png", wrapped_panels=(3,), ordered=labels, settings=stamp))
+        written.append(plots.error_vs_time(
+            truth.times, {label: e[:, 4:8] for label, e in errors.items()},
+            ("u error (m/s)", "v error (m/s)", "w error (m/s)", "r error (rad/s)"),
+            f"Body-velocity error, sea state {sea}, '{main}' reading, run 0 (cf. the paper's Figs. 6, 8, 10)",
+            out / f"rov_velocity_errors_sea_{name}.png", ordered=labels, settings=stamp))
     return written
 
 

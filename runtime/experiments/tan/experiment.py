@@ -22,13 +22,17 @@ for the terrain of each track). The paper's words (it prints figures, not an err
   (1 m) that is given the true current as its model parameter -- a matched-model oracle (under a current
   only: with none it is the sigma = 1 m filter). It has no drift to absorb, so it shows what the terrain
   supports when nothing is unknown; it cannot tell how much of a failure is due to the map.
+* Gate: none (``gate_probability=0``): the paper's SIR (Fig. 5) has none; with the engine's default gate a depth
+  far outside the cloud's predicted depth would be left out.
 
 Rows: one per run x case x filter x metric; metrics mean_error_m, final_error_m, max_error_m, lost (1 when the
 error ever exceeded 1000 m), lost_at_s (in a lost run only: when it first did), mean_std_m (the filter's own
 position spread sqrt(P_xx + P_yy), averaged over the run), outside_99 (the share of steps whose true position
 lies outside the filter's own 99 % ellipse: 0.01 for a consistent filter, near 1 for a confidently wrong one),
 step_us (median wall time of one step, a timing: never compared across runs) and, for the fuzzy filters,
-mean_sigma_m. Figures of single tracks (paths, errors, spreads, fuzzy inputs) come from a separate figure run
+mean_sigma_m and the inputs' saturation: gradient_clipped, rate_clipped, input_clipped (the share of steps whose
+gradient, gradient rate, or either lies beyond the rule table's [-20, 20], where the fuzzy system clips it).
+Figures of single tracks (paths, errors, spreads, fuzzy inputs) come from a separate figure run
 (``figure_runs``): run 0's seeds of cases chosen from the table, recomputed in this process.
 """
 from __future__ import annotations
@@ -164,7 +168,19 @@ class FilterRun:
             out["outside_99"] = self.outside_99()
         if self.sigma is not None:
             out["mean_sigma_m"] = float(self.sigma.mean())
+            out.update(input_saturation(self.gradient, self.gradient_rate))
         return out
+
+
+def input_saturation(gradient: np.ndarray, gradient_rate: np.ndarray) -> dict[str, float]:
+    """The shares of steps whose fuzzy inputs lie beyond the rule table's domain (Table 2: [-20, 20]), where the
+    fuzzy system clips them: the gradient, the gradient rate, and either."""
+    from abyssal.symbolic.fuzzy import INPUT_DOMAIN
+
+    low, high = INPUT_DOMAIN
+    g = (gradient < low) | (gradient > high)
+    r = (gradient_rate < low) | (gradient_rate > high)
+    return {"gradient_clipped": float(g.mean()), "rate_clipped": float(r.mean()), "input_clipped": float((g | r).mean())}
 
 
 def _finish(run: FilterRun, truth: Truth) -> FilterRun:
@@ -186,7 +202,8 @@ def run_filter(bundle, terrain, config: TanConfig, truth: Truth, sigma, rng: np.
     P0 = np.diag([config.initial_std ** 2, config.initial_std ** 2, 0.0])
     filt = TerrainParticleFilter(bundle, start, P0, sigma, config.altimeter_sigma, config.n_particles, rng,
                                  terrain=terrain, policy=ResamplingPolicy("systematic", config.resample_threshold),
-                                 gradient_scale=fuzzy_units[0], rate_length_m=fuzzy_units[1])
+                                 gradient_scale=fuzzy_units[0], rate_length_m=fuzzy_units[1],
+                                 gate_probability=0.0)  # the paper's SIR (Fig. 5) has no innovation gate
     est, cov, times = np.empty((T, 2)), np.empty((T, 3)), np.empty(T)
     fuzzy = sigma == "fuzzy"
     sig = np.empty(T) if fuzzy else None
@@ -391,6 +408,7 @@ def report(rows, config: TanConfig) -> str:
                          _mean_cell(e, "mean_sigma_m", ".2f")])
         lines += [f"== {case}", *aligned(header, body), ""]
     lines.append("final = mean over runs of the error at the end; max(med) = median over runs of the largest error.")
+    lines += ["", *saturation_table(s, config)]
     if config.oracle_sigma is not None:
         lines.append(f"{ORACLE}: SIR with sigma = {config.oracle_sigma:g} m given the true current -- a matched-model "
                      "oracle, not a method of the paper (run under a current only).")
@@ -402,6 +420,23 @@ def report(rows, config: TanConfig) -> str:
                      f"machine; THE PAPER: {paper.PAPER_STEP_MS} ms per step in MATLAB (2.6 GHz dual core) -- a "
                      "different machine and language.")
     return "\n".join(lines)
+
+
+def saturation_table(s: dict, config: TanConfig) -> list[str]:
+    """The fuzzy inputs beyond the rule table's domain (clipped there): per case and fuzzy variant the share of steps
+    with the gradient, the gradient rate, or either outside [-20, 20], mean over runs (min-max over runs)."""
+    header = ["case", "variant", "gradient", "rate", "either"]
+    body = []
+    for case, block in s.items():
+        for name in config.fuzzy:
+            e = block.get(name)
+            if e and "input_clipped" in e:
+                body.append([case, name, *(f"{e[m].mean:.2f} ({e[m].low:.2f}-{e[m].high:.2f})"
+                                           for m in ("gradient_clipped", "rate_clipped", "input_clipped"))])
+    if not body:
+        return []
+    return ["FUZZY INPUTS BEYOND [-20, 20] (clipped by the fuzzy system): share of steps, mean over runs (min-max)",
+            *aligned(header, body, left=2)]
 
 
 def aligned(header: list[str], rows: list[list[str]], left: int = 1) -> list[str]:
@@ -446,6 +481,89 @@ def document(rows, config: TanConfig, prepared=None) -> dict:
     if MAIN_CURRENT in config.currents:
         doc["fixed_sigma_within_lost_m_at_0.1"] = verdict(s, config)
     return doc
+
+
+# ------------------------------------------------------------------------------------- docs tables
+def _error_cell(entry, spec: str = ".0f") -> str:
+    """"k/n · mean ± sd" of one case's filter: runs lost, and the per-run time-mean error in m over every run."""
+    if not entry or "lost" not in entry:
+        return "-"
+    k, n = lost_count(entry)
+    return f"{k}/{n} · {entry['mean_error_m'].cell(spec)}"
+
+
+def markdown(rows, config: TanConfig, document: dict | None = None) -> dict[str, str]:
+    """The tables of docs/experiments/tan.md (`abyssal publish tan`, publish.py), from the rows (the tracks' terrain
+    from the JSON document when given, else computed from the maps)."""
+    from ..publish import markdown_table
+
+    s = summary(rows)
+    out = {}
+    # the tracks and their terrain (no filter)
+    terrain = (document or {}).get("tracks")
+    header = ["map", "track", "start, heading", "slope m/km", "drift vs contours deg", "weakest slope m/km",
+              "cell relief m", "flat share"]
+    body = []
+    for m in config.maps:
+        for t in config.tracks_of(m):
+            if terrain and t in terrain.get(m, {}):
+                by_current = terrain[m][t]["terrain"]
+                tt = by_current.get(MAIN_CURRENT) or next(iter(by_current.values()))
+            else:
+                tt = characterise(get_map(m, config.map_seed), TRACKS[m][t].start, CURRENTS[MAIN_CURRENT],
+                                  config.duration_s, config.speed, altimeter_sigma=config.altimeter_sigma).as_dict()
+            body.append([m, t, TRACKS[m][t].label(), f"{tt['slope_m_per_km']:.0f}", f"{tt['drift_contour_angle_deg']:.0f}",
+                         f"{tt['weakest_slope_m_per_km']:.1f}", f"{tt['cell_relief_m']:.1f}", f"{tt['flat_fraction']:.2f}"])
+    out["tracks"] = markdown_table(header, body, align="lllrrrrr")
+    # lost runs and errors per track and filter, per current
+    for current in config.currents:
+        names = config.filters(current)
+        header = ["map/track", *(DISPLAY.get(n, n) for n in names)]
+        body = [[f"{m}/{t}", *(_error_cell(s.get(case_name(m, t, current), {}).get(n)) for n in names)]
+                for m in config.maps for t in config.tracks_of(m) if case_name(m, t, current) in s]
+        out[f"lost-{current}"] = markdown_table(header, body)
+    # the statement at 0.1 m/s
+    if MAIN_CURRENT in config.currents:
+        body = []
+        for m, v in verdict(s, config).items():
+            good = "; ".join(f"{t}: sigma = {', '.join(f.removeprefix('sigma_') for f in fs)} m"
+                             for t, fs in v["tracking"].items()) or "no track"
+            body.append([m, good, ", ".join(v["none"]) or "-"])
+        out["verdict"] = markdown_table(["map", "tracks where a fixed sigma kept every run (the sigmas)",
+                                         "tracks where none did"], body, align="lll")
+        # consistency where a sigma kept every run: the filter's own spread and the truth outside its 99 % ellipse
+        body = []
+        for m in config.maps:
+            for t in config.tracks_of(m):
+                block = s.get(case_name(m, t, MAIN_CURRENT), {})
+                for n in [sigma_name(x) for x in config.sigmas] + list(config.fuzzy):
+                    e = block.get(n)
+                    if e and lost_count(e)[0] == 0:
+                        body.append([f"{m}/{t}", DISPLAY.get(n, n), e["mean_error_m"].cell(".0f"),
+                                     e["mean_std_m"].cell(".0f"), f"{e['outside_99'].mean:.2f}"])
+        out["kept-0.1"] = markdown_table(["map/track", "filter", "error m", "own spread m", "truth outside its 99 % "
+                                          "ellipse (share of steps)"], body, align="llrrr")
+    # the fuzzy inputs' saturation: per map, variant and current, over the tracks
+    body = []
+    for m in config.maps:
+        for variant in config.fuzzy:
+            for current in config.currents:
+                shares = {metric: [s[case_name(m, t, current)][variant][metric].mean for t in config.tracks_of(m)
+                                   if variant in s.get(case_name(m, t, current), {})
+                                   and metric in s[case_name(m, t, current)][variant]]
+                          for metric in ("gradient_clipped", "rate_clipped", "input_clipped")}
+                if shares["input_clipped"]:
+                    body.append([m, DISPLAY.get(variant, variant), f"{current} m/s", str(len(shares["input_clipped"])),
+                                 *(f"{np.median(v):.2f} ({min(v):.2f}-{max(v):.2f})" for v in shares.values())])
+    out["saturation"] = markdown_table(["map", "fuzzy variant", "current", "tracks", "gradient beyond ±20",
+                                        "gradient rate beyond ±20", "either"], body, align="lllrrrr")
+    step = [e["step_us"].median for block in s.values() for n, e in block.items() if n.startswith("sigma_") and "step_us" in e]
+    if step:
+        out["timing"] = markdown_table(["statistic", "value"], [
+            ["step time of the fixed-sigma filters, median over cases of the per-run median (this campaign's machine and "
+             "load)", f"{np.median(step):.1f} µs"], ["the paper: MATLAB, 2.6 GHz dual core (quoted)", f"{paper.PAPER_STEP_MS} ms"]],
+            align="lr")
+    return out
 
 
 # ------------------------------------------------------------------------------------- figures

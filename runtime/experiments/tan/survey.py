@@ -160,26 +160,41 @@ def _share(entries, test) -> str:
     return f"{k}/{len(entries)}" if entries else "-"
 
 
-def report(rows, config: SurveyConfig) -> str:
-    res = outcomes(rows, config)
-    runs = max((e["runs"] for entries in res.values() for e in entries), default=0)
+def summary_table(res: dict, config: SurveyConfig) -> tuple[list[str], list[list[str]]]:
+    """Per map: tracks surveyed, kept by each sigma and by either, the single runs each kept."""
     names = [sigma_name(s) for s in config.sigmas]
-    lines = [f"Terrain-aided navigation (seed 003), track survey{' -- QUICK run (smoke test, not evidence)' if config.quick_run else ''}: "
-             f"every admissible track on a {config.grid_km:g} km grid (4 headings) at {config.current} m/s, "
-             f"{config.duration_s:g} s per run, N = {config.n_particles}, {runs} run(s) per track",
-             f"kept = every run's error stayed within {config.lost_m:g} m (a run is stopped once lost); tracks kept / "
-             "tracks surveyed; runs kept = the single runs (track x run) that stayed within it;",
-             "angle = drift vs depth contours (0 along, 90 across), weakest = the slope in the "
-             "least-informative direction (scenario.characterise, no filter)", ""]
     header = ["map", "tracks"] + [f"kept by {n}" for n in names] + ["by either"] + [f"runs kept, {n}" for n in names]
     body = []
     for m, entries in res.items():
         runs_kept = [f"{sum(e['runs'] - e['lost'][n] for e in entries)}/{sum(e['runs'] for e in entries)}" for n in names]
         body.append([m, str(len(entries))] + [_share(entries, lambda e, n=n: n in e["kept"]) for n in names]
                     + [_share(entries, lambda e: bool(e["kept"]))] + runs_kept)
-    lines += aligned(header, body, left=1) + [""]
-    lines.append("KEPT BY EITHER SIGMA, by the track's terrain")
-    header = ["map"] + [f"angle {lo:g}-{hi:g}" for lo, hi in ANGLE_BINS] + ["weakest: low third", "middle", "high third"]
+    return header, body
+
+
+def split_table(res: dict, config: SurveyConfig) -> tuple[list[str], list[list[str]]]:
+    """Per map and sigma: the tracks that lost all their runs and those that kept all, beside the count independent
+    runs at the sigma's average rate would give (a track splitting rather than sharing a chance)."""
+    header = ["map", "sigma", "runs kept (rate)", "tracks: all runs lost", "tracks: all runs kept",
+              "all kept if runs were independent"]
+    body = []
+    for m, entries in res.items():
+        for s in config.sigmas:
+            n = sigma_name(s)
+            runs = sum(e["runs"] for e in entries)
+            kept = sum(e["runs"] - e["lost"][n] for e in entries)
+            rate = kept / runs if runs else math.nan
+            all_lost = sum(1 for e in entries if e["lost"][n] == e["runs"])
+            all_kept = sum(1 for e in entries if e["lost"][n] == 0)
+            expected = sum(rate ** e["runs"] for e in entries) if runs else math.nan
+            body.append([m, f"{s:g} m", f"{kept}/{runs} ({rate:.2f})", str(all_lost), str(all_kept), f"{expected:.1f}"])
+    return header, body
+
+
+def terrain_table(res: dict) -> tuple[list[str], list[list[str]]]:
+    """Per map: the tracks kept by either sigma, binned by the drift-contour angle and by the weakest slope."""
+    header = ["map"] + [f"angle {lo:g}-{hi:g} deg" for lo, hi in ANGLE_BINS] + ["weakest slope: low third", "middle",
+                                                                               "high third"]
     body = []
     for m, entries in res.items():
         row = [m]
@@ -192,8 +207,11 @@ def report(rows, config: SurveyConfig) -> str:
                   [e for e in entries if e["terrain"]["weakest_slope_m_per_km"] >= edges[1]])
         row += [_share(third, lambda e: bool(e["kept"])) for third in thirds]
         body.append(row)
-    lines += aligned(header, body, left=1) + [""]
-    lines.append("LARGEST MARGINS (per map, the five kept tracks whose worst run stayed furthest below the lost line)")
+    return header, body
+
+
+def margins_table(res: dict) -> tuple[list[str], list[list[str]]]:
+    """Per map, the five kept tracks whose worst run stayed furthest below the lost line."""
     header = ["map", "track", "sigma", "worst run max error m", "mean error m (mean of runs)", "angle deg", "slope m/km"]
     body = []
     for m, entries in res.items():
@@ -201,13 +219,50 @@ def report(rows, config: SurveyConfig) -> str:
         for worst, e, f in kept[:5]:
             body.append([m, e["label"], f.removeprefix("sigma_") + " m", f"{worst:.0f}", f"{e['mean_error'][f]:.0f}",
                          f"{e['terrain']['drift_contour_angle_deg']:.0f}", f"{e['terrain']['slope_m_per_km']:.0f}"])
-    lines += aligned(header, body, left=2) + [""]
-    lines.append("THE SURVEY'S PICK per map (scenario.TRACKS['survey_pick']; the tan experiment confirms it on its own streams)")
+    return header, body
+
+
+def picks_table(res: dict) -> tuple[list[str], list[list[str]]]:
+    header = ["map", "the survey's pick", "sigma", "worst run max error m"]
+    body = []
     for m, entries in res.items():
         p = pick(entries)
-        lines.append(f"  {m}: " + (f"{p['label']} with {p['filter']} (worst run {p['worst_m']:.0f} m)" if p else
-                                   "no track kept by a fixed sigma"))
+        body.append([m, p["label"], p["filter"].removeprefix("sigma_") + " m", f"{p['worst_m']:.0f}"] if p else
+                    [m, "no track kept by a fixed sigma", "-", "-"])
+    return header, body
+
+
+def report(rows, config: SurveyConfig) -> str:
+    res = outcomes(rows, config)
+    runs = max((e["runs"] for entries in res.values() for e in entries), default=0)
+    lines = [f"Terrain-aided navigation (seed 003), track survey{' -- QUICK run (smoke test, not evidence)' if config.quick_run else ''}: "
+             f"every admissible track on a {config.grid_km:g} km grid (4 headings) at {config.current} m/s, "
+             f"{config.duration_s:g} s per run, N = {config.n_particles}, {runs} run(s) per track",
+             f"kept = every run's error stayed within {config.lost_m:g} m (a run is stopped once lost); tracks kept / "
+             "tracks surveyed; runs kept = the single runs (track x run) that stayed within it;",
+             "angle = drift vs depth contours (0 along, 90 across), weakest = the slope in the "
+             "least-informative direction (scenario.characterise, no filter)", ""]
+    lines += aligned(*summary_table(res, config), left=1) + [""]
+    lines.append("TRACKS SPLIT RATHER THAN SHARE A CHANCE: tracks whose runs were all lost / all kept, and how many would "
+                 "keep all runs if every run kept the track at the sigma's average rate")
+    lines += aligned(*split_table(res, config), left=2) + [""]
+    lines.append("KEPT BY EITHER SIGMA, by the track's terrain")
+    lines += aligned(*terrain_table(res), left=1) + [""]
+    lines.append("LARGEST MARGINS (per map, the five kept tracks whose worst run stayed furthest below the lost line)")
+    lines += aligned(*margins_table(res), left=2) + [""]
+    lines.append("THE SURVEY'S PICK per map (scenario.TRACKS['survey_pick']; the tan experiment confirms it on its own streams)")
+    lines += aligned(*picks_table(res), left=2)
     return "\n".join(lines)
+
+
+def markdown(rows, config: SurveyConfig, document: dict | None = None) -> dict[str, str]:
+    """The survey's tables for docs/experiments/tan.md (`abyssal publish tan-survey`, publish.py)."""
+    from ..publish import markdown_table
+
+    res = outcomes(rows, config)
+    return {"summary": markdown_table(*summary_table(res, config)), "split": markdown_table(*split_table(res, config)),
+            "terrain": markdown_table(*terrain_table(res)), "margins": markdown_table(*margins_table(res), align="lllrrrr"),
+            "picks": markdown_table(*picks_table(res), align="lllr")}
 
 
 def document(rows, config: SurveyConfig, prepared=None) -> dict:
@@ -218,9 +273,28 @@ def document(rows, config: SurveyConfig, prepared=None) -> dict:
 
 
 # ------------------------------------------------------------------------------------- figure
+#: the two outcomes' looks (colour-blind safe, and told apart by line style as well): kept / lost by every sigma
+KEPT_LOOK = {"color": "#0072B2", "linestyle": "-", "lw": 1.6}
+LOST_LOOK = {"color": "#D55E00", "linestyle": (0, (3, 2)), "lw": 1.0}
+#: km: tracks of one heading whose paths run along the same line (starts one grid step apart along it, the path
+#: longer than the step) are drawn this far apart, alternately to either side, so no track hides another
+LANE_KM = 0.9
+
+
+def _lane_offset(start, grid_km: float) -> tuple[float, float]:
+    """(dx, dy) in km that moves a track sideways by +-LANE_KM / 2, alternating with its start's place along its
+    heading, so consecutive starts on one line are drawn in two lanes."""
+    x, y, heading = start
+    along = (x * math.cos(heading) + y * math.sin(heading)) / 1e3
+    side = 0.5 * LANE_KM * (1 if int(round(along / grid_km)) % 2 else -1)
+    return -side * math.sin(heading), side * math.cos(heading)
+
+
 def figures(rows, out: Path, config: SurveyConfig, seed: int = 0, prepared=None, settings: str | None = None) -> list[Path]:
-    """Every surveyed track over its map: its path at the survey's current, green where a fixed sigma kept every
-    run, red where none did; the pick circled."""
+    """Every surveyed track over its map, one row per heading (tracks of four headings from one start would
+    overlap as a cross, and opposite headings from neighbouring starts along one line): its path at the survey's
+    current, solid blue where a fixed sigma kept every run, dashed vermillion where none did, an arrow at its end,
+    tracks on one line drawn in two lanes (LANE_KM apart); the pick circled."""
     from ...extras import require
 
     require("matplotlib", "the experiment figures")
@@ -231,32 +305,50 @@ def figures(rows, out: Path, config: SurveyConfig, seed: int = 0, prepared=None,
     runs = max((e["runs"] for entries in res.values() for e in entries), default=0)
     settings = settings or config.settings(runs, seed)
     Path(out).mkdir(parents=True, exist_ok=True)
-    fig, axes = plt.subplots(1, len(res), figsize=(max(9.0, 5.6 * len(res) + 1.0), 6.8), squeeze=False)
+    headings = sorted({round(math.degrees(e["start"][2])) % 360 for entries in res.values() for e in entries})
     speed = TanConfig().speed
-    for ax, (m, entries) in zip(axes[0], res.items()):
-        paths = [nominal_path(e["start"], CURRENTS[config.current], config.duration_s, speed) for e in entries]
+    paths, windows = {}, {}
+    for m, entries in res.items():
+        paths[m] = [nominal_path(e["start"], CURRENTS[config.current], config.duration_s, speed) for e in entries]
+        x_min, x_max, y_min, y_max = (v / 1e3 for v in get_map(m, config.map_seed).extent)
+        if paths[m]:  # the surveyed part of the map, 3 km around the paths
+            x_min = max(x_min, min(x.min() for x, _ in paths[m]) / 1e3 - 3.0)
+            x_max = min(x_max, max(x.max() for x, _ in paths[m]) / 1e3 + 3.0)
+        windows[m] = (x_min, x_max, y_min, y_max)
+    aspect = max((w[3] - w[2]) / (w[1] - w[0]) for w in windows.values())  # height / width of a panel's map
+    width = min(5.6, 4.2 / aspect)
+    fig, axes = plt.subplots(max(1, len(headings)), len(res), squeeze=False,
+                             figsize=(max(12.0, (width + 0.9) * len(res)), (width * aspect + 0.8) * max(1, len(headings)) + 1.3))
+    for col, (m, entries) in enumerate(res.items()):
         terrain = get_map(m, config.map_seed)
-        x_min, x_max, y_min, y_max = (v / 1e3 for v in terrain.extent)
-        if paths:  # the surveyed part of the map, 3 km around the paths
-            x_min = max(x_min, min(x.min() for x, _ in paths) / 1e3 - 3.0)
-            x_max = min(x_max, max(x.max() for x, _ in paths) / 1e3 + 3.0)
-        image, interval = depth_image(ax, terrain, window_km=(x_min, x_max, y_min, y_max), alpha=0.6)
-        fig.colorbar(image, ax=ax, label="depth (m)", shrink=0.7, orientation="horizontal", pad=0.1)
-        for e, (x, y) in zip(entries, paths):
-            colour = "tab:green" if e["kept"] else "tab:red"
-            ax.plot(x / 1e3, y / 1e3, color=colour, lw=1.2, alpha=0.85)
-            ax.plot(x[0] / 1e3, y[0] / 1e3, "o", color=colour, ms=3)
+        x_min, x_max, y_min, y_max = windows[m]
         p = pick(entries)
-        if p:
-            ax.plot(p["start"][0] / 1e3, p["start"][1] / 1e3, "o", ms=12, mfc="none", mec="black", mew=2)
+        for row, heading in enumerate(headings):
+            ax = axes[row, col]
+            image, interval = depth_image(ax, terrain, window_km=(x_min, x_max, y_min, y_max), alpha=0.5)
+            shown = [(e, xy) for e, xy in zip(entries, paths[m]) if round(math.degrees(e["start"][2])) % 360 == heading]
+            for e, (x, y) in shown:
+                dx, dy = _lane_offset(e["start"], config.grid_km)
+                look = KEPT_LOOK if e["kept"] else LOST_LOOK
+                xs, ys = x / 1e3 + dx, y / 1e3 + dy
+                ax.plot(xs, ys, **look, alpha=0.9)
+                ax.plot(xs[0], ys[0], "o", color=look["color"], ms=3)
+                ax.annotate("", xy=(xs[-1], ys[-1]), xytext=(xs[-2], ys[-2]),
+                            arrowprops={"arrowstyle": "-|>", "color": look["color"], "lw": 1.0, "mutation_scale": 9})
+                if p and e["label"] == p["label"]:
+                    ax.plot(xs[0], ys[0], "o", ms=12, mfc="none", mec="black", mew=2)
+            kept = sum(1 for e, _ in shown if e["kept"])
+            ax.set(xlim=(x_min, x_max), ylim=(y_min, y_max), xlabel="x (km)" if row == len(headings) - 1 else None,
+                   ylabel=f"heading {heading} deg\ny (km)" if col == 0 else None)
+            ax.set_title(f"{m}, heading {heading} deg: kept {kept}/{len(shown)}", fontsize=9)
         picked = f"pick {p['label']} ({p['filter']})" if p else "no pick"
-        ax.set(xlabel="x (km)", ylabel="y (km)", xlim=(x_min, x_max), ylim=(y_min, y_max),
-               title=f"{m}: kept {_share(entries, lambda e: bool(e['kept']))} tracks; {picked}\n"
-                     f"(contours every {interval} m)")
-    handles = [plt.Line2D([], [], color="tab:green", marker="o", ms=3, label="kept: a fixed sigma held every run"),
-               plt.Line2D([], [], color="tab:red", marker="o", ms=3, label="lost by every fixed sigma"),
+        axes[0, col].set_title(f"{m}: kept {_share(entries, lambda e: bool(e['kept']))} tracks, {picked} (contours "
+                               f"every {interval} m)\n{axes[0, col].get_title()}", fontsize=9)
+    handles = [plt.Line2D([], [], marker="o", ms=3, label="kept: a fixed sigma held every run (dot: start, arrow: end)",
+                          **KEPT_LOOK),
+               plt.Line2D([], [], marker="o", ms=3, label="lost by every fixed sigma", **LOST_LOOK),
                plt.Line2D([], [], ls="none", marker="o", ms=10, mfc="none", mec="black", mew=2, label="the survey's pick")]
-    fig.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, 0.95), fontsize=8, ncol=3, frameon=False)
-    fig.suptitle(f"Track survey at {config.current} m/s (dot = start, line = the path): "
-                 f"{' or '.join(sigma_name(s) for s in config.sigmas)}", fontsize=11)
-    return [save_figure(fig, Path(out) / "tan_survey_tracks.png", settings, rect=(0, 0.03, 1, 0.9))]
+    fig.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, 0.965), fontsize=8, ncol=3, frameon=False)
+    fig.suptitle(f"Track survey at {config.current} m/s, one row per heading (tracks on one line drawn "
+                 f"{LANE_KM:g} km apart): {' or '.join(sigma_name(s) for s in config.sigmas)}", fontsize=11)
+    return [save_figure(fig, Path(out) / "tan_survey_tracks.png", settings, rect=(0, 0.02, 1, 0.94))]

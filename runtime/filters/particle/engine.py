@@ -106,6 +106,16 @@ The last line of defence stays: a likelihood that underflows at every particle (
 smallest normal double) leaves the weights as they were and is counted in ``uninformative`` (the
 log domain would otherwise hand all the weight to whichever particle lies nearest an outlier).
 
+Two rules of this engine are not in the papers it implements; each is an option, so a paper's own rules can be
+run beside them (seed 002's MCUPF, experiments/cn/count_sweep.py):
+  * ``underflow``: "keep" (default, the rule above) or "normalise" (the weights are normalised whatever the
+    likelihoods, as eq. 21 prints it: in the log domain, so an update whose likelihood underflows at every
+    particle hands the weight to those nearest the measurement; still counted in ``uninformative``);
+  * ``estimate``: "before" (default: x, P are the weighted moments before resampling) or "after" (the moments of
+    the resampled, equally weighted particles, as seed 002's eqs. 23-24 and its Table 3 step 4 print them; a step
+    without resampling reports the weighted moments either way).
+A filter with a rule other than the default runs the Python step (the compiled bootstrap step has the defaults).
+
 ``predict`` moves the particles by the transition; ``update`` reweights them by the likelihood
 (the two make a bootstrap step). ``step`` with a measurement uses the filter's proposal.
 
@@ -144,6 +154,10 @@ from .compiled import CompiledBootstrap
 __all__ = ["LOG_UNDERFLOW", "BootstrapProposal", "MeasurementNoise", "Proposal", "SIRFilter", "TransitionNoise",
            "check_noises", "informative", "measurement_residuals"]
 
+#: the engine's rule, then the printed alternative, for an update whose likelihood underflows at every particle
+UNDERFLOW_RULES = ("keep", "normalise")
+#: where the reported estimate is taken: the engine's rule (before resampling), then the printed alternative
+ESTIMATE_RULES = ("before", "after")
 #: log of the smallest normal double: a likelihood below it at every particle underflows to zero
 LOG_UNDERFLOW = float(np.log(np.finfo(np.float64).tiny))
 #: the particles' finite range: inside it every entry of their covariance is at most (2 MAX_STATE)^2 = 4e306; beyond
@@ -346,8 +360,13 @@ class SIRFilter(FilterBase):
 
     def __init__(self, model, x0, P0, process_noise, measurement_noise, n_particles, rng, *,
                  proposal: Proposal | None = None, policy=ResamplingPolicy(), gate_probability: float = 1e-10,
-                 gate_patience: int = 5, gate_inflation: float = 4.0, process_noise_name: str = "process_noise"):
+                 gate_patience: int = 5, gate_inflation: float = 4.0, process_noise_name: str = "process_noise",
+                 underflow: str = "keep", estimate: str = "before"):
         check_model(model, type(self).__name__)
+        if underflow not in UNDERFLOW_RULES or estimate not in ESTIMATE_RULES:
+            raise ValueError(f"{type(self).__name__}: underflow must be one of {UNDERFLOW_RULES} and estimate one of "
+                             f"{ESTIMATE_RULES}, got underflow={underflow!r}, estimate={estimate!r}")
+        self.underflow, self.estimate = underflow, estimate
         N = check_count(n_particles, "n_particles")
         rng = as_generator(rng)
         x0 = check_state(x0, model.n_x, "x0")
@@ -373,8 +392,10 @@ class SIRFilter(FilterBase):
         # The bootstrap proposal's step is one compiled call (compiled.py) over the buffers of its C step;
         # otherwise two particle buffers, each bound to its own f and h: ``particles`` (x_{k-1}) and ``proposed``
         # (x_k, written by the proposal). A step without resampling commits by swapping them.
-        self._compiled = (CompiledBootstrap(self, self.capacity) if CompiledBootstrap.fits(self)
-                          else CompiledCarried(self, self.capacity) if CompiledCarried.fits(self) else None)
+        defaults = (underflow, estimate) == (UNDERFLOW_RULES[0], ESTIMATE_RULES[0])  # the compiled steps' rules
+        self._compiled = None if not defaults else (
+            CompiledBootstrap(self, self.capacity) if CompiledBootstrap.fits(self)
+            else CompiledCarried(self, self.capacity) if CompiledCarried.fits(self) else None)
         if self._compiled is None:
             self._batches = [ModelBatch(model, self.capacity, self._p), ModelBatch(model, self.capacity, self._p)]
             self._measures = [MeasureBatch(model, b.x, self._p) for b in self._batches]
@@ -660,10 +681,10 @@ class SIRFilter(FilterBase):
             kept = self._screened[0] if self._screened is not None else self.screen(residuals, present,
                                                                                     offset=self.noise.mean)
             if kept is not None:
-                log_lik = informative(self.noise.marginal(kept).log_density(residuals if kept.all() else residuals[kept]))
-                if log_lik is None:
+                log_lik = self.noise.marginal(kept).log_density(residuals if kept.all() else residuals[kept])
+                if informative(log_lik) is None:
                     informative_step = False
-                else:
+                if informative_step or self.underflow == "normalise":
                     log_w = log_lik if log_w is None else log_w + log_lik
         # 4. weights, ESS
         log_w = self.log_weights.copy() if log_w is None else log_w + self.log_weights
@@ -689,6 +710,8 @@ class SIRFilter(FilterBase):
                     self._widen(proposed, weights, x, residuals[gated])
         # 6. resampling
         ancestors = self.policy.ancestors(weights, self.rng, proposed) if self.policy.due(ess, N) else None
+        if ancestors is not None and self.estimate == "after":  # the moments of the resampled particles
+            x, P = weighted_moments(proposed[:, ancestors], np.full(ancestors.size, 1.0 / ancestors.size))
         # 7. commit: nothing below can fail on finite numbers
         if ancestors is None:
             self._cur = 1 - self._cur  # the proposed buffer becomes the particles

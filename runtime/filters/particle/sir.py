@@ -77,10 +77,11 @@ class ParticleFilter(SIRFilter):
 
     def __init__(self, model, x0, P0, process_noise, measurement_noise, n_particles, rng, *,
                  policy: ResamplingPolicy = ResamplingPolicy(), gate_probability: float = 1e-10,
-                 gate_patience: int = 5, gate_inflation: float = 4.0):
+                 gate_patience: int = 5, gate_inflation: float = 4.0, underflow: str = "keep", estimate: str = "before"):
         super().__init__(model, x0, P0, process_noise, measurement_noise, n_particles, rng,
                          proposal=BootstrapProposal(), policy=policy, gate_probability=gate_probability,
-                         gate_patience=gate_patience, gate_inflation=gate_inflation)
+                         gate_patience=gate_patience, gate_inflation=gate_inflation, underflow=underflow,
+                         estimate=estimate)
 
 
 CPF_PROPOSALS = {"carried": CarriedCubatureProposal, "optimal": OptimalCubatureProposal}

@@ -40,7 +40,9 @@ Decisions:
 * The engine's innovation gate and underflow rule apply (engine.py): a range far outside the cloud's
   predicted range is left out of the proposal and the weights; the robust updates' S is Pzz + R~,
   so the gate sees their own down-weighting. A likelihood that underflows at every particle leaves
-  the weights as they were (``uninformative``).
+  the weights as they were (``uninformative``); ``underflow="normalise"`` and ``estimate="after"`` give the
+  paper's rules instead (eq. 21 normalised whatever the likelihoods; the estimate of eqs. 23-24 from the
+  resampled particles), engine.py.
 * ``update(z)`` alone (the contract's) reweights the particles where they are by p(z | x) and
   resamples: the unscented proposal needs the step's input, so ``step`` is where it acts.
 * Particle number: ``n_particles`` is the number before the step's resampling; with
@@ -81,14 +83,14 @@ class UnscentedParticleFilter(SIRFilter):
     def __init__(self, model, x0, P0, Q, R, n_particles, rng, *, update: str = "ukf", sigma: float = 15.0,
                  gamma: float = 1.345, resampling: KLDResampling | ResamplingPolicy | None = None,
                  name: str | None = None, gate_probability: float = 1e-10, gate_patience: int = 5,
-                 gate_inflation: float = 4.0):
+                 gate_inflation: float = 4.0, underflow: str = "keep", estimate: str = "before"):
         check_model(model, type(self).__name__)
         proposal = UnscentedProposal(update, sigma=sigma, gamma=gamma)
         R = check_covariance(R, model.n_y, "R", definite=True)
         super().__init__(model, x0, P0, Q, GaussianMixture.gaussian(np.zeros(model.n_y), R), n_particles, rng,
                          proposal=proposal, policy=EVERY_STEP if resampling is None else resampling,
                          gate_probability=gate_probability, gate_patience=gate_patience, gate_inflation=gate_inflation,
-                         process_noise_name="Q")
+                         process_noise_name="Q", underflow=underflow, estimate=estimate)
         self.update_kind = update
         self.name = name or {"ukf": "UPF", "huber": "HRUPF", "mcc": "MCUPF"}[update]
 
