@@ -104,7 +104,7 @@ def test_c_proposal_on_rov4dof_equals_the_numpy_path(rov, monkeypatch, kind):
                                                 ("ukf", "systematic")])
 def test_c_proposal_on_cn2d_ranges_equals_the_numpy_path(cn, monkeypatch, update, resampling):
     trial = scenario.simulate(scenario.CnScenario(), "gaussian", np.random.default_rng(11))
-    Q, R = np.diag([100.0, 100.0]), np.array([[0.1]])
+    Q, R = np.diag([100.0, 100.0]), np.eye(cn.n_y) * 0.1  # each leader sensor's range
     policy = {None: None, "kld": KLDResampling(n_max=2000), "systematic": ResamplingPolicy("systematic", 0.5)}[resampling]
 
     def make():
