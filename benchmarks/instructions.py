@@ -44,7 +44,9 @@ def per_step(command: list[str], steps: int, cache: str | None = None) -> dict |
     """Instructions per step of `command` + [k] (module docstring); None without valgrind."""
     if not available():
         return None
-    env = dict(os.environ, ABYSSAL_CFLAGS=FLAGS, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
+    # PYTHONHASHSEED fixed: the interpreter's start-up (hashing, dict layouts, GC) then counts the same in both runs;
+    # with a random seed it differs by ~10^6 instructions, which swamped (even turned negative) a Kalman step's count
+    env = dict(os.environ, ABYSSAL_CFLAGS=FLAGS, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", PYTHONHASHSEED="0")
     env["ABYSSAL_CACHE_DIR"] = cache or str(Path(tempfile.gettempdir()) / "abyssal-cache-x86-64-v3")
     with tempfile.TemporaryDirectory() as tmp:
         subprocess.run([*command, str(1)], env=env, check=True, stdout=subprocess.DEVNULL, timeout=3600)  # (builds)

@@ -205,6 +205,7 @@ class KalmanFilter(FilterBase):
         self._repairs, self._substeps = integer(kr.AT_REPAIRS, np.int64), integer(kr.AT_SUBSTEPS, np.int64)
         self._inflations, self._late = integer(kr.AT_INFLATIONS, np.int64), integer(kr.AT_LATE, np.int64)
         self._time, self._history = integer(kr.AT_TIME, np.float64), integer(kr.AT_HISTORY, np.int32)
+        self._time_view = memoryview(self._time)  # (its item is a Python float: the hot path's reads)
         self._sensor_block = np.frombuffer(memory, np.float64, n_sensors * len(kr.SENSOR_FIELDS),
                                            at(kr.AT_SENSORS)).reshape(n_sensors, len(kr.SENSOR_FIELDS))
         gate = at(kr.AT_GATE)
@@ -405,7 +406,7 @@ class KalmanFilter(FilterBase):
                 self._u[:] = _vector(u, self.model.n_u, "u")
             self._io_view[kr.BLOCK_TIME] = t
             saved = None if p is None and self._p_is_default else self._use_p(p)
-            start = self._time[0]
+            start = self._time_view[0]
             self._call_predict_to()
             if self._code_view[0] < 0.0:
                 raise self._refusal(self._code_view[0], saved, "predict_to")
@@ -465,7 +466,7 @@ class KalmanFilter(FilterBase):
             if self._unit_watch is not None and self._unit_watch.watching[k]:
                 spec = self.model.sensors[k]
                 predicted = self._unit_prediction(k, None if p is None else (spec["p_offset"], self._q_call[:n_q]))
-            start = self._time[0]
+            start = self._time_view[0]
             self._call_update_sensor()
             code = self._code_view[0]
             if code < 0.0:
