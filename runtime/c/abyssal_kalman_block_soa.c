@@ -59,28 +59,38 @@ static void finite_or_fail(int count, const double* v, double* ok) {
   }
 }
 
-/* abyssal_cholesky: L (n x n lanes, upper zeroed) from A's lower triangle, the pivots guarded; ok[lane] = 0 where a
- * pivot failed */
-static void block_cholesky(int n, const double* A, double* L, double* ok) {
-  for (int c = 1; c < n; ++c) /* the upper triangle: zero */
+/* Both factorisations below: L's upper triangle zeroed, and column c of L from the diagonal down as A's entries less
+ * L[i, :c] L[c, :c]^T, the sum in the order k = 0, 1, ... (their pivots and scaling differ) */
+static void block_zero_upper(int n, double* L) {
+  for (int c = 1; c < n; ++c)
     for (int i = 0; i < c; ++i) {
       double* l = LANES(L, i + c * n);
       EACH_LANE l[j] = 0.0;
     }
+}
+
+static void block_column_less_products(int n, int c, const double* A, double* L) {
+  for (int i = c; i < n; ++i) {
+    double acc[B];
+    const double* a = LANES(A, i + c * n);
+    EACH_LANE acc[j] = a[j];
+    for (int k = 0; k < c; ++k) {
+      const double* lik = LANES(L, i + k * n);
+      const double* lck = LANES(L, c + k * n);
+      EACH_LANE acc[j] -= lik[j] * lck[j];
+    }
+    double* l = LANES(L, i + c * n);
+    EACH_LANE l[j] = acc[j];
+  }
+}
+
+/* abyssal_cholesky: L (n x n lanes, upper zeroed) from A's lower triangle, the pivots guarded; ok[lane] = 0 where a
+ * pivot failed */
+static void block_cholesky(int n, const double* A, double* L, double* ok) {
+  block_zero_upper(n, L);
   for (int c = 0; c < n; ++c) {
     double inverse[B];
-    for (int i = c; i < n; ++i) { /* A's entry less L[i, :c] L[c, :c]^T, the sum in the order k = 0, 1, ... */
-      double acc[B];
-      const double* a = LANES(A, i + c * n);
-      EACH_LANE acc[j] = a[j];
-      for (int k = 0; k < c; ++k) {
-        const double* lik = LANES(L, i + k * n);
-        const double* lck = LANES(L, c + k * n);
-        EACH_LANE acc[j] += lik[j] * -lck[j];
-      }
-      double* l = LANES(L, i + c * n);
-      EACH_LANE l[j] = acc[j];
-    }
+    block_column_less_products(n, c, A, L);
     double* d = LANES(L, c + c * n);
     const double* acc = LANES(A, c + c * n);
     EACH_LANE {
@@ -101,21 +111,9 @@ static void block_cholesky(int n, const double* A, double* L, double* ok) {
 }
 
 void abyssal_block_factor(int r, const double* A, double* L, double* ok) {
-  for (int c = 1; c < r; ++c)
-    for (int i = 0; i < c; ++i) EACH_LANE LANES(L, i + c * r)[j] = 0.0;
+  block_zero_upper(r, L);
   for (int c = 0; c < r; ++c) {
-    for (int i = c; i < r; ++i) {
-      double acc[B];
-      const double* a = LANES(A, i + c * r);
-      EACH_LANE acc[j] = a[j];
-      for (int k = 0; k < c; ++k) {
-        const double* lik = LANES(L, i + k * r);
-        const double* lck = LANES(L, c + k * r);
-        EACH_LANE acc[j] -= lik[j] * lck[j];
-      }
-      double* l = LANES(L, i + c * r);
-      EACH_LANE l[j] = acc[j];
-    }
+    block_column_less_products(r, c, A, L);
     double* d = LANES(L, c + c * r);
     EACH_LANE {
       const int good = d[j] > 0.0 && d[j] < INFINITY;
