@@ -149,7 +149,7 @@ def _export(args) -> int:
     export = importlib.import_module("abyssal.export")  # the module (the package exports a function `export`)
     folder = export.export(args.target, filter=args.filter, out=args.out, steps=args.steps, seed=args.seed,
                            history_seconds=args.history, force=args.force)
-    print(f"wrote {folder}: cmake -S {folder} -B {folder}/build && cmake --build {folder}/build && "
+    print(f"wrote {folder}: cmake -S {folder} -B {folder}/build && cmake --build {folder}/build --parallel && "
           f"(cd {folder}/build && ctest)")
     return 0
 
