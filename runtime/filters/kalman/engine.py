@@ -173,9 +173,9 @@ class KalmanFilter(FilterBase):
         self._acquire, self._release = self._lock.acquire, self._lock.release  # (bound once: the hot path's lock)
         self._sensor_index = {name: k for k, name in enumerate(model.sensor_names)}
         # each sensor's outputs, own parameters, and a view of its outputs' place in the call block
-        self._sensor_views = [(len(s["outputs"]), len(s["parameters"]), memoryview(self._z[:len(s["outputs"])]))
-                              for s in model.sensors]
-        self._sensor_heads = [memoryview(np.array([k, 0.0, 0.0])) for k in range(len(model.sensors))]
+        # and its call-block head (k, no R of its own, no p of its own), written as one slice
+        self._sensor_views = [(len(s["outputs"]), len(s["parameters"]), memoryview(self._z[:len(s["outputs"])]),
+                               memoryview(np.array([k, 0.0, 0.0]))) for k, s in enumerate(model.sensors)]
         self._unit_watch = UnitWatch(model, type(self).__name__)  # the first updates, for values in another unit
 
     def _view(self, runtime, n: int, m: int, q_rows: int, n_sensors: int) -> None:
@@ -445,7 +445,7 @@ class KalmanFilter(FilterBase):
                 k = self._sensor_index[sensor]
             except (KeyError, TypeError):
                 k = self._sensor(sensor)  # (refuses, naming the model's sensors)
-            rows, n_q, z_view = self._sensor_views[k]
+            rows, n_q, z_view, head = self._sensor_views[k]
             if type(t) not in _PLAIN_NUMBERS:  # (a plain number's finiteness is the C runtime's check)
                 t = check_time(t, "t")
             try:  # an exact float64 vector of the sensor's outputs goes straight in, as in step()
@@ -455,14 +455,14 @@ class KalmanFilter(FilterBase):
                 self._z[:rows] = z
             io = self._io_view
             io[_BLOCK_TIME] = t
-            io[_BLOCK_SENSOR:_BLOCK_HAS_Q + 1] = self._sensor_heads[k]  # (k, no R of its own, no p of its own)
+            io[_BLOCK_SENSOR:_BLOCK_HAS_Q + 1] = head
             if R is not None:
                 self._R_call[: rows * rows] = check_covariance(R, rows, "R", definite=True).reshape(-1, order="F")
                 io[_BLOCK_HAS_R] = 1.0
             if p is not None:
                 self._q_call[:n_q] = check_state(p, n_q, "p")
                 io[_BLOCK_HAS_Q] = 1.0
-            predicted = None
+            predicted = spec = None
             if self._unit_watch is not None and self._unit_watch.watching[k]:
                 spec = self.model.sensors[k]
                 predicted = self._unit_prediction(k, None if p is None else (spec["p_offset"], self._q_call[:n_q]))
@@ -472,7 +472,7 @@ class KalmanFilter(FilterBase):
             if code < 0.0:
                 raise self._sensor_refusal(int(code), sensor, t, z)
             if predicted is not None:  # (the watch sees accepted calls only)
-                offset = self.model.sensors[k]["offset"]
+                offset = spec["offset"]
                 R_k = self._R[offset:offset + rows, offset:offset + rows] if R is None else self._R_call[:rows * rows]
                 self._observe_units(k, self._z[:rows], np.reshape(R_k, (rows, rows)), predicted)
             if t - start > self._max_dt:  # predicted ahead to t first (a late fix: t - start < 0)
