@@ -205,6 +205,26 @@ def test_a_measurement_carries_its_own_R_and_parameters(vehicle):
     assert a.reported_sensor == "beacon"
 
 
+def test_a_measurements_own_R_holds_for_its_call_only_even_when_refused(vehicle):
+    """The next fix without an R of its own is weighed with the filter's R, after an accepted call with R, a call
+    refused for its p, and one refused by the runtime (too late); as a twin given the filter's R explicitly."""
+    a = EKF(vehicle, np.array([10.0, 5.0, 0.0, 0.0]), P0, QW, None, **FILTER)
+    b = EKF(vehicle, np.array([10.0, 5.0, 0.0, 0.0]), P0, QW, None, **FILTER)
+    beacon = vehicle.sensor_names.index("beacon")
+    at = vehicle.sensors[beacon]["offset"]
+    filters_R = a.R[at:at + 1, at:at + 1]
+    for flt in (a, b):
+        flt.update("beacon", np.array([12.0]), 1.0, R=np.array([[400.0]]), p=np.array([0.0, 0.0]))
+    with pytest.raises(ValueError, match="p"):
+        a.update("beacon", np.array([12.0]), 1.5, R=np.array([[400.0]]), p=np.array([np.nan, 0.0]))
+    with pytest.raises(ValueError):
+        a.update("beacon", np.array([12.0]), -1e3, R=np.array([[400.0]]))
+    a.update("beacon", np.array([11.0]), 2.0)
+    b.update("beacon", np.array([11.0]), 2.0, R=filters_R)
+    np.testing.assert_array_equal(a.x, b.x)
+    np.testing.assert_array_equal(a.P, b.P)
+
+
 def test_the_stacked_update_equals_sequential_sensor_updates_on_a_linear_model(vehicle):
     """With block-diagonal R, one joint update of every sensor equals their updates one after another (exact
     Kalman algebra; the range is left out as missing)."""

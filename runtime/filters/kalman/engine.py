@@ -79,7 +79,6 @@ __all__ = [
 #: dt types the hot path hands to the C runtime as they are (anything else, a bool included, is checked first)
 _PLAIN_NUMBERS = frozenset({float, int, np.float64})
 _BLOCK_TIME, _BLOCK_SENSOR, _BLOCK_HAS_R, _BLOCK_HAS_Q = kr.BLOCK_TIME, kr.BLOCK_SENSOR, kr.BLOCK_HAS_R, kr.BLOCK_HAS_Q
-assert (_BLOCK_HAS_R, _BLOCK_HAS_Q) == (_BLOCK_SENSOR + 1, _BLOCK_SENSOR + 2)  # (one slice write: update_sensor)
 #: the history's events when a filter keeps one (history_seconds > 0 or smoothing) and history_entries is not given
 DEFAULT_HISTORY_ENTRIES = 256
 
@@ -172,10 +171,11 @@ class KalmanFilter(FilterBase):
         self._gate = None
         self._acquire, self._release = self._lock.acquire, self._lock.release  # (bound once: the hot path's lock)
         self._sensor_index = {name: k for k, name in enumerate(model.sensor_names)}
-        # each sensor's outputs, own parameters, and a view of its outputs' place in the call block
-        # and its call-block head (k, no R of its own, no p of its own), written as one slice
-        self._sensor_views = [(len(s["outputs"]), len(s["parameters"]), memoryview(self._z[:len(s["outputs"])]),
-                               memoryview(np.array([k, 0.0, 0.0]))) for k, s in enumerate(model.sensors)]
+        # by sensor name: its index, the index as the call block holds it, and a view of its outputs' place in the
+        # call block (the call block's R and p flags are down between calls: _call_update_sensor_with)
+        self._sensor_views_by_index = [(k, float(k), memoryview(self._z[:len(s["outputs"])]))
+                                       for k, s in enumerate(model.sensors)]
+        self._sensor_views = dict(zip(model.sensor_names, self._sensor_views_by_index))
         self._unit_watch = UnitWatch(model, type(self).__name__)  # the first updates, for values in another unit
 
     def _view(self, runtime, n: int, m: int, q_rows: int, n_sensors: int) -> None:
@@ -417,69 +417,89 @@ class KalmanFilter(FilterBase):
 
     def update(self, z, z_or_p=None, t=None, R=None, p=None) -> bool:
         """update(z, p=None): every sensor stacked, at the filter's time (the fixed-rate call); or
-        update(sensor, z, t, R=None, p=None): one sensor's measurement stamped t (update_sensor). (One signature for
-        both forms, its second argument z or p by form: a *args signature costs the stamped call ~0.3 µs.)"""
-        if type(z) is str and z in self._sensor_index:
-            return self.update_sensor(z, z_or_p, t, R, p)
-        if isinstance(z, str) and not (z_or_p is t is R is p is None):
-            raise ValueError(
-                f"{type(self).__name__}.update: z (or sensor) {z!r} is not one of model {self.model.name!r}'s sensors "
-                f"{list(self.model.sensor_names)} (nor a measurement vector)")
-        if t is not None or R is not None:
-            raise TypeError(f"{type(self).__name__}.update: t and R belong to one sensor's update, "
-                            f"update(sensor, z, t, R=None, p=None) with sensor one of {list(self.model.sensor_names)}")
-        if z_or_p is not None and p is not None:
-            raise TypeError(f"{type(self).__name__}.update(z, p): p given twice")
-        return super().update(z, p if z_or_p is None else z_or_p)
+        update(sensor, z, t, R=None, p=None): one sensor's measurement stamped t (see update_sensor). One signature
+        for both forms, its second argument z or p by form, and the stamped form's body in this one frame like
+        step(): it is the hot path of a sensor's stream (a *args signature or a second frame costs it ~0.1-0.3 µs)."""
+        if type(z) is not str:
+            if isinstance(z, str):  # (a str subclass: the same call with the name as a plain str)
+                return self.update_sensor(str.__str__(z), z_or_p, t, R, p)
+            if t is not None or R is not None:
+                raise TypeError(f"{type(self).__name__}.update: t and R belong to one sensor's update, "
+                                f"update(sensor, z, t, R=None, p=None) with sensor one of {list(self.model.sensor_names)}")
+            if z_or_p is not None and p is not None:
+                raise TypeError(f"{type(self).__name__}.update(z, p): p given twice")
+            return super().update(z, p if z_or_p is None else z_or_p)
+        sensor, z = z, z_or_p
+        if not self._acquire(False):
+            raise self._busy()
+        try:
+            try:
+                k, block_sensor, z_view = self._sensor_views[sensor]
+            except KeyError:
+                raise ValueError(f"{type(self).__name__}.update: z (or sensor) {sensor!r} is not one of model "
+                                 f"{self.model.name!r}'s sensors {list(self.model.sensor_names)} (nor a measurement "
+                                 "vector)") from None
+            if type(t) not in _PLAIN_NUMBERS:  # (a plain number's finiteness is the C runtime's check)
+                t = check_time(t, "t")
+            try:  # an exact float64 vector of the sensor's outputs goes straight in, as in step()
+                z_view[:] = z
+            except (TypeError, ValueError):
+                self._z[:len(z_view)] = _vector(z, len(z_view), "z")
+            io = self._io_view
+            io[_BLOCK_TIME] = t
+            io[_BLOCK_SENSOR] = block_sensor
+            predicted = None
+            if self._unit_watch is not None and self._unit_watch.watching[k]:
+                spec = self.model.sensors[k]
+                if p is not None:
+                    p = check_state(p, len(spec["parameters"]), "p")
+                predicted = self._unit_prediction(k, None if p is None else (spec["p_offset"], p))
+            start = self._time_view[0]
+            if R is None and p is None:
+                self._call_update_sensor()
+            else:
+                self._call_update_sensor_with(k, R, p)
+            code = self._code_view[0]
+            if code < 0.0:
+                raise self._sensor_refusal(int(code), sensor, t, z)
+            if predicted is not None:  # (the watch sees accepted calls only)
+                self._observe_sensor_units(k, R, predicted)
+            if self._time_view[0] - start > self._max_dt:  # predicted ahead to t first (a late fix: no time moved;
+                self._warn_long_step(self._time_view[0] - start)  # plain floats, cheaper than t's own arithmetic)
+            return code == 1.0
+        finally:
+            self._release()
 
     def update_sensor(self, sensor: str, z, t, R=None, p=None) -> bool:
         """One sensor's measurement z (its outputs; NaN entries missing) stamped t (s), with R (its own covariance,
         e.g. a USBL fix's quality figure; None: the filter's) and p (the sensor's own parameters, e.g. a leader's
         position; None: those held). Ahead of the filter's time it is predicted to t with the held input first; behind
         it (a late fix) it is fused at t from the history (history_seconds), or refused when older. Returns whether
-        a measurement entry was used; a refusal (ValueError) leaves the filter unchanged."""
-        if not self._acquire(False):
-            raise self._busy()
-        try:  # (the hot path of a sensor's stream, in one frame like step())
-            try:
-                k = self._sensor_index[sensor]
-            except (KeyError, TypeError):
-                k = self._sensor(sensor)  # (refuses, naming the model's sensors)
-            rows, n_q, z_view, head = self._sensor_views[k]
-            if type(t) not in _PLAIN_NUMBERS:  # (a plain number's finiteness is the C runtime's check)
-                t = check_time(t, "t")
-            try:  # an exact float64 vector of the sensor's outputs goes straight in, as in step()
-                z_view[:] = z
-            except (TypeError, ValueError):
-                z = _vector(z, rows, "z")
-                self._z[:rows] = z
-            io = self._io_view
-            io[_BLOCK_TIME] = t
-            io[_BLOCK_SENSOR:_BLOCK_HAS_Q + 1] = head
-            if R is not None:
-                self._R_call[: rows * rows] = check_covariance(R, rows, "R", definite=True).reshape(-1, order="F")
-                io[_BLOCK_HAS_R] = 1.0
-            if p is not None:
-                self._q_call[:n_q] = check_state(p, n_q, "p")
-                io[_BLOCK_HAS_Q] = 1.0
-            predicted = spec = None
-            if self._unit_watch is not None and self._unit_watch.watching[k]:
-                spec = self.model.sensors[k]
-                predicted = self._unit_prediction(k, None if p is None else (spec["p_offset"], self._q_call[:n_q]))
-            start = self._time_view[0]
+        a measurement entry was used; a refusal (ValueError) leaves the filter unchanged. (The same call as
+        update(sensor, z, t, R, p), which runs it.)"""
+        self._sensor(sensor)  # (refuses anything but one of the model's sensor names, naming the argument)
+        return self.update(sensor, z, t, R, p)
+
+    def _call_update_sensor_with(self, k: int, R, p) -> None:
+        """The runtime's update_sensor with the sensor's own R and/or parameters p of this call: written to the call
+        block, flagged for this one call (the flags are down again after it, whatever happens)."""
+        rows, n_q = len(self._sensor_views_by_index[k][2]), len(self.model.sensors[k]["parameters"])
+        if R is not None:
+            self._R_call[: rows * rows] = check_covariance(R, rows, "R", definite=True).reshape(-1, order="F")
+        if p is not None:
+            self._q_call[:n_q] = check_state(p, n_q, "p")
+        io = self._io_view
+        io[_BLOCK_HAS_R], io[_BLOCK_HAS_Q] = float(R is not None), float(p is not None)
+        try:
             self._call_update_sensor()
-            code = self._code_view[0]
-            if code < 0.0:
-                raise self._sensor_refusal(int(code), sensor, t, z)
-            if predicted is not None:  # (the watch sees accepted calls only)
-                offset = spec["offset"]
-                R_k = self._R[offset:offset + rows, offset:offset + rows] if R is None else self._R_call[:rows * rows]
-                self._observe_units(k, self._z[:rows], np.reshape(R_k, (rows, rows)), predicted)
-            if t - start > self._max_dt:  # predicted ahead to t first (a late fix: t - start < 0)
-                self._warn_long_step(t - start)
-            return code == 1.0
         finally:
-            self._release()
+            io[_BLOCK_HAS_R] = io[_BLOCK_HAS_Q] = 0.0
+
+    def _observe_sensor_units(self, k: int, R, predicted) -> None:
+        """Hand the unit watch sensor k's accepted values, with the R the call used (its own, or the filter's)."""
+        rows, offset = len(self._sensor_views_by_index[k][2]), self.model.sensors[k]["offset"]
+        R_k = self._R[offset:offset + rows, offset:offset + rows] if R is None else self._R_call[:rows * rows]
+        self._observe_units(k, self._z[:rows], np.reshape(R_k, (rows, rows)), predicted)
 
     def smooth(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Rauch-Tung-Striebel smoothing over the history (smoothing=True): (t (K,), x (K, n_x), P (K, n_x, n_x)),
