@@ -531,9 +531,10 @@ class KalmanFilter(FilterBase):
         a = check_run_arguments(model, U, Z, dt, params, truth)
         T, n = a.U.shape[0], model.n_x
         U = np.ascontiguousarray(a.U)
-        Z = None if a.Z is None else np.ascontiguousarray(np.where(a.has_data[:, None], a.Z, np.nan))
-        dts = np.ascontiguousarray(a.dts, dtype=np.float64)
-        given = [p for p in a.rows_p if p is not None]
+        Z = None if a.Z is None else np.ascontiguousarray(a.Z)  # (a row without a finite entry is all NaN: no update)
+        # one dt for every row goes as one number (the C reads it with step 0), as do absent parameters
+        dts, dt_step = (np.ascontiguousarray(a.dts, dtype=np.float64), 1) if a.dt_each_row else (np.array(a.dts[:1]), 0)
+        given = [] if params is None else [p for p in a.rows_p if p is not None]
         P_rows = None if not given else np.ascontiguousarray([model.p_default if p is None else p for p in a.rows_p])
         longest = float(dts.max()) if dts.size else 0.0
         xs, Ps = np.empty((T, n)), np.empty((T, n, n))
@@ -544,14 +545,14 @@ class KalmanFilter(FilterBase):
             saved = self._committed.copy()
             start = time.perf_counter()
             code = self._runtime.kalman_run(self._memory.ctypes.data, self._runtime.descriptor, T, U.ctypes.data,
-                                            dts.ctypes.data, 1, None if Z is None else Z.ctypes.data,
+                                            dts.ctypes.data, dt_step, None if Z is None else Z.ctypes.data,
                                             None if P_rows is None else P_rows.ctypes.data, 1, xs.ctypes.data,
                                             Ps.ctypes.data, nis.ctypes.data, dof.ctypes.data, ctypes.byref(row))
             elapsed = time.perf_counter() - start
             if code < 0:
                 k = int(row.value)
                 self._committed[...] = saved
-                self._u[:], self._io_view[kr.BLOCK_TIME] = U[k], dts[k]
+                self._u[:], self._io_view[kr.BLOCK_TIME] = U[k], dts[k * dt_step]
                 if Z is not None:
                     self._z[:] = Z[k]
                 p_saved = (self._p.copy(), self._p_is_default)
