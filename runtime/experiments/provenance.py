@@ -78,15 +78,35 @@ def finished(record: dict, wall_seconds: float) -> dict:
     return {**record, "load_end": _load(), "wall_seconds": round(float(wall_seconds), 1)}
 
 
+def resumed(record: dict, earlier: dict | None) -> dict:
+    """The record of a campaign resumed (--resume) from a table that an earlier session (`earlier`: its record, or
+    None) began: this session's record with every earlier session's in "earlier_sessions", oldest first, so that
+    the blocks name every commit, load and wall time behind the table, not only the resume's."""
+    if not earlier:
+        return record
+    sessions = [*earlier.get("earlier_sessions", []), {k: v for k, v in earlier.items() if k != "earlier_sessions"}]
+    return {**record, "earlier_sessions": sessions}
+
+
 def describe(record: dict) -> str:
-    """One line for a generated block: "`command` at commit abc1234 (dirty), CPU, load a-b, wall"."""
-    commit = record.get("commit")
-    code = f"commit {commit[:10]}" + (" (uncommitted changes)" if record.get("dirty") else "") if commit else "no git commit"
-    loads = [v for v in (record.get("load_start"), record.get("load_end")) if v is not None]
+    """One line for a generated block: "`command` at commit abc1234 (dirty), CPU, load a-b, wall"; a resumed
+    campaign's line covers every session (its commits, the loads' range, the walls' sum)."""
+    sessions = [*record.get("earlier_sessions", []), record]
+    codes = []
+    for session in sessions:
+        commit = session.get("commit")
+        code = (f"{commit[:10]}" + (" (uncommitted changes)" if session.get("dirty") else "")) if commit else "no git commit"
+        if code not in codes:
+            codes.append(code)
+    code = codes[0] if codes == ["no git commit"] else ("commit " if len(codes) == 1 else "commits ") + ", ".join(codes)
+    loads = [v for s in sessions for v in (s.get("load_start"), s.get("load_end")) if v is not None]
     load = f"load {min(loads):.1f}-{max(loads):.1f}" if loads else "load unknown"
     workers = record.get("workers")
     where = f"--workers {workers}" if workers is not None else (record.get("scheduler") or "default workers")
-    wall = record.get("wall_seconds")
+    walls = [s.get("wall_seconds") for s in sessions]
+    wall = sum(walls) if all(w is not None for w in walls) else None
     wall_text = f"{wall / 60:.0f} min wall" if wall and wall >= 120 else (f"{wall:.0f} s wall" if wall else "")
+    if wall_text and len(sessions) > 1:
+        wall_text += f" in {len(sessions)} sessions (--resume)"
     return (f"`{record.get('command')}` at {code}; {record.get('cpu')}, {record.get('cores')} cores, {where}, {load}"
             + (f", {wall_text}" if wall_text else ""))

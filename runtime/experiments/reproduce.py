@@ -159,6 +159,7 @@ def run(name: str, args, config=None) -> int:
                                      particles=getattr(args, "particles", None) if experiment.particles else None),
         getattr(args, "workers", None), getattr(args, "scheduler", None))
     t0 = time.perf_counter()
+    earlier = _earlier_provenance(out / f"{name}.json") if out and getattr(args, "resume", False) else None
     prepared = None
     if experiment.prepare:
         if getattr(args, "resume", False) and out:  # a table resume would refuse, refused before the preparation
@@ -176,11 +177,20 @@ def run(name: str, args, config=None) -> int:
                 "seed": args.seed, "quick": quick, "config": repr(config), **module.document(rows, config, prepared),
                 "failures": [f.describe() for f in result.failures], "wall_seconds": result.wall_seconds,
                 "where": result.where, "rows_csv": str(out / f"{name}.csv") if out else None,
-                "provenance": provenance.finished(record, time.perf_counter() - t0)}
+                "provenance": provenance.resumed(provenance.finished(record, time.perf_counter() - t0),
+                                                 earlier if result.runs_reused else None)}
     report = module.report(rows, config) if rows else f"{name}: no rows (every run failed)"
     if experiment.timings_apart and rows:
         report += "\n\n" + module.timing_table(rows)
     return _publish(experiment, args, out, result, _strict_json(document), report, figures)
+
+
+def _earlier_provenance(path: Path) -> dict | None:
+    """The provenance of the session that wrote <out>/NAME.json before a --resume (None: none readable)."""
+    try:
+        return json.loads(path.read_text()).get("provenance")
+    except (OSError, ValueError, AttributeError):
+        return None
 
 
 def _figures(module, rows, out, config, seed, prepared, name: str, quick: bool, runs: int) -> list:

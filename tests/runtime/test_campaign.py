@@ -4,6 +4,7 @@ reported with their seeds, resume/merge from the tidy CSV.
 The toy experiments below are module-level (picklable); the module is pickled by value so the
 Dask workers need not import this test file.
 """
+import json
 import os
 import signal
 import subprocess
@@ -280,3 +281,29 @@ def test_ctrl_c_ends_abyssal_reproduce_with_one_line_and_keeps_the_finished_runs
                         "--resume runs the others")
     assert 0 < len(kept) < 400 and [r["value"] for r in kept] == [float(r["run"]) for r in kept]
     campaign.check_resume(out / "toy.csv", "toy", 0)  # the table is one --resume adopts
+
+
+@pytest.mark.timeout(300)
+def test_a_resumed_campaign_names_every_session_behind_its_table(tmp_path, monkeypatch):
+    """--resume keeps the provenance of the session whose runs it adopts beside its own, so that a generated block
+    names every commit, load and wall time behind the table (not only the resume's)."""
+    from abyssal.runtime import cli
+    from abyssal.runtime.experiments import provenance, reproduce
+
+    (tmp_path / "toy_experiment.py").write_text(textwrap.dedent(TOY_EXPERIMENT))
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setitem(reproduce.EXPERIMENTS, "toy", reproduce.Experiment("toy", "toy_experiment", (), runs=3,
+                                                                           quick_runs=3))
+    out = tmp_path / "out"
+    assert cli.main(["reproduce", "toy", "--runs", "2", "--workers", "0", "--out", str(out)]) == 0
+    first = json.loads((out / "toy.json").read_text())["provenance"]
+    assert "earlier_sessions" not in first and "sessions" not in provenance.describe(first)
+    assert cli.main(["reproduce", "toy", "--runs", "3", "--workers", "0", "--resume", "--out", str(out)]) == 0
+    second = json.loads((out / "toy.json").read_text())["provenance"]
+    assert second["earlier_sessions"] == [first]
+    line = provenance.describe(second)
+    assert "--runs 3" in line and "in 2 sessions (--resume)" in line
+    loads = [v for r in (first, second) for v in (r["load_start"], r["load_end"]) if v is not None]
+    assert f"load {min(loads):.1f}-{max(loads):.1f}" in line
+    other = {**second, "earlier_sessions": [{**first, "commit": "f" * 40}]}  # an earlier session at another commit
+    assert "commits " in provenance.describe(other) and "ffffffffff" in provenance.describe(other)
