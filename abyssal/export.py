@@ -338,12 +338,10 @@ def _result(flt, code: int, upper) -> tuple:
     return code, flt.nis if code == kr.UPDATED else np.nan, flt.x, flt.P[upper]
 
 
-def _nudged(values, rng):
-    """`values` (an array, a tuple of arrays and numbers, or None) with every non-zero finite entry moved by up to
-    NUDGE_ULPS units in the last place; NaN, inf and zeros kept (a missing entry stays missing, a refusal a
-    refusal, an R's zero off-diagonal zero, so that it stays symmetric)."""
-    if values is None or isinstance(values, (int, float)):
-        return values
+def _nudged(values: np.ndarray, rng) -> np.ndarray:
+    """A copy of `values` with every non-zero finite entry moved by up to NUDGE_ULPS units in the last place; NaN,
+    inf and zeros kept (a missing entry stays missing, a refusal a refusal, an R's zero off-diagonal zero, so that
+    it stays symmetric)."""
     v = np.array(values, dtype=float)
     movable = np.isfinite(v) & (v != 0.0)
     v[movable] += rng.integers(-NUDGE_ULPS, NUDGE_ULPS + 1, size=int(movable.sum())) * np.spacing(v[movable])

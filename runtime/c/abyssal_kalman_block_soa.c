@@ -69,19 +69,23 @@ static void block_zero_upper(int n, double* L) {
     }
 }
 
-static void block_column_less_products(int n, int c, const double* A, double* L) {
-  for (int i = c; i < n; ++i) {
-    double acc[B];
-    const double* a = LANES(A, i + c * n);
-    EACH_LANE acc[j] = a[j];
-    for (int k = 0; k < c; ++k) {
-      const double* lik = LANES(L, i + k * n);
-      const double* lck = LANES(L, c + k * n);
-      EACH_LANE acc[j] -= lik[j] * lck[j];
-    }
-    double* l = LANES(L, i + c * n);
-    EACH_LANE l[j] = acc[j];
+/* out = a less the sum over k < count of x_k y_k, lane by lane, with x_k = LANES(x, k * stride) (likewise y) and the
+ * sum in the order k = 0, 1, ...: the dot-and-subtract of the factorisations and of P - Y Y^T */
+static void lanes_less_products(const double* a, const double* x, const double* y, int count, int stride,
+                                double* out) {
+  double acc[B];
+  EACH_LANE acc[j] = a[j];
+  for (int k = 0; k < count; ++k) {
+    const double* xk = LANES(x, (size_t)k * (size_t)stride);
+    const double* yk = LANES(y, (size_t)k * (size_t)stride);
+    EACH_LANE acc[j] -= xk[j] * yk[j];
   }
+  EACH_LANE out[j] = acc[j];
+}
+
+static void block_column_less_products(int n, int c, const double* A, double* L) {
+  for (int i = c; i < n; ++i)
+    lanes_less_products(LANES(A, i + c * n), LANES(L, i), LANES(L, c), c, n, LANES(L, i + c * n));
 }
 
 /* abyssal_cholesky: L (n x n lanes, upper zeroed) from A's lower triangle, the pivots guarded; ok[lane] = 0 where a
@@ -514,13 +518,7 @@ void abyssal_block_update(const abyssal_model* model, const abyssal_algebra* a, 
   for (int q = 0; q < n; ++q) /* column q of P - Y Y^T, rows 0..q (abyssal_gemv with -Y), mirrored */
     for (int i = 0; i <= q; ++i) {
       double acc[B];
-      const double* pe = LANES(P, i + q * n);
-      EACH_LANE acc[j] = pe[j];
-      for (int k = 0; k < m; ++k) {
-        const double* yi = LANES(C, i + k * n);
-        const double* yq = LANES(C, q + k * n);
-        EACH_LANE acc[j] += -yi[j] * yq[j];
-      }
+      lanes_less_products(LANES(P, i + q * n), LANES(C, i), LANES(C, q), m, n, acc);
       double* upper = LANES(P_post, i + q * n);
       double* lower = LANES(P_post, q + i * n);
       EACH_LANE upper[j] = lower[j] = acc[j];

@@ -170,12 +170,10 @@ class KalmanFilter(FilterBase):
         self._io_view, self._code_view = memoryview(self._io), memoryview(self._code)
         self._gate = None
         self._acquire, self._release = self._lock.acquire, self._lock.release  # (bound once: the hot path's lock)
-        self._sensor_index = {name: k for k, name in enumerate(model.sensor_names)}
         # by sensor name: its index, the index as the call block holds it, and a view of its outputs' place in the
-        # call block (the call block's R and p flags are down between calls: _call_update_sensor_with)
-        self._sensor_views_by_index = [(k, float(k), memoryview(self._z[:len(s["outputs"])]))
-                                       for k, s in enumerate(model.sensors)]
-        self._sensor_views = dict(zip(model.sensor_names, self._sensor_views_by_index))
+        # call block (the call block's R and p flags are down between calls: update)
+        self._sensor_views = {s["name"]: (k, float(k), memoryview(self._z[:len(s["outputs"])]))
+                              for k, s in enumerate(model.sensors)}
         self._unit_watch = UnitWatch(model, type(self).__name__)  # the first updates, for values in another unit
 
     def _view(self, runtime, n: int, m: int, q_rows: int, n_sensors: int) -> None:
@@ -388,7 +386,7 @@ class KalmanFilter(FilterBase):
         if not isinstance(name, str):
             raise TypeError(f"sensor must be a sensor's name (str), got {type(name).__name__}")
         try:
-            return self._sensor_index[name]
+            return self._sensor_views[name][0]
         except KeyError:
             raise ValueError(f"sensor {name!r} is not one of model {self.model.name!r}'s sensors "
                              f"{list(self.model.sensor_names)}") from None
@@ -448,17 +446,23 @@ class KalmanFilter(FilterBase):
             io = self._io_view
             io[_BLOCK_TIME] = t
             io[_BLOCK_SENSOR] = block_sensor
+            own = R is not None or p is not None
+            if own:  # checked into the call block; flagged below for this one call
+                self._put_sensor_R_p(k, R, p)
             predicted = None
             if self._unit_watch is not None and self._unit_watch.watching[k]:
                 spec = self.model.sensors[k]
-                if p is not None:
-                    p = check_state(p, len(spec["parameters"]), "p")
-                predicted = self._unit_prediction(k, None if p is None else (spec["p_offset"], p))
+                predicted = self._unit_prediction(
+                    k, None if p is None else (spec["p_offset"], self._q_call[:len(spec["parameters"])]))
             start = self._time_view[0]
-            if R is None and p is None:
+            if not own:
                 self._call_update_sensor()
-            else:
-                self._call_update_sensor_with(k, R, p)
+            else:  # the flags up for this call only, down again whatever happens
+                io[_BLOCK_HAS_R], io[_BLOCK_HAS_Q] = float(R is not None), float(p is not None)
+                try:
+                    self._call_update_sensor()
+                finally:
+                    io[_BLOCK_HAS_R] = io[_BLOCK_HAS_Q] = 0.0
             code = self._code_view[0]
             if code < 0.0:
                 raise self._sensor_refusal(int(code), sensor, t, z)
@@ -480,24 +484,19 @@ class KalmanFilter(FilterBase):
         self._sensor(sensor)  # (refuses anything but one of the model's sensor names, naming the argument)
         return self.update(sensor, z, t, R, p)
 
-    def _call_update_sensor_with(self, k: int, R, p) -> None:
-        """The runtime's update_sensor with the sensor's own R and/or parameters p of this call: written to the call
-        block, flagged for this one call (the flags are down again after it, whatever happens)."""
-        rows, n_q = len(self._sensor_views_by_index[k][2]), len(self.model.sensors[k]["parameters"])
+    def _put_sensor_R_p(self, k: int, R, p) -> None:
+        """Sensor k's own R and/or parameters p of this call, checked, into the call block (not yet flagged)."""
+        spec = self.model.sensors[k]
+        rows, n_q = len(spec["outputs"]), len(spec["parameters"])
         if R is not None:
             self._R_call[: rows * rows] = check_covariance(R, rows, "R", definite=True).reshape(-1, order="F")
         if p is not None:
             self._q_call[:n_q] = check_state(p, n_q, "p")
-        io = self._io_view
-        io[_BLOCK_HAS_R], io[_BLOCK_HAS_Q] = float(R is not None), float(p is not None)
-        try:
-            self._call_update_sensor()
-        finally:
-            io[_BLOCK_HAS_R] = io[_BLOCK_HAS_Q] = 0.0
 
     def _observe_sensor_units(self, k: int, R, predicted) -> None:
         """Hand the unit watch sensor k's accepted values, with the R the call used (its own, or the filter's)."""
-        rows, offset = len(self._sensor_views_by_index[k][2]), self.model.sensors[k]["offset"]
+        spec = self.model.sensors[k]
+        rows, offset = len(spec["outputs"]), spec["offset"]
         R_k = self._R[offset:offset + rows, offset:offset + rows] if R is None else self._R_call[:rows * rows]
         self._observe_units(k, self._z[:rows], np.reshape(R_k, (rows, rows)), predicted)
 
