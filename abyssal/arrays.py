@@ -1,11 +1,12 @@
-"""The one real-array check, below every layer (generated/bundle.py and runtime import it; it imports NumPy only)."""
+"""The one real-array check and the one aligned allocation, below every layer (generated/bundle.py and runtime
+import them; NumPy only)."""
 from __future__ import annotations
 
 import warnings
 
 import numpy as np
 
-__all__ = ["real_array"]
+__all__ = ["aligned_zeros", "real_array"]
 
 
 def real_array(value, name: str) -> np.ndarray:
@@ -28,3 +29,12 @@ def real_array(value, name: str) -> np.ndarray:
         except (TypeError, ValueError, np.exceptions.ComplexWarning):
             pass
     raise TypeError(f"{name} must be an array of real numbers, got {type(value).__name__} of {arr.dtype}")
+
+
+def aligned_zeros(shape, alignment: int = 64) -> np.ndarray:
+    """A zeroed float64 array whose data starts on an `alignment`-byte boundary (vectorised loops then split a
+    row the same way in every instance, so results never depend on where an allocation landed)."""
+    count = int(np.prod(shape))
+    raw = np.zeros(count + alignment // 8)
+    start = (-raw.ctypes.data % alignment) // 8
+    return raw[start:start + count].reshape(shape)

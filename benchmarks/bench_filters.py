@@ -15,7 +15,11 @@ Floor:  instructions per CKF step of the C loop (valgrind --tool=callgrind, when
         instruction counts).
 Times:  the minimum over repetitions of a whole trajectory (each from a fresh filter), in us per step, Python and C
         alternating round by round, so that a loaded machine's interruptions are left out as far as they can be and
-        reach both sides alike; the ratios are what travels between machines.
+        reach both sides alike; the ratios are what travels between machines. Both sides time the same rows: those
+        after a filter's start-up (step 0, which checks dt's stability, and the first updates, which Python's unit
+        watch compares with h(x): units.py), stepped untimed on both sides; Python's start-up cost per step is
+        reported beside. Python loops over the rows taken out beforehand (``for u, z in rows: f.step(u, dt, z)``),
+        as the C loop walks its arrays.
 
 Targets (issue 34, ratios in one run): CKF.step from Python <= 1.15x the C runtime's step, EKF <= 1.25x; run() <= 1.05x
 the C step per row; the CKF >= 300x faster than filterpy.
@@ -62,6 +66,39 @@ def best_per_step(make, step, steps: int, repeats: int) -> float:
     return best
 
 
+def start_up_rows(make, U, Z) -> int:
+    """Rows a filter takes to leave its start-up: step 0 (which checks dt's stability) and the updates its unit watch
+    observes (units.py: the first values of every sensor output, compared with h(x) in Python)."""
+    flt = make()
+    for k in range(len(U)):
+        flt.step(U[k], DT, Z[k])
+        if flt._unit_watch is None:
+            return k + 1
+    return len(U)
+
+
+def best_steady_step(make, rows, first: int, repeats: int) -> tuple[float, float]:
+    """Seconds per step of ``f.step(u, DT, z)`` over rows[first:] (a plain loop over rows taken out beforehand, as a
+    user's loop over a log's rows), the minimum over `repeats` fresh filters; and of the start-up rows 1..first-1."""
+    best, start_up = float("inf"), float("inf")
+    steady = rows[first:]
+    for _ in range(repeats):
+        flt = make()
+        step = flt.step
+        u, z = rows[0]
+        step(u, DT, z)
+        t0 = time.perf_counter()
+        for u, z in rows[1:first]:
+            step(u, DT, z)
+        t1 = time.perf_counter()
+        for u, z in steady:
+            step(u, DT, z)
+        t2 = time.perf_counter()
+        start_up = min(start_up, (t1 - t0) / max(first - 1, 1))
+        best = min(best, (t2 - t1) / len(steady))
+    return best, start_up
+
+
 class CTiming:
     """The C timing driver (kalman_timing.c) built once against the model's and the runtime's libraries from
     abyssal's compile cache (the code Python calls), run on a trajectory file; close() removes both."""
@@ -84,11 +121,11 @@ class CTiming:
             self.tmp.cleanup()
             raise BuildError(f"compiling the timing driver failed: {' '.join(cmd)}\n{res.stderr[-4000:]}")
 
-    def times(self, repeats: int) -> dict[str, float]:
-        """ns per step of each filter from a C loop and through abyssal_kalman_run, the gate's ns, the objects'
-        bytes: one run of the driver (the minimum over its `repeats`)."""
-        out = subprocess.run([str(self.exe), str(self.data), str(repeats)], capture_output=True, text=True, check=True,
-                             timeout=600).stdout
+    def times(self, repeats: int, first: int) -> dict[str, float]:
+        """ns per step of each filter from a C loop over rows first.. and through abyssal_kalman_run over them, the
+        gate's ns, the objects' bytes: one run of the driver (the minimum over its `repeats`)."""
+        out = subprocess.run([str(self.exe), str(self.data), str(repeats), str(first)], capture_output=True, text=True,
+                             check=True, timeout=600).stdout
         return {label: float(value) for label, value in (line.split() for line in out.splitlines())}
 
     def instructions(self) -> dict[str, float] | None:
@@ -102,18 +139,19 @@ def _callgrind_instructions(exe: Path, data: Path, steps: int) -> dict[str, floa
     """Instructions per step of each filter's C loop (one repetition under callgrind), by the loop's function."""
     with tempfile.TemporaryDirectory(prefix="abyssal-callgrind-") as tmp:
         outfile = Path(tmp) / "callgrind.out"
-        done = subprocess.run(["valgrind", "--tool=callgrind", f"--callgrind-out-file={outfile}", str(exe), str(data), "1"],
+        done = subprocess.run(["valgrind", "--tool=callgrind", f"--callgrind-out-file={outfile}", str(exe), str(data), "1",
+                               "1"],
                               capture_output=True, text=True, timeout=900)
         if done.returncode != 0 or not outfile.exists():
             return None
         total = subprocess.run(["callgrind_annotate", "--inclusive=yes", str(outfile)], capture_output=True, text=True,
                                timeout=300).stdout
-    # abyssal_kalman_step is called (steps - 1) times per filter and per repetition: 3 filters, 1 repetition, and the
-    # untimed first step of each; abyssal_kalman_run's rows call it too (another steps - 1)
+    # abyssal_kalman_step is called `steps` times per filter and per repetition (FIRST = 1: the untimed first step and
+    # the timed rest), and as often again around and inside abyssal_kalman_run: 3 filters, 1 repetition
     for line in total.splitlines():
         if "abyssal_kalman_step " in line or line.rstrip().endswith("abyssal_kalman_step"):
             count = float(line.split()[0].replace(",", ""))
-            return {"all filters": count / (3 * 2 * (steps - 1) + 3)}
+            return {"all filters": count / (3 * 2 * steps)}
     return None
 
 
@@ -143,18 +181,24 @@ def run(quick: bool = False, verbose: bool = True) -> dict:
 
     # Python and C alternate, round by round, and each keeps its minimum: a load that comes and goes during the run
     # reaches both sides alike (a ratio of two minima measured minutes apart measures the load, not the code)
+    # both sides time the rows after the start-up (step 0 and the unit watch's first updates, which Python alone
+    # runs: its cost per step is reported beside), over the same rows
+    first = max(start_up_rows(lambda: CKF(bundle, x0, P0, Q, R), U, Z),
+                start_up_rows(lambda: EKF(bundle, x0, P0, Q, R), U, Z), start_up_rows(lambda: UKF(bundle, x0, P0, Q, R), U, Z))
+    results["untimed start-up rows"] = first
+    rows = list(zip(U, Z))
     timing = CTiming(bundle, U, Z)
     try:
         timings: dict[str, float] = {}
         for _ in range(rounds):
             for cls in (EKF, UKF, CKF):
                 name = cls.__name__
-                us = 1e6 * best_per_step(lambda cls=cls: cls(bundle, x0, P0, Q, R),
-                                         lambda f, k: f.step(U[k], DT, Z[k]), steps, repeats)
-                py[name] = min(py.get(name, float("inf")), us)
-                us = 1e6 * best_run_per_row(lambda cls=cls: cls(bundle, x0, P0, Q, R), U, Z, repeats)
+                steady, start_up = best_steady_step(lambda cls=cls: cls(bundle, x0, P0, Q, R), rows, first, repeats)
+                py[name] = min(py.get(name, float("inf")), 1e6 * steady)
+                py[f"{name} start-up"] = min(py.get(f"{name} start-up", float("inf")), 1e6 * start_up)
+                us = 1e6 * best_run_per_row(lambda cls=cls: cls(bundle, x0, P0, Q, R), U, Z, first, repeats)
                 py[f"{name}.run per row"] = min(py.get(f"{name}.run per row", float("inf")), us)
-            for label, value in timing.times(repeats).items():
+            for label, value in timing.times(repeats, first).items():
                 timings[label] = min(timings.get(label, float("inf")), value)
         instructions = timing.instructions()
     finally:
@@ -216,16 +260,17 @@ def run(quick: bool = False, verbose: bool = True) -> dict:
     return {"results": results, "targets": targets}
 
 
-def best_run_per_row(make, U, Z, repeats: int) -> float:
-    """Seconds per row of run(U, Z, DT) (the minimum over `repeats` fresh filters; row 0 run first, untimed, as
-    best_per_step leaves step 0 out)."""
+def best_run_per_row(make, U, Z, first: int, repeats: int) -> float:
+    """Seconds per row of run(U[first:], Z[first:], DT) (the minimum over `repeats` fresh filters, each stepped
+    through rows 0..first-1 untimed, as best_steady_step leaves them out)."""
     best = float("inf")
     for _ in range(repeats):
         flt = make()
-        flt.step(U[0], DT, Z[0])
+        for k in range(first):
+            flt.step(U[k], DT, Z[k])
         t0 = time.perf_counter()
-        flt.run(U[1:], Z[1:], DT)
-        best = min(best, (time.perf_counter() - t0) / (len(U) - 1))
+        flt.run(U[first:], Z[first:], DT)
+        best = min(best, (time.perf_counter() - t0) / (len(U) - first))
     return best
 
 

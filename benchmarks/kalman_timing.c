@@ -1,12 +1,13 @@
 /* kalman_timing: per-step times of the Kalman runtime called from C (bench_filters.py builds and runs it).
  *
- *     kalman_timing TRAJECTORY REPEATS [FILTER]      (FILTER: EKF, UKF or CKF alone, e.g. to profile it)
+ *     kalman_timing TRAJECTORY REPEATS FIRST [FILTER]   (FILTER: EKF, UKF or CKF alone, e.g. to profile it)
  *
  * Linked with a model's compiled library and the runtime's (abyssal's cache); -DDESCRIPTOR=<m>_descriptor names
  * the model. TRAJECTORY: text, first line "T n_u n_y", then T rows of u (n_u) and z (n_y); x0 = 0, P0 = 0.3 I,
  * Q = diag(1e-4 (first 8), 1e-2 (rest)), R = diag(0.05, 0.05, 0.02, 0.01, ...) as bench_filters.trajectory.
- * Prints one line per measurement: "<label> <ns per step>", the minimum over REPEATS runs of the whole trajectory
- * (each from a fresh init), so a loaded machine's interruptions are left out as far as possible:
+ * Prints one line per measurement: "<label> <ns per step>", the minimum over REPEATS runs of rows FIRST.. (each run
+ * from a fresh init, its rows 0..FIRST-1 stepped untimed), so a loaded machine's interruptions are left out as far as
+ * possible:
  *
  *   <F>          abyssal_kalman_step per row, F = EKF, UKF, CKF
  *   <F>_run      abyssal_kalman_run over the rows (one call)
@@ -14,7 +15,7 @@
  *   gate         one judgement of the innovation gate (the CKF's last update)
  * C99.
  */
-#define _POSIX_C_SOURCE 199309L
+#define _POSIX_C_SOURCE 200112L
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -37,14 +38,17 @@ int main(int argc, char** argv) {
   static const struct { abyssal_filter kind; const char* label; } filters[] = {
       {ABYSSAL_EKF, "EKF"}, {ABYSSAL_UKF, "UKF"}, {ABYSSAL_CKF, "CKF"}};
   const abyssal_model* model = &DESCRIPTOR;
-  int T, n_u, n_y, repeats, k, i, rep, which, n = model->n_x;
+  int T, n_u, n_y, repeats, first, k, i, rep, which, n = model->n_x;
   double *U, *Z, *x0, *P0, *Q, *R, *memory, *X, *Pout, *nis, dt = 0.1;
   int* dof;
   FILE* in;
-  if (argc != 3 && argc != 4) return 2;
+  if (argc != 4 && argc != 5) return 2;
   repeats = atoi(argv[2]);
+  first = atoi(argv[3]);
   in = fopen(argv[1], "r");
-  if (!in || fscanf(in, "%d %d %d", &T, &n_u, &n_y) != 3 || n_u != model->n_u || n_y != model->n_y) return 2;
+  if (!in || fscanf(in, "%d %d %d", &T, &n_u, &n_y) != 3 || n_u != model->n_u || n_y != model->n_y || first < 1 ||
+      first >= T)
+    return 2;
   U = malloc(sizeof(double) * (size_t)(T * n_u));
   Z = malloc(sizeof(double) * (size_t)(T * n_y));
   X = malloc(sizeof(double) * (size_t)(T * n));
@@ -74,26 +78,29 @@ int main(int argc, char** argv) {
     double best = INFINITY, best_run = INFINITY;
     abyssal_kalman* filter;
     if (bytes == 0) return 3;
-    if (argc == 4 && strcmp(argv[3], filters[which].label) != 0) continue;
-    memory = malloc(bytes);
-    if (!memory) return 2;
+    if (argc == 5 && strcmp(argv[4], filters[which].label) != 0) continue;
+    if (posix_memalign((void**)&memory, 64, bytes) != 0) return 2; /* on a cache line, as Python's (aligned_zeros) */
     for (rep = 0; rep < repeats; ++rep) {
       double t0;
       memset(memory, 0, bytes);
       if (abyssal_kalman_init(memory, bytes, model, &options, x0, P0, Q, R, 0.0, &filter) != ABYSSAL_OK) return 3;
-      abyssal_kalman_step(filter, model, U, dt, Z, 0, 0); /* the first step checks dt's stability: not timed */
-      t0 = now_ns();
-      for (k = 1; k < T; ++k)
+      for (k = 0; k < first; ++k) /* (the first step checks dt's stability, and what Python leaves out too) */
         if (abyssal_kalman_step(filter, model, U + k * n_u, dt, Z + k * n_y, 0, 0) < 0) return 4;
-      t0 = (now_ns() - t0) / (T - 1);
+      t0 = now_ns();
+      for (k = first; k < T; ++k)
+        if (abyssal_kalman_step(filter, model, U + k * n_u, dt, Z + k * n_y, 0, 0) < 0) return 4;
+      t0 = (now_ns() - t0) / (T - first);
       if (t0 < best) best = t0;
       sink = abyssal_kalman_x(filter)[0];
       memset(memory, 0, bytes);
       if (abyssal_kalman_init(memory, bytes, model, &options, x0, P0, Q, R, 0.0, &filter) != ABYSSAL_OK) return 3;
-      abyssal_kalman_step(filter, model, U, dt, Z, 0, 0);
+      for (k = 0; k < first; ++k)
+        if (abyssal_kalman_step(filter, model, U + k * n_u, dt, Z + k * n_y, 0, 0) < 0) return 4;
       t0 = now_ns();
-      if (abyssal_kalman_run(filter, model, T - 1, U + n_u, &dt, 0, Z + n_y, 0, 0, X, Pout, nis, dof, 0) < 0) return 4;
-      t0 = (now_ns() - t0) / (T - 1);
+      if (abyssal_kalman_run(filter, model, T - first, U + first * n_u, &dt, 0, Z + first * n_y, 0, 0, X, Pout, nis, dof,
+                             0) < 0)
+        return 4;
+      t0 = (now_ns() - t0) / (T - first);
       if (t0 < best_run) best_run = t0;
       sink = X[0];
     }

@@ -552,19 +552,20 @@ def _near_misses(root: Path, model: str) -> str:
             "settings (ABYSSAL_CFLAGS, ABYSSAL_CC/CC, and the CPU for -march=native flags) or sources")
 
 
-def build(model: str, sources: dict[str, str], *, symbols=(), strict: bool = False) -> Path:
+def build(model: str, sources: dict[str, str], *, symbols=(), strict: bool = False, include_dirs=()) -> Path:
     """Path of the compiled library of `sources`, building it if no valid cache entry exists.
 
     `model` names the entry and the library (a C identifier, never a path); `symbols` are extra
     names the smoke test must find in the library; `strict` compiles every file with STRICT_FLAGS
-    (hand-written C: warnings are errors).
+    (hand-written C: warnings are errors); `include_dirs` are searched for headers the sources do
+    not carry (a Python extension's Python.h; part of the key, as flags are).
     """
     if not (isinstance(model, str) and _IDENTIFIER.fullmatch(model)):
         raise ValueError(f"build(): model {model!r} must be a C identifier (the model's name, never a path)")
     for name in sources:
         if Path(name).name != name or name.startswith(".") or not name.endswith((".c", ".h")):
             raise ValueError(f"build(): source {name!r} must be a plain file name ending in .c or .h")
-    flags = cflags()
+    flags = cflags() + [f"-I{folder}" for folder in include_dirs]
     requested_var, requested = _requested_compiler()
     key = cache_key(sources, flags, requested, strict)
     root = cache_dir()

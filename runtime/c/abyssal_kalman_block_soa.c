@@ -97,14 +97,12 @@ static void block_cholesky(int n, const double* A, double* L, double* ok) {
     block_column_less_products(n, c, A, L);
     double* d = LANES(L, c + c * n);
     const double* acc = LANES(A, c + c * n);
-    EACH_LANE {
+#pragma omp simd
+    EACH_LANE { /* (selects, no branch: the lanes stay one vector) */
       const double threshold = ABYSSAL_PIVOT_RELATIVE * fabs(acc[j]) + ABYSSAL_PIVOT_ABSOLUTE;
-      double v = d[j];
-      if (!(v > threshold)) {
-        ok[j] = 0.0;
-        v = threshold;
-      }
-      d[j] = sqrt(v);
+      const int good = d[j] > threshold;
+      ok[j] = good ? ok[j] : 0.0;
+      d[j] = sqrt(good ? d[j] : threshold);
       inverse[j] = 1.0 / d[j];
     }
     for (int i = c + 1; i < n; ++i) {
@@ -119,6 +117,7 @@ void abyssal_block_factor(int r, const double* A, double* L, double* ok) {
   for (int c = 0; c < r; ++c) {
     block_column_less_products(r, c, A, L);
     double* d = LANES(L, c + c * r);
+#pragma omp simd
     EACH_LANE {
       const int good = d[j] > 0.0 && d[j] < INFINITY;
       ok[j] = good ? ok[j] : 0.0;
@@ -126,6 +125,7 @@ void abyssal_block_factor(int r, const double* A, double* L, double* ok) {
     }
     for (int i = c + 1; i < r; ++i) { /* divided, as LAPACK's unblocked factor and plain_cholesky round */
       double* l = LANES(L, i + c * r);
+#pragma omp simd
       EACH_LANE l[j] /= d[j];
     }
   }
@@ -150,9 +150,11 @@ static void block_solve_lower(int n, const double* L, int shared, double* b) {
     double* out = LANES(b, i);
     if (shared) {
       const double d = AT(L, n, i, i);
+#pragma omp simd
       EACH_LANE out[j] = v[j] / d;
     } else {
       const double* d = LANES(L, i + i * n);
+#pragma omp simd
       EACH_LANE out[j] = v[j] / d[j];
     }
   }
@@ -171,6 +173,7 @@ static void block_solve_lower_transposed(int n, const double* L, double* b) {
     }
     double* out = LANES(b, i);
     const double* d = LANES(L, i + i * n);
+#pragma omp simd
     EACH_LANE out[j] = v[j] / d[j];
   }
 }
@@ -493,11 +496,13 @@ void abyssal_block_update(const abyssal_model* model, const abyssal_algebra* a, 
       for (int i = 0; i < n; ++i) {
         double* b = LANES(C, i + q * n);
         const double* y = LANES(C, i + k * n);
+#pragma omp simd
         EACH_LANE b[j] -= y[j] * lqk[j];
       }
     }
     for (int i = 0; i < n; ++i) {
       double* b = LANES(C, i + q * n);
+#pragma omp simd
       EACH_LANE b[j] /= d[j];
     }
   }

@@ -10,7 +10,10 @@ same library without a descriptor.
 The hot path of a Kalman filter does not go through ctypes: ``call_function(name)`` is one of the runtime's
 CasADi-convention entry points (abyssal_kalman_binding.c: step, predict, update, check_p) loaded by
 ``casadi.external`` and bound once with ``Function.buffer()`` (the fast binding of every generated function,
-bundle.py).
+bundle.py). A filter's plain ``step(u, dt, z)`` goes one step shorter: ``step_call`` makes it a CPython extension
+object (abyssal_kalman_python.c, built through the same cache against the running Python's headers) that copies u
+and z into the call block and calls the runtime's step itself, with no Python frame; where the headers are missing
+it is None and the class's step takes the CasADi binding, with the same results.
 
 The option struct and the return codes below mirror abyssal_kalman.h (tests/runtime/test_kalman_runtime.py
 checks the mirror against the C).
@@ -19,7 +22,12 @@ from __future__ import annotations
 
 import ctypes
 import functools
+import importlib.machinery
+import importlib.util
+import sys
+import sysconfig
 from functools import lru_cache
+from pathlib import Path
 
 import numpy as np
 
@@ -152,6 +160,20 @@ class KalmanRuntime:
             self._calls[name] = ca.external(f"abyssal_kalman_{name}_call", self.library)
         return self._calls[name]
 
+    def step_call(self, memory: np.ndarray, block: np.ndarray, code: np.ndarray, n_u: int, n_y: int, owner, checked_step):
+        """A filter's step(u, dt, z=None, p=None) whose plain case is one C call, for the filter `owner` with the
+        filter object `memory`, the call block `block` and the return code's place `code` (abyssal_kalman_python.c),
+        installed as the owner's own
+        ``step``; every other case goes to `checked_step` (the class's step, bound). None when the extension cannot
+        be built here (no Python headers): the class's step serves alone."""
+        module = _python_module()
+        if module is None:
+            return None
+        address = {name: ctypes.cast(getattr(self.cdll, f"abyssal_kalman_{name}"), ctypes.c_void_p).value
+                   for name in ("step", "predict")}
+        return module.StepCall(memory, block, code, address["step"], address["predict"], n_u, n_y, owner._lock.locked,
+                               np.float64, owner.__dict__, checked_step, owner._refusal, owner._warn_long_step)
+
 
 #: the batched steps (abyssal_kalman_steps.h): name -> (filter, op, inputs, outputs) with the shapes of each input
 #: and output as functions of (n_x, n_u, n_p, n_y); the names and argument orders are those of the generated steps
@@ -251,6 +273,24 @@ def _of(model_library: str, model: str) -> KalmanRuntime:
 @lru_cache(maxsize=1)
 def _library() -> str:
     return str(build("abyssal_kalman", sources(KALMAN), strict=True))
+
+
+@lru_cache(maxsize=1)
+def _python_module():
+    """The extension module abyssal_kalman_python, built for the running Python; None without its headers."""
+    include = Path(sysconfig.get_paths()["include"])
+    if not (include / "Python.h").is_file():
+        return None
+    texts = sources([name for name in KALMAN if name.endswith(".h")] + ["abyssal_kalman_python.c"])
+    # the interpreter it is built for, into the key (the headers' folder alone may serve several patch releases)
+    texts["abyssal_kalman_python_abi.h"] = f"/* {sys.implementation.cache_tag} {sysconfig.get_config_var('EXT_SUFFIX')} " \
+                                           f"{sys.version.split()[0]} */\n"
+    library = build("abyssal_kalman_python", texts, strict=True, include_dirs=(include,))
+    name = "abyssal_kalman_python"
+    loader = importlib.machinery.ExtensionFileLoader(name, str(library))
+    module = importlib.util.module_from_spec(importlib.util.spec_from_loader(name, loader))
+    loader.exec_module(module)
+    return module
 
 
 @lru_cache(maxsize=1)

@@ -37,6 +37,8 @@ from functools import lru_cache
 
 import numpy as np
 
+from abyssal.arrays import aligned_zeros
+
 from .batches import SPLIT_MIN_SECONDS
 
 
@@ -234,15 +236,6 @@ class ProcessNoise:
             return cls(rank=transition.rank, factor=np.ascontiguousarray(std),
                        support=np.ascontiguousarray(transition.support, dtype=np.int32), mean=mean)
         return cls(rank=transition.rank, factor=np.ascontiguousarray(transition.basis * std[None, :]), mean=mean)
-
-
-def aligned_zeros(shape, alignment: int = 64) -> np.ndarray:
-    """A zeroed float64 array whose data starts on an `alignment`-byte boundary (vectorised loops then split a
-    row the same way in every instance, so results never depend on where an allocation landed)."""
-    count = int(np.prod(shape))
-    raw = np.zeros(count + alignment // 8)
-    start = (-raw.ctypes.data % alignment) // 8
-    return raw[start:start + count].reshape(shape)
 
 
 def _array(a, dtype=np.float64) -> np.ndarray | None:

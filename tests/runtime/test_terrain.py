@@ -303,3 +303,31 @@ def test_a_compass_heading_is_wrapped_and_an_absurd_one_refused(tan, arctic):
             assert (np.array_equal(a, b) if isinstance(a, np.ndarray) else a == b), k
     pf.step([0.5, 0.0], 1.0, [depth, -0.25 - 4.0 * np.pi])
     assert np.all(np.abs(pf.particles[2] + 0.25) < 1e-14) and np.isfinite(pf.P).all()
+
+
+def test_the_one_frame_step_equals_the_contracts_step_in_every_case(tan, arctic):
+    """TerrainParticleFilter.step takes its plain case (float64 arrays, a float dt, every value finite, the model's
+    p) in one frame; against the contract's own step (FilterBase.step: checks, transaction, _advance) on a twin, the
+    same return values and refusals, and the same state after every call."""
+    from abyssal.runtime.contract import FilterBase
+
+    truth, Z = straight_track(tan, arctic, 120)
+    P0 = np.diag([50.0 ** 2, 50.0 ** 2, 0.0])
+    for sigma in (2.0, "fuzzy"):
+        one, contract = (TerrainParticleFilter(tan, [20e3 + 80.0, 20e3 - 60.0, 0.0], P0, sigma, 5.0, 300, 3,
+                                               terrain=arctic) for _ in range(2))
+        for k in range(120):
+            u, z = np.array([0.5, 0.01 * (k % 3)]), Z[k].copy()
+            args = [(u, 1.0, z), (u, 1.0, np.array([z[0], 7.0])), (list(u), 1.0, z), (u, 1.0, np.array([np.nan, 0.1])),
+                    (u, 1.0, None), (u, 1.0, np.array([z[0], 1e300])), (u, np.float64(0.5), z)][k % 7]
+            outcomes = []
+            for flt, step in ((one, one.step), (contract, lambda *a, f=contract: FilterBase.step(f, *a))):
+                try:
+                    outcomes.append(step(*args))
+                except ValueError as error:
+                    outcomes.append(str(error))
+            assert outcomes[0] == outcomes[1], k
+            a, b = one.checkpoint(), contract.checkpoint()
+            assert all(np.array_equal(a[key], b[key]) if isinstance(a[key], np.ndarray) else a[key] == b[key]
+                       for key in a), k
+            assert (one.sigma, one.gated, one.resamples) == (contract.sigma, contract.gated, contract.resamples), k

@@ -64,11 +64,15 @@ import numpy as np
 from scipy.stats import chi2
 
 from ...compiled import sir
-from ...contract import FilterBase, as_generator, check_count, check_covariance, check_state, register
+from ...contract import (_FLOAT64, NUMERICAL_FAILURES, FilterBase, as_generator, check_count, check_covariance,
+                         check_state, register)
 from ...noise import GaussianMixture
 from ...numerics import gaussian_draws
 from ...resampling import ResamplingPolicy
 from ...terrain.kernel import TerrainMeasure
+
+_MOVE_NONE, _MOVE_TRANSITION, _NONFINITE_MOMENTS = sir.MOVE_NONE, sir.MOVE_TRANSITION, sir.NONFINITE_MOMENTS
+_REPORT_TO_GATED = sir.R_GATED + 1  # the report's head up to R_GATED: ess, resampled, ..., gated
 
 #: seed 003, Table 2: (a1, a2, a3, a4) of eq. 2
 BODY_NOISE = (0.1, 0.1, 0.001, 0.1)
@@ -229,7 +233,7 @@ class TerrainParticleFilter(FilterBase):
     def _fuzzy_sigma(self, gradient: float, rate: float) -> float:
         self._g_in[0], self._r_in[0] = gradient, rate
         self._fuzzy()
-        return float(self._sigma_out[0])
+        return self._sigma_out.item(0)
 
     @staticmethod
     def _wrapped_heading(heading: float) -> float:
@@ -243,21 +247,50 @@ class TerrainParticleFilter(FilterBase):
         wrapped = math.remainder(heading, 2.0 * math.pi)
         return math.pi if wrapped == -math.pi else wrapped
 
+    def step(self, u, dt, z=None, p=None) -> bool:
+        """predict(u, dt, p) then update(z, p) as one transaction; returns whether an update happened. (The
+        contract's step; its plain case, every value finite and p the model's, in this one frame: the compiled step
+        writes only its uncommitted side and _move commits last, so there is nothing to snapshot.)"""
+        if (p is None and type(dt) is float and 0.0 < dt < math.inf and type(u) is np.ndarray and u.dtype is _FLOAT64
+                and u.shape == (2,) and type(z) is np.ndarray and z.dtype is _FLOAT64 and z.shape == (2,)
+                and self._p_is_default):
+            v, omega = u.tolist()
+            z_depth, z_heading = z.tolist()
+            if math.isfinite(v + omega) and math.isfinite(z_depth + z_heading):  # (a finite sum: both finite)
+                if not self._lock.acquire(False):
+                    raise self._busy()
+                try:
+                    self._move(True, v, omega, dt, True, z_depth, True, z_heading)
+                except NUMERICAL_FAILURES as error:
+                    raise self._numerical_failure(error) from error
+                finally:
+                    self._lock.release()
+                if dt > self._max_dt:  # (as FilterBase.step says it, from the same depth)
+                    self._warn_long_step(dt)
+                return True
+        return super().step(u, dt, z, p)
+
     def _advance(self, u, dt, measurement) -> bool:
-        """The contract's move (FilterBase), one predict/update/step on checked inputs: one compiled call writing
-        the uncommitted side, then the fuzzy inputs; only the step's inputs are written before the commit."""
-        move, depth_present, heading_present = u is not None, False, False
+        """The contract's move (FilterBase), one predict/update/step on checked inputs (_move)."""
+        depth_present = heading_present = False
         z_depth = z_heading = 0.0
         if measurement is not None:
             z, present = measurement
             depth_present, heading_present = present.tolist()
             z_depth, z_heading = z.tolist()
-        v, omega = u.tolist() if move else (0.0, 0.0)
+        v, omega = u.tolist() if u is not None else (0.0, 0.0)
+        self._move(u is not None, v, omega, dt, depth_present, z_depth, heading_present, z_heading)
+        return measurement is not None
+
+    def _move(self, move: bool, v: float, omega: float, dt, depth_present: bool, z_depth: float, heading_present: bool,
+              z_heading: float) -> None:
+        """One compiled call writing the uncommitted side, then the fuzzy inputs, then the commit; only the step's
+        inputs are written before it (a refusal leaves the filter as it was)."""
         a1, a2, a3, a4 = self.body_noise
         step = self._sir
         values = self._values  # see __init__: the step's inputs MOVE .. the thresholds
-        values[0], values[1], values[2] = (sir.MOVE_TRANSITION if move else sir.MOVE_NONE), depth_present, (dt if move else 1.0)
-        if heading_present:
+        values[0], values[1], values[2] = (_MOVE_TRANSITION if move else _MOVE_NONE), depth_present, (dt if move else 1.0)
+        if heading_present and not -math.pi < z_heading <= math.pi:
             z_heading = self._wrapped_heading(z_heading)
         values[4], values[5] = heading_present, z_heading                                      # the compass, pinned
         values[11], values[12] = v, omega
@@ -270,14 +303,14 @@ class TerrainParticleFilter(FilterBase):
             factor[0] = factor[1] = self._sigma_in_step = self.sigma
         status = step.run(values)
         nxt = 1 - step.side
-        if status == sir.NONFINITE_MOMENTS:  # finite in, finite out (e.g. a current p of 1e308 moves every particle
-            self._check_finite(step.means[nxt], step.covs[nxt], u, dt, measurement)  # past the covariance's range)
         if status:
+            if status == _NONFINITE_MOMENTS:  # finite in, finite out (e.g. a current p of 1e308 moves every particle
+                self._check_finite(step.means[nxt], step.covs[nxt], () if move else None, dt,  # past the covariance's
+                                   () if depth_present or heading_present else None)  # range; its message names the call)
             raise ValueError(f"TerrainParticleFilter: {step.message(status)} (u, dt, z or p out of the model's "
                              "finite range); state left unchanged")
-        ess, resampled, _, uninformative, _, gated = step.head(nxt)[:sir.R_GATED + 1]
-        fuzzy_state = None
-        if self.fuzzy:
+        ess, resampled, _, uninformative, _, gated = step.head(nxt)[:_REPORT_TO_GATED]
+        if self.fuzzy:  # eq. 3's inputs for the next step: the gradient along the track and its rate over a window
             gradient = self.gradient_scale * step.extras[nxt].item(0)
             travelled = self._travelled + (abs(v) * dt if move else 0.0)
             # the window's base: the newest history entry such that the one after it is < rate_window_m back
@@ -287,7 +320,8 @@ class TerrainParticleFilter(FilterBase):
             while dropped < last and travelled - history[dropped + 1][0] >= window:
                 dropped += 1
             rate = (gradient - history[dropped][1]) / (window / self.rate_length_m)
-            fuzzy_state = (travelled, (travelled, gradient), dropped, gradient, rate, self._fuzzy_sigma(gradient, rate))
+            self._g_in[0], self._r_in[0] = gradient, rate
+            self._fuzzy()
         # commit: nothing below can fail
         step.commit(resampled != 0.0)
         if depth_present:
@@ -297,9 +331,9 @@ class TerrainParticleFilter(FilterBase):
         self.resamples += resampled > 0.0
         self.ess = ess
         self._x, self._P = step.means[nxt], step.covs[nxt]
-        if fuzzy_state is not None:
-            self._travelled, entry, dropped, self.gradient, self.gradient_rate, self.sigma = fuzzy_state
-            self._history.append(entry)
+        if self.fuzzy:
+            self._travelled, self.gradient, self.gradient_rate = travelled, gradient, rate
+            self.sigma = self._sigma_out.item(0)
+            history.append((travelled, gradient))
             for _ in range(dropped):
-                self._history.popleft()
-        return measurement is not None
+                history.popleft()

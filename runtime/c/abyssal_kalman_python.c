@@ -1,0 +1,287 @@
+/* abyssal_kalman_python.c: the fast path of a Kalman filter's step(u, dt, z) from Python, as a CPython extension
+ * (module abyssal_kalman_python, built through abyssal's compile cache against the running Python's headers). Not
+ * needed on a vehicle: `abyssal export` leaves this file out.
+ *
+ * One object per filter, installed as the filter's own `step` (an instance attribute over the class's method, so that
+ * f.step(u, dt, z) is one C call with no Python frame), bound to the filter's C object, its call block, the runtime's
+ * step and predict and the filter itself:
+ *
+ *     f.step = abyssal_kalman_python.StepCall(memory, block, code, step_address, predict_address, n_u, n_y,
+ *                                             lock.locked, numpy.float64, f.__dict__, checked_step, refusal,
+ *                                             warn_long_step)
+ *
+ * It takes the plain case only: positional (u, dt[, z[, None]]), u and z float64 vectors of their lengths (a buffer
+ * of format 'd', contiguous), dt a float or NumPy float64, the model's own parameters (f._p_is_default), no unit watch
+ * (f._unit_watch None) and the filter's lock free. Then it copies u and z into the call block as the checked path
+ * does, calls the runtime's step (predict when z is None), writes its return code where the CasADi binding does
+ * (`code`, the filter's f.code), says a step beyond f._max_dt once (warn_long_step), and
+ * returns whether an update happened, or raises refusal(code, None, "step"). Anything else goes to checked_step(...)
+ * with the arguments as given: the class's step (runtime/filters/kalman/engine.py), which holds every rule and every
+ * message. The GIL is held throughout: no other Python thread runs during the call.
+ *
+ * Hand-written C99; Python.h is included first, as its documentation asks.
+ */
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+
+#include <string.h>
+
+#include "abyssal_kalman.h"
+
+/* the call block's leading slots (abyssal_kalman_binding.c): [model, dt or t, sensor, has_R, has_q], then u, z, ... */
+#define BLOCK_TIME 1
+#define BLOCK_HEAD 5
+
+typedef int (*step_function)(abyssal_kalman*, const abyssal_model*, const double*, double, const double*,
+                             const unsigned char*, const double*);
+typedef int (*predict_function)(abyssal_kalman*, const abyssal_model*, const double*, double, const double*);
+
+typedef struct {
+  PyObject_HEAD
+  vectorcallfunc vectorcall;
+  PyObject* filter_memory; /* the objects whose buffers the pointers below point into, held while this lives */
+  PyObject* block_memory;
+  PyObject* code_memory;
+  PyObject* locked;        /* the filter lock's bound locked() */
+  PyObject* float64;       /* numpy.float64, a dt the checked path takes as plain */
+  PyObject* state;         /* the filter's __dict__: _p_is_default, _unit_watch, _max_dt */
+  PyObject* checked_step;  /* the class's step bound to the filter */
+  PyObject* refusal;       /* the filter's _refusal(code, saved_p, call) -> the exception to raise */
+  PyObject* warn_long_step;/* the filter's _warn_long_step(dt, stacklevel) */
+  abyssal_kalman* filter;
+  double* block;
+  double* code;
+  const abyssal_model* model;
+  step_function step;
+  predict_function predict;
+  Py_ssize_t n_u, n_y;
+} StepCall;
+
+static PyObject *name_p_is_default, *name_unit_watch, *name_max_dt;
+
+/* A contiguous float64 vector of n entries from `object`'s buffer into `to`; 0 when it is anything else (the error
+ * a refusing buffer raises is cleared: the checked path judges that object again). */
+static int copy_vector(PyObject* object, Py_ssize_t n, double* to) {
+  Py_buffer view;
+  int ok;
+  if (!PyObject_CheckBuffer(object)) return 0;
+  if (PyObject_GetBuffer(object, &view, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) != 0) {
+    PyErr_Clear();
+    return 0;
+  }
+  ok = view.ndim == 1 && view.itemsize == (Py_ssize_t)sizeof(double) && view.len == n * (Py_ssize_t)sizeof(double) &&
+       view.format != NULL && view.format[0] == 'd' && view.format[1] == '\0';
+  if (ok) memcpy(to, view.buf, (size_t)view.len);
+  PyBuffer_Release(&view);
+  return ok;
+}
+
+/* The checked path with the arguments as given. */
+static PyObject* checked(StepCall* self, PyObject* const* args, size_t nargsf, PyObject* kwnames) {
+  return PyObject_Vectorcall(self->checked_step, args, nargsf, kwnames);
+}
+
+static PyObject* step_call(PyObject* self_object, PyObject* const* args, size_t nargsf, PyObject* kwnames) {
+  StepCall* self = (StepCall*)self_object;
+  const Py_ssize_t nargs = PyVectorcall_NARGS(nargsf);
+  PyObject *z, *flag, *busy, *max_dt;
+  double dt, *u_at, *z_at;
+  int code, is_busy;
+  if (kwnames != NULL || nargs < 2 || nargs > 4 || (nargs == 4 && args[3] != Py_None))
+    return checked(self, args, nargsf, kwnames);
+  z = nargs >= 3 ? args[2] : Py_None;
+  if (PyFloat_CheckExact(args[1]) || (PyObject*)Py_TYPE(args[1]) == self->float64)
+    dt = PyFloat_AS_DOUBLE(args[1]);
+  else
+    return checked(self, args, nargsf, kwnames);
+  /* the filter's own state: its parameters are the model's, no unit watch, a float max_dt (borrowed references) */
+  flag = PyDict_GetItemWithError(self->state, name_p_is_default);
+  if (flag != Py_True) return PyErr_Occurred() ? NULL : checked(self, args, nargsf, kwnames);
+  flag = PyDict_GetItemWithError(self->state, name_unit_watch);
+  if (flag != Py_None) return PyErr_Occurred() ? NULL : checked(self, args, nargsf, kwnames);
+  max_dt = PyDict_GetItemWithError(self->state, name_max_dt);
+  if (max_dt == NULL || !PyFloat_CheckExact(max_dt)) return PyErr_Occurred() ? NULL : checked(self, args, nargsf, kwnames);
+  busy = PyObject_CallNoArgs(self->locked);
+  if (busy == NULL) return NULL;
+  is_busy = PyObject_IsTrue(busy);
+  Py_DECREF(busy);
+  if (is_busy != 0) return is_busy < 0 ? NULL : checked(self, args, nargsf, kwnames);
+  /* u and z into the call block, as the checked path's memoryview assignments do (what one of them leaves there when
+   * the other is refused, the checked path overwrites) */
+  u_at = self->block + BLOCK_HEAD;
+  z_at = u_at + self->n_u;
+  if (!copy_vector(args[0], self->n_u, u_at) || (z != Py_None && !copy_vector(z, self->n_y, z_at)))
+    return checked(self, args, nargsf, kwnames);
+  self->block[BLOCK_TIME] = dt;
+  code = z == Py_None ? self->predict(self->filter, self->model, u_at, dt, z_at + self->n_y)
+                      : self->step(self->filter, self->model, u_at, dt, z_at, 0, z_at + self->n_y);
+  self->code[0] = (double)code;
+  if (code >= 0) {
+    if (dt > PyFloat_AS_DOUBLE(max_dt)) { /* said once: the filter sets its _max_dt to inf (stacklevel 2: the user) */
+      PyObject* said = PyObject_CallFunction(self->warn_long_step, "Oi", args[1], 2);
+      if (said == NULL) return NULL;
+      Py_DECREF(said);
+    }
+    return PyBool_FromLong(code == 1);
+  } else {
+    PyObject* error = PyObject_CallFunction(self->refusal, "dOs", (double)code, Py_None, "step");
+    if (error == NULL) return NULL;
+    PyErr_SetObject((PyObject*)Py_TYPE(error), error);
+    Py_DECREF(error);
+    return NULL;
+  }
+}
+
+static int step_traverse(PyObject* self_object, visitproc visit, void* arg) {
+  StepCall* self = (StepCall*)self_object;
+  Py_VISIT(self->filter_memory);
+  Py_VISIT(self->block_memory);
+  Py_VISIT(self->code_memory);
+  Py_VISIT(self->locked);
+  Py_VISIT(self->float64);
+  Py_VISIT(self->state);
+  Py_VISIT(self->checked_step);
+  Py_VISIT(self->refusal);
+  Py_VISIT(self->warn_long_step);
+  return 0;
+}
+
+static int step_clear(PyObject* self_object) {
+  StepCall* self = (StepCall*)self_object;
+  Py_CLEAR(self->filter_memory);
+  Py_CLEAR(self->block_memory);
+  Py_CLEAR(self->code_memory);
+  Py_CLEAR(self->locked);
+  Py_CLEAR(self->float64);
+  Py_CLEAR(self->state);
+  Py_CLEAR(self->checked_step);
+  Py_CLEAR(self->refusal);
+  Py_CLEAR(self->warn_long_step);
+  self->filter = NULL;
+  self->block = NULL;
+  self->code = NULL;
+  return 0;
+}
+
+static void step_dealloc(PyObject* self_object) {
+  PyObject_GC_UnTrack(self_object);
+  step_clear(self_object);
+  Py_TYPE(self_object)->tp_free(self_object);
+}
+
+/* The address of a writable buffer of at least `bytes` bytes held by `object` (a NumPy array), or NULL with an error. */
+static void* buffer_address(PyObject* object, Py_ssize_t bytes, const char* name) {
+  Py_buffer view;
+  void* address;
+  if (PyObject_GetBuffer(object, &view, PyBUF_WRITABLE | PyBUF_C_CONTIGUOUS) != 0) return NULL;
+  address = view.len >= bytes ? view.buf : NULL;
+  PyBuffer_Release(&view);
+  if (address == NULL) PyErr_Format(PyExc_ValueError, "StepCall: %s holds fewer than %zd bytes", name, bytes);
+  return address;
+}
+
+static PyObject* step_new(PyTypeObject* type, PyObject* args, PyObject* kwargs) {
+  PyObject *filter_memory, *block_memory, *code_memory, *locked, *float64, *state, *checked_step, *refusal, *warn_long_step;
+  unsigned long long step_address, predict_address, model_bits;
+  Py_ssize_t n_u, n_y;
+  StepCall* self;
+  double *block, *code;
+  abyssal_kalman* filter;
+  if (kwargs != NULL && PyDict_Size(kwargs) != 0) {
+    PyErr_SetString(PyExc_TypeError, "StepCall takes positional arguments only");
+    return NULL;
+  }
+  if (!PyArg_ParseTuple(args, "OOOKKnnOOO!OOO", &filter_memory, &block_memory, &code_memory, &step_address,
+                        &predict_address, &n_u, &n_y, &locked, &float64, &PyDict_Type, &state, &checked_step, &refusal,
+                        &warn_long_step))
+    return NULL;
+  if (n_u < 0 || n_y < 0 || step_address == 0 || predict_address == 0 || !PyCallable_Check(locked) ||
+      !PyCallable_Check(checked_step) || !PyCallable_Check(refusal) || !PyCallable_Check(warn_long_step)) {
+    PyErr_SetString(PyExc_ValueError, "StepCall: n_u, n_y >= 0, the runtime's addresses and four callables");
+    return NULL;
+  }
+  filter = (abyssal_kalman*)buffer_address(filter_memory, 1, "the filter memory");
+  if (filter == NULL) return NULL;
+  block = (double*)buffer_address(block_memory, (BLOCK_HEAD + n_u + n_y) * (Py_ssize_t)sizeof(double), "the call block");
+  if (block == NULL) return NULL;
+  code = (double*)buffer_address(code_memory, (Py_ssize_t)sizeof(double), "the return code");
+  if (code == NULL) return NULL;
+  memcpy(&model_bits, block, sizeof model_bits);
+  if (model_bits == 0) {
+    PyErr_SetString(PyExc_ValueError, "StepCall: the call block names no model");
+    return NULL;
+  }
+  self = (StepCall*)type->tp_alloc(type, 0);
+  if (self == NULL) return NULL;
+  self->vectorcall = step_call;
+  Py_INCREF(filter_memory);
+  Py_INCREF(block_memory);
+  Py_INCREF(code_memory);
+  Py_INCREF(locked);
+  Py_INCREF(float64);
+  Py_INCREF(state);
+  Py_INCREF(checked_step);
+  Py_INCREF(refusal);
+  Py_INCREF(warn_long_step);
+  self->state = state;
+  self->checked_step = checked_step;
+  self->refusal = refusal;
+  self->warn_long_step = warn_long_step;
+  self->filter_memory = filter_memory;
+  self->block_memory = block_memory;
+  self->code_memory = code_memory;
+  self->locked = locked;
+  self->float64 = float64;
+  self->filter = filter;
+  self->block = block;
+  self->code = code;
+  self->model = (const abyssal_model*)(size_t)model_bits;
+  /* function pointers from addresses (ctypes' cast of the runtime library's symbols): converted through size_t, as
+   * POSIX's dlsym requires of every platform this runs on */
+  memcpy(&self->step, &(size_t){(size_t)step_address}, sizeof self->step);
+  memcpy(&self->predict, &(size_t){(size_t)predict_address}, sizeof self->predict);
+  self->n_u = n_u;
+  self->n_y = n_y;
+  return (PyObject*)self;
+}
+
+static PyObject* step_call_tuple(PyObject* self, PyObject* args, PyObject* kwargs) {
+  return PyVectorcall_Call(self, args, kwargs);
+}
+
+static PyTypeObject StepCallType = {
+    PyVarObject_HEAD_INIT(NULL, 0).tp_name = "abyssal_kalman_python.StepCall",
+    .tp_basicsize = sizeof(StepCall),
+    .tp_flags = Py_TPFLAGS_DEFAULT | Py_TPFLAGS_HAVE_GC | Py_TPFLAGS_HAVE_VECTORCALL,
+    .tp_doc = "step(u, dt, z=None, p=None): predict(u, dt, p) then update(z, p) as one transaction; returns whether an "
+              "update happened (a Kalman filter's step, its plain case in one C call)",
+    .tp_new = step_new,
+    .tp_dealloc = step_dealloc,
+    .tp_traverse = step_traverse,
+    .tp_clear = step_clear,
+    .tp_call = step_call_tuple,
+    .tp_vectorcall_offset = offsetof(StepCall, vectorcall),
+};
+
+static struct PyModuleDef module = {
+    PyModuleDef_HEAD_INIT, .m_name = "abyssal_kalman_python",
+    .m_doc = "The fast path of a Kalman filter's step from Python (runtime/c/abyssal_kalman_python.c).", .m_size = -1,
+};
+
+PyMODINIT_FUNC PyInit_abyssal_kalman_python(void) {
+  PyObject* m;
+  name_p_is_default = PyUnicode_InternFromString("_p_is_default");
+  name_unit_watch = PyUnicode_InternFromString("_unit_watch");
+  name_max_dt = PyUnicode_InternFromString("_max_dt");
+  if (name_p_is_default == NULL || name_unit_watch == NULL || name_max_dt == NULL) return NULL;
+  if (PyType_Ready(&StepCallType) < 0) return NULL;
+  m = PyModule_Create(&module);
+  if (m == NULL) return NULL;
+  Py_INCREF(&StepCallType);
+  if (PyModule_AddObject(m, "StepCall", (PyObject*)&StepCallType) < 0) {
+    Py_DECREF(&StepCallType);
+    Py_DECREF(m);
+    return NULL;
+  }
+  return m;
+}
