@@ -6,9 +6,8 @@
  * f.step(u, dt, z) is one C call with no Python frame), bound to the filter's C object, its call block, the runtime's
  * step and predict and the filter itself:
  *
- *     f.step = abyssal_kalman_python.StepCall(memory, block, code, step_address, predict_address, n_u, n_y,
- *                                             lock.locked, numpy.float64, f.__dict__, checked_step, refusal,
- *                                             warn_long_step)
+ *     f.step = abyssal_kalman_python.StepCall(memory, block, code, step_address, predict_address, lock.locked,
+ *                                             numpy.float64, f.__dict__, checked_step, refusal, warn_long_step)
  *
  * It takes the plain case only: positional (u, dt[, z[, None]]), u and z float64 vectors of their lengths (a buffer
  * of format 'd', contiguous), dt a float or NumPy float64, the model's own parameters (f._p_is_default), no unit watch
@@ -18,6 +17,17 @@
  * returns whether an update happened, or raises refusal(code, None, "step"). Anything else goes to checked_step(...)
  * with the arguments as given: the class's step (runtime/filters/kalman/engine.py), which holds every rule and every
  * message. The GIL is held throughout: no other Python thread runs during the call.
+ *
+ * UpdateCall is the same for a stamped sensor update, installed as the filter's own `update`:
+ *
+ *     f.update = abyssal_kalman_python.UpdateCall(memory, block, code, update_sensor_address, time_address,
+ *                                                 sensors, lock.locked, numpy.float64, f.__dict__, checked_update,
+ *                                                 sensor_refusal, warn_long_step)
+ *
+ * with sensors {name: index}: its plain case is update(name, z, t) with z a float64 vector of that sensor's outputs and
+ * t a float; it writes z, t and the sensor into the call block, calls abyssal_kalman_update_sensor (no own R or
+ * parameters), says once a prediction to t beyond f._max_dt, and returns whether a measurement entry was used, or
+ * raises sensor_refusal(code, name, t, z).
  *
  * Hand-written C99; Python.h is included first, as its documentation asks.
  */
@@ -30,11 +40,15 @@
 
 /* the call block's leading slots (abyssal_kalman_binding.c): [model, dt or t, sensor, has_R, has_q], then u, z, ... */
 #define BLOCK_TIME 1
+#define BLOCK_SENSOR 2
 #define BLOCK_HEAD 5
 
 typedef int (*step_function)(abyssal_kalman*, const abyssal_model*, const double*, double, const double*,
                              const unsigned char*, const double*);
 typedef int (*predict_function)(abyssal_kalman*, const abyssal_model*, const double*, double, const double*);
+typedef int (*update_sensor_function)(abyssal_kalman*, const abyssal_model*, int, double, const double*,
+                                      const unsigned char*, const double*, const double*);
+typedef double (*time_function)(const abyssal_kalman*);
 
 typedef struct {
   PyObject_HEAD
@@ -48,13 +62,16 @@ typedef struct {
   PyObject* checked_step;  /* the class's step bound to the filter */
   PyObject* refusal;       /* the filter's _refusal(code, saved_p, call) -> the exception to raise */
   PyObject* warn_long_step;/* the filter's _warn_long_step(dt, stacklevel) */
+  PyObject* sensors;       /* UpdateCall: {name: index} */
   abyssal_kalman* filter;
   double* block;
   double* code;
   const abyssal_model* model;
   step_function step;
   predict_function predict;
-  Py_ssize_t n_u, n_y;
+  update_sensor_function update_sensor;
+  time_function time;
+  Py_ssize_t n_u, n_y;     /* the model's */
 } StepCall;
 
 static PyObject *name_p_is_default, *name_unit_watch, *name_max_dt;
@@ -81,12 +98,34 @@ static PyObject* checked(StepCall* self, PyObject* const* args, size_t nargsf, P
   return PyObject_Vectorcall(self->checked_step, args, nargsf, kwnames);
 }
 
+/* The filter's own state allows the plain case: the model's parameters, no unit watch, a float max_dt (returned,
+ * borrowed; NULL with no error set: take the checked path; NULL with an error: raise it) */
+static PyObject* plain_state(StepCall* self) {
+  PyObject *flag, *max_dt;
+  flag = PyDict_GetItemWithError(self->state, name_p_is_default);
+  if (flag != Py_True) return NULL;
+  flag = PyDict_GetItemWithError(self->state, name_unit_watch);
+  if (flag != Py_None) return NULL;
+  max_dt = PyDict_GetItemWithError(self->state, name_max_dt);
+  return max_dt != NULL && PyFloat_CheckExact(max_dt) ? max_dt : NULL;
+}
+
+/* 1 when the filter's lock is free, 0 when held, -1 with an error */
+static int lock_free(StepCall* self) {
+  PyObject* busy = PyObject_CallNoArgs(self->locked);
+  int is_busy;
+  if (busy == NULL) return -1;
+  is_busy = PyObject_IsTrue(busy);
+  Py_DECREF(busy);
+  return is_busy < 0 ? -1 : !is_busy;
+}
+
 static PyObject* step_call(PyObject* self_object, PyObject* const* args, size_t nargsf, PyObject* kwnames) {
   StepCall* self = (StepCall*)self_object;
   const Py_ssize_t nargs = PyVectorcall_NARGS(nargsf);
-  PyObject *z, *flag, *busy, *max_dt;
+  PyObject *z, *max_dt;
   double dt, *u_at, *z_at;
-  int code, is_busy;
+  int code, free_;
   if (kwnames != NULL || nargs < 2 || nargs > 4 || (nargs == 4 && args[3] != Py_None))
     return checked(self, args, nargsf, kwnames);
   z = nargs >= 3 ? args[2] : Py_None;
@@ -94,18 +133,10 @@ static PyObject* step_call(PyObject* self_object, PyObject* const* args, size_t 
     dt = PyFloat_AS_DOUBLE(args[1]);
   else
     return checked(self, args, nargsf, kwnames);
-  /* the filter's own state: its parameters are the model's, no unit watch, a float max_dt (borrowed references) */
-  flag = PyDict_GetItemWithError(self->state, name_p_is_default);
-  if (flag != Py_True) return PyErr_Occurred() ? NULL : checked(self, args, nargsf, kwnames);
-  flag = PyDict_GetItemWithError(self->state, name_unit_watch);
-  if (flag != Py_None) return PyErr_Occurred() ? NULL : checked(self, args, nargsf, kwnames);
-  max_dt = PyDict_GetItemWithError(self->state, name_max_dt);
-  if (max_dt == NULL || !PyFloat_CheckExact(max_dt)) return PyErr_Occurred() ? NULL : checked(self, args, nargsf, kwnames);
-  busy = PyObject_CallNoArgs(self->locked);
-  if (busy == NULL) return NULL;
-  is_busy = PyObject_IsTrue(busy);
-  Py_DECREF(busy);
-  if (is_busy != 0) return is_busy < 0 ? NULL : checked(self, args, nargsf, kwnames);
+  max_dt = plain_state(self);
+  if (max_dt == NULL) return PyErr_Occurred() ? NULL : checked(self, args, nargsf, kwnames);
+  free_ = lock_free(self);
+  if (free_ <= 0) return free_ < 0 ? NULL : checked(self, args, nargsf, kwnames);
   /* u and z into the call block, as the checked path's memoryview assignments do (what one of them leaves there when
    * the other is refused, the checked path overwrites) */
   u_at = self->block + BLOCK_HEAD;
@@ -132,6 +163,51 @@ static PyObject* step_call(PyObject* self_object, PyObject* const* args, size_t 
   }
 }
 
+static PyObject* update_call(PyObject* self_object, PyObject* const* args, size_t nargsf, PyObject* kwnames) {
+  StepCall* self = (StepCall*)self_object;
+  const Py_ssize_t nargs = PyVectorcall_NARGS(nargsf);
+  PyObject *index, *max_dt;
+  double t, before, *z_at;
+  long sensor;
+  int code, free_;
+  if (kwnames != NULL || nargs != 3 || !PyUnicode_CheckExact(args[0]))
+    return checked(self, args, nargsf, kwnames);
+  if (PyFloat_CheckExact(args[2]) || (PyObject*)Py_TYPE(args[2]) == self->float64)
+    t = PyFloat_AS_DOUBLE(args[2]);
+  else
+    return checked(self, args, nargsf, kwnames);
+  index = PyDict_GetItemWithError(self->sensors, args[0]);
+  if (index == NULL) return PyErr_Occurred() ? NULL : checked(self, args, nargsf, kwnames);
+  sensor = PyLong_AsLong(index);
+  if (sensor < 0 || sensor >= self->model->n_sensors) return PyErr_Occurred() ? NULL : checked(self, args, nargsf, kwnames);
+  max_dt = plain_state(self);
+  if (max_dt == NULL) return PyErr_Occurred() ? NULL : checked(self, args, nargsf, kwnames);
+  free_ = lock_free(self);
+  if (free_ <= 0) return free_ < 0 ? NULL : checked(self, args, nargsf, kwnames);
+  z_at = self->block + BLOCK_HEAD + self->n_u; /* the sensor's outputs take the first places of z */
+  if (!copy_vector(args[1], self->model->sensors[sensor].n_y, z_at)) return checked(self, args, nargsf, kwnames);
+  self->block[BLOCK_TIME] = t;
+  self->block[BLOCK_SENSOR] = (double)sensor;
+  before = self->time(self->filter);
+  code = self->update_sensor(self->filter, self->model, (int)sensor, t, z_at, 0, 0, 0);
+  self->code[0] = (double)code;
+  if (code >= 0) {
+    const double ahead = self->time(self->filter) - before; /* predicted to t first (a late fix: 0) */
+    if (ahead > PyFloat_AS_DOUBLE(max_dt)) {
+      PyObject* said = PyObject_CallFunction(self->warn_long_step, "di", ahead, 2);
+      if (said == NULL) return NULL;
+      Py_DECREF(said);
+    }
+    return PyBool_FromLong(code == 1);
+  } else {
+    PyObject* error = PyObject_CallFunction(self->refusal, "iOOO", code, args[0], args[2], args[1]);
+    if (error == NULL) return NULL;
+    PyErr_SetObject((PyObject*)Py_TYPE(error), error);
+    Py_DECREF(error);
+    return NULL;
+  }
+}
+
 static int step_traverse(PyObject* self_object, visitproc visit, void* arg) {
   StepCall* self = (StepCall*)self_object;
   Py_VISIT(self->filter_memory);
@@ -143,6 +219,7 @@ static int step_traverse(PyObject* self_object, visitproc visit, void* arg) {
   Py_VISIT(self->checked_step);
   Py_VISIT(self->refusal);
   Py_VISIT(self->warn_long_step);
+  Py_VISIT(self->sensors);
   return 0;
 }
 
@@ -157,6 +234,7 @@ static int step_clear(PyObject* self_object) {
   Py_CLEAR(self->checked_step);
   Py_CLEAR(self->refusal);
   Py_CLEAR(self->warn_long_step);
+  Py_CLEAR(self->sensors);
   self->filter = NULL;
   self->block = NULL;
   self->code = NULL;
@@ -180,40 +258,39 @@ static void* buffer_address(PyObject* object, Py_ssize_t bytes, const char* name
   return address;
 }
 
-static PyObject* step_new(PyTypeObject* type, PyObject* args, PyObject* kwargs) {
-  PyObject *filter_memory, *block_memory, *code_memory, *locked, *float64, *state, *checked_step, *refusal, *warn_long_step;
-  unsigned long long step_address, predict_address, model_bits;
-  Py_ssize_t n_u, n_y;
+/* What both calls hold: the filter object, its call block (its model's descriptor in the first 8 bytes; u and z of
+ * the model's sizes after the head), the return code's place, the lock, the filter's state and its callables. */
+static StepCall* bind(PyTypeObject* type, vectorcallfunc call, PyObject* filter_memory, PyObject* block_memory,
+                      PyObject* code_memory, PyObject* locked, PyObject* float64, PyObject* state, PyObject* checked_step,
+                      PyObject* refusal, PyObject* warn_long_step) {
+  unsigned long long model_bits;
+  const abyssal_model* model;
   StepCall* self;
   double *block, *code;
   abyssal_kalman* filter;
-  if (kwargs != NULL && PyDict_Size(kwargs) != 0) {
-    PyErr_SetString(PyExc_TypeError, "StepCall takes positional arguments only");
-    return NULL;
-  }
-  if (!PyArg_ParseTuple(args, "OOOKKnnOOO!OOO", &filter_memory, &block_memory, &code_memory, &step_address,
-                        &predict_address, &n_u, &n_y, &locked, &float64, &PyDict_Type, &state, &checked_step, &refusal,
-                        &warn_long_step))
-    return NULL;
-  if (n_u < 0 || n_y < 0 || step_address == 0 || predict_address == 0 || !PyCallable_Check(locked) ||
-      !PyCallable_Check(checked_step) || !PyCallable_Check(refusal) || !PyCallable_Check(warn_long_step)) {
-    PyErr_SetString(PyExc_ValueError, "StepCall: n_u, n_y >= 0, the runtime's addresses and four callables");
+  if (!PyCallable_Check(locked) || !PyCallable_Check(checked_step) || !PyCallable_Check(refusal) ||
+      !PyCallable_Check(warn_long_step)) {
+    PyErr_SetString(PyExc_TypeError, "StepCall/UpdateCall: the lock's locked() and the filter's three callables");
     return NULL;
   }
   filter = (abyssal_kalman*)buffer_address(filter_memory, 1, "the filter memory");
   if (filter == NULL) return NULL;
-  block = (double*)buffer_address(block_memory, (BLOCK_HEAD + n_u + n_y) * (Py_ssize_t)sizeof(double), "the call block");
+  block = (double*)buffer_address(block_memory, (Py_ssize_t)sizeof(double) * BLOCK_HEAD, "the call block");
   if (block == NULL) return NULL;
-  code = (double*)buffer_address(code_memory, (Py_ssize_t)sizeof(double), "the return code");
-  if (code == NULL) return NULL;
   memcpy(&model_bits, block, sizeof model_bits);
   if (model_bits == 0) {
-    PyErr_SetString(PyExc_ValueError, "StepCall: the call block names no model");
+    PyErr_SetString(PyExc_ValueError, "StepCall/UpdateCall: the call block names no model");
     return NULL;
   }
+  model = (const abyssal_model*)(size_t)model_bits;
+  if (buffer_address(block_memory, (Py_ssize_t)sizeof(double) * (BLOCK_HEAD + model->n_u + model->n_y),
+                     "the call block") == NULL)
+    return NULL;
+  code = (double*)buffer_address(code_memory, (Py_ssize_t)sizeof(double), "the return code");
+  if (code == NULL) return NULL;
   self = (StepCall*)type->tp_alloc(type, 0);
   if (self == NULL) return NULL;
-  self->vectorcall = step_call;
+  self->vectorcall = call;
   Py_INCREF(filter_memory);
   Py_INCREF(block_memory);
   Py_INCREF(code_memory);
@@ -223,25 +300,76 @@ static PyObject* step_new(PyTypeObject* type, PyObject* args, PyObject* kwargs) 
   Py_INCREF(checked_step);
   Py_INCREF(refusal);
   Py_INCREF(warn_long_step);
-  self->state = state;
-  self->checked_step = checked_step;
-  self->refusal = refusal;
-  self->warn_long_step = warn_long_step;
   self->filter_memory = filter_memory;
   self->block_memory = block_memory;
   self->code_memory = code_memory;
   self->locked = locked;
   self->float64 = float64;
+  self->state = state;
+  self->checked_step = checked_step;
+  self->refusal = refusal;
+  self->warn_long_step = warn_long_step;
   self->filter = filter;
   self->block = block;
   self->code = code;
-  self->model = (const abyssal_model*)(size_t)model_bits;
-  /* function pointers from addresses (ctypes' cast of the runtime library's symbols): converted through size_t, as
-   * POSIX's dlsym requires of every platform this runs on */
-  memcpy(&self->step, &(size_t){(size_t)step_address}, sizeof self->step);
-  memcpy(&self->predict, &(size_t){(size_t)predict_address}, sizeof self->predict);
-  self->n_u = n_u;
-  self->n_y = n_y;
+  self->model = model;
+  self->n_u = model->n_u;
+  self->n_y = model->n_y;
+  return self;
+}
+
+/* A function pointer from an address (ctypes' cast of the runtime library's symbol): converted through size_t, as
+ * POSIX's dlsym requires of every platform this runs on. */
+#define FUNCTION_AT(pointer, address) memcpy(&(pointer), &(size_t){(size_t)(address)}, sizeof(pointer))
+
+static PyObject* step_new(PyTypeObject* type, PyObject* args, PyObject* kwargs) {
+  PyObject *filter_memory, *block_memory, *code_memory, *locked, *float64, *state, *checked_step, *refusal, *warn_long_step;
+  unsigned long long step_address, predict_address;
+  StepCall* self;
+  if (kwargs != NULL && PyDict_Size(kwargs) != 0) {
+    PyErr_SetString(PyExc_TypeError, "StepCall takes positional arguments only");
+    return NULL;
+  }
+  if (!PyArg_ParseTuple(args, "OOOKKOOO!OOO", &filter_memory, &block_memory, &code_memory, &step_address,
+                        &predict_address, &locked, &float64, &PyDict_Type, &state, &checked_step, &refusal,
+                        &warn_long_step))
+    return NULL;
+  if (step_address == 0 || predict_address == 0) {
+    PyErr_SetString(PyExc_ValueError, "StepCall: the runtime's step and predict addresses");
+    return NULL;
+  }
+  self = bind(type, step_call, filter_memory, block_memory, code_memory, locked, float64, state, checked_step, refusal,
+              warn_long_step);
+  if (self == NULL) return NULL;
+  FUNCTION_AT(self->step, step_address);
+  FUNCTION_AT(self->predict, predict_address);
+  return (PyObject*)self;
+}
+
+static PyObject* update_new(PyTypeObject* type, PyObject* args, PyObject* kwargs) {
+  PyObject *filter_memory, *block_memory, *code_memory, *sensors, *locked, *float64, *state, *checked_update, *refusal,
+      *warn_long_step;
+  unsigned long long update_address, time_address;
+  StepCall* self;
+  if (kwargs != NULL && PyDict_Size(kwargs) != 0) {
+    PyErr_SetString(PyExc_TypeError, "UpdateCall takes positional arguments only");
+    return NULL;
+  }
+  if (!PyArg_ParseTuple(args, "OOOKKO!OOO!OOO", &filter_memory, &block_memory, &code_memory, &update_address,
+                        &time_address, &PyDict_Type, &sensors, &locked, &float64, &PyDict_Type, &state, &checked_update,
+                        &refusal, &warn_long_step))
+    return NULL;
+  if (update_address == 0 || time_address == 0) {
+    PyErr_SetString(PyExc_ValueError, "UpdateCall: the runtime's update_sensor and time addresses");
+    return NULL;
+  }
+  self = bind(type, update_call, filter_memory, block_memory, code_memory, locked, float64, state, checked_update,
+              refusal, warn_long_step);
+  if (self == NULL) return NULL;
+  Py_INCREF(sensors);
+  self->sensors = sensors;
+  FUNCTION_AT(self->update_sensor, update_address);
+  FUNCTION_AT(self->time, time_address);
   return (PyObject*)self;
 }
 
@@ -263,6 +391,20 @@ static PyTypeObject StepCallType = {
     .tp_vectorcall_offset = offsetof(StepCall, vectorcall),
 };
 
+static PyTypeObject UpdateCallType = {
+    PyVarObject_HEAD_INIT(NULL, 0).tp_name = "abyssal_kalman_python.UpdateCall",
+    .tp_basicsize = sizeof(StepCall),
+    .tp_flags = Py_TPFLAGS_DEFAULT | Py_TPFLAGS_HAVE_GC | Py_TPFLAGS_HAVE_VECTORCALL,
+    .tp_doc = "update(z, p=None) or update(sensor, z, t, R=None, p=None): a Kalman filter's update, its plain stamped "
+              "case update(sensor, z, t) in one C call",
+    .tp_new = update_new,
+    .tp_dealloc = step_dealloc,
+    .tp_traverse = step_traverse,
+    .tp_clear = step_clear,
+    .tp_call = step_call_tuple,
+    .tp_vectorcall_offset = offsetof(StepCall, vectorcall),
+};
+
 static struct PyModuleDef module = {
     PyModuleDef_HEAD_INIT, .m_name = "abyssal_kalman_python",
     .m_doc = "The fast path of a Kalman filter's step from Python (runtime/c/abyssal_kalman_python.c).", .m_size = -1,
@@ -274,12 +416,18 @@ PyMODINIT_FUNC PyInit_abyssal_kalman_python(void) {
   name_unit_watch = PyUnicode_InternFromString("_unit_watch");
   name_max_dt = PyUnicode_InternFromString("_max_dt");
   if (name_p_is_default == NULL || name_unit_watch == NULL || name_max_dt == NULL) return NULL;
-  if (PyType_Ready(&StepCallType) < 0) return NULL;
+  if (PyType_Ready(&StepCallType) < 0 || PyType_Ready(&UpdateCallType) < 0) return NULL;
   m = PyModule_Create(&module);
   if (m == NULL) return NULL;
   Py_INCREF(&StepCallType);
   if (PyModule_AddObject(m, "StepCall", (PyObject*)&StepCallType) < 0) {
     Py_DECREF(&StepCallType);
+    Py_DECREF(m);
+    return NULL;
+  }
+  Py_INCREF(&UpdateCallType);
+  if (PyModule_AddObject(m, "UpdateCall", (PyObject*)&UpdateCallType) < 0) {
+    Py_DECREF(&UpdateCallType);
     Py_DECREF(m);
     return NULL;
   }

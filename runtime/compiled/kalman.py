@@ -160,19 +160,31 @@ class KalmanRuntime:
             self._calls[name] = ca.external(f"abyssal_kalman_{name}_call", self.library)
         return self._calls[name]
 
-    def step_call(self, memory: np.ndarray, block: np.ndarray, code: np.ndarray, n_u: int, n_y: int, owner, checked_step):
+    def step_call(self, memory: np.ndarray, block: np.ndarray, code: np.ndarray, owner, checked_step):
         """A filter's step(u, dt, z=None, p=None) whose plain case is one C call, for the filter `owner` with the
         filter object `memory`, the call block `block` and the return code's place `code` (abyssal_kalman_python.c),
-        installed as the owner's own
-        ``step``; every other case goes to `checked_step` (the class's step, bound). None when the extension cannot
-        be built here (no Python headers): the class's step serves alone."""
+        installed as the owner's own ``step``; every other case goes to `checked_step` (the class's step, bound).
+        None when the extension cannot be built here (no Python headers): the class's step serves alone."""
         module = _python_module()
         if module is None:
             return None
-        address = {name: ctypes.cast(getattr(self.cdll, f"abyssal_kalman_{name}"), ctypes.c_void_p).value
-                   for name in ("step", "predict")}
-        return module.StepCall(memory, block, code, address["step"], address["predict"], n_u, n_y, owner._lock.locked,
+        return module.StepCall(memory, block, code, self._address("step"), self._address("predict"), owner._lock.locked,
                                np.float64, owner.__dict__, checked_step, owner._refusal, owner._warn_long_step)
+
+    def update_call(self, memory: np.ndarray, block: np.ndarray, code: np.ndarray, sensors: dict[str, int], owner,
+                    checked_update):
+        """The same for update(sensor, z, t) (installed as the owner's own ``update``; `sensors`: name -> index;
+        every other form of update goes to `checked_update`), or None."""
+        module = _python_module()
+        if module is None:
+            return None
+        return module.UpdateCall(memory, block, code, self._address("update_sensor"), self._address("time"), sensors,
+                                 owner._lock.locked, np.float64, owner.__dict__, checked_update, owner._sensor_refusal,
+                                 owner._warn_long_step)
+
+    def _address(self, name: str) -> int:
+        """The address of abyssal_kalman_<name> in the runtime's library."""
+        return ctypes.cast(getattr(self.cdll, f"abyssal_kalman_{name}"), ctypes.c_void_p).value
 
 
 #: the batched steps (abyssal_kalman_steps.h): name -> (filter, op, inputs, outputs) with the shapes of each input

@@ -343,3 +343,54 @@ def test_a_stuck_depth_gauge_leaves_x_y_and_heading_to_the_other_entries(cls, st
     assert np.all(ratio <= 3.0), ratio
     assert np.all(np.isfinite(result.P)) and bad.gated >= T - 27 - 5
     assert bad.inflations == bad.options["gate_max_inflations"] and bad.sensor_report("measurement")["rejected"]
+
+
+@pytest.mark.parametrize("cls", KINDS)
+def test_the_one_call_update_equals_the_classs_update_in_every_case(vehicle, cls):
+    """update(sensor, z, t) with a float64 z and a float t is one C call (runtime/c/abyssal_kalman_python.c, the
+    filter's own update); against the class's update on a twin: the same outcomes (values, refusals and their
+    messages), and the same filter object, call block and return code after every call of a mixed sequence."""
+    import sys
+
+    from abyssal.runtime.filters.kalman.engine import KalmanFilter
+
+    fast, slow = (cls(vehicle, X0, P0, QW, history_seconds=2.0, **FILTER) for _ in range(2))
+    slow.update = KalmanFilter.update.__get__(slow)
+    assert type(fast.update).__name__ == "UpdateCall", "Python's headers are here: the plain update must be one C call"
+
+    class Name(str):
+        pass
+    gnss, dvl = np.array([1.0, 0.5]), np.array([1.0, 0.45])
+    for flt in (fast, slow):  # past the unit watch's first updates of every sensor (they take the class's update)
+        for i in range(17):
+            for j, (sensor, z) in enumerate((("gnss", 0.01 * i + np.zeros(2)), ("dvl", np.array([1.0, 0.5])),
+                                             ("beacon", np.array([36.0])))):
+                flt.update(sensor, z, 0.003 * (3 * i + j + 1))
+    assert fast._unit_watch is None and slow._unit_watch is None
+    calls = [("plain", ("dvl", dvl, 0.2)), ("plain", ("gnss", gnss, 1.05)), ("plain", ("dvl", dvl + 0.01, 1.2)),
+             ("late", ("gnss", gnss + 0.1, 0.9)), ("too late", ("dvl", dvl, -5.0)), ("NaN t", ("dvl", dvl, np.nan)),
+             ("inf z", ("dvl", np.array([np.inf, 0.0]), 1.4)), ("missing entry", ("gnss", np.array([np.nan, 0.4]), 1.5)),
+             ("numpy t", ("dvl", dvl, np.float64(1.6))), ("int t", ("gnss", gnss, 2)), ("list z", ("dvl", [1.0, 0.4], 2.2)),
+             ("short z", ("gnss", gnss[:1], 2.3)), ("unknown sensor", ("sonar", dvl, 2.4)), ("str subclass", (Name("dvl"), dvl, 2.5)),
+             ("own R", ("gnss", gnss, 2.6, np.eye(2))), ("own p", ("beacon", np.array([30.0]), 2.7, None, np.array([31.0, -19.0]))),
+             ("stacked", (np.array([1.0, 0.5, 1.0, 0.5, 30.0]),)), ("plain", ("beacon", np.array([36.0]), 3.0))]
+    paths = {}
+    for label, args in calls:
+        seen = []
+        sys.setprofile(lambda frame, event, arg: seen.append(frame.f_code) if event == "call" else None)
+        try:
+            got = fast.update(*args)
+        except (ValueError, TypeError) as error:
+            got = (type(error).__name__, str(error))
+        finally:
+            sys.setprofile(None)
+        paths.setdefault(label, set()).add(KalmanFilter.update.__code__ in seen)
+        try:
+            want = slow.update(*args)
+        except (ValueError, TypeError) as error:
+            want = (type(error).__name__, str(error))
+        assert got == want, label
+        assert fast._committed.tobytes() == slow._committed.tobytes(), label
+        assert fast._io.tobytes() == slow._io.tobytes() and fast.code == slow.code, label
+    one_call = {label for label, ran in paths.items() if ran == {False}}
+    assert one_call == {"plain", "late", "too late", "NaN t", "inf z", "missing entry", "numpy t"}

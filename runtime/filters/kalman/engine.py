@@ -176,10 +176,17 @@ class KalmanFilter(FilterBase):
         self._sensor_views = {s["name"]: (k, float(k), memoryview(self._z[:len(s["outputs"])]))
                               for k, s in enumerate(model.sensors)}
         self._unit_watch = UnitWatch(model, type(self).__name__)  # the first updates, for values in another unit
-        if type(self).step is KalmanFilter.step:  # (a subclass's own step stays its own)
-            fast = runtime.step_call(self._memory, self._io, self._code, n_u, m, self, KalmanFilter.step.__get__(self))
+        # the plain step(u, dt, z) and update(sensor, z, t) as one C call each (KalmanRuntime.step_call), the filter's
+        # own attributes over the class's methods, which take every other case (a subclass's own method stays its own)
+        if type(self).step is KalmanFilter.step:
+            fast = runtime.step_call(self._memory, self._io, self._code, self, KalmanFilter.step.__get__(self))
             if fast is not None:
                 self.step = fast
+        if type(self).update is KalmanFilter.update:
+            fast = runtime.update_call(self._memory, self._io, self._code, {s["name"]: k for k, s in enumerate(model.sensors)},
+                                       self, KalmanFilter.update.__get__(self))
+            if fast is not None:
+                self.update = fast
 
     def _view(self, runtime, n: int, m: int, q_rows: int, n_sensors: int) -> None:
         """NumPy views of the filter object's parts (abyssal_kalman_offset)."""
