@@ -25,7 +25,8 @@ folder), so everything is a first build on this machine, as a user's first run i
   seconds as the child's resource.getrusage(RUSAGE_CHILDREN) user + system delta around the call (the compilers
   run as the child's children and are waited for, so their whole CPU time lands there, whatever the load);
 * the Kalman runtime's own one-time compile, which a cold cache pays once per machine too
-  (abyssal.runtime.compiled.kalman.KalmanRuntime.of(bundle)): measured the same way, separately;
+  (abyssal.runtime.compiled.kalman.KalmanRuntime.of(bundle), and the extension that makes a filter's plain step one
+  C call from Python, abyssal_kalman_python.c): measured the same way, separately;
 * per step: EKF.step and CKF.step from Python over a simulated 300-step run (each pass from the same x0, P0 after
   reset), rounds alternating EKF / CKF, the minimum per filter of the process CPU time per step (and of the wall
   time, reported beside it): a load that comes and goes reaches both alike, and a minimum leaves it out.
@@ -188,7 +189,7 @@ def child(spec: str, folder: Path, progress: Path, steps: int, rounds: int) -> N
 
     import abyssal
     from abyssal.generated.regenerate import load_model_spec
-    from abyssal.runtime.compiled.kalman import KalmanRuntime
+    from abyssal.runtime.compiled.kalman import KalmanRuntime, _python_module
 
     cpu0, kids0, t0 = _self_cpu(), _children_cpu(), time.perf_counter()
     model = pendulum_chain(int(spec.removeprefix("chain:"))) if spec.startswith("chain:") else load_model_spec(spec)[0]
@@ -212,6 +213,7 @@ def child(spec: str, folder: Path, progress: Path, steps: int, rounds: int) -> N
 
     cpu0, kids0, t0 = _self_cpu(), _children_cpu(), time.perf_counter()
     KalmanRuntime.of(bundle)
+    _python_module()  # the plain step's one-call extension (abyssal_kalman_python.c), built with the runtime when cold
     _progress(progress, phase="runtime", runtime_s=time.perf_counter() - t0, runtime_gcc_cpu_s=_children_cpu() - kids0,
               runtime_self_cpu_s=_self_cpu() - cpu0)
 
