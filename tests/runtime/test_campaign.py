@@ -240,7 +240,11 @@ def document(rows, config, prepared):
 """
 
 REPRODUCE_TOY = """
-import sys
+import signal, sys
+# Ctrl-C as a terminal delivers it: SIGINT unblocked, Python's own handler (a test runner's disposition or signal
+# mask, inherited through fork and exec, must not decide what this test sees)
+signal.pthread_sigmask(signal.SIG_UNBLOCK, [signal.SIGINT])
+signal.signal(signal.SIGINT, signal.default_int_handler)
 sys.path.insert(0, {folder!r})
 from abyssal.runtime import cli
 from abyssal.runtime.experiments import reproduce
@@ -261,12 +265,14 @@ def test_ctrl_c_ends_abyssal_reproduce_with_one_line_and_keeps_the_finished_runs
     proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             env={**os.environ, "PYTHONPATH": str(tmp_path)})
     try:
-        deadline = time.monotonic() + 200
+        deadline, seen = time.monotonic() + 200, False
         while time.monotonic() < deadline and proc.poll() is None:
             sidecar = out / "toy.csv.meta.json"
             if sidecar.exists() and '"runs": {}' not in sidecar.read_text():
+                seen = True
                 break
             time.sleep(0.2)
+        assert seen, "no finished run reached the table before the campaign ended"
         time.sleep(1.0)
         os.kill(proc.pid, signal.SIGINT)
         _, err = proc.communicate(timeout=120)
