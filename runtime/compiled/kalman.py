@@ -10,10 +10,10 @@ same library without a descriptor.
 The hot path of a Kalman filter does not go through ctypes: ``call_function(name)`` is one of the runtime's
 CasADi-convention entry points (abyssal_kalman_binding.c: step, predict, update, check_p) loaded by
 ``casadi.external`` and bound once with ``Function.buffer()`` (the fast binding of every generated function,
-bundle.py). A filter's plain ``step(u, dt, z)`` goes one step shorter: ``step_call`` makes it a CPython extension
-object (abyssal_kalman_python.c, built through the same cache against the running Python's headers) that copies u
-and z into the call block and calls the runtime's step itself, with no Python frame; where the headers are missing
-it is None and the class's step takes the CasADi binding, with the same results.
+bundle.py). A filter's plain ``step(u, dt, z)`` and ``update(sensor, z, t)`` go one step shorter: ``one_calls``
+makes each a CPython extension object (abyssal_kalman_python.c, built through the same cache against the running
+Python's headers) that copies the arguments into the call block and calls the runtime itself, with no Python frame;
+where the headers are missing there are none and the class's methods take the CasADi binding, with the same results.
 
 The option struct and the return codes below mirror abyssal_kalman.h (tests/runtime/test_kalman_runtime.py
 checks the mirror against the C).
@@ -160,27 +160,20 @@ class KalmanRuntime:
             self._calls[name] = ca.external(f"abyssal_kalman_{name}_call", self.library)
         return self._calls[name]
 
-    def step_call(self, memory: np.ndarray, block: np.ndarray, code: np.ndarray, owner, checked_step):
-        """A filter's step(u, dt, z=None, p=None) whose plain case is one C call, for the filter `owner` with the
-        filter object `memory`, the call block `block` and the return code's place `code` (abyssal_kalman_python.c),
-        installed as the owner's own ``step``; every other case goes to `checked_step` (the class's step, bound).
-        None when the extension cannot be built here (no Python headers): the class's step serves alone."""
+    def one_calls(self, memory: np.ndarray, block: np.ndarray, code: np.ndarray, sensors: dict[str, int], owner) -> dict:
+        """The filter `owner`'s plain step(u, dt, z) and update(sensor, z, t) as one C call each (abyssal_kalman_python.c),
+        for its filter object `memory`, call block `block` and return code's place `code` (`sensors`: name -> index):
+        {"step": StepCall, "update": UpdateCall}, to be installed as the owner's own attributes; every other case of
+        each goes to the owner's class method. Empty when the extension cannot be built here (no Python headers)."""
         module = _python_module()
         if module is None:
-            return None
-        return module.StepCall(memory, block, code, self._address("step"), self._address("predict"), owner._lock.locked,
-                               np.float64, owner.__dict__, checked_step, owner._refusal, owner._warn_long_step)
-
-    def update_call(self, memory: np.ndarray, block: np.ndarray, code: np.ndarray, sensors: dict[str, int], owner,
-                    checked_update):
-        """The same for update(sensor, z, t) (installed as the owner's own ``update``; `sensors`: name -> index;
-        every other form of update goes to `checked_update`), or None."""
-        module = _python_module()
-        if module is None:
-            return None
-        return module.UpdateCall(memory, block, code, self._address("update_sensor"), self._address("time"), sensors,
-                                 owner._lock.locked, np.float64, owner.__dict__, checked_update, owner._sensor_refusal,
-                                 owner._warn_long_step)
+            return {}
+        common = (owner._lock.locked, np.float64, owner.__dict__)
+        return {"step": module.StepCall(memory, block, code, self._address("step"), self._address("predict"), None,
+                                        *common, type(owner).step.__get__(owner), owner._refusal, owner._warn_long_step),
+                "update": module.UpdateCall(memory, block, code, self._address("update_sensor"), self._address("time"),
+                                            sensors, *common, type(owner).update.__get__(owner), owner._sensor_refusal,
+                                            owner._warn_long_step)}
 
     def _address(self, name: str) -> int:
         """The address of abyssal_kalman_<name> in the runtime's library."""

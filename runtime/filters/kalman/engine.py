@@ -176,17 +176,13 @@ class KalmanFilter(FilterBase):
         self._sensor_views = {s["name"]: (k, float(k), memoryview(self._z[:len(s["outputs"])]))
                               for k, s in enumerate(model.sensors)}
         self._unit_watch = UnitWatch(model, type(self).__name__)  # the first updates, for values in another unit
-        # the plain step(u, dt, z) and update(sensor, z, t) as one C call each (KalmanRuntime.step_call), the filter's
+        # the plain step(u, dt, z) and update(sensor, z, t) as one C call each (KalmanRuntime.one_calls), the filter's
         # own attributes over the class's methods, which take every other case (a subclass's own method stays its own)
-        if type(self).step is KalmanFilter.step:
-            fast = runtime.step_call(self._memory, self._io, self._code, self, KalmanFilter.step.__get__(self))
-            if fast is not None:
-                self.step = fast
-        if type(self).update is KalmanFilter.update:
-            fast = runtime.update_call(self._memory, self._io, self._code, {s["name"]: k for k, s in enumerate(model.sensors)},
-                                       self, KalmanFilter.update.__get__(self))
-            if fast is not None:
-                self.update = fast
+        fast = runtime.one_calls(self._memory, self._io, self._code,
+                                 {name: view[0] for name, view in self._sensor_views.items()}, self)
+        for name, call in fast.items():
+            if getattr(type(self), name) is getattr(KalmanFilter, name):
+                setattr(self, name, call)
 
     def _view(self, runtime, n: int, m: int, q_rows: int, n_sensors: int) -> None:
         """NumPy views of the filter object's parts (abyssal_kalman_offset)."""
@@ -585,7 +581,7 @@ class KalmanFilter(FilterBase):
     def step(self, u, dt, z=None, p=None) -> bool:
         """predict(u, dt, p) then update(z, p) as one transaction; returns whether an update happened. (The
         contract's step in one frame: the C step is itself the transaction, and this is the hot path. A filter built
-        where Python's headers are found has its plain case as its own ``step``, one C call (KalmanRuntime.step_call)
+        where Python's headers are found has its plain case as its own ``step``, one C call (KalmanRuntime.one_calls)
         that sends every other case here.)"""
         if not self._acquire(False):
             raise self._busy()

@@ -320,8 +320,7 @@ class TerrainParticleFilter(FilterBase):
             while dropped < last and travelled - history[dropped + 1][0] >= window:
                 dropped += 1
             rate = (gradient - history[dropped][1]) / (window / self.rate_length_m)
-            self._g_in[0], self._r_in[0] = gradient, rate
-            self._fuzzy()
+            sigma = self._fuzzy_sigma(gradient, rate)
         # commit: nothing below can fail
         step.commit(resampled != 0.0)
         if depth_present:
@@ -332,8 +331,7 @@ class TerrainParticleFilter(FilterBase):
         self.ess = ess
         self._x, self._P = step.means[nxt], step.covs[nxt]
         if self.fuzzy:
-            self._travelled, self.gradient, self.gradient_rate = travelled, gradient, rate
-            self.sigma = self._sigma_out.item(0)
+            self._travelled, self.gradient, self.gradient_rate, self.sigma = travelled, gradient, rate, sigma
             history.append((travelled, gradient))
             for _ in range(dropped):
                 history.popleft()
