@@ -7,7 +7,8 @@
   the generated fuzzy_sigma call) at N = 1000 on the synthetic Arctic map's rough track, fixed
   sigma and fuzzy (the paper: 0.76 ms in MATLAB). Target: the step from Python <= 1.2x its own C calls
   (issue "Generate the model, write the filters once": the compiled SIR step, and with a fuzzy sigma the generated
-  fuzzy controller, each timed inside steps that alternate with untimed ones, which give the Python time). Parts
+  fuzzy controller, each timed inside the steps of a second filter built alike that steps the same rows in passes
+  alternating with the first's untimed ones, which give the Python time). Parts
   timed alone: the compiled call, the same call without a move (an update alone: no draws, no arc
   step), the step's 4N normals (Philox4x32-10 + Box-Muller), the generated arc kernel, the map
   lookup, and NumPy's normal draws as the peer the step's own generator replaced.
@@ -62,13 +63,15 @@ def run(quick: bool = False, verbose: bool = True) -> dict:
             step()
         return median_time(step, repeat=repeat, min_time=min_time)
 
-    def python_over_c(filt, passes: int) -> tuple[float, float]:
+    def python_over_c(sigma, passes: int) -> tuple[float, float]:
         """(µs per step from Python, µs of its C calls inside such steps: the compiled SIR step, and with a fuzzy
-        sigma the generated fuzzy controller): passes of 200 steps alternating between the step as it is (the
-        Python time) and the step with its C calls timed inside (perf_counter around each: the C time; the timer's
-        own cost stays out of the Python time), the minimum of each over the passes."""
-        compiled = filt._sir
-        call, fuzzy, spent = compiled._fn, filt._fuzzy, [0.0]
+        sigma the generated fuzzy controller): two filters built alike step the same rows (taken out beforehand) and
+        so do the same C work; in passes of 200 steps the first steps as it is (the Python time), the second with its
+        C calls timed inside (perf_counter around each: the C time; the timer's own cost stays out of the Python
+        time), the order alternating; the minimum of each over the passes."""
+        plain, timed_filter = _filter(bundle, terrain, sigma, 1000), _filter(bundle, terrain, sigma, 1000)
+        compiled = timed_filter._sir
+        call, fuzzy, spent = compiled._fn, timed_filter._fuzzy, [0.0]
 
         def timed(arg):
             start = time.perf_counter()
@@ -80,28 +83,33 @@ def run(quick: bool = False, verbose: bool = True) -> dict:
             start = time.perf_counter()
             fuzzy()
             spent[0] += time.perf_counter() - start
-        rows = itertools.cycle(range(truth.inputs.shape[0]))
+        compiled._fn, timed_filter._fuzzy = timed, timed_fuzzy
+        rows = [(u.copy(), z.copy()) for u, z in zip(truth.inputs, truth.measurements)]
+        for filt in (plain, timed_filter):
+            for u, z in rows[:50]:
+                filt.step(u, 1.0, z)
         python_us = c_us = math.inf
-        for _ in range(passes):
-            for timing_c in (False, True):
-                compiled._fn, spent[0] = (timed if timing_c else call), 0.0
-                filt._fuzzy = timed_fuzzy if timing_c else fuzzy
+        for p in range(passes):
+            first = 50 + 200 * p % (len(rows) - 250)
+            chunk = rows[first:first + 200]
+            for timing_c in ((False, True) if p % 2 == 0 else (True, False)):
+                filt, spent[0] = (timed_filter if timing_c else plain), 0.0
                 start = time.perf_counter()
-                for _ in range(200):
-                    k = next(rows)
-                    filt.step(truth.inputs[k], 1.0, truth.measurements[k])
+                for u, z in chunk:
+                    filt.step(u, 1.0, z)
                 if timing_c:
                     c_us = min(c_us, 1e6 * spent[0] / 200)
                 else:
                     python_us = min(python_us, 1e6 * (time.perf_counter() - start) / 200)
-        compiled._fn, filt._fuzzy = call, fuzzy
+        if not np.array_equal(plain.particles, timed_filter.particles):
+            raise RuntimeError("the two TAN filters of the Python/C timing parted: they did not do the same work")
         return python_us, c_us
 
     steps, over_c = {}, {}
     for label, sigma in (("fixed sigma = 3 m", 3.0), ("fuzzy sigma", "fuzzy")):
         steps[label] = 1e6 * step_time(_filter(bundle, terrain, sigma, 1000))
         say(f"  TAN SIR step, N = 1000, {label:<18} {steps[label]:8.1f} us")
-        python_us, c_us = python_over_c(_filter(bundle, terrain, sigma, 1000), repeat + 4)
+        python_us, c_us = python_over_c(sigma, repeat + 4)
         over_c[label] = {"step_us": python_us, "its_c_call_us": c_us, "ratio": python_us / c_us}
         say(f"    from Python {python_us:.1f} us per step, its C calls {c_us:.1f} us: {python_us / c_us:.2f}x")
     results["python_over_c_N1000"] = over_c
