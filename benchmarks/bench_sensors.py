@@ -64,8 +64,10 @@ Measured (times in one run; rounds interleave the things compared and each keeps
 """
 from __future__ import annotations
 
+import atexit
 import dataclasses
 import math
+import shutil
 import statistics
 import tempfile
 import time
@@ -174,13 +176,14 @@ _LOADED: dict = {}
 
 def load(build, folder: Path | None = None):
     """The compiled bundle of the model build() returns, generated into `folder` (default: a temporary folder kept
-    for the process) and loaded through the compile cache."""
+    for the process and removed when it exits) and loaded through the compile cache."""
     import abyssal
 
     model = build()
     if model.name not in _LOADED:
         if folder is None:
             folder = Path(tempfile.mkdtemp(prefix="abyssal-bench-sensors-"))
+            atexit.register(shutil.rmtree, folder, True)
         _LOADED[model.name] = abyssal.load(abyssal.generate(model, folder))
     return _LOADED[model.name]
 
