@@ -52,10 +52,16 @@ class Ancestors:
         self._order = np.zeros(capacity + 1, dtype=np.int64)
         self._u = np.zeros(capacity)
 
+    def _fits(self, n: int, m: int) -> None:
+        if not (n <= self.buffer.size and m <= self.buffer.size):
+            raise ValueError(f"Ancestors({self.buffer.size}): weights of at most {self.buffer.size} particles and at most "
+                             f"that many ancestors, got {n} weights and {m} ancestors")
+
     def systematic(self, weights: np.ndarray, u0: float, m: int | None = None) -> np.ndarray:
         """inverse_cdf(weights, (arange(m) + u0) / m) (schemes.systematic_resample with its one uniform u0)."""
         n = weights.shape[0]
         m = n if m is None else m
+        self._fits(n, m)
         w = np.ascontiguousarray(weights, dtype=np.float64)
         self._lib.abyssal_resample_systematic(n, w.ctypes.data, m, u0, self.buffer.ctypes.data, self._cdf.ctypes.data)
         return self.buffer[:m]
@@ -63,6 +69,7 @@ class Ancestors:
     def multinomial(self, weights: np.ndarray, uniforms: np.ndarray) -> np.ndarray:
         """inverse_cdf(weights, sort(uniforms)) (schemes.multinomial_resample with its uniforms)."""
         n, m = weights.shape[0], uniforms.shape[0]
+        self._fits(n, m)
         w = np.ascontiguousarray(weights, dtype=np.float64)
         u = self._u[:m]
         u[...] = uniforms

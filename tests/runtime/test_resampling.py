@@ -154,6 +154,7 @@ def test_ancestors_in_c_equal_the_schemes_from_the_same_uniforms():
     schemes' ancestors bit for bit from the same Generator draws, with zero weights, ties and a last uniform at 1."""
     from abyssal.runtime.compiled.resample import Ancestors, gather_items, gather_rows
     from abyssal.runtime.resampling import multinomial_resample
+    from abyssal.runtime.resampling.schemes import inverse_cdf
 
     rng = np.random.default_rng(4)
     anc = Ancestors(5000)
@@ -170,6 +171,19 @@ def test_ancestors_in_c_equal_the_schemes_from_the_same_uniforms():
     w = np.array([0.2, 0.3, 0.5, 0.0])
     assert anc.systematic(w, 1.0 - 2**-53, 4)[-1] == 2  # the last particle of positive weight
     assert anc.multinomial(w, np.array([1.0, 0.0, 0.5])).tolist() == [0, 2, 2]  # sorted: 0, 0.5, 1.0
+    # m != n, one particle holding nearly all the weight (its bucket range spans most particles), uniforms near 1,
+    # weights with a negative entry (the sorted walk's own result)
+    for n, m in ((3000, 700), (400, 4900), (1, 50), (2000, 2000)):
+        w = np.full(n, 1e-300)
+        w[rng.random(n) < 0.5] = 0.0
+        w[int(rng.integers(n))] = 1.0
+        u = np.concatenate([rng.random(m - 3), [1.0 - 2**-53, 0.0, 1.0]])
+        rng.shuffle(u)
+        np.testing.assert_array_equal(anc.multinomial(w, u), inverse_cdf(w, np.sort(u)))
+    # cdf 0.4, 0.3, 0.8, 1.0 is not monotone: the walk over the sorted uniforms 0.1, 0.35, 0.6, 0.9 defines it
+    assert anc.multinomial(np.array([0.4, -0.1, 0.5, 0.2]), np.array([0.9, 0.1, 0.35, 0.6])).tolist() == [0, 0, 2, 3]
+    with pytest.raises(ValueError, match="Ancestors"):
+        anc.multinomial(np.ones(5001) / 5001, np.zeros(3))
     src = rng.normal(size=(3, 40))
     dst = np.zeros((3, 40))
     idx = np.array([5, 5, 0, 39, 7], dtype=np.int64)
