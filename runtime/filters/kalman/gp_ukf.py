@@ -44,8 +44,8 @@ class GPUKF(FilterBase):
     """GP-UKF on a compiled GP predict step and a model bundle's UKF update (see module docstring).
 
     alpha, beta, kappa: the scaled unscented rule of both predict and update (default 1, 2, 0, as UKF).
-    gate_probability, gate_patience, gate_inflation: the innovation gate of every Kalman-type filter
-    (gate.py); growth_limit: a predict whose covariance grows more than this (numerics.grew_beyond) is refused.
+    gate_probability, gate_patience, gate_inflation, gate_max_inflations: the innovation gate of every Kalman-type
+    filter (gate.py); growth_limit: a predict whose covariance grows more than this (numerics.grew_beyond) is refused.
     """
 
     _state = ("_x", "_P", "nis", "nis_dof", "last_Q", "gate")
@@ -60,7 +60,8 @@ class GPUKF(FilterBase):
 
     def __init__(self, model, predict_library, predict_name: str, x0, P0, R, *, gp_dt: float, gp_data=(),
                  alpha: float = 1.0, beta: float = 2.0, kappa: float = 0.0, gate_probability: float = 1e-10,
-                 gate_patience: int = 5, gate_inflation: float = 4.0, growth_limit: float = 1e3):
+                 gate_patience: int = 5, gate_inflation: float = 4.0, gate_max_inflations: int = 10,
+                 growth_limit: float = 1e3):
         if not hasattr(model, "functions") or not hasattr(model, "library"):
             raise TypeError(f"GPUKF needs a model bundle from abyssal.generated.load() (its observation model); got {model!r}")
         n, m = model.n_x, model.n_y
@@ -74,7 +75,9 @@ class GPUKF(FilterBase):
         self._P = check_covariance(P0, n, "P0")
         self._R = check_covariance(R, m, "R", definite=True)
         self._abk = np.array([alpha, beta, kappa], dtype=float)
-        self.gate = InnovationGate(self._R, probability=gate_probability, patience=gate_patience, inflation=gate_inflation)
+        # the whole P is inflated (gate.py): the learned predict forgets P grown along one entry
+        self.gate = InnovationGate(self._R, probability=gate_probability, patience=gate_patience, inflation=gate_inflation,
+                                   max_inflations=gate_max_inflations, along=False)
         self.growth_limit = float(growth_limit)
         self.nis, self.nis_dof = math.nan, 0
         self.last_Q = np.zeros((n, n))
@@ -146,8 +149,7 @@ class GPUKF(FilterBase):
         if accepted is not None:
             self._x, self._P = result["x"], result["P"]
             self.nis, self.nis_dof = float(result["nu"] @ np.linalg.solve(result["S"], result["nu"])), int(accepted.sum())
-        if self.gate.note(gated, present):
-            self._P = self._P * self.gate.inflation
+        self._P = self.gate.inflated(self._P, gated, present, accepted, None)  # (whole P: no reduction asked)
         return accepted is not None
 
 

@@ -44,8 +44,8 @@ __all__ = ["IVBCKF"]
 class IVBCKF(FilterBase):
     """Iterated VB Student-t CKF (module docstring); Kalman constructor (model, x0, P0, Q, R, **options).
 
-    gate_probability, gate_patience, gate_inflation: the innovation gate of every Kalman-type filter
-    (gate.py), applied to the update at the prior (the first fixed-point pass); growth_limit: a predict
+    gate_probability, gate_patience, gate_inflation, gate_max_inflations: the innovation gate of every Kalman-type
+    filter (gate.py), applied to the update at the prior (the first fixed-point pass); growth_limit: a predict
     whose covariance grows more than this (numerics.grew_beyond) is refused (this filter does not subdivide dt).
 
     A vanished measurement: the VB discounts an outlier by E[lambda] (R scaled by 1 / E[lambda]), the gate leaves
@@ -71,7 +71,7 @@ class IVBCKF(FilterBase):
     def __init__(self, model, x0, P0, Q, R, *, chi: float = 5.0, phi: float = 1.0, kappa: float = 5.0,
                  zeta: float = 1.0, u: float | None = None, t: float | None = None, iterations: int = 10,
                  gate_probability: float = 1e-10, gate_patience: int = 5, gate_inflation: float = 4.0,
-                 growth_limit: float = 1e3):
+                 gate_max_inflations: int = 10, growth_limit: float = 1e3):
         n, m = model.n_x, model.n_y
         # the paper's tau_P = 5, tau_R = 3 (u = 8, t = 5 for its n = 2, m = 1) for any model size
         u = n + 6.0 if u is None else u
@@ -86,7 +86,8 @@ class IVBCKF(FilterBase):
             raise ValueError(f"growth_limit must be > 1, got {growth_limit!r}")
         self.chi, self.phi, self.kappa, self.zeta, self.u, self.t = chi, phi, kappa, zeta, u, t
         self.iterations = int(iterations)
-        self.gate = InnovationGate(self.R, probability=gate_probability, patience=gate_patience, inflation=gate_inflation)
+        self.gate = InnovationGate(self.R, probability=gate_probability, patience=gate_patience, inflation=gate_inflation,
+                                   max_inflations=gate_max_inflations)
         self.growth_limit = float(growth_limit)
         self._predict_fn = BatchStep(model, "ckf_predict")
         self._update_fn = BatchStep(model, "ckf_update")
@@ -120,6 +121,7 @@ class IVBCKF(FilterBase):
 
     def _update(self, z, present) -> bool:
         trust_sensor = self._discounted_streak >= self.gate.patience
+        x_prior, P_prior = self._x, self._P
         accepted, gated = present, np.zeros_like(present)
         if self.gate.probability > 0.0 and not trust_sensor:  # (off: no prior update to test)
             accepted, gated = self.gate.select(lambda entries: self._prior_innovation(z, entries), present)
@@ -129,17 +131,22 @@ class IVBCKF(FilterBase):
             self._discounted_streak = self._discounted_streak + 1 if self.lam < self.DISCOUNTED else 0
         else:  # every entry gated: the measurement got no weight at all
             self._discounted_streak += 1
-        if self.gate.note(gated, present):
-            self._P = self._P * self.gate.inflation
+        self._P = self.gate.inflated(self._P, gated, present, accepted,
+                                     lambda entries: P_prior - self._prior_update(x_prior, P_prior, z, entries)[1])
         return accepted is not None
+
+    def _prior_update(self, x, P, z, present):
+        """(x, P, nu, S) of the cubature update of (x, P) with R over the present entries."""
+        x_post, P_post, innovation, S, ok = self._update_fn(x, P, np.where(present, z, 0.0), self._p, self.R,
+                                                            present.astype(float))
+        if not ok:
+            raise ValueError("IVBCKF update failed (covariance not positive definite)")
+        return (np.asarray(x_post).reshape(-1), np.asarray(P_post), np.asarray(innovation, dtype=float).reshape(-1),
+                np.atleast_2d(np.asarray(S, dtype=float)))
 
     def _prior_innovation(self, z, present):
         """(nu, S) of the cubature update at the prior with R: the gate's test."""
-        _, _, innovation, S, ok = self._update_fn(self._x, self._P, np.where(present, z, 0.0), self._p, self.R,
-                                                  present.astype(float))
-        if not ok:
-            raise ValueError("IVBCKF update failed (covariance not positive definite)")
-        return np.asarray(innovation, dtype=float).reshape(-1), np.atleast_2d(np.asarray(S, dtype=float))
+        return self._prior_update(self._x, self._P, z, present)[2:]
 
     def _cubature_B(self, x, P, z, p, present) -> np.ndarray:
         """E[(z - h(x))(z - h(x))^T] over the 2n cubature points of N(x, P) (present rows; angle outputs' residuals
