@@ -30,7 +30,9 @@ One implementation: the rule is C (runtime/c/abyssal_kalman_gate.c: the quantile
 factor of S, the selection's rounds, the streaks); this class holds a gate object in a NumPy buffer and calls
 it, as the Kalman runtime does from C inside every EKF/UKF/CKF step. The NIS is computed exactly (a guarded
 Cholesky factor of S, +inf when S is not positive definite or the value overflows): in C it costs less than
-any bound.
+any bound. The inflation's choice (``inflated``: the cap, along or whole) is written twice: here per gate for
+the filters that call this class, and in abyssal_kalman.c per sensor (its records); tests/runtime/test_gate.py
+holds every Kalman filter to the same outcome on a stuck entry.
 
 Conventions of the generated updates: nu is (m,) with 0 on unused entries and S (m, m) with
 identity rows there, so a NIS over all rows is the NIS of the present ones.
