@@ -3,9 +3,10 @@ and from C, beside peers measured in the same run.
 
 Ours:   the EKF, UKF and CKF classes, ``step(u, dt, z)`` through a simulated trajectory (Python over the C runtime
         of runtime/c: one call per step) and ``run(U, Z, dt)`` (one call for the whole trajectory), and the same
-        runtime called from a C loop (kalman_timing.c, linked with the model's and the runtime's libraries from
-        abyssal's compile cache: the code Python calls) per step and through abyssal_kalman_run; the innovation
-        gate's judgement of one update alone (C); the bytes of each filter object.
+        runtime called from a C loop: kalman_loop.c, loaded into this process and run on a filter object Python
+        built (the ratios' denominator), and kalman_timing.c, a program linked with the model's and the runtime's
+        libraries from abyssal's compile cache (the code Python calls), per step and through abyssal_kalman_run; the
+        innovation gate's judgement of one update alone (C); the bytes of each filter object.
 Peers:  filterpy's UnscentedKalmanFilter with MerweScaledSigmaPoints(1, 0, 0) (the same CKF) on the independent
         NumPy model of rov4dof (verify/reference_models.py, written from the paper: a model as a user would write
         it).
@@ -13,13 +14,16 @@ Floor:  instructions per CKF step of the C loop (valgrind --tool=callgrind, when
         model's own work: 2n evaluations of f through the SIMD kernel plus 2n evaluations of h, and the dense
         algebra of the rule (the step's arithmetic with the model's functions counted by their generated
         instruction counts).
-Times:  the minimum over repetitions of a whole trajectory (each from a fresh filter), in us per step, Python and C
-        alternating round by round, so that a loaded machine's interruptions are left out as far as they can be and
-        reach both sides alike; the ratios are what travels between machines. Both sides time the same rows: those
-        after a filter's start-up (step 0, which checks dt's stability, and the first updates, which Python's unit
-        watch compares with h(x): units.py), stepped untimed on both sides; Python's start-up cost per step is
-        reported beside. Python loops over the rows taken out beforehand (``for u, z in rows: f.step(u, dt, z)``),
-        as the C loop walks its arrays.
+Times:  paired: each pair times the same rows three ways, each on a fresh filter, within a few milliseconds of each
+        other (Python's step loop, run(), the in-process C loop; their order rotating pair by pair, the filters'
+        pairs interleaved); a ratio is the median over the pairs of that pair's Python time over its C time, so a
+        machine whose speed drifts within seconds (a shared host: the same C step measured 4.3-5.6 us minutes apart)
+        reaches both sides of a ratio alike; the ratios are what travels between machines, the µs beside them are
+        medians. Both sides time the same rows: those after a filter's start-up (step 0, which checks dt's
+        stability, and the first updates, which Python's unit watch compares with h(x): units.py), stepped untimed
+        on both sides; Python's start-up cost per step is reported beside. Python loops over the rows taken out
+        beforehand (``for u, z in rows: f.step(u, dt, z)``), as the C loop walks its arrays. The C program's times
+        (the minimum over its repetitions) are reported beside, for abyssal_kalman_run and the floor.
 
 Targets (issue 34, ratios in one run): CKF.step from Python <= 1.15x the C runtime's step, EKF <= 1.25x; run() <= 1.05x
 the C step per row; the CKF >= 300x faster than filterpy.
@@ -28,6 +32,7 @@ the C step per row; the CKF >= 300x faster than filterpy.
 """
 from __future__ import annotations
 
+import ctypes
 import shutil
 import subprocess
 import tempfile
@@ -77,26 +82,89 @@ def start_up_rows(make, U, Z) -> int:
     return len(U)
 
 
-def best_steady_step(make, rows, first: int, repeats: int) -> tuple[float, float]:
-    """Seconds per step of ``f.step(u, DT, z)`` over rows[first:] (a plain loop over rows taken out beforehand, as a
-    user's loop over a log's rows), the minimum over `repeats` fresh filters; and of the start-up rows 1..first-1."""
-    best, start_up = float("inf"), float("inf")
-    steady = rows[first:]
-    for _ in range(repeats):
-        flt = make()
-        step = flt.step
-        u, z = rows[0]
-        step(u, DT, z)
+class CLoop:
+    """kalman_loop.c built as a shared library against the runtime's library from abyssal's compile cache (the one
+    Python loaded) and loaded into this process; close() removes it."""
+
+    def __init__(self, bundle):
+        self.tmp = tempfile.TemporaryDirectory(prefix="abyssal-bench-loop-")
+        library = Path(self.tmp.name) / "kalman_loop.so"
+        runtime = Path(kalman_runtime.KalmanRuntime.of(bundle).library)
+        cmd = [compiler(), *cflags(), "-shared", f"-I{C_DIR}", f"-I{MODEL_HEADER.parent}", str(HERE / "kalman_loop.c"),
+               str(runtime), f"-Wl,-rpath,{runtime.parent}", "-o", str(library), "-lm"]
+        res = subprocess.run(cmd, capture_output=True, text=True, check=False)
+        if res.returncode != 0:
+            self.tmp.cleanup()
+            raise BuildError(f"compiling the C loop failed: {' '.join(cmd)}\n{res.stderr[-4000:]}")
+        self._steps = ctypes.CDLL(str(library)).abyssal_bench_steps
+        self._steps.restype = ctypes.c_double
+        self._steps.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_longlong, ctypes.c_void_p, ctypes.c_int,
+                                ctypes.c_void_p, ctypes.c_int, ctypes.c_double]
+
+    def seconds(self, flt, U: np.ndarray, Z: np.ndarray) -> float:
+        """Seconds of abyssal_kalman_step over the rows of U, Z (C-contiguous) on the filter object flt holds."""
+        ns = self._steps(flt._memory.ctypes.data, flt._runtime.descriptor, U.shape[0], U.ctypes.data, U.shape[1],
+                         Z.ctypes.data, Z.shape[1], DT)
+        if ns < 0:
+            raise RuntimeError("a step of the C loop was refused")
+        return ns / 1e9
+
+    def close(self) -> None:
+        self.tmp.cleanup()
+
+
+class Pairs:
+    """The paired timings of one filter class (module docstring, Times): add() times one pair."""
+
+    WAYS = ("step", "run", "C loop")
+
+    def __init__(self, make, rows, U, Z, first: int, loop: CLoop):
+        self.make, self.rows, self.first, self.loop = make, rows, first, loop
+        self.steady = rows[first:]
+        self.U, self.Z = np.ascontiguousarray(U[first:]), np.ascontiguousarray(Z[first:])
+        self.seconds: dict[str, list[float]] = {way: [] for way in self.WAYS}
+        self.start_up: list[float] = []
+        self.run_c: list[float] = []
+
+    def _started(self):
+        flt = self.make()
+        u, z = self.rows[0]
+        flt.step(u, DT, z)
         t0 = time.perf_counter()
-        for u, z in rows[1:first]:
-            step(u, DT, z)
-        t1 = time.perf_counter()
-        for u, z in steady:
-            step(u, DT, z)
-        t2 = time.perf_counter()
-        start_up = min(start_up, (t1 - t0) / max(first - 1, 1))
-        best = min(best, (t2 - t1) / len(steady))
-    return best, start_up
+        for u, z in self.rows[1:self.first]:
+            flt.step(u, DT, z)
+        self.start_up.append((time.perf_counter() - t0) / max(self.first - 1, 1))
+        return flt
+
+    def add(self, turn: int) -> None:
+        started = [self._started() for _ in self.WAYS]
+        rows = len(self.steady)
+        for j, flt in enumerate(started):
+            way = self.WAYS[(turn + j) % len(self.WAYS)]
+            if way == "step":
+                step = flt.step
+                t0 = time.perf_counter()
+                for u, z in self.steady:
+                    step(u, DT, z)
+                elapsed = time.perf_counter() - t0
+            elif way == "run":  # (the result is kept past the timer: freeing it is the caller's, later)
+                t0 = time.perf_counter()
+                result = flt.run(self.U, self.Z, DT)
+                elapsed = time.perf_counter() - t0
+                self.run_c.append(float(result.step_time[0]))  # its one C call's time per row
+                del result
+            else:
+                elapsed = self.loop.seconds(flt, self.U, self.Z)
+            self.seconds[way].append(elapsed / rows)
+
+    def summary(self) -> dict[str, float]:
+        """Medians in µs per step, the paired ratios' medians, the start-up rows' cost (minimum)."""
+        step, run, c = (np.array(self.seconds[way]) for way in self.WAYS)
+        return {"step_us": 1e6 * float(np.median(step)), "run_us": 1e6 * float(np.median(run)),
+                "c_loop_us": 1e6 * float(np.median(c)), "step_over_c": float(np.median(step / c)),
+                "run_over_c": float(np.median(run / c)),
+                "run_c_call_over_c": float(np.median(np.array(self.run_c) / c)),
+                "start_up_us": 1e6 * min(self.start_up), "pairs": len(c)}
 
 
 class CTiming:
@@ -174,38 +242,37 @@ def filterpy_ckf(bundle, Q, R):
 def run(quick: bool = False, verbose: bool = True) -> dict:
     bundle = generated.load(MODEL)
     steps = 200 if quick else 400
-    rounds, repeats = (2, 2) if quick else (8, 3)
+    pairs, repeats = (8, 2) if quick else (40, 3)
     x0, P0, Q, R, U, Z = trajectory(bundle, steps)
-    results: dict = {"model": MODEL, "steps": steps, "rounds": rounds, "repeats": repeats, "per_step_us": {}, "from_c_us": {}}
+    results: dict = {"model": MODEL, "steps": steps, "pairs": pairs, "per_step_us": {}, "from_c_us": {}, "paired": {}}
     py, c = results["per_step_us"], results["from_c_us"]
 
-    # Python and C alternate, round by round, and each keeps its minimum: a load that comes and goes during the run
-    # reaches both sides alike (a ratio of two minima measured minutes apart measures the load, not the code)
     # both sides time the rows after the start-up (step 0 and the unit watch's first updates, which Python alone
-    # runs: its cost per step is reported beside), over the same rows
+    # runs: its cost per step is reported beside), over the same rows, in pairs (module docstring, Times)
     first = max(start_up_rows(lambda: CKF(bundle, x0, P0, Q, R), U, Z),
                 start_up_rows(lambda: EKF(bundle, x0, P0, Q, R), U, Z), start_up_rows(lambda: UKF(bundle, x0, P0, Q, R), U, Z))
     results["untimed start-up rows"] = first
     rows = list(zip(U, Z))
-    timing = CTiming(bundle, U, Z)
+    loop, timing = CLoop(bundle), CTiming(bundle, U, Z)
     try:
-        timings: dict[str, float] = {}
-        for _ in range(rounds):
-            for cls in (EKF, UKF, CKF):
-                name = cls.__name__
-                steady, start_up = best_steady_step(lambda cls=cls: cls(bundle, x0, P0, Q, R), rows, first, repeats)
-                py[name] = min(py.get(name, float("inf")), 1e6 * steady)
-                py[f"{name} start-up"] = min(py.get(f"{name} start-up", float("inf")), 1e6 * start_up)
-                us = 1e6 * best_run_per_row(lambda cls=cls: cls(bundle, x0, P0, Q, R), U, Z, first, repeats)
-                py[f"{name}.run per row"] = min(py.get(f"{name}.run per row", float("inf")), us)
-            for label, value in timing.times(repeats, first).items():
-                timings[label] = min(timings.get(label, float("inf")), value)
+        paired = {cls.__name__: Pairs(lambda cls=cls: cls(bundle, x0, P0, Q, R), rows, U, Z, first, loop)
+                  for cls in (EKF, UKF, CKF)}
+        for turn in range(pairs):
+            for timed in paired.values():
+                timed.add(turn)
+        timings = timing.times(repeats, first)
         instructions = timing.instructions()
     finally:
         timing.close()
+        loop.close()
+    for name, timed in paired.items():
+        summary = results["paired"][name] = timed.summary()
+        py[name], py[f"{name} start-up"], py[f"{name}.run per row"] = (summary["step_us"], summary["start_up_us"],
+                                                                        summary["run_us"])
+        c[f"{name} (C loop in this process)"] = summary["c_loop_us"]
     for name in ("EKF", "UKF", "CKF"):
-        c[name] = timings[name] / 1e3
-        c[f"{name} abyssal_kalman_run per row"] = timings[f"{name}_run"] / 1e3
+        c[f"{name} (C program, minimum of {repeats})"] = timings[name] / 1e3
+        c[f"{name} abyssal_kalman_run per row (C program)"] = timings[f"{name}_run"] / 1e3
     results["gate_us"] = timings["gate"] / 1e3
     results["filter_object_bytes"] = {name: int(timings[f"{name}_bytes"]) for name in ("EKF", "UKF", "CKF")}
     if instructions is not None:
@@ -224,18 +291,19 @@ def run(quick: bool = False, verbose: bool = True) -> dict:
         py["filterpy UKF (cubature points), NumPy model"] = 1e6 * best_per_step(make, filterpy_step, fp_steps,
                                                                                  2 if quick else 5)
 
-    ratios = {"CKF.step from Python / C step": py["CKF"] / c["CKF"], "EKF.step from Python / C step": py["EKF"] / c["EKF"],
-              "UKF.step from Python / C step": py["UKF"] / c["UKF"],
-              "CKF.run per row / C step": py["CKF.run per row"] / c["CKF"],
-              "EKF.run per row / C step": py["EKF.run per row"] / c["EKF"]}
+    summaries = results["paired"]
+    ratios = {f"{name}.step from Python / C step": summaries[name]["step_over_c"] for name in ("CKF", "EKF", "UKF")}
+    ratios.update({f"{name}.run per row / C step": summaries[name]["run_over_c"] for name in ("CKF", "EKF")})
+    ratios.update({f"{name}.run's C call (abyssal_kalman_run: the outputs copied) per row / C step":
+                   summaries[name]["run_c_call_over_c"] for name in ("CKF", "EKF")})
     filterpy_us = py.get("filterpy UKF (cubature points), NumPy model")
     if filterpy_us is not None:
         ratios["filterpy / CKF"] = filterpy_us / py["CKF"]
     results["ratios"] = ratios
 
     if verbose:
-        print(f"per step (predict + update) on {MODEL}, minimum over {rounds} alternating rounds of {repeats} runs of "
-              f"{steps} steps:")
+        print(f"per step (predict + update) on {MODEL}, {steps - first} rows after {first} start-up rows, medians of "
+              f"{pairs} pairs (ratios: the median of the pairs' ratios):")
         for name, us in py.items():
             print(f"  from Python  {name:<58} {us:9.3f} us")
         for name, us in c.items():
@@ -258,20 +326,6 @@ def run(quick: bool = False, verbose: bool = True) -> dict:
     if "filterpy / CKF" in ratios:
         targets.append(target("CKF speed-up over filterpy", ratios["filterpy / CKF"], 300.0, "x", higher_is_better=True))
     return {"results": results, "targets": targets}
-
-
-def best_run_per_row(make, U, Z, first: int, repeats: int) -> float:
-    """Seconds per row of run(U[first:], Z[first:], DT) (the minimum over `repeats` fresh filters, each stepped
-    through rows 0..first-1 untimed, as best_steady_step leaves them out)."""
-    best = float("inf")
-    for _ in range(repeats):
-        flt = make()
-        for k in range(first):
-            flt.step(U[k], DT, Z[k])
-        t0 = time.perf_counter()
-        flt.run(U[first:], Z[first:], DT)
-        best = min(best, (time.perf_counter() - t0) / (len(U) - first))
-    return best
 
 
 def floor(bundle) -> dict[str, float]:
