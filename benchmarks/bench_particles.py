@@ -5,8 +5,10 @@
    once outside the repository) and in this checkout, alternately, ``ROUNDS`` times each: µs of CPU per step on one
    thread (no batch split over the cores, BLAS on one thread), the best of the script's repetitions per run. Rows: the
    CPF (N = 100) and UPF (N = 100) on rov4dof, the UPF at N = 5000 and the MCUPF (KLD-resampling) on cn2d's ranges.
-   The ratios (this checkout / 1dd3f6b) are of the minima over the rounds, and of the medians beside them.
-   Targets: each <= 0.7.
+   A ratio (this checkout / 1dd3f6b) is the median over the rounds of each round's own ratio (the two runs of a
+   round are adjacent; on a shared host the minima of the two sides over the rounds can come from different speeds
+   of the machine: 0.94 against the rounds' 0.69-0.98 for the UPF at N = 5000 once); the ratios of the minima and of
+   the medians are reported beside. Targets: each <= 0.7.
 2. The CPF at N = 100 against 100 steps of the CKF on the same model, both from this checkout's rounds (the CKF.step
    of the same script). Target: <= 1.
 3. Context: per step of PF, CPF, MOGCPF, EM-MOGCPF, the Gaussian-sum CKF and the CKF on the seed-000 scenario (sea
@@ -37,7 +39,7 @@ BASELINE = "1dd3f6b"
 ROWS = ("CKF", "CPF N=100", "UPF N=100", "UPF cn N=5000", "MCUPF cn")
 TARGET_ROWS = ("CPF N=100", "UPF N=100", "UPF cn N=5000", "MCUPF cn")
 RATIO_LIMIT = 0.7
-ROUNDS, QUICK_ROUNDS = 5, 2
+ROUNDS, QUICK_ROUNDS = 7, 2
 FILTERS = ("PF", "CPF", "MOGCPF", "EM-MOGCPF", "GS-CKF", "CKF")
 
 
@@ -75,9 +77,15 @@ def against_baseline(rounds: int, repetitions: int, say) -> dict:
                       "median": float(np.median([run[row] for run in runs[side]]))} for row in ROWS} if runs[side] else {}
 
     new, old = stats("new"), stats(BASELINE)
-    ratios = {row: {"min": new[row]["min"] / old[row]["min"], "median": new[row]["median"] / old[row]["median"]}
+
+    def paired(tops, bottoms) -> float:  # the median over the rounds of each round's own ratio (adjacent runs)
+        return float(np.median([top / bottom for top, bottom in zip(tops, bottoms)]))
+
+    ratios = {row: {"paired": paired([r[row] for r in runs["new"]], [r[row] for r in runs[BASELINE]]),
+                    "min": new[row]["min"] / old[row]["min"], "median": new[row]["median"] / old[row]["median"]}
               for row in TARGET_ROWS} if old else {}
-    ckf_units = {"min": new["CPF N=100"]["min"] / (100 * new["CKF"]["min"]),
+    ckf_units = {"paired": paired([r["CPF N=100"] for r in runs["new"]], [100 * r["CKF"] for r in runs["new"]]),
+                 "min": new["CPF N=100"]["min"] / (100 * new["CKF"]["min"]),
                  "median": new["CPF N=100"]["median"] / (100 * new["CKF"]["median"])}
     return {"us_cpu_per_step": {"this checkout": new, BASELINE: old}, "ratio_to_baseline": ratios,
             "CPF N=100 over 100 CKF steps": ckf_units, "rounds": runs, "baseline_missing": reason or None,
@@ -138,13 +146,14 @@ def run(quick: bool = False, verbose: bool = True) -> dict:
                "instructions_per_step": floors(say), "load_average_end": _load()}
     targets = []
     for row in TARGET_ROWS:
-        ratio = ab["ratio_to_baseline"].get(row, {}).get("min", float("nan"))
-        t = target(f"{row} step, CPU on one thread, over {BASELINE}'s (min of rounds)", ratio, RATIO_LIMIT, "x")
+        ratio = ab["ratio_to_baseline"].get(row, {}).get("paired", float("nan"))
+        t = target(f"{row} step, CPU on one thread, over {BASELINE}'s (median of the rounds' ratios)", ratio,
+                   RATIO_LIMIT, "x")
         if ab["baseline_missing"]:
             t["note"] = ab["baseline_missing"]
         targets.append(t)
-    targets.append(target("CPF N=100 step over 100 CKF steps (min of rounds)", ab["CPF N=100 over 100 CKF steps"]["min"],
-                          1.0, "x"))
+    targets.append(target("CPF N=100 step over 100 CKF steps (median of the rounds' ratios)",
+                          ab["CPF N=100 over 100 CKF steps"]["paired"], 1.0, "x"))
     return {"results": results, "targets": targets}
 
 
