@@ -16,6 +16,8 @@ import os
 import platform
 import subprocess
 import time
+
+import numpy as np
 from pathlib import Path
 
 SECTIONS = ("bench_models", "bench_filters", "bench_particles", "bench_sir", "bench_soak", "bench_campaign", "bench_remus",
@@ -43,6 +45,12 @@ def median_time(fn, repeat: int = 7, min_time: float = 0.05, clock=time.perf_cou
         samples.append((clock() - t0) / n)
     samples.sort()
     return samples[len(samples) // 2]
+
+
+def paired_ratio(tops, bottoms) -> float:
+    """The median of the pairs' own ratios top / bottom, each pair's two sides measured adjacent in time (a host whose
+    speed drifts reaches both sides of a pair alike, which a ratio of two minima taken apart does not)."""
+    return float(np.median(np.asarray(tops, dtype=float) / np.asarray(bottoms, dtype=float)))
 
 
 def target(name: str, value: float, limit: float, unit: str, higher_is_better: bool = False) -> dict:

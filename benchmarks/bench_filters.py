@@ -49,7 +49,7 @@ from abyssal.symbolic.codegen import MODEL_HEADER
 from abyssal.runtime.filters.kalman import CKF, EKF, UKF
 from abyssal.verify import reference_models
 
-from bench import json_main, target
+from bench import json_main, paired_ratio, target
 from trajectory import trajectory
 
 MODEL = "rov4dof"
@@ -82,6 +82,16 @@ def start_up_rows(make, U, Z) -> int:
     return len(U)
 
 
+def _compile(source: Path, libraries: list[Path], output: Path, *flags: str) -> None:
+    """source built with the cache's compiler and flags against the runtime's headers, linked with `libraries` (found
+    again at run time where they are: rpath), into `output`."""
+    cmd = [compiler(), *cflags(), *flags, f"-I{C_DIR}", f"-I{MODEL_HEADER.parent}", str(source),
+           *map(str, libraries), *(f"-Wl,-rpath,{lib.parent}" for lib in libraries), "-o", str(output), "-lm"]
+    res = subprocess.run(cmd, capture_output=True, text=True, check=False)
+    if res.returncode != 0:
+        raise BuildError(f"compiling {source.name} failed: {' '.join(cmd)}\n{res.stderr[-4000:]}")
+
+
 class CLoop:
     """kalman_loop.c built as a shared library against the runtime's library from abyssal's compile cache (the one
     Python loaded) and loaded into this process; close() removes it."""
@@ -89,13 +99,11 @@ class CLoop:
     def __init__(self, bundle):
         self.tmp = tempfile.TemporaryDirectory(prefix="abyssal-bench-loop-")
         library = Path(self.tmp.name) / "kalman_loop.so"
-        runtime = Path(kalman_runtime.KalmanRuntime.of(bundle).library)
-        cmd = [compiler(), *cflags(), "-shared", f"-I{C_DIR}", f"-I{MODEL_HEADER.parent}", str(HERE / "kalman_loop.c"),
-               str(runtime), f"-Wl,-rpath,{runtime.parent}", "-o", str(library), "-lm"]
-        res = subprocess.run(cmd, capture_output=True, text=True, check=False)
-        if res.returncode != 0:
+        try:
+            _compile(HERE / "kalman_loop.c", [Path(kalman_runtime.KalmanRuntime.of(bundle).library)], library, "-shared")
+        except BuildError:
             self.tmp.cleanup()
-            raise BuildError(f"compiling the C loop failed: {' '.join(cmd)}\n{res.stderr[-4000:]}")
+            raise
         self._steps = ctypes.CDLL(str(library)).abyssal_bench_steps
         self._steps.restype = ctypes.c_double
         self._steps.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_longlong, ctypes.c_void_p, ctypes.c_int,
@@ -159,11 +167,10 @@ class Pairs:
 
     def summary(self) -> dict[str, float]:
         """Medians in µs per step, the paired ratios' medians, the start-up rows' cost (minimum)."""
-        step, run, c = (np.array(self.seconds[way]) for way in self.WAYS)
+        step, run, c = (self.seconds[way] for way in self.WAYS)
         return {"step_us": 1e6 * float(np.median(step)), "run_us": 1e6 * float(np.median(run)),
-                "c_loop_us": 1e6 * float(np.median(c)), "step_over_c": float(np.median(step / c)),
-                "run_over_c": float(np.median(run / c)),
-                "run_c_call_over_c": float(np.median(np.array(self.run_c) / c)),
+                "c_loop_us": 1e6 * float(np.median(c)), "step_over_c": paired_ratio(step, c),
+                "run_over_c": paired_ratio(run, c), "run_c_call_over_c": paired_ratio(self.run_c, c),
                 "start_up_us": 1e6 * min(self.start_up), "pairs": len(c)}
 
 
@@ -180,14 +187,12 @@ class CTiming:
             np.savetxt(fh, np.hstack([U, Z]), fmt="%.17g")
         self.exe = tmp / "kalman_timing"
         self.steps = len(U)
-        library, runtime = Path(bundle.library), Path(kalman_runtime.KalmanRuntime.of(bundle).library)
-        cmd = [compiler(), *cflags(), f"-DDESCRIPTOR={bundle.name}_descriptor", f"-I{C_DIR}", f"-I{MODEL_HEADER.parent}",
-               str(HERE / "kalman_timing.c"), str(library), str(runtime), f"-Wl,-rpath,{library.parent}",
-               f"-Wl,-rpath,{runtime.parent}", "-o", str(self.exe), "-lm"]
-        res = subprocess.run(cmd, capture_output=True, text=True, check=False)
-        if res.returncode != 0:
+        try:
+            _compile(HERE / "kalman_timing.c", [Path(bundle.library), Path(kalman_runtime.KalmanRuntime.of(bundle).library)],
+                     self.exe, f"-DDESCRIPTOR={bundle.name}_descriptor")
+        except BuildError:
             self.tmp.cleanup()
-            raise BuildError(f"compiling the timing driver failed: {' '.join(cmd)}\n{res.stderr[-4000:]}")
+            raise
 
     def times(self, repeats: int, first: int) -> dict[str, float]:
         """ns per step of each filter from a C loop over rows first.. and through abyssal_kalman_run over them, the

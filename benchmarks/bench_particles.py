@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench import median_time, target
+from bench import median_time, paired_ratio, target
 
 HERE = Path(__file__).resolve().parent
 BASELINE = "1dd3f6b"
@@ -78,13 +78,10 @@ def against_baseline(rounds: int, repetitions: int, say) -> dict:
 
     new, old = stats("new"), stats(BASELINE)
 
-    def paired(tops, bottoms) -> float:  # the median over the rounds of each round's own ratio (adjacent runs)
-        return float(np.median([top / bottom for top, bottom in zip(tops, bottoms)]))
-
-    ratios = {row: {"paired": paired([r[row] for r in runs["new"]], [r[row] for r in runs[BASELINE]]),
+    ratios = {row: {"paired": paired_ratio([r[row] for r in runs["new"]], [r[row] for r in runs[BASELINE]]),
                     "min": new[row]["min"] / old[row]["min"], "median": new[row]["median"] / old[row]["median"]}
               for row in TARGET_ROWS} if old else {}
-    ckf_units = {"paired": paired([r["CPF N=100"] for r in runs["new"]], [100 * r["CKF"] for r in runs["new"]]),
+    ckf_units = {"paired": paired_ratio([r["CPF N=100"] for r in runs["new"]], [100 * r["CKF"] for r in runs["new"]]),
                  "min": new["CPF N=100"]["min"] / (100 * new["CKF"]["min"]),
                  "median": new["CPF N=100"]["median"] / (100 * new["CKF"]["median"])}
     return {"us_cpu_per_step": {"this checkout": new, BASELINE: old}, "ratio_to_baseline": ratios,

@@ -75,7 +75,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench import target
+from bench import paired_ratio, target
 
 DT = 0.05            # 20 Hz
 LAG = 1.0            # a fix arrives 1 s after its stamp
@@ -493,8 +493,7 @@ def one_sensor_vs_stacked(bundle, sc: Scenario, rounds: int, overhead: float) ->
              for s in sensors}
     for s in sensors:
         for side in ("python", "c"):
-            own = zip(rounds_of[(s, "sensor", side)], rounds_of[(s, "stacked, its rows", side)])
-            table[s][side]["ratio"] = statistics.median(a / b for a, b in own)
+            table[s][side]["ratio"] = paired_ratio(rounds_of[(s, "sensor", side)], rounds_of[(s, "stacked, its rows", side)])
     return table
 
 

@@ -25,7 +25,7 @@ import time
 
 import numpy as np
 
-from bench import median_time, target
+from bench import median_time, paired_ratio, target
 
 
 def _filter(bundle, terrain, sigma, n, seed=1):
@@ -102,8 +102,7 @@ def run(quick: bool = False, verbose: bool = True) -> dict:
                     python_us.append(1e6 * (time.perf_counter() - start) / 200)
         if not np.array_equal(plain.particles, timed_filter.particles):
             raise RuntimeError("the two TAN filters of the Python/C timing parted: they did not do the same work")
-        ratio = float(np.median(np.array(python_us) / np.array(c_us)))  # each pass's own ratio: adjacent passes
-        return float(np.median(python_us)), float(np.median(c_us)), ratio
+        return float(np.median(python_us)), float(np.median(c_us)), paired_ratio(python_us, c_us)
 
     steps, over_c = {}, {}
     for label, sigma in (("fixed sigma = 3 m", 3.0), ("fuzzy sigma", "fuzzy")):
