@@ -545,7 +545,8 @@ class KalmanFilter(FilterBase):
         P_rows = None if not given else np.ascontiguousarray([model.p_default if p is None else p for p in a.rows_p])
         longest = float(dts.max()) if dts.size else 0.0
         xs, Ps = np.empty((T, n)), np.empty((T, n, n))
-        nis, dof, row = np.full(T, np.nan), np.zeros(T, dtype=np.int32), ctypes.c_longlong(-1)
+        # (the C writes every row of each: NaN and 0 where a row has no update)
+        nis, dof, row = np.empty(T), np.empty(T, dtype=np.int32), ctypes.c_longlong(-1)
         if not self._lock.acquire(False):
             raise self._busy()
         try:
