@@ -4,11 +4,12 @@
   compiled SIR step of every particle filter -- body + environment noise draws, generated arc step
   over all particles, map lookup, the depth gate and Gaussian likelihood, normalisation, ESS,
   moments, systematic resampling when N_eff < N/2 -- and for "fuzzy" the gradient-rate window and
-  the generated fuzzy_sigma call) at N = 1000 on the synthetic Arctic map's rough track, fixed
-  sigma and fuzzy (the paper: 0.76 ms in MATLAB). Target: the step from Python <= 1.2x its own C calls
-  (issue "Generate the model, write the filters once": the compiled SIR step, and with a fuzzy sigma the generated
-  fuzzy controller, each timed inside the steps of a second filter built alike that steps the same rows in passes
-  alternating with the first's untimed ones, which give the Python time). Parts
+  the generated fuzzy_sigma call, in the same C call) at N = 1000 on the synthetic Arctic map's rough track, fixed
+  sigma and fuzzy (the paper: 0.76 ms in MATLAB). Target: the step from Python <= 1.2x its own C call
+  (issue "Generate the model, write the filters once": the compiled SIR step, with a fuzzy sigma the stage of eq. 3
+  around it -- the gradient's window and the generated fuzzy controller, abyssal_sir_terrain_step --, timed inside
+  the steps of a second filter built alike that steps the same rows in passes alternating with the first's untimed
+  ones, which give the Python time). Parts
   timed alone: the compiled call, the same call without a move (an update alone: no draws, no arc
   step), the step's 4N normals (Philox4x32-10 + Box-Muller), the generated arc kernel, the map
   lookup, and NumPy's normal draws as the peer the step's own generator replaced.
@@ -63,26 +64,21 @@ def run(quick: bool = False, verbose: bool = True) -> dict:
         return median_time(step, repeat=repeat, min_time=min_time)
 
     def python_over_c(sigma, passes: int) -> tuple[float, float, float]:
-        """(µs per step from Python, µs of its C calls inside such steps: the compiled SIR step, and with a fuzzy
-        sigma the generated fuzzy controller, the median of the passes' ratios): two filters built alike step the same
+        """(µs per step from Python, µs of its C call inside such steps: the compiled SIR step, with a fuzzy sigma
+        its stage of eq. 3 around it, the median of the passes' ratios): two filters built alike step the same
         rows (taken out beforehand) and so do the same C work; in passes of 200 steps the first steps as it is (the
-        Python time), the second with its C calls timed inside (perf_counter around each: the C time; the timer's own
+        Python time), the second with its C call timed inside (perf_counter around it: the C time; the timer's own
         cost stays out of the Python time), the order alternating; medians over the passes."""
         plain, timed_filter = _filter(bundle, terrain, sigma, 1000), _filter(bundle, terrain, sigma, 1000)
         compiled = timed_filter._sir
-        call, fuzzy, spent = compiled._fn, timed_filter._fuzzy, [0.0]
+        call, spent = compiled._fn, [0.0]
 
         def timed(arg):
             start = time.perf_counter()
             status = call(arg)
             spent[0] += time.perf_counter() - start
             return status
-
-        def timed_fuzzy():
-            start = time.perf_counter()
-            fuzzy()
-            spent[0] += time.perf_counter() - start
-        compiled._fn, timed_filter._fuzzy = timed, timed_fuzzy
+        compiled._fn = timed
         rows = [(u.copy(), z.copy()) for u, z in zip(truth.inputs, truth.measurements)]
         for filt in (plain, timed_filter):
             for u, z in rows[:50]:
@@ -110,7 +106,7 @@ def run(quick: bool = False, verbose: bool = True) -> dict:
         say(f"  TAN SIR step, N = 1000, {label:<18} {steps[label]:8.1f} us")
         python_us, c_us, ratio = python_over_c(sigma, 3 * repeat)
         over_c[label] = {"step_us": python_us, "its_c_call_us": c_us, "ratio": ratio}
-        say(f"    from Python {python_us:.1f} us per step, its C calls {c_us:.1f} us (medians): the passes' ratios' "
+        say(f"    from Python {python_us:.1f} us per step, its C call {c_us:.1f} us (medians): the passes' ratios' "
             f"median {ratio:.2f}x")
     results["python_over_c_N1000"] = over_c
     # parts, as peers
@@ -179,7 +175,7 @@ def run(quick: bool = False, verbose: bool = True) -> dict:
     # (the absolute 20 µs per step of the blocked issue "One compiled SIR step" gave way to the ratio to the C call)
     targets = [target("TAN step from Python / its C call, N = 1000, fixed sigma", over_c["fixed sigma = 3 m"]["ratio"],
                       1.2, "x"),
-               target("TAN step from Python / its C calls (SIR step + fuzzy controller), N = 1000, fuzzy sigma",
+               target("TAN step from Python / its C call (SIR step with eq. 3's fuzzy stage), N = 1000, fuzzy sigma",
                       over_c["fuzzy sigma"]["ratio"], 1.2, "x"),
                target("map lookup per particle at N = 10^6", lookup[1000000], 10.0, "ns"),
                target("step ns/particle, largest N / N = 10^4 (linear scaling)", ns[-1] / ns[1], 1.5, "x")]

@@ -260,6 +260,12 @@ class CompiledFunction:
             raise ValueError(f"{self.name} has no structure-of-arrays kernel (see codegen.SOA_KERNELS)")
         return ctypes.cast(self._soa, ctypes.c_void_p).value
 
+    @property
+    def batch_address(self) -> int:
+        """Address of the C function ``<name>_batch`` (n evaluations on strided slices, its work on its own stack: for
+        runtime C that calls the function itself); the library stays loaded while this CompiledFunction lives."""
+        return ctypes.cast(self._batch, ctypes.c_void_p).value
+
     # ---------------------------------------------------------- convenience path
     def _checked(self, value, sig: Signature) -> np.ndarray:
         """value as a flat column-major float64 array, after shape and finiteness checks."""

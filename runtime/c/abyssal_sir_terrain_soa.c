@@ -110,3 +110,50 @@ int abyssal_sir_terrain_measure(const void* ctx, abyssal_idx n, abyssal_idx ld, 
   }
   return 0;
 }
+
+/* ------------------------------------------------------------------ the fuzzy stage (abyssal_sir_terrain.h) */
+
+int abyssal_sir_terrain_step(const abyssal_sir* s) {
+  const abyssal_sir_terrain* t = s ? (const abyssal_sir_terrain*)s->h_ctx : 0;
+  const abyssal_sir_terrain_fuzzy* z = t ? t->fuzzy : 0;
+  if (!z) return abyssal_sir_step(s);
+  const double side_value = s->in[ABYSSAL_SIR_IN_SIDE];
+  if (!(side_value == 0.0 || side_value == 1.0) || s->n_extra < 1 || !z->controller || !z->history || !z->state ||
+      !z->factor || z->capacity < 1)
+    return ABYSSAL_SIR_BAD_ARGUMENT;
+  const int side = (int)side_value;
+  const double* before = z->state + side * ABYSSAL_TAN_FIELDS;
+  double* after = z->state + (1 - side) * ABYSSAL_TAN_FIELDS;
+  const double first_value = before[ABYSSAL_TAN_FIRST], count_value = before[ABYSSAL_TAN_COUNT];
+  if (!(first_value >= 0.0 && first_value < (double)z->capacity && count_value >= 1.0 &&
+        count_value <= (double)z->capacity))
+    return ABYSSAL_SIR_BAD_ARGUMENT;
+  const idx cap = z->capacity, first = (idx)first_value, count = (idx)count_value;
+  if (count == cap) return ABYSSAL_SIR_TERRAIN_HISTORY_FULL;
+  const double* ring = z->history;
+  const abyssal_sir_in_offsets io = abyssal_sir_inputs(s->n_x, s->n_u, s->n_y);
+  const int move = s->in[ABYSSAL_SIR_IN_MOVE] != (double)ABYSSAL_SIR_MOVE_NONE;
+  const double travelled = before[ABYSSAL_TAN_TRAVELLED] + (move ? fabs(s->in[io.u]) * s->in[ABYSSAL_SIR_IN_DT] : 0.0);
+  idx dropped = 0;
+  while (dropped < count - 1 && travelled - ring[2 * ((first + dropped + 1) % cap)] >= z->window) ++dropped;
+  z->factor[0] = z->factor[1] = before[ABYSSAL_TAN_SIGMA]; /* eq. 3: the sigma of the last update moves */
+  int rc = abyssal_sir_step(s);
+  if (rc != ABYSSAL_SIR_OK) return rc;
+  const abyssal_sir_report_offsets ro = abyssal_sir_report(s->n_x, s->n_y, s->n_extra);
+  double gradient = z->scale * s->report[1 - side][ro.extra];
+  double rate = (gradient - ring[2 * ((first + dropped) % cap) + 1]) / z->per_length, sigma = 0.0;
+  const double* arg[2] = {&gradient, &rate};
+  double* res[1] = {&sigma};
+  const long long arg_step[2] = {0, 0}, res_step[1] = {0};
+  if (z->controller(1, arg, arg_step, res, res_step) != 0) return ABYSSAL_SIR_MODEL_FAILED;
+  const idx slot = (first + count) % cap; /* past the committed entries */
+  z->history[2 * slot] = travelled;
+  z->history[2 * slot + 1] = gradient;
+  after[ABYSSAL_TAN_TRAVELLED] = travelled;
+  after[ABYSSAL_TAN_GRADIENT] = gradient;
+  after[ABYSSAL_TAN_RATE] = rate;
+  after[ABYSSAL_TAN_SIGMA] = sigma;
+  after[ABYSSAL_TAN_FIRST] = (double)((first + dropped) % cap);
+  after[ABYSSAL_TAN_COUNT] = (double)(count - dropped + 1);
+  return ABYSSAL_SIR_OK;
+}

@@ -138,6 +138,7 @@ def library() -> ctypes.CDLL:
     lib.abyssal_sir_message.restype = ctypes.c_char_p
     lib.abyssal_sir_message.argtypes = [ctypes.c_int]
     lib.abyssal_terrain_bilinear.restype = None
+    lib.abyssal_sir_terrain_step.restype = ctypes.c_int
     return lib
 
 
@@ -253,7 +254,7 @@ class CompiledSIR:
     def __init__(self, n: int, n_x: int, n_u: int, n_y: int, p: np.ndarray, *, f: int | None, measure: tuple | None,
                  process: ProcessNoise, measurement, angle_outputs=(), input_noise: bool = False, n_extra: int = 0,
                  has_valid: bool = False, invalid_log_lik: float = -math.inf, max_abs: float = math.inf,
-                 max_threads: int | None = None):
+                 max_threads: int | None = None, entry: str = "abyssal_sir_step"):
         if not 1 <= n < 2 ** 32:
             raise ValueError(f"n_particles must be between 1 and 2^32 - 1 for the compiled step, got {n}")
         if n_x > 64 or n_y > 64:
@@ -346,7 +347,8 @@ class CompiledSIR:
             log_ratio=self.log_ratio.ctypes.data, rng=self.rng.ctypes.data, inputs=self.inputs.ctypes.data,
             work=self.work.ctypes.data, work_size=self.work.shape[0])
         self._arg = ctypes.c_void_p(ctypes.addressof(self._struct))
-        self._fn = lib.abyssal_sir_step
+        #: the C call of a step: abyssal_sir_step, or a stage around it taking the same struct (entry)
+        self._fn = getattr(lib, entry)
         # the thread count: chosen by timing (_probed_call) unless set (threads)
         self._probes, self._forced, self._serial, self._split = 0, False, math.inf, math.inf
         self._retime = FIRST_RETIME_STEPS

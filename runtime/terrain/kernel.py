@@ -26,7 +26,7 @@ class TerrainMeasure(ctypes.Structure):
 
     _fields_ = [("grid", ctypes.c_void_p), ("nx", ctypes.c_longlong), ("ny", ctypes.c_longlong),
                 ("x0", ctypes.c_double), ("y0", ctypes.c_double), ("inv_res", ctypes.c_double),
-                ("slope", ctypes.c_int), ("heading", ctypes.c_void_p)]
+                ("slope", ctypes.c_int), ("heading", ctypes.c_void_p), ("fuzzy", ctypes.c_void_p)]
 
     @classmethod
     def bind(cls, terrain, slope: bool) -> "TerrainMeasure":
@@ -45,10 +45,52 @@ class TerrainMeasure(ctypes.Structure):
         self.heading = values.ctypes.data
         self._keep.append(values)
 
+    def use_fuzzy(self, fuzzy: "TerrainFuzzy") -> None:
+        """The step's fuzzy stage (abyssal_sir_terrain_step reads it from the measurement's context), kept alive here."""
+        self.fuzzy = ctypes.addressof(fuzzy)
+        self._keep.append(fuzzy)
+
     @staticmethod
     def function() -> int:
         """Address of the measurement function (abyssal_sir_terrain_measure)."""
         return address("abyssal_sir_terrain_measure")
+
+
+class TerrainFuzzy(ctypes.Structure):
+    """abyssal_sir_terrain_fuzzy: seed 003's fuzzy process noise as a stage of the compiled step (the gradient along
+    the track, its rate over a window of travel, the controller; abyssal_sir_terrain.h). ``state`` (2, FIELDS) holds
+    the two sides' fields, ``history`` the ring of (travelled, gradient) entries; ``bind_history`` points the C at a
+    (grown or restored) ring."""
+
+    TRAVELLED, GRADIENT, RATE, SIGMA, FIRST, COUNT, FIELDS = range(7)
+    #: the step's status when the ring has no room for its entry (grow it, step again)
+    HISTORY_FULL = 7
+
+    _fields_ = [("controller", ctypes.c_void_p), ("scale", ctypes.c_double), ("window", ctypes.c_double),
+                ("per_length", ctypes.c_double), ("history", ctypes.c_void_p), ("capacity", ctypes.c_longlong),
+                ("state", ctypes.c_void_p), ("factor", ctypes.c_void_p)]
+
+    @classmethod
+    def bind(cls, controller: int, scale: float, window: float, per_length: float, state: np.ndarray,
+             history: np.ndarray, factor: np.ndarray) -> "TerrainFuzzy":
+        """controller: the address of the generated fuzzy_sigma's batch entry point; state (2, FIELDS), history
+        (capacity, 2) and factor (the step's process noise factor, 2 entries): contiguous float64 arrays, kept."""
+        for name, arr, shape in (("state", state, (2, cls.FIELDS)), ("factor", factor, (2,))):
+            if not (isinstance(arr, np.ndarray) and arr.dtype == np.float64 and arr.shape == shape
+                    and arr.flags.c_contiguous):
+                raise ValueError(f"{name} must be a contiguous float64 array of shape {shape}")
+        fuzzy = cls(controller=controller, scale=scale, window=window, per_length=per_length, state=state.ctypes.data,
+                    factor=factor.ctypes.data)
+        fuzzy._keep = [state, factor]
+        fuzzy.bind_history(history)
+        return fuzzy
+
+    def bind_history(self, history: np.ndarray) -> None:
+        if not (isinstance(history, np.ndarray) and history.dtype == np.float64 and history.ndim == 2
+                and history.shape[1] == 2 and history.shape[0] >= 1 and history.flags.c_contiguous):
+            raise ValueError("history must be a contiguous float64 array of shape (capacity, 2)")
+        self.history, self.capacity = history.ctypes.data, history.shape[0]
+        self._history = history
 
 
 class BilinearLookup:

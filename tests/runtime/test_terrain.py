@@ -141,6 +141,50 @@ def test_gradient_rate_is_the_change_over_the_last_map_cell_travelled(tan, arcti
     assert 499.0 <= travelled - history[0][0] <= 500.5
 
 
+def test_the_window_ring_grows_while_the_vehicle_holds_still_and_checkpoints_across_it(tan, arctic, monkeypatch):
+    """The fuzzy stage's ring of (travelled, G) starts at 4 entries here: holding still adds one per step, so it
+    doubles several times; the rate still equals the naive reference's, a checkpoint taken before the growth
+    restores a filter that repeats the same steps exactly, and a step refused when the ring is full keeps it."""
+    import abyssal.runtime.filters.particle.terrain as terrain_module
+
+    monkeypatch.setattr(terrain_module, "HISTORY_CAPACITY", 4)
+    truth, Z = straight_track(tan, arctic, 80)
+    pf = TerrainParticleFilter(tan, [20e3, 20e3, 0.0], np.diag([30.0 ** 2, 30.0 ** 2, 0.0]), "fuzzy", 5.0, 100, 4,
+                               terrain=arctic, rate_window_m=5.0)
+    history, travelled = [(0.0, pf.gradient)], 0.0
+    saved, replay, refused_when_full = None, [], 0
+    for k in range(80):
+        v = 0.0 if 10 <= k < 40 else 0.5  # 30 steps holding still: 30 entries within one window
+        if k == 12:
+            saved = pf.checkpoint()
+        count = pf._fuzzy_state[pf._sir.side][terrain_module.TerrainFuzzy.COUNT]
+        if count == pf._history.shape[0]:  # a step refused while the ring is full (a current beyond the finite
+            before = pf.checkpoint()       # range): the ring and the fields stay as they were
+            with pytest.raises(ValueError):
+                pf.step(np.array([v, 0.0]), 1.0, Z[k], p=np.array([1e308, 1e308]))
+            after = pf.checkpoint()
+            assert after["_history"].shape == before["_history"].shape
+            np.testing.assert_array_equal(after["_history"], before["_history"])
+            np.testing.assert_array_equal(after["_fuzzy_state"], before["_fuzzy_state"])
+            refused_when_full += 1
+        pf.step(np.array([v, 0.0]), 1.0, Z[k])
+        travelled += v
+        history.append((travelled, pf.gradient))
+        while len(history) > 2 and travelled - history[1][0] >= 5.0:
+            history.pop(0)
+        assert pf.gradient_rate == pytest.approx((pf.gradient - history[0][1]) / 0.005, rel=1e-12, abs=1e-12)
+        if k >= 12:
+            replay.append((pf.sigma, pf.gradient_rate, pf.x.copy()))
+    assert pf._history.shape[0] >= 32 and refused_when_full >= 2  # grown from 4, at 8 and 16 entries at least
+    pf.restore(saved)
+    assert pf._history.shape == saved["_history"].shape and pf._history.shape[0] < 32  # the ring the checkpoint holds
+    for k in range(12, 80):
+        v = 0.0 if 10 <= k < 40 else 0.5
+        pf.step(np.array([v, 0.0]), 1.0, Z[k])
+        sigma, rate, x = replay[k - 12]
+        assert (pf.sigma, pf.gradient_rate) == (sigma, rate) and np.array_equal(pf.x, x), k
+
+
 # ------------------------------------------------------------------ the compiled step (an instance of the SIR step)
 def numpy_sir_step(particles, log_w, u, dt, noise, uniform, sigma, z, terrain, body=(0.1, 0.1, 0.001, 0.1),
                    altimeter_sigma=5.0, out_of_map_ll=-12.5, resample_below=0.0):

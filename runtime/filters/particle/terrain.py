@@ -27,7 +27,9 @@ Decisions (the paper's Fig. 5 fixes the SIR loop, not these):
   per-particle input noise, the environment noise its process noise on the (x, y) subspace, the compass
   its pinned heading, the altimeter its measurement (the map lookup, ``abyssal_sir_terrain_measure``)
   with the out-of-map particles its invalid ones; draws, move, lookup, weights, moments and resampling
-  happen in that call. Python keeps the contract's checks and the fuzzy inputs. The draws are the step's
+  happen in that call, and with a fuzzy sigma eq. 3's stage (``abyssal_sir_terrain_step``: the gradient, its
+  rate over the window of travel, the generated controller; abyssal_sir_terrain.h). Python keeps the contract's
+  checks. The draws are the step's
   own counter-based generator (Philox4x32-10), keyed once from ``rng`` at construction (the numpy
   Generator is not advanced by steps); ``checkpoint()`` includes its key and step counter.
 * One depth value cannot end the filter (the robust rule of every SIR filter): a depth whose innovation
@@ -49,7 +51,9 @@ Decisions (the paper's Fig. 5 fixes the SIR loop, not these):
   defines none): ``gradient_scale`` = 100 (percent) and ``rate_length_m`` = 1000 (per km) by default;
   ``gradient_scale`` = 500, ``rate_length_m`` = 500 reads them per 500 m map cell instead (5x the
   gradient, 2.5x the rate), the experiment's "fuzzy_per_cell" sensitivity row. The sigma computed after step k's
-  update is the one used by step k+1's move (the first move uses G at x0 and R = 0).
+  update is the one used by step k+1's move (the first move uses G at x0 and R = 0). The window's entries are a
+  ring of (travelled, G) in the filter's checkpoint that doubles when full (a vehicle holding still adds one
+  entry per step until it has travelled a window).
 * Resampling: systematic, when N_eff = 1/sum w^2 < N_th = ``threshold`` N (default 0.5: the paper
   does not state N_th). The estimate and covariance are the weighted moments after the update,
   before resampling.
@@ -57,7 +61,6 @@ Decisions (the paper's Fig. 5 fixes the SIR loop, not these):
 from __future__ import annotations
 
 import math
-from collections import deque
 from types import SimpleNamespace
 
 import numpy as np
@@ -69,11 +72,14 @@ from ...contract import (_FLOAT64, NUMERICAL_FAILURES, FilterBase, as_generator,
 from ...noise import GaussianMixture
 from ...numerics import gaussian_draws
 from ...resampling import ResamplingPolicy
-from ...terrain.kernel import TerrainMeasure
+from ...terrain.kernel import TerrainFuzzy, TerrainMeasure
 
 _MOVE_NONE, _MOVE_TRANSITION, _NONFINITE_MOMENTS = sir.MOVE_NONE, sir.MOVE_TRANSITION, sir.NONFINITE_MOMENTS
 _REPORT_TO_GATED = sir.R_GATED + 1  # the report's head up to R_GATED: ess, resampled, ..., gated
 
+#: entries of the ring of (travelled, gradient) a filter starts with (it doubles when full: a vehicle that holds still
+#: adds one per step until it has travelled a window)
+HISTORY_CAPACITY = 1024
 #: seed 003, Table 2: (a1, a2, a3, a4) of eq. 2
 BODY_NOISE = (0.1, 0.1, 0.001, 0.1)
 LOG_2PI = math.log(2.0 * math.pi)
@@ -87,7 +93,7 @@ class TerrainParticleFilter(FilterBase):
 
     name = "TAN-SIR"
     _state = ("particles", "log_weights", "weights", "streams", "ess", "_x", "_P", "resamples", "gated",
-              "uninformative", "_gate_streak", "_history", "_travelled", "gradient", "gradient_rate", "sigma")
+              "uninformative", "_gate_streak", "_fuzzy_state", "_history")
     #: a step writes the uncommitted side of the compiled step's buffers and its inputs only
     _touched = ()
 
@@ -156,6 +162,7 @@ class TerrainParticleFilter(FilterBase):
         self._measure = TerrainMeasure.bind(terrain, slope=self.fuzzy)
         self._sir = sir.CompiledSIR(
             N, model.n_x, model.n_u, 1, p, f=f.soa_address, measure=(TerrainMeasure.function(), self._measure),
+            entry="abyssal_sir_terrain_step" if self.fuzzy else "abyssal_sir_step",
             process=sir.ProcessNoise(rank=2, factor=np.zeros(2), support=np.array([0, 1], dtype=np.int32)),
             measurement=GaussianMixture.gaussian(np.zeros(1), np.array([[self.altimeter_sigma ** 2]])),
             input_noise=True, n_extra=1 if self.fuzzy else 0, has_valid=True,
@@ -174,7 +181,6 @@ class TerrainParticleFilter(FilterBase):
         self._gate = gate
         if len(self._values) != step.io.settings - sir.IN_MOVE or step.io.u - sir.IN_MOVE != 11:
             raise RuntimeError("the compiled SIR step's input layout changed: update TerrainParticleFilter._values")
-        self._sigma_in_step = None  # the sigma last written into the step's process noise factor
         step.particles[0][...] = gaussian_draws(x0, P0, self.rng, N)
         step.rng[0] = sir.draw_key(self.rng)
         self._x, self._P = step.mean(0), step.cov(0)
@@ -187,12 +193,20 @@ class TerrainParticleFilter(FilterBase):
         self.gated = 0
         self.uninformative = 0
         self._gate_streak = 0
-        # fuzzy inputs: the gradient history along the track (travelled distance, G)
-        self._history: deque[tuple[float, float]] = deque()
-        self._travelled = 0.0
-        self.gradient, self.gradient_rate = self._gradient_at(x0), 0.0
-        self.sigma = self._fuzzy_sigma(self.gradient, 0.0) if self.fuzzy else float(sigma)
-        self._history.append((0.0, self.gradient))
+        # the fuzzy inputs and sigma of the step's two sides (TerrainFuzzy's fields; the committed one is the step's
+        # side) and the ring of (travelled, gradient) along the track: the first move uses G at x0 and R = 0
+        gradient = self._gradient_at(x0)
+        sigma0 = self._fuzzy_sigma(gradient, 0.0) if self.fuzzy else float(sigma)
+        self._fuzzy_state = np.zeros((2, TerrainFuzzy.FIELDS))
+        self._fuzzy_state[:] = [0.0, gradient, 0.0, sigma0, 0.0, 1.0]
+        self._history = np.zeros((HISTORY_CAPACITY, 2))
+        self._history[0] = 0.0, gradient
+        step.factor[...] = sigma0  # (a fixed sigma stays; the fuzzy stage writes the committed one before each move)
+        if self.fuzzy:
+            self._stage = TerrainFuzzy.bind(model.function("fuzzy_sigma").batch_address, self.gradient_scale,
+                                            self.rate_window_m, self.rate_window_m / self.rate_length_m,
+                                            self._fuzzy_state, self._history, step.factor)
+            self._measure.use_fuzzy(self._stage)
 
     # ---------------------------------------------------------------- state (the step's committed side)
     @property
@@ -224,6 +238,26 @@ class TerrainParticleFilter(FilterBase):
         self._sir.cur, self._sir.side, self._sir.weights_match = checkpoint["sides"]
         self._x, self._P = self._sir.mean(self._sir.side), self._sir.cov(self._sir.side)
         super().restore(checkpoint)  # into the buffers of the restored sides
+        if self.fuzzy:  # (a ring of another capacity is a new array)
+            self._stage.bind_history(self._history)
+
+    # ---------------------------------------------------------------- eq. 3's inputs and sigma (the committed side)
+    @property
+    def sigma(self) -> float:
+        """The environment noise's standard deviation (m per step) of the next move: the fixed one, or the fuzzy
+        controller's after the last update."""
+        return self._fuzzy_state.item(self._sir.side, TerrainFuzzy.SIGMA)
+
+    @property
+    def gradient(self) -> float:
+        """G: the posterior mean of the map's slope along the particles' headings after the last update (x0's at
+        the start), in gradient_scale units (percent by default)."""
+        return self._fuzzy_state.item(self._sir.side, TerrainFuzzy.GRADIENT)
+
+    @property
+    def gradient_rate(self) -> float:
+        """R: the change of G over the last rate_window_m of commanded travel, per rate_length_m (0 at the start)."""
+        return self._fuzzy_state.item(self._sir.side, TerrainFuzzy.RATE)
 
     # ---------------------------------------------------------------- the step
     def _gradient_at(self, x: np.ndarray) -> float:
@@ -298,10 +332,9 @@ class TerrainParticleFilter(FilterBase):
         values[14] = math.sqrt(a3 * v * v + a4 * omega * omega)
         values[15] = z_depth
         values[18] = math.inf if self._gate_streak >= self.gate_patience else self._gate    # patience: ungated
-        if self.sigma != self._sigma_in_step:                                                 # eq. 3
-            factor = step.factor  # (x, y): two item writes take a third of a slice assignment's time
-            factor[0] = factor[1] = self._sigma_in_step = self.sigma
-        status = step.run(values)
+        status = step.run(values)  # (with a fuzzy sigma, eq. 3's stage too: abyssal_sir_terrain_step)
+        if status == TerrainFuzzy.HISTORY_FULL:
+            status = self._run_with_a_larger_history(values)
         nxt = 1 - step.side
         if status:
             if status == _NONFINITE_MOMENTS:  # finite in, finite out (e.g. a current p of 1e308 moves every particle
@@ -310,17 +343,6 @@ class TerrainParticleFilter(FilterBase):
             raise ValueError(f"TerrainParticleFilter: {step.message(status)} (u, dt, z or p out of the model's "
                              "finite range); state left unchanged")
         ess, resampled, _, uninformative, _, gated = step.head(nxt)[:_REPORT_TO_GATED]
-        if self.fuzzy:  # eq. 3's inputs for the next step: the gradient along the track and its rate over a window
-            gradient = self.gradient_scale * step.extras[nxt].item(0)
-            travelled = self._travelled + (abs(v) * dt if move else 0.0)
-            # the window's base: the newest history entry such that the one after it is < rate_window_m back
-            # (history holds at least one entry; the new one is never a window back, rate_window_m > 0)
-            history, window = self._history, self.rate_window_m
-            dropped, last = 0, len(history) - 1
-            while dropped < last and travelled - history[dropped + 1][0] >= window:
-                dropped += 1
-            rate = (gradient - history[dropped][1]) / (window / self.rate_length_m)
-            sigma = self._fuzzy_sigma(gradient, rate)
         # commit: nothing below can fail
         step.commit(resampled != 0.0)
         if depth_present:
@@ -330,8 +352,20 @@ class TerrainParticleFilter(FilterBase):
         self.resamples += resampled > 0.0
         self.ess = ess
         self._x, self._P = step.means[nxt], step.covs[nxt]
-        if self.fuzzy:
-            self._travelled, self.gradient, self.gradient_rate, self.sigma = travelled, gradient, rate, sigma
-            history.append((travelled, gradient))
-            for _ in range(dropped):
-                history.popleft()
+
+    def _run_with_a_larger_history(self, values) -> int:
+        """The step again with the ring of (travelled, gradient) twice as long (its entries where they were, modulo
+        the new length: the committed fields stay as they are); a refused step keeps the old ring."""
+        old = self._history
+        capacity = old.shape[0]
+        committed = self._fuzzy_state[self._sir.side]
+        at = int(committed[TerrainFuzzy.FIRST]) + np.arange(int(committed[TerrainFuzzy.COUNT]))
+        grown = np.zeros((2 * capacity, 2))
+        grown[at % (2 * capacity)] = old[at % capacity]
+        self._history = grown
+        self._stage.bind_history(grown)
+        status = self._sir.run(values)
+        if status:
+            self._history = old
+            self._stage.bind_history(old)
+        return status
