@@ -10,10 +10,11 @@ Ours:   the EKF, UKF and CKF classes, ``step(u, dt, z)`` through a simulated tra
 Peers:  filterpy's UnscentedKalmanFilter with MerweScaledSigmaPoints(1, 0, 0) (the same CKF) on the independent
         NumPy model of rov4dof (verify/reference_models.py, written from the paper: a model as a user would write
         it).
-Floor:  instructions per CKF step of the C loop (valgrind --tool=callgrind, when valgrind is installed) beside the
-        model's own work: 2n evaluations of f through the SIMD kernel plus 2n evaluations of h, and the dense
-        algebra of the rule (the step's arithmetic with the model's functions counted by their generated
-        instruction counts).
+Floor:  instructions per CKF step from Python (valgrind --tool=callgrind on step_times.py, when valgrind is
+        installed; instructions.py: an x86-64-v3 build, valgrind 3.19 decodes no AVX-512), and of them abyssal's C,
+        the model's kernels and libmvec, beside the model's own work: 2n evaluations of f through the SIMD
+        kernel plus 2n evaluations of h, and the dense algebra of the rule (the step's arithmetic with the
+        model's functions counted by their generated instruction counts).
 Times:  paired: each pair times the same rows three ways, each on a fresh filter, within a few milliseconds of each
         other (Python's step loop, run(), the in-process C loop; their order rotating pair by pair, the filters'
         pairs interleaved); a ratio is the median over the pairs of that pair's Python time over its C time, so a
@@ -37,8 +38,8 @@ the C step per row (over a log of LOG_ROWS rows); the CKF >= 300x faster than fi
 from __future__ import annotations
 
 import ctypes
-import shutil
 import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -53,6 +54,7 @@ from abyssal.symbolic.codegen import MODEL_HEADER
 from abyssal.runtime.filters.kalman import CKF, EKF, UKF
 from abyssal.verify import reference_models
 
+import instructions
 from bench import json_main, paired_ratio, target
 from trajectory import trajectory
 
@@ -200,7 +202,6 @@ class CTiming:
             fh.write(f"{len(U)} {bundle.n_u} {bundle.n_y}\n")
             np.savetxt(fh, np.hstack([U, Z]), fmt="%.17g")
         self.exe = tmp / "kalman_timing"
-        self.steps = len(U)
         try:
             _compile(HERE / "kalman_timing.c", [Path(bundle.library), Path(kalman_runtime.KalmanRuntime.of(bundle).library)],
                      self.exe, f"-DDESCRIPTOR={bundle.name}_descriptor")
@@ -215,31 +216,8 @@ class CTiming:
                              check=True, timeout=600).stdout
         return {label: float(value) for label, value in (line.split() for line in out.splitlines())}
 
-    def instructions(self) -> dict[str, float] | None:
-        return _callgrind_instructions(self.exe, self.data, self.steps) if shutil.which("valgrind") else None
-
     def close(self) -> None:
         self.tmp.cleanup()
-
-
-def _callgrind_instructions(exe: Path, data: Path, steps: int) -> dict[str, float] | None:
-    """Instructions per step of each filter's C loop (one repetition under callgrind), by the loop's function."""
-    with tempfile.TemporaryDirectory(prefix="abyssal-callgrind-") as tmp:
-        outfile = Path(tmp) / "callgrind.out"
-        done = subprocess.run(["valgrind", "--tool=callgrind", f"--callgrind-out-file={outfile}", str(exe), str(data), "1",
-                               "1"],
-                              capture_output=True, text=True, timeout=900)
-        if done.returncode != 0 or not outfile.exists():
-            return None
-        total = subprocess.run(["callgrind_annotate", "--inclusive=yes", str(outfile)], capture_output=True, text=True,
-                               timeout=300).stdout
-    # abyssal_kalman_step is called `steps` times per filter and per repetition (FIRST = 1: the untimed first step and
-    # the timed rest), and as often again around and inside abyssal_kalman_run: 3 filters, 1 repetition
-    for line in total.splitlines():
-        if "abyssal_kalman_step " in line or line.rstrip().endswith("abyssal_kalman_step"):
-            count = float(line.split()[0].replace(",", ""))
-            return {"all filters": count / (3 * 2 * steps)}
-    return None
 
 
 def filterpy_ckf(bundle, Q, R):
@@ -282,7 +260,6 @@ def run(quick: bool = False, verbose: bool = True) -> dict:
                 for timed in paired.values():
                     timed.add(turn, ways)
         timings = timing.times(repeats, first)
-        instructions = timing.instructions()
     finally:
         timing.close()
         loop.close()
@@ -297,8 +274,9 @@ def run(quick: bool = False, verbose: bool = True) -> dict:
         c[f"{name} abyssal_kalman_run per row (C program)"] = timings[f"{name}_run"] / 1e3
     results["gate_us"] = timings["gate"] / 1e3
     results["filter_object_bytes"] = {name: int(timings[f"{name}_bytes"]) for name in ("EKF", "UKF", "CKF")}
-    if instructions is not None:
-        results["instructions_per_step_callgrind"] = instructions
+    if not quick and instructions.available():  # (the CKF's steps from Python under callgrind: ~1.5 min)
+        results["instructions_per_step_callgrind"] = instructions.per_step(
+            [sys.executable, str(HERE / "step_times.py"), "--steps", "CKF"], 200)
     results["floor"] = floor(bundle)
 
     fp_steps = 20 if quick else 60
@@ -339,7 +317,8 @@ def run(quick: bool = False, verbose: bool = True) -> dict:
         for name, value in results["floor"].items():
             print(f"  floor: {name:<58} {value:10.0f}")
         if "instructions_per_step_callgrind" in results:
-            print(f"  instructions per step (callgrind, EKF/UKF/CKF averaged): {results['instructions_per_step_callgrind']}")
+            print("  CKF.step from Python, instructions per step (callgrind, x86-64-v3 build): " + ", ".join(
+                f"{k} {v:,.0f}" for k, v in results["instructions_per_step_callgrind"].items()))
         for name, ratio in ratios.items():
             print(f"  {name:<58} {ratio:10.2f} x")
 

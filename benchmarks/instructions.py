@@ -2,10 +2,12 @@
 judged against, counted repeatably on a loaded machine.
 
     counts = per_step([python, "benchmarks/step_times.py", "--steps", "CPF N=100"], steps=10)
-    counts -> {"total": ..., "model kernels": ..., "libmvec": ...}   # per step, or None (no valgrind)
+    counts -> {"total": ..., "abyssal's C (runtime and model)": ..., "model kernels": ..., "libmvec": ...}
+                                                                      # per step, or None (no valgrind)
 
 The command runs twice, with `steps` and 2 `steps` steps appended as its last argument; the difference of the two
-runs' totals, divided by `steps`, is a step's count without start-up. "model kernels" are the generated functions of
+runs' totals, divided by `steps`, is a step's count without start-up. "abyssal's C" is every function of the
+libraries in abyssal's compile cache (the runtime and the model's library), "model kernels" the generated functions of
 the model (``<model>_*_soa``, the structure-of-arrays f and h), "libmvec" the vector sin/cos/exp they call (glibc's
 ``_ZGV*``). valgrind 3.19 does not decode AVX-512, so the libraries are built for x86-64-v3 (AVX2, FMA) in a cache
 of their own (``ABYSSAL_CFLAGS``; the counts are of that build).
@@ -20,7 +22,7 @@ import tempfile
 from pathlib import Path
 
 FLAGS = "-O3 -fPIC -fno-semantic-interposition -march=x86-64-v3"
-_LINE = re.compile(r"\s*([\d,]+) \(\s*[\d.]+%\)\s+(.+?)(?: \[|$)")
+_LINE = re.compile(r"\s*([\d,]+) \(\s*[\d.]+%\)\s+(.+?)(?: \[(.+)\]|$)")
 
 
 def available() -> bool:
@@ -36,7 +38,11 @@ def _counts(command: list[str], env: dict, out: Path) -> dict[str, int]:
     for line in text.splitlines():
         match = _LINE.match(line)
         if match:
-            counts[match.group(2)] = counts.get(match.group(2), 0) + int(match.group(1).replace(",", ""))
+            count = int(match.group(1).replace(",", ""))
+            counts[match.group(2)] = counts.get(match.group(2), 0) + count
+            if match.group(3):  # (and by the object file the function is in)
+                key = f"[{match.group(3)}]"
+                counts[key] = counts.get(key, 0) + count
     return counts
 
 
@@ -56,7 +62,9 @@ def per_step(command: list[str], steps: int, cache: str | None = None) -> dict |
     def part(select) -> float:
         return sum(b[k] - a.get(k, 0) for k in b if select(k)) / steps
 
+    cache_dir = env["ABYSSAL_CACHE_DIR"]
     return {"total": part(lambda k: k == "PROGRAM TOTALS"),
+            "abyssal's C (runtime and model)": part(lambda k: k.startswith(f"[{cache_dir}")),
             "model kernels": part(lambda k: re.search(r":\w+_soa$", k) is not None and "abyssal" not in k),
             "libmvec": part(lambda k: ":_ZGV" in k)}
 

@@ -60,8 +60,8 @@ def floors(report: dict) -> list[tuple[str, str, str]]:
             break
     filters = sections.get("filters", {}).get("results", {})
     for name, value in (filters.get("instructions_per_step_callgrind") or {}).items():
-        rows.append((f"Kalman step (C loop): instructions per step, {name}", _number(value),
-                     "bench_filters under callgrind"))
+        rows.append((f"CKF step from Python: instructions, {name}", _number(value),
+                     "bench_filters under callgrind (x86-64-v3 build)"))
     for name, value in (filters.get("floor") or {}).items():
         rows.append((f"CKF step: {name}", _number(value), "bench_filters floor (rov4dof, manifest counts)"))
     for name, value in (filters.get("filter_object_bytes") or {}).items():

@@ -101,7 +101,7 @@ RECORDED = {
                                    "direction": "<=", "met": True},
                                   {"name": "MCUPF cn step over 1dd3f6b's", "value": 0.85, "limit": 0.7, "unit": "x",
                                    "direction": "<=", "met": False, "note": "load 9"}]},
-        "filters": {"results": {"instructions_per_step_callgrind": {"all filters": 12345.0},
+        "filters": {"results": {"instructions_per_step_callgrind": {"total": 12345.0},
                                 "filter_object_bytes": {"CKF": 4096}},
                     "targets": [{"name": "CKF speed-up over filterpy", "value": 512.0, "limit": 300.0, "unit": "x",
                                  "direction": ">=", "met": True}]},
@@ -137,7 +137,7 @@ def test_the_readme_block_is_written_from_a_recorded_report(tmp_path):
     # the floors as counted: per particle (SIR) and per Kalman step
     assert "| SIR step: bytes/particle (no resampling) | 248 B |" in inside
     assert "| SIR step: instructions per particle, step | 812.5 |" in inside
-    assert "| Kalman step (C loop): instructions per step, all filters | 12,345 |" in inside
+    assert "| CKF step from Python: instructions, total | 12,345 |" in inside
     assert "| CPF N=100 step from Python: instructions, total | 4,928,307 |" in inside
     # written again from another report: the block is replaced, the rest untouched
     recorded["machine"]["commit"] = "def5678"
@@ -169,7 +169,7 @@ def test_several_reports_take_each_section_from_the_first_that_holds_it(tmp_path
     assert "2. `abyssal bench --quick`, commit 0123abc: sections filters;" in inside
     assert "| particles (run 1) | CPF N=100 step over 1dd3f6b's | 0.61 x |" in inside and "0.99" not in inside
     assert "| filters (run 2) | CKF speed-up over filterpy | 512 x |" in inside
-    assert "| Kalman step (C loop): instructions per step, all filters | 12,345 |" in inside
+    assert "| CKF step from Python: instructions, total | 12,345 |" in inside
 
 def test_the_committed_readme_block_names_its_command_and_commit():
     import write_readme
