@@ -199,7 +199,7 @@ class TerrainParticleFilter(FilterBase):
         sigma0 = self._fuzzy_sigma(gradient, 0.0) if self.fuzzy else float(sigma)
         self._fuzzy_state = np.zeros((2, TerrainFuzzy.FIELDS))
         self._fuzzy_state[:] = [0.0, gradient, 0.0, sigma0, 0.0, 1.0]
-        self._history = np.zeros((HISTORY_CAPACITY, 2))
+        self._history = np.zeros((HISTORY_CAPACITY if self.fuzzy else 1, 2))  # (a fixed sigma keeps none)
         self._history[0] = 0.0, gradient
         step.factor[...] = sigma0  # (a fixed sigma stays; the fuzzy stage writes the committed one before each move)
         if self.fuzzy:
