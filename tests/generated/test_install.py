@@ -75,3 +75,22 @@ def test_non_editable_install_writes_only_into_the_user_folder(tmp_path):
     assert inside.returncode == 2 and "never written to" in inside.stderr
 
     assert _snapshot(purelib) == before  # site-packages untouched
+
+
+def test_every_folder_of_package_data_is_a_declared_package():
+    """setuptools installs the files of a folder that is not a declared package only with a warning that it will stop
+    (a wheel without the generated C or the runtime's): every folder under the package roots that holds tracked files
+    other than Python is listed in pyproject.toml's packages, with package data of its own."""
+    import tomllib
+
+    config = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
+    roots = {folder: name for name, folder in config["package-dir"].items()}
+    tracked = subprocess.run(["git", "ls-files", *roots], cwd=ROOT, capture_output=True, text=True, check=True).stdout
+    if not tracked.strip():
+        pytest.skip("not a git checkout")
+    folders = {Path(f).parent for f in tracked.split() if not f.endswith(".py")}
+    for folder in sorted(folders):
+        root = next(r for r in roots if folder.parts[0] == r)
+        package = ".".join([roots[root], *folder.parts[1:]])
+        assert package in config["packages"], f"{folder}/ holds package data: list {package!r} in pyproject's packages"
+        assert package in config["package-data"], f"{package!r} has no package-data patterns in pyproject.toml"
