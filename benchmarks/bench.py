@@ -16,9 +16,9 @@ import os
 import platform
 import subprocess
 import time
+from pathlib import Path
 
 import numpy as np
-from pathlib import Path
 
 SECTIONS = ("bench_models", "bench_filters", "bench_particles", "bench_sir", "bench_soak", "bench_campaign", "bench_remus",
             "bench_tan", "bench_cn", "bench_scaling", "bench_sensors")

@@ -25,8 +25,8 @@ Times:  paired: each pair times the same rows three ways, each on a fresh filter
         on both sides; Python's start-up cost per step is reported beside. Python loops over the rows taken out
         beforehand (``for u, z in rows: f.step(u, dt, z)``), as the C loop walks its arrays. run() is timed twice
         in each pair, each beside a C loop over the same rows: over the 400-row trajectory of the steps and over a
-        log of LOG_ROWS rows, whose ratio is the target (run's cost per row; its cost per call, ~30-50 µs of Python
-        that a short sequence pays in full, is reported beside: run's time over 400 rows beyond the C loop's). The C
+        log of LOG_ROWS rows, whose ratio is the target (run's cost per row; its cost per call, Python's, which a short
+        sequence pays in full, is reported beside: run's time over 400 rows beyond the C loop's). The C
         program's times (the minimum over its repetitions) are reported beside, for abyssal_kalman_run and the
         floor.
 
@@ -60,7 +60,7 @@ from trajectory import trajectory
 
 MODEL = "rov4dof"
 DT = 0.1
-LOG_ROWS = 4000  # run()'s rows: a log of 400 s at 10 Hz (its cost per call, beyond the rows', is reported beside)
+LOG_ROWS = 4000  # run()'s rows for its target: a log of 400 s at 10 Hz
 HERE = Path(__file__).resolve().parent
 
 
@@ -142,8 +142,8 @@ class Pairs:
         self.Z_log = np.ascontiguousarray(Z[first:first + log_rows])
         self.seconds: dict[str, list[float]] = {way: [] for way in self.WAYS + self.LOG_WAYS}
         self.start_up: list[float] = []
-        self.run_c: list[float] = []
-        self.run_c_log: list[float] = []
+        #: per run() way, its one C call's time per row (FilterResult.step_time)
+        self.run_c: dict[str, list[float]] = {"run": [], "run (log)": []}
 
     def _started(self):
         flt = self.make()
@@ -171,8 +171,7 @@ class Pairs:
                 t0 = time.perf_counter()
                 result = flt.run(U, Z, DT)
                 elapsed = time.perf_counter() - t0
-                # its one C call's time per row
-                (self.run_c_log if way.endswith("(log)") else self.run_c).append(float(result.step_time[0]))
+                self.run_c[way].append(float(result.step_time[0]))
                 del result
             else:
                 elapsed = self.loop.seconds(flt, U, Z)
@@ -180,13 +179,13 @@ class Pairs:
 
     def summary(self) -> dict[str, float]:
         """Medians in µs per step, the paired ratios' medians, the start-up rows' cost (minimum)."""
-        step, run, c, run_log, c_log = (self.seconds[way] for way in self.WAYS + self.LOG_WAYS)
-        rows = len(self.U)
+        step, run, c, run_log, c_log = (np.array(self.seconds[way]) for way in self.WAYS + self.LOG_WAYS)
         return {"step_us": 1e6 * float(np.median(step)), "run_us": 1e6 * float(np.median(run)),
                 "c_loop_us": 1e6 * float(np.median(c)), "step_over_c": paired_ratio(step, c),
-                "run_over_c": paired_ratio(run, c), "run_c_call_over_c": paired_ratio(self.run_c, c),
-                "run_log_over_c": paired_ratio(run_log, c_log), "run_log_c_call_over_c": paired_ratio(self.run_c_log, c_log),
-                "run_beyond_c_us": 1e6 * rows * float(np.median([r - c for r, c in zip(run, c)])),
+                "run_over_c": paired_ratio(run, c), "run_c_call_over_c": paired_ratio(self.run_c["run"], c),
+                "run_log_over_c": paired_ratio(run_log, c_log),
+                "run_log_c_call_over_c": paired_ratio(self.run_c["run (log)"], c_log),
+                "run_beyond_c_us": 1e6 * len(self.U) * float(np.median(run - c)),
                 "start_up_us": 1e6 * min(self.start_up), "pairs": len(c)}
 
 

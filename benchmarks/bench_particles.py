@@ -13,9 +13,9 @@
    of the same script). Target: <= 1.
 3. Context: per step of PF, CPF, MOGCPF, EM-MOGCPF, the Gaussian-sum CKF and the CKF on the seed-000 scenario (sea
    state 3) at N = 300 and 3000 (wall time, this process).
-4. The floors, with ABYSSAL_BENCH_CALLGRIND=1 (valgrind installed; minutes): instructions per step of the CKF and of
-   the CPF (N = 100) from Python under callgrind (instructions.py: an x86-64-v3 build), and of them the model's
-   kernels (f and h over the sigma points and the particles) and libmvec.
+4. The floors, with ABYSSAL_BENCH_CALLGRIND=1 (valgrind installed; minutes): instructions per step of the CPF
+   (N = 100) from Python under callgrind (instructions.py: an x86-64-v3 build), and of them abyssal's C, the model's
+   kernels (f and h over the sigma points and the particles) and libmvec; the CKF's are bench_filters'.
 
 The load average is recorded beside every round (``os.getloadavg``): on a machine shared with other work, compare the
 ratios, not the times.
@@ -77,7 +77,6 @@ def against_baseline(rounds: int, repetitions: int, say) -> dict:
                       "median": float(np.median([run[row] for run in runs[side]]))} for row in ROWS} if runs[side] else {}
 
     new, old = stats("new"), stats(BASELINE)
-
     ratios = {row: {"paired": paired_ratio([r[row] for r in runs["new"]], [r[row] for r in runs[BASELINE]]),
                     "min": new[row]["min"] / old[row]["min"], "median": new[row]["median"] / old[row]["median"]}
               for row in TARGET_ROWS} if old else {}
@@ -126,7 +125,7 @@ def floors(say) -> dict | None:
     if os.environ.get("ABYSSAL_BENCH_CALLGRIND") != "1" or not instructions.available():
         return None
     out = {}
-    for row, steps in (("CKF", 150), ("CPF N=100", 10)):  # (2 x steps within the 400 rows; the cn rows: minutes)
+    for row, steps in (("CPF N=100", 10),):  # (2 x steps within the 400 rows; the cn rows: minutes)
         out[row] = instructions.per_step([sys.executable, str(HERE / "step_times.py"), "--steps", row], steps)
         say(f"  instructions per step, {row}: " + ", ".join(f"{k} {v:,.0f}" for k, v in out[row].items()))
     return out

@@ -928,13 +928,13 @@ int abyssal_kalman_run(abyssal_kalman* f, const abyssal_model* model, long long 
       for (i = 0; i < f->n_y; ++i) any |= !isnan(z[i]);
       if (!any) z = 0;
     }
-#if defined(__GNUC__)
-    if (P_out && k + 1 < T) { /* this row's outputs' cache lines, for writing, while the step runs */
-      const char* next = (const char*)(P_out + k * f->n * f->n);
+#if defined(__GNUC__) /* this row's outputs' cache lines, for writing, while the step runs */
+    if (P_out) {
+      const char* row_P = (const char*)(P_out + k * f->n * f->n);
       size_t b, bytes = sizeof(double) * (size_t)f->n * (size_t)f->n;
-      for (b = 0; b < bytes; b += 64) __builtin_prefetch(next + b, 1, 3);
-      __builtin_prefetch(X + k * f->n, 1, 3);
+      for (b = 0; b < bytes; b += 64) __builtin_prefetch(row_P + b, 1, 3);
     }
+    if (X) __builtin_prefetch(X + k * f->n, 1, 3);
 #endif
     rc = abyssal_kalman_step(f, model, U + k * f->n_u, dt[k * dt_step], z, 0, p);
     if (rc < 0) {

@@ -76,6 +76,7 @@ from ...terrain.kernel import TerrainFuzzy, TerrainMeasure
 
 _MOVE_NONE, _MOVE_TRANSITION, _NONFINITE_MOMENTS = sir.MOVE_NONE, sir.MOVE_TRANSITION, sir.NONFINITE_MOMENTS
 _REPORT_TO_GATED = sir.R_GATED + 1  # the report's head up to R_GATED: ess, resampled, ..., gated
+_HISTORY_FULL = TerrainFuzzy.HISTORY_FULL
 
 #: entries of the ring of (travelled, gradient) a filter starts with (it doubles when full: a vehicle that holds still
 #: adds one per step until it has travelled a window)
@@ -333,7 +334,7 @@ class TerrainParticleFilter(FilterBase):
         values[15] = z_depth
         values[18] = math.inf if self._gate_streak >= self.gate_patience else self._gate    # patience: ungated
         status = step.run(values)  # (with a fuzzy sigma, eq. 3's stage too: abyssal_sir_terrain_step)
-        if status == TerrainFuzzy.HISTORY_FULL:
+        if status == _HISTORY_FULL:  # (rare: the window's ring grows)
             status = self._run_with_a_larger_history(values)
         nxt = 1 - step.side
         if status:
