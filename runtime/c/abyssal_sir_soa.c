@@ -561,10 +561,10 @@ static void block_moments_small(const double* restrict e, double W, idx nb, cons
 
 /* Weighted mean and packed upper M2 = sum e (x - mean)(x - mean)^T of d rows (stride ld) of a block, in one
  * pass over the rows shifted by the block's first particle (a point of the cloud: the subtraction of the mean's
- * outer product then cancels no more digits than the spread itself has) into dev (d rows of stride BLOCK). Four
- * columns of M2 per sweep share the loads of a row and the loop. Nothing when W = 0. */
+ * outer product then cancels no more digits than the spread itself has) into dev (d rows of stride BLOCK), then M2
+ * from dev in tiles. Nothing when W = 0. */
 static void block_moments(const double* restrict e, double W, idx nb, const double* rows, idx ld, int d, double* mean,
-                          double* m2, double* dev, double* restrict ed) {
+                          double* m2, double* dev) {
   if (!(W > 0.0)) {
     for (int r = 0; r < d; ++r) mean[r] = 0.0;
     for (idx k = 0; k < packed(d); ++k) m2[k] = 0.0;
@@ -608,28 +608,40 @@ static void block_moments(const double* restrict e, double W, idx nb, const doub
       mean[r + i] = h[i] + a[i] / W;
     }
   }
-  idx k = 0;
-  for (int r = 0; r < d; ++r) {
-    const double* restrict xr = dev + (idx)r * BLOCK;
-#pragma omp simd
-    for (idx j = 0; j < nb; ++j) ed[j] = e[j] * xr[j];
+  /* M2 in tiles of two rows by four columns (eight sums in flight, each row's weighted deviations formed once per
+   * tile); the last pair of rows and the last group of columns are clamped inside d as above, recomputing with the
+   * same bits; entries below the diagonal are computed and not stored */
+  idx start[ABYSSAL_SIR_MAX_STATES > ABYSSAL_SIR_MAX_OUTPUTS ? ABYSSAL_SIR_MAX_STATES : ABYSSAL_SIR_MAX_OUTPUTS];
+  for (int r = 0, k = 0; r < d; k += d - r, ++r) start[r] = k - r; /* packed (r, c), c >= r, at start[r] + c */
+  for (int p = 0; p < d; p += 2) {
+    const int r = p + 2 <= d ? p : d - 2;
+    const double* restrict y0 = dev + (idx)r * BLOCK;
+    const double* restrict y1 = y0 + BLOCK;
     for (int c = r; c < d; c += 4) {
-      const int c0 = c + 4 <= d ? c : d - 4; /* columns c0..c0+3; those below c are recomputed, not stored */
+      const int c0 = c + 4 <= d ? c : d - 4;
       const double* restrict x0 = dev + (idx)c0 * BLOCK;
       const double* restrict x1 = x0 + BLOCK;
       const double* restrict x2 = x1 + BLOCK;
       const double* restrict x3 = x2 + BLOCK;
-      double a0 = 0.0, a1 = 0.0, a2 = 0.0, a3 = 0.0;
-#pragma omp simd reduction(+ : a0, a1, a2, a3)
+      double a0 = 0.0, a1 = 0.0, a2 = 0.0, a3 = 0.0, b0 = 0.0, b1 = 0.0, b2 = 0.0, b3 = 0.0;
+#pragma omp simd reduction(+ : a0, a1, a2, a3, b0, b1, b2, b3)
       for (idx j = 0; j < nb; ++j) {
-        const double v = ed[j];
+        const double v = e[j] * y0[j], w = e[j] * y1[j];
         a0 += v * x0[j];
         a1 += v * x1[j];
         a2 += v * x2[j];
         a3 += v * x3[j];
+        b0 += w * x0[j];
+        b1 += w * x1[j];
+        b2 += w * x2[j];
+        b3 += w * x3[j];
       }
-      const double a[4] = {a0, a1, a2, a3};
-      for (int i = c - c0; i < 4; ++i, ++k) m2[k] = a[i] - s1[r] * s1[c0 + i] / W;
+      const double a[2][4] = {{a0, a1, a2, a3}, {b0, b1, b2, b3}};
+      for (int i = 0; i < 2; ++i)
+        for (int q = 0; q < 4; ++q) {
+          const int row = r + i, col = c0 + q;
+          if (col >= row) m2[start[row] + col] = a[i][q] - s1[row] * s1[col] / W;
+        }
     }
   }
 }
@@ -786,6 +798,59 @@ static void residuals_block(const step_ctx* c, const scratch* sc, idx nb) {
   }
 }
 
+/* One component's log-density cst - |L^-1 (r - mu)|^2 / 2 of m <= 4 entries (residual rows of stride BLOCK) into
+ * q, in one pass with every row in registers. The same sums in the same order as the row-by-row loop below (a zero
+ * of L^-1 adds a signed zero to t, which squaring forgets; rows beyond m have zeros and add +0 to q), so both give
+ * the same bits; a diagonal L^-1 skips the zero products. */
+static void component_small(const double* res, int m, const double* linv, const double* mu, double cst, idx nb,
+                            double* restrict q) {
+  double v[4][4] = {{0.0}}, shift[4] = {0.0};
+  int diagonal = 1;
+  for (int i = 0; i < m; ++i) {
+    shift[i] = mu[i];
+    for (int a = 0; a <= i; ++a) {
+      v[i][a] = linv[i * m + a];
+      if (a < i && v[i][a] != 0.0) diagonal = 0;
+    }
+  }
+  const double* restrict r0 = res;
+  const double* restrict r1 = m > 1 ? res + BLOCK : res;
+  const double* restrict r2 = m > 2 ? res + 2 * BLOCK : res;
+  const double* restrict r3 = m > 3 ? res + 3 * BLOCK : res;
+  const double v00 = v[0][0], v10 = v[1][0], v11 = v[1][1], v20 = v[2][0], v21 = v[2][1], v22 = v[2][2], v30 = v[3][0],
+               v31 = v[3][1], v32 = v[3][2], v33 = v[3][3];
+  const double m0 = shift[0], m1 = shift[1], m2 = shift[2], m3 = shift[3];
+  if (diagonal) {
+#pragma omp simd
+    for (idx j = 0; j < nb; ++j) {
+      const double t0 = v00 * (r0[j] - m0), t1 = v11 * (r1[j] - m1), t2 = v22 * (r2[j] - m2), t3 = v33 * (r3[j] - m3);
+      double acc = t0 * t0;
+      acc += t1 * t1;
+      acc += t2 * t2;
+      acc += t3 * t3;
+      q[j] = cst - 0.5 * acc;
+    }
+  } else {
+#pragma omp simd
+    for (idx j = 0; j < nb; ++j) {
+      const double d0 = r0[j] - m0, d1 = r1[j] - m1, d2 = r2[j] - m2, d3 = r3[j] - m3;
+      double t1 = v10 * d0, t2 = v20 * d0, t3 = v30 * d0;
+      t1 += v11 * d1;
+      t2 += v21 * d1;
+      t2 += v22 * d2;
+      t3 += v31 * d1;
+      t3 += v32 * d2;
+      t3 += v33 * d3;
+      const double t0 = v00 * d0;
+      double acc = t0 * t0;
+      acc += t1 * t1;
+      acc += t2 * t2;
+      acc += t3 * t3;
+      q[j] = cst - 0.5 * acc;
+    }
+  }
+}
+
 /* log-likelihood of the plan's entries at the block's particles (residuals in sc->res) into sc->ll */
 static void likelihood_block(const step_ctx* c, const scratch* sc, idx nb) {
   const abyssal_sir* s = c->s;
@@ -816,6 +881,10 @@ static void likelihood_block(const step_ctx* c, const scratch* sc, idx nb) {
     double* restrict q = K > 1 ? sc->lk + (idx)k * BLOCK : sc->ll;
     const double* linv = plan->linv + (idx)k * m * m;
     const double* mu = plan->mu + (idx)k * m;
+    if (m <= 4) {
+      component_small(sc->res, m, linv, mu, plan->cst[k], nb, q);
+      continue;
+    }
     double* restrict t = sc->s;
     for (int i = 0; i < m; ++i) { /* q = |L^-1 (r - mu)|^2, row by row of L^-1 */
       {
@@ -983,7 +1052,7 @@ static void block_pass(step_ctx* c, scratch* sc, idx b, int mode) {
     }
     st[c->bl.prior_W] = W;
     if (mode & MODE_YM2)
-      block_moments(sc->e, W, nb, sc->res, BLOCK, c->plan.m, st + c->bl.ybar, st + c->bl.m2y, sc->yd, sc->s);
+      block_moments(sc->e, W, nb, sc->res, BLOCK, c->plan.m, st + c->bl.ybar, st + c->bl.m2y, sc->yd);
     else
       block_mean(sc->e, W, nb, sc->res, BLOCK, c->plan.m, st + c->bl.ybar);
   }
@@ -996,7 +1065,7 @@ static void block_pass(step_ctx* c, scratch* sc, idx b, int mode) {
   block_weights(l, nb, sc->e, st + c->bl.peak, &W, st + c->bl.Q);
   st[c->bl.W] = W;
   memcpy(c->w_next + j0, sc->e, (size_t)nb * sizeof(double)); /* exp(l - the block's peak): normalised later */
-  block_moments(sc->e, W, nb, x, ld, nx, st + c->bl.mean, st + c->bl.m2, sc->xa, sc->s);
+  block_moments(sc->e, W, nb, x, ld, nx, st + c->bl.mean, st + c->bl.m2, sc->xa);
   block_mean(sc->e, W, nb, sc->y + (idx)s->n_y * ld, ld, s->n_extra, st + c->bl.extra);
 }
 

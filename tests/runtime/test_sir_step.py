@@ -337,6 +337,29 @@ def test_compiled_step_matches_an_independent_numpy_sir(rov, process_kind, resam
     compare(step, ref)
 
 
+@pytest.mark.parametrize("components", [1, 2, 3])
+@pytest.mark.parametrize("z", [[0.2, -0.1, 0.05, -np.pi + 0.05], [0.2, np.nan, 0.05, np.nan], [np.nan, -0.1, np.nan, 3.0]],
+                         ids=["four entries", "two entries", "two with the heading"])
+def test_a_correlated_measurement_noise_weighs_as_numpys_mixture_density(rov, components, z):
+    """A measurement noise whose covariances are not diagonal (every entry correlated with the others, the means not
+    zero): the particles' weights are the mixture density of scipy-checked GaussianMixture.log_density, with all of
+    the entries and with two of them (the step's likelihood of up to four entries in registers, full L^-1)."""
+    rng = np.random.default_rng(components)
+    scale = np.sqrt([0.05, 0.05, 0.02, 0.01])
+    C = np.array([[1.0, 0.3, -0.2, 0.1], [0.3, 1.0, 0.25, 0.05], [-0.2, 0.25, 1.0, 0.15], [0.1, 0.05, 0.15, 1.0]])
+    covs = np.stack([C * np.outer(scale, scale) * (1 + 4 * k) for k in range(components)])
+    weights = np.arange(1.0, components + 1)
+    mixture = GaussianMixture(weights / weights.sum(), rng.normal(size=(components, 4)) * 0.05, covs)
+    step, process, mixture, p = make_step(rov, 1500, mixture=mixture)
+    u, dt, z = np.array([20.0, 5.0, 10.0, 0.5]), 0.1, np.array(z)
+    set_inputs(step, u, dt, z)
+    X, lw = step.particles[0].copy(), step.log_w[0].copy()
+    assert step() == 0
+    ref = numpy_sir_step(rov, X, lw, u, dt, p, process, mixture, z, np.isfinite(z), [3], *step.rng)
+    compare(step, ref)
+    assert step.report[1][sir.R_USED] == np.isfinite(z).sum()
+
+
 def test_missing_entries_stratified_resampling_and_one_gaussian(rov):
     step, process, mixture, p = make_step(rov, 700, mixture=sea_mixture(two_components=False))
     u, dt = np.array([10.0, 0.0, -5.0, 0.1]), 0.2
@@ -452,7 +475,8 @@ def test_a_proposal_moves_and_its_log_ratios_weigh(rov):
 @pytest.mark.parametrize("n_x", [1, 3, 4, 5, 6, 7, 9, 12, 13])
 def test_the_weighted_moments_of_any_dimension(n_x):
     """Mean and covariance of given particles (no move, no measurement) for every tiling of the moments: up to
-    four rows in one pass, beyond that 4 x 4 tiles with a partial last one; over three blocks, the last partial."""
+    four rows in one pass, beyond that tiles of two rows by four columns (an odd last row and a partial last group
+    clamped inside); over three blocks, the last partial."""
     N = 1234
     rng = np.random.default_rng(n_x)
     step = sir.CompiledSIR(N, n_x, 0, 0, np.zeros(1), f=None, measure=None,
