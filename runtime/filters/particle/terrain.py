@@ -186,8 +186,6 @@ class TerrainParticleFilter(FilterBase):
         step.rng[0] = sir.draw_key(self.rng)
         self._x, self._P = step.mean(0), step.cov(0)
         self._x[...], self._P[...] = x0, P0
-        self._g_in, self._r_in, self._sigma_out = np.zeros(1), np.zeros(1), np.zeros(1)
-        self._fuzzy = model.function("fuzzy_sigma").bind([self._g_in, self._r_in], [self._sigma_out]).eval
         self.ess = float(N)
         self.resamples = 0
         #: depths left out by the gate, and depths whose likelihood underflowed at every particle (weights kept)
@@ -197,7 +195,7 @@ class TerrainParticleFilter(FilterBase):
         # the fuzzy inputs and sigma of the step's two sides (TerrainFuzzy's fields; the committed one is the step's
         # side) and the ring of (travelled, gradient) along the track: the first move uses G at x0 and R = 0
         gradient = self._gradient_at(x0)
-        sigma0 = self._fuzzy_sigma(gradient, 0.0) if self.fuzzy else float(sigma)
+        sigma0 = float(model.function("fuzzy_sigma")(gradient, 0.0)[0]) if self.fuzzy else float(sigma)
         self._fuzzy_state = np.zeros((2, TerrainFuzzy.FIELDS))
         self._fuzzy_state[:] = [0.0, gradient, 0.0, sigma0, 0.0, 1.0]
         self._history = np.zeros((HISTORY_CAPACITY if self.fuzzy else 1, 2))  # (a fixed sigma keeps none)
@@ -264,11 +262,6 @@ class TerrainParticleFilter(FilterBase):
     def _gradient_at(self, x: np.ndarray) -> float:
         _, gx, gy, _ = self.terrain.lookup(x[0:1], x[1:2])
         return float(self.gradient_scale * (gx[0] * math.cos(x[2]) + gy[0] * math.sin(x[2])))
-
-    def _fuzzy_sigma(self, gradient: float, rate: float) -> float:
-        self._g_in[0], self._r_in[0] = gradient, rate
-        self._fuzzy()
-        return self._sigma_out.item(0)
 
     @staticmethod
     def _wrapped_heading(heading: float) -> float:
